@@ -1,0 +1,3 @@
+"""optics blocks."""
+
+BLOCKS: list = []

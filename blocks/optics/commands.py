@@ -1,0 +1,3 @@
+"""Command-line sub-commands contributed by the optics stage (see evsda.graph.commands)."""
+
+COMMANDS: list = []

@@ -1,0 +1,3 @@
+"""pixel blocks."""
+
+BLOCKS: list = []

@@ -1,0 +1,24 @@
+"""The vocabulary of port types: every value that flows between evsda blocks.
+
+``core`` holds the contracts between pipeline stages; stage-specific types live in
+their own modules and are re-exported here.
+"""
+
+from .core import (
+    EventCause,
+    Events,
+    FocalPlane,
+    Frame,
+    Irradiance,
+    Metrics,
+    PointSources,
+    SkyBackground,
+    SourceKind,
+    TriggeredEvents,
+    add_stamp,
+)
+
+__all__ = [
+    "EventCause", "Events", "FocalPlane", "Frame", "Irradiance", "Metrics", "PointSources",
+    "SkyBackground", "SourceKind", "TriggeredEvents", "add_stamp",
+]

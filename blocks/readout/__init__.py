@@ -1,0 +1,3 @@
+"""readout blocks."""
+
+BLOCKS: list = []

@@ -1,0 +1,3 @@
+"""Command-line sub-commands contributed by the readout stage (see evsda.graph.commands)."""
+
+COMMANDS: list = []

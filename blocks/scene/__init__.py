@@ -1,0 +1,3 @@
+"""scene blocks."""
+
+BLOCKS: list = []

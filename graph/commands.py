@@ -1,0 +1,40 @@
+"""Sub-commands of ``evsda`` contributed by other packages.
+
+The framework's own commands (``run``, ``validate``, ``blocks``, ``schema``) live in
+:mod:`evsda.graph.cli`. Commands that need physics or file formats (``render``,
+``export``, ``plot-pass``...) are contributed through the entry-point group
+``evsda.commands``: each entry point names a :class:`Command` instance or a list
+of them.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Iterable
+from importlib.metadata import entry_points
+
+ENTRY_POINT_GROUP = "evsda.commands"
+
+
+class Command:
+    """One ``evsda NAME ...`` sub-command."""
+
+    name: str = ""
+    help: str = ""
+
+    def configure(self, parser: argparse.ArgumentParser) -> None:
+        """Add this command's arguments to ``parser``."""
+
+    def run(self, args: argparse.Namespace) -> int:
+        """Do the work; return the exit status (raise UserError for the user's mistakes)."""
+        raise NotImplementedError
+
+
+def contributed_commands() -> list[Command]:
+    """Every command advertised in the ``evsda.commands`` entry-point group."""
+    commands: list[Command] = []
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        obj = ep.load()
+        items = obj if isinstance(obj, Iterable) else [obj]
+        commands.extend(items)
+    return sorted(commands, key=lambda c: c.name)

@@ -1,0 +1,112 @@
+"""Typed ports: the values that flow between blocks.
+
+A port type is a frozen dataclass deriving from :class:`PortValue` whose fields are
+numpy arrays, plain scalars/strings, or other port values. It declares the unit of
+its main quantity in ``unit``. Every port type serialises itself to flat numpy
+arrays plus JSON attributes, which is how the executor stores outputs and
+checkpoints without knowing what they mean.
+
+The vocabulary of concrete port types lives in :mod:`evsda.blocks.ports`; this
+module only holds the mechanism.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+PORT_TYPES: dict[str, type["PortValue"]] = {}
+
+
+class PortValue:
+    """Base class of all port types (use as a frozen dataclass)."""
+
+    unit: ClassVar[str] = ""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        PORT_TYPES[cls.__name__] = cls
+
+    @classmethod
+    def type_name(cls) -> str:
+        return cls.__name__
+
+    # -- serialisation -------------------------------------------------------------
+    def to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Flatten into ``({name: ndarray}, {name: json-able})``; nested values use ``a.b`` names."""
+        arrays: dict[str, np.ndarray] = {}
+        attrs: dict[str, Any] = {}
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, PortValue):
+                sub_arrays, sub_attrs = value.to_arrays()
+                arrays.update({f"{field.name}.{k}": v for k, v in sub_arrays.items()})
+                attrs.update({f"{field.name}.{k}": v for k, v in sub_attrs.items()})
+            elif isinstance(value, np.ndarray):
+                arrays[field.name] = value
+            else:
+                attrs[field.name] = _jsonable(value)
+        return arrays, attrs
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]):
+        """Inverse of :meth:`to_arrays`."""
+        hints = typing.get_type_hints(cls)
+        kwargs = {}
+        for field in dataclasses.fields(cls):
+            hint = hints.get(field.name)
+            if isinstance(hint, type) and issubclass(hint, PortValue):
+                prefix = field.name + "."
+                kwargs[field.name] = hint.from_arrays(
+                    {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)},
+                    {k[len(prefix):]: v for k, v in attrs.items() if k.startswith(prefix)},
+                )
+            elif field.name in arrays:
+                kwargs[field.name] = np.asarray(arrays[field.name])
+            elif field.name in attrs:
+                value = attrs[field.name]
+                kwargs[field.name] = tuple(value) if isinstance(value, list) else value
+        return cls(**kwargs)
+
+
+def _jsonable(value):
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class Input:
+    """An input port: the type it accepts and what it means.
+
+    ``multi=True`` accepts any number of connections; the block then receives a list.
+    ``required=False`` lets the port stay unconnected; the block then receives ``None``
+    (or an empty list for ``multi``).
+    """
+
+    type: type[PortValue]
+    description: str = ""
+    required: bool = True
+    multi: bool = False
+
+
+@dataclass(frozen=True)
+class Output:
+    """An output port: the type it produces and what it means."""
+
+    type: type[PortValue]
+    description: str = ""
+
+
+def port_type_label(port_type: type[PortValue]) -> str:
+    """``Irradiance [photon s^-1 pixel^-1]`` — the name and unit shown in messages."""
+    unit = f" [{port_type.unit}]" if port_type.unit else ""
+    return f"{port_type.type_name()}{unit}"
