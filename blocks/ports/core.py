@@ -69,6 +69,7 @@ class PointSources(PortValue):
     photon_flux: np.ndarray                  # float64 [n_t, n_src] at the aperture, after the atmosphere [photon s^-1 m^-2]
     magnitude: np.ndarray                    # float64 [n_t, n_src] apparent magnitude in the band [mag]
     range_m: np.ndarray                      # float64 [n_t, n_src] observer-source distance [m] (inf for stars)
+    zenith_angle_rad: np.ndarray             # float64 [n_t] boresight zenith angle [rad]; NaN above the atmosphere (space observer)
 
     @property
     def n_sources(self) -> int:
@@ -79,7 +80,8 @@ class PointSources(PortValue):
         n_t = len(t_ns)
         nan = np.full((n_t, 0), np.nan)
         return cls(focal_plane, wavelength_m, np.asarray(t_ns, np.int64), np.array([], dtype=str),
-                   np.array([], dtype=np.int8), nan, nan.copy(), np.zeros((n_t, 0)), nan.copy(), nan.copy())
+                   np.array([], dtype=np.int8), nan, nan.copy(), np.zeros((n_t, 0)), nan.copy(), nan.copy(),
+                   np.full(n_t, np.nan))
 
 
 @dataclass(frozen=True, eq=False)
