@@ -1,3 +1,5 @@
-"""readout blocks."""
+"""Readout blocks (paper Sec. 2.5 and 3): arbiters, the frame-sensor baseline, metrics."""
 
-BLOCKS: list = []
+from .arbiters import ColumnBurstArbiter, IdealReadout, RowScanArbiter
+
+BLOCKS: list = [IdealReadout, RowScanArbiter, ColumnBurstArbiter]
