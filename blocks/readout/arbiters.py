@@ -66,9 +66,8 @@ def _concat(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> dict[str, np.
 
 
 def _events(focal_plane: FocalPlane, rec: dict[str, np.ndarray], n_dropped: int) -> Events:
-    return Events(focal_plane, rec["t_ns"].astype(np.int64), rec["t_a_ns"].astype(np.int64),
-                  rec["x"].astype(np.uint16), rec["y"].astype(np.uint16), rec["p"].astype(np.int8),
-                  rec["cause"].astype(np.uint8), n_dropped=int(n_dropped))
+    return Events(focal_plane, rec["t_ns"], rec["t_a_ns"], rec["x"], rec["y"], rec["p"], rec["cause"],
+                  n_dropped=int(n_dropped))
 
 
 class IdealReadout(Block):
@@ -157,9 +156,8 @@ class _ScanningArbiter(Block):
 
     def step(self, window: Window, events: TriggeredEvents) -> dict:
         fp = events.focal_plane
-        new = {"t_ns": events.t_ns.astype(np.int64), "x": events.x.astype(np.uint16),
-               "y": events.y.astype(np.uint16), "p": events.p.astype(np.int8), "cause": events.cause.astype(np.uint8)}
-        pending = _concat(self.pending, new)
+        new = {name: np.asarray(getattr(events, name), _DTYPES[name]) for name in EVENT_FIELDS}
+        pending = _concat(self.pending, new) if self.pending["t_ns"].size else new
         last = self._run is not None and window.stop_ns >= self.run.duration_ns
         flush = last and self.params.flush_at_end
         horizon = None if flush else int(ceil_tick(window.stop_ns, self.clock))   # first tick not in this window
@@ -167,27 +165,31 @@ class _ScanningArbiter(Block):
         visit, latch, order = self._latch(ceil_tick(pending["t_ns"], self.clock), pending["x"], pending["y"], fp)
         key = visit * np.int64(self._span(fp)) + order
         sort = np.argsort(key, kind="stable")        # scan order; stable keeps a pixel's earliest request first
-        key, visit, latch = key[sort], visit[sort], latch[sort]
-        pending = _take(pending, sort)
+        latch = latch[sort]
         ready = latch.size if horizon is None else int(np.searchsorted(latch, horizon, side="left"))
+        key = key[sort[:ready]]
         first = np.ones(ready, dtype=bool)           # one request per pixel per visit
-        first[1:] = key[1:ready] != key[0:max(ready - 1, 0)]
+        np.not_equal(key[1:], key[:-1], out=first[1:])
         n_busy = int(ready - np.count_nonzero(first))
 
-        arriving = _take(pending, slice(0, ready))
-        fifo = run_fifo(latch[:ready][first], self.bus_cycles, self.params.queue_depth,
-                        self.fifo_waiting, self.fifo_last_grant)
-        into = np.flatnonzero(first)[fifo.accepted]
-        grant = fifo.grant[fifo.accepted]
-        accepted = _take(arriving, into)
-        accepted["t_a_ns"] = tick_ns(self._timestamps(visit[:ready][into], grant), self.clock)
-        n_dropped = n_busy + int(fifo.accepted.size - np.count_nonzero(fifo.accepted))
+        fifo = run_fifo(latch[:ready] if n_busy == 0 else latch[:ready][first], self.bus_cycles,
+                        self.params.queue_depth, self.fifo_waiting, self.fifo_last_grant)
+        n_full = int(fifo.accepted.size - np.count_nonzero(fifo.accepted))
+        into, grant = sort[:ready], fifo.grant
+        if n_busy or n_full:
+            into = into[np.flatnonzero(first)[fifo.accepted]]
+            grant = grant[fifo.accepted]
+        accepted = _take(pending, into)
+        accepted["t_a_ns"] = tick_ns(self._timestamps(visit[into], grant), self.clock)
+        n_dropped = n_busy + n_full
+        pending = _take(pending, sort[ready:])
 
-        recorded = _concat(self.held, accepted)      # held events were recorded before these
+        # held events were recorded before these
+        recorded = _concat(self.held, accepted) if self.held["t_ns"].size else accepted
         emit = recorded["t_a_ns"].size if horizon is None else int(
             np.searchsorted(recorded["t_a_ns"], window.stop_ns, side="left"))
         self.held = _take(recorded, slice(emit, None))
-        self.pending = _take(pending, slice(ready, None))
+        self.pending = pending
         waiting = np.concatenate([self.fifo_waiting, grant])
         self.fifo_waiting = np.sort(waiting[waiting >= horizon]) if horizon is not None else np.zeros(0, np.int64)
         self.fifo_last_grant = int(fifo.last_grant)

@@ -18,6 +18,8 @@ MAX_CLOCK_HZ = 5_000_000_000   # keeps r * f < 2**63 in the conversions below [H
 def ceil_tick(t_ns, clock_hz: int):
     """The first tick at or after ``t_ns`` [tick]: ``ceil(t_ns * f / 1e9)`` (scalar or array)."""
     t = np.asarray(t_ns, dtype=np.int64)
+    if NS_PER_S % clock_hz == 0:                        # whole-nanosecond period
+        return -(-t // np.int64(NS_PER_S // clock_hz))
     q, r = np.divmod(t, NS_PER_S)
     return q * np.int64(clock_hz) + (r * np.int64(clock_hz) + (NS_PER_S - 1)) // NS_PER_S
 
@@ -25,5 +27,7 @@ def ceil_tick(t_ns, clock_hz: int):
 def tick_ns(k, clock_hz: int):
     """The time of tick ``k`` rounded down to whole nanoseconds [ns] (scalar or array)."""
     k = np.asarray(k, dtype=np.int64)
+    if NS_PER_S % clock_hz == 0:
+        return k * np.int64(NS_PER_S // clock_hz)
     q, r = np.divmod(k, np.int64(clock_hz))
     return q * NS_PER_S + (r * NS_PER_S) // np.int64(clock_hz)

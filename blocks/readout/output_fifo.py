@@ -50,16 +50,20 @@ def run_fifo(arrival: np.ndarray, service: int, depth: int, waiting: np.ndarray,
         # fast path: assume every arrival from i on is accepted, find the first overflow
         seg = a[i:]
         j = np.arange(seg.size, dtype=np.int64)
-        g = j * service + np.maximum(last_grant + service, np.maximum.accumulate(seg - j * service))
-        left_before = np.minimum(np.searchsorted(g, seg, side="right"), j)
-        occupancy = (j - left_before) + (prior.size - np.searchsorted(prior, seg, side="right"))
-        full = np.flatnonzero(occupancy >= depth)
-        m = seg.size if full.size == 0 else int(full[0])
+        j *= service
+        g = seg - j
+        np.maximum.accumulate(g, out=g)
+        np.maximum(g, last_grant + service, out=g)
+        g += j
+        full = _overflows(seg, g, prior, service, depth)
+        if full is None and i == 0:                   # nothing dropped: no copies
+            return FifoResult(np.ones(n, dtype=bool), g, int(g[-1]))
+        m = seg.size if full is None else full
         accepted[i:i + m] = True
         grant[i:i + m] = g[:m]
         if m:
             last_grant = int(g[m - 1])
-        if full.size == 0:
+        if full is None:
             break
         # slow path from the first overflow, until the FIFO is empty again
         queue = deque(int(x) for x in prior[prior > seg[m]])
@@ -81,3 +85,27 @@ def run_fifo(arrival: np.ndarray, service: int, depth: int, waiting: np.ndarray,
             i += 1
         prior = np.asarray(queue, dtype=np.int64)
     return FifoResult(accepted, grant, last_grant)
+
+
+def _overflows(a: np.ndarray, g: np.ndarray, prior: np.ndarray, service: int, depth: int) -> int | None:
+    """Index of the first arrival that finds ``depth`` events waiting, if every arrival before it
+    is accepted with the grants ``g``; ``None`` if there is none.
+
+    Waiting at arrival ``j``: earlier grants later than ``a_j``, from ``g`` and ``prior``.
+    Grants are at least ``service`` apart, so ``depth`` of them can wait only where the
+    previous grant is at least ``(depth - 1) * service + 1`` after the arrival: the exact
+    count is needed only there (and where ``prior`` grants may still wait).
+    """
+    lag = np.empty(a.size, dtype=np.int64)
+    lag[0] = np.iinfo(np.int64).min
+    np.subtract(g[:-1], a[1:], out=lag[1:])
+    candidates = np.flatnonzero(lag > (depth - 1) * service)
+    if prior.size:
+        candidates = np.union1d(candidates, np.arange(np.searchsorted(a, prior[-1], side="left")))
+    if candidates.size == 0:
+        return None
+    at = a[candidates]
+    left_before = np.minimum(np.searchsorted(g, at, side="right"), candidates)
+    occupancy = (candidates - left_before) + (prior.size - np.searchsorted(prior, at, side="right"))
+    full = np.flatnonzero(occupancy >= depth)
+    return int(candidates[full[0]]) if full.size else None
