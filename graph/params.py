@@ -9,9 +9,38 @@ value is rejected before any work.
 
 from __future__ import annotations
 
+import typing
+from typing import Annotated
+
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from .errors import Problem
+
+
+class _FileMarker:
+    """Marks a parameter that names a file (see :data:`DataFile`)."""
+
+    def __repr__(self) -> str:
+        return "DataFile"
+
+
+_FILE = _FileMarker()
+
+#: A parameter naming a data file: a ``library:...`` reference to bundled data or a
+#: path, which graph files resolve relative to their own folder.
+DataFile = Annotated[str, _FILE]
+
+
+def path_fields(params_class: type[BaseModel]) -> list[str]:
+    """Names of the parameters of ``params_class`` declared as :data:`DataFile`."""
+
+    def is_file(annotation) -> bool:
+        if typing.get_origin(annotation) is Annotated:
+            return any(m is _FILE for m in annotation.__metadata__) or is_file(typing.get_args(annotation)[0])
+        return any(is_file(arg) for arg in typing.get_args(annotation))
+
+    return [name for name, info in params_class.model_fields.items()
+            if any(m is _FILE for m in info.metadata) or is_file(info.annotation)]
 
 
 class BlockParams(BaseModel):

@@ -71,6 +71,13 @@ def load_entry_points() -> None:
             register(block_class, origin)
 
 
+def refresh() -> None:
+    """Look for entry points again (after installing a plugin into a running process)."""
+    global _loaded
+    _loaded = False
+    load_entry_points()
+
+
 def available() -> dict[str, type[Block]]:
     """All registered block types, by name."""
     load_entry_points()

@@ -1,0 +1,144 @@
+"""The ``evsda`` command.
+
+Exit status: 0 success, 2 a user error (message on stderr, no traceback), 1 an
+internal error (a bug: traceback on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from . import __version__, registry
+from . import schema as schema_module
+from .commands import Command, contributed_commands
+from .errors import UserError
+from .executor import run_graph
+from .graphfile import Graph, graph_from_dict, load_graph
+from .report import describe_block, list_blocks, run_summary
+from .store import RunStore
+
+
+def _load(args) -> Graph:
+    target = Path(args.graph)
+    if target.is_dir() and (target / "zarr.json").exists():  # a run store: re-run its resolved graph
+        graph_dict = RunStore.open(target).attrs["graph"]
+        if args.set:
+            raise UserError("--set cannot be combined with a run store as the graph; export its graph first")
+        return graph_from_dict(graph_dict, file=str(target))
+    return load_graph(args.graph, args.set)
+
+
+def cmd_run(args) -> int:
+    graph = _load(args)
+    out = Path(args.output) if args.output else Path(f"{graph.name}.zarr")
+    result = run_graph(graph, out, resume=args.resume, overwrite=args.overwrite, reuse=args.reuse,
+                       progress=None if args.progress is None else args.progress,
+                       checkpoint_every_s=args.checkpoint_every)
+    if not args.quiet:
+        print(run_summary(graph, result), file=sys.stderr)
+    return 0
+
+
+def cmd_validate(args) -> int:
+    graph = _load(args)
+    print(f"{graph.file}: ok — {len(graph.nodes)} blocks, {len(graph.connections)} connections")
+    return 0
+
+
+def cmd_blocks(args) -> int:
+    if args.name:
+        cls = registry.get(args.name)
+        if cls is None:
+            raise UserError(f"unknown block type '{args.name}'; `evsda blocks` lists them")
+        print(describe_block(args.name, cls))
+    else:
+        print(list_blocks(registry.available()))
+    return 0
+
+
+def cmd_schema(args) -> int:
+    directory = Path(args.dir)
+    if args.check:
+        problems = schema_module.stale(directory)
+        if problems:
+            for line in problems:
+                print(f"evsda: schema: {line}", file=sys.stderr)
+            print("evsda: schema is stale; regenerate it with `evsda schema`", file=sys.stderr)
+            return 1
+        print(f"{directory}: schema is up to date")
+        return 0
+    written = schema_module.write(directory)
+    print(f"wrote {len(written)} schema files to {directory}")
+    return 0
+
+
+def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="evsda", description="Event-based sensor simulator for space domain awareness.")
+    parser.add_argument("--version", action="version", version=f"evsda {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log what blocks decide (paths taken, reuse)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def graph_args(p):
+        p.add_argument("graph", help="graph file (a path or library:...), or a run store to re-run")
+        p.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
+                       help="override a parameter (repeatable); included blocks are named include/block")
+
+    p = sub.add_parser("run", help="run a graph file")
+    graph_args(p)
+    p.add_argument("-o", "--output", help="run store to write (default: NAME.zarr)")
+    p.add_argument("--resume", action="store_true", help="continue the run in OUTPUT from its last checkpoint")
+    p.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+    p.add_argument("--reuse", action="append", default=[], metavar="STORE",
+                   help="reuse matching upstream outputs from an earlier run store (repeatable)")
+    p.add_argument("--checkpoint-every", type=float, default=5.0, metavar="SECONDS",
+                   help="wall-clock seconds between checkpoints (0: after every window)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="show a progress bar (default: when stderr is a terminal)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no summary at the end")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check a graph file without running it")
+    graph_args(p)
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("blocks", help="list block types, or describe one")
+    p.add_argument("name", nargs="?", help="block type to describe")
+    p.set_defaults(func=cmd_blocks)
+
+    p = sub.add_parser("schema", help="regenerate the JSON Schemas (or check that they are current)")
+    p.add_argument("--check", action="store_true", help="fail if the files on disk are stale")
+    p.add_argument("--dir", default="schema", help="schema folder (default: ./schema)")
+    p.set_defaults(func=cmd_schema)
+
+    for command in extra:
+        p = sub.add_parser(command.name, help=command.help)
+        command.configure(p)
+        p.set_defaults(func=command.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        parser = build_parser(contributed_commands())
+    except UserError as exc:
+        print(f"evsda: error: {exc}", file=sys.stderr)
+        return 2
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="evsda: %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except UserError as exc:
+        for line in str(exc).splitlines():
+            print(f"evsda: error: {line}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("evsda: interrupted; committed windows are kept, continue with --resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,497 @@
+"""Graph files: YAML descriptions of a simulation, loaded and checked before any work.
+
+A graph file names blocks (``type`` + ``params``), the connections between their
+ports, sub-graphs it includes, and the run's time range and seed::
+
+    evsda: 1
+    name: leo_pass
+    run: {start: "2024-03-01T02:15:00Z", duration_s: 10, window_s: 0.1, seed: 1}
+    include:
+      - {file: "library:sensors/prophesee_gen4.yaml", as: sensor, set: {pixel.temperature_K: 280}}
+    blocks:
+      iss: {type: tle_source, params: {tle_file: "library:tle/iss.tle"}}
+    connections:
+      - {from: optics.irradiance, to: sensor.irradiance}
+    outputs: [sensor.events]
+
+YAML is read with a safe loader (a graph file can never execute code) that also
+rejects duplicate keys. :func:`load_graph` reports every problem of a file at once as
+a :class:`~evsda.graph.errors.GraphError`, one line per problem naming the file, the
+block, the port or parameter, and what was expected.
+"""
+
+from __future__ import annotations
+
+import difflib
+import hashlib
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import networkx as nx
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from evsda import library
+
+from . import registry
+from .block import NS_PER_S, Block, RunInfo, parse_epoch
+from .errors import GraphError, ParameterError, Problem, UserError
+from .params import describe_validation_error, params_problems, path_fields
+from .ports import port_type_label
+
+NAME = r"[A-Za-z_][A-Za-z0-9_]*"
+NAME_RE = re.compile(rf"^{NAME}$")
+ENDPOINT_RE = re.compile(rf"^({NAME}(?:/{NAME})*)\.({NAME})$")
+SEPARATOR = "/"
+
+
+# -- the file format (pydantic models double as the JSON Schema) ----------------------------------
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class RunSection(_Strict):
+    """Time range and seed of a run."""
+
+    start: str = Field(description="Run start epoch, ISO 8601 UTC, e.g. 2024-03-01T02:15:00Z [-]")
+    duration_s: float = Field(gt=0, description="Simulated duration [s]")
+    window_s: float = Field(0.1, gt=0, description="Length of one executor window; state is checkpointed after each [s]")
+    seed: int = Field(0, ge=0, description="Seed of every block's random generator [-]")
+    store_products: bool | list[str] = Field(
+        True, description="Store every block's outputs (true), none (false), or those of the listed blocks, "
+                          "so later runs can reuse them [-]")
+
+    @field_validator("start", mode="before")
+    @classmethod
+    def _start_is_instant(cls, value):
+        value = value.isoformat() if hasattr(value, "isoformat") else value
+        try:
+            parse_epoch(value)
+        except ParameterError as exc:
+            raise ValueError(str(exc)) from None
+        return value
+
+
+class BlockEntry(_Strict):
+    type: str = Field(description="Registered block type (see `evsda blocks`) [-]")
+    params: dict[str, Any] = Field(default_factory=dict, description="Block parameters [-]")
+
+
+class ConnectionEntry(_Strict):
+    from_: str = Field(alias="from", description="Source port, block.port [-]")
+    to: str = Field(description="Destination port, block.port [-]")
+
+
+class IncludeEntry(_Strict):
+    file: str = Field(description="Sub-graph file: a path relative to this file, or library:... [-]")
+    as_: str = Field(alias="as", pattern=rf"^{NAME}$", description="Name prefix of the included blocks [-]")
+    set: dict[str, Any] = Field(default_factory=dict, description="Parameter overrides, block.param: value [-]")
+
+
+class ExposeSection(_Strict):
+    inputs: dict[str, str] = Field(default_factory=dict, description="Exposed input name -> block.port [-]")
+    outputs: dict[str, str] = Field(default_factory=dict, description="Exposed output name -> block.port [-]")
+
+
+class GraphFile(_Strict):
+    """An evsda graph file."""
+
+    evsda: Literal[1] = Field(1, description="Graph file format version [-]")
+    name: str | None = Field(None, description="Name of the graph [-]")
+    description: str | None = Field(None, description="What the graph simulates [-]")
+    run: RunSection | None = None
+    include: list[IncludeEntry] = Field(default_factory=list)
+    blocks: dict[str, BlockEntry] = Field(default_factory=dict)
+    connections: list[ConnectionEntry] = Field(default_factory=list)
+    expose: ExposeSection | None = None
+    outputs: list[str] | None = Field(None, description="Requested outputs, block.port; default: every sink block [-]")
+    set: dict[str, Any] = Field(default_factory=dict, description="Parameter overrides, block.param: value [-]")
+
+
+# -- safe YAML with duplicate-key detection ------------------------------------------------------
+class _DuplicateKey(yaml.YAMLError):
+    pass
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate mapping keys instead of silently keeping the last."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise _DuplicateKey(f"line {key_node.start_mark.line + 1}: duplicate key '{key}'")
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def read_yaml(path: Path) -> Any:
+    """Parse a YAML file safely; a syntax error or duplicate key is a GraphError."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise GraphError([Problem(str(path), "", f"cannot read the file ({exc.strerror})")]) from None
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except _DuplicateKey as exc:
+        raise GraphError([Problem(str(path), "", f"{exc}; names must be unique")]) from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise GraphError([Problem(str(path), where, f"not valid YAML: {problem}")]) from None
+
+
+def parse_value(text: str) -> Any:
+    """A ``--set`` value: YAML scalar or flow collection (``1e-3`` is read as a float)."""
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+# -- the resolved graph ----------------------------------------------------------------------------
+@dataclass
+class BlockNode:
+    name: str
+    type: str
+    params: dict[str, Any]
+    file: str
+    block: Block | None = None
+    cls: type[Block] | None = None
+
+
+@dataclass
+class Graph:
+    """A checked graph: block instances, connections and run settings."""
+
+    file: str
+    name: str
+    run: RunSection | None
+    nodes: dict[str, BlockNode]
+    connections: list[tuple[str, str, str, str]]          # (src block, src port, dst block, dst port)
+    outputs: list[tuple[str, str]]                         # requested (block, port)
+    exposed_inputs: dict[str, tuple[str, str]] = field(default_factory=dict)
+    exposed_outputs: dict[str, tuple[str, str]] = field(default_factory=dict)
+    digraph: nx.DiGraph = field(default_factory=nx.DiGraph)
+
+    @property
+    def blocks(self) -> dict[str, Block]:
+        return {name: node.block for name, node in self.nodes.items()}
+
+    def run_info(self) -> RunInfo:
+        if self.run is None:
+            raise UserError(f"{self.file}: the graph has no 'run' section (start, duration_s, window_s, seed); "
+                            f"a sub-graph cannot be run on its own")
+        return RunInfo(
+            epoch=parse_epoch(self.run.start),
+            duration_ns=round(self.run.duration_s * NS_PER_S),
+            window_ns=round(self.run.window_s * NS_PER_S),
+            seed=self.run.seed,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fully resolved graph (no includes, every parameter explicit), as stored with a run."""
+        return {
+            "evsda": 1,
+            "name": self.name,
+            "run": self.run.model_dump() if self.run else None,
+            "blocks": {n: {"type": b.type, "params": b.block.params.model_dump(mode="json")}
+                       for n, b in self.nodes.items()},
+            "connections": [{"from": f"{a}.{p}", "to": f"{b}.{q}"} for a, p, b, q in self.connections],
+            "outputs": [f"{b}.{p}" for b, p in self.outputs],
+        }
+
+    def digest(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()
+
+
+# -- loading -------------------------------------------------------------------------------------------
+@dataclass
+class _Flat:
+    """A graph file with its includes flattened, before block types are checked."""
+
+    blocks: dict[str, BlockNode] = field(default_factory=dict)
+    connections: list[tuple[str, str, str, str, str]] = field(default_factory=list)  # + file
+    exposed_inputs: dict[str, tuple[str, str]] = field(default_factory=dict)
+    exposed_outputs: dict[str, tuple[str, str]] = field(default_factory=dict)
+    requested: list[tuple[str, str] | None] = field(default_factory=list)
+
+
+def _split_endpoint(text: str) -> tuple[str, str] | None:
+    match = ENDPOINT_RE.match(str(text))
+    return (match.group(1), match.group(2)) if match else None
+
+
+def _set_param(params: dict[str, Any], dotted: str, value: Any) -> None:
+    keys = dotted.split(".")
+    target = params
+    for key in keys[:-1]:
+        target = target.setdefault(key, {})
+        if not isinstance(target, dict):
+            raise KeyError(key)
+    target[keys[-1]] = value
+
+
+def _apply_overrides(flat: _Flat, overrides: dict[str, Any], file: str, origin: str, problems: list[Problem]) -> None:
+    for key, value in overrides.items():
+        block, sep, param = str(key).partition(".")
+        if not sep or not param:
+            problems.append(Problem(file, f"{origin} '{key}'", "expected block.param=value"))
+            continue
+        node = flat.blocks.get(block)
+        if node is None:
+            problems.append(Problem(file, f"{origin} '{key}'", f"no block named '{block}'{_suggest(block, flat.blocks)}"))
+            continue
+        try:
+            _set_param(node.params, param, value)
+        except KeyError:
+            problems.append(Problem(file, f"{origin} '{key}'", f"parameter '{param}' is not a mapping"))
+
+
+def _suggest(name: str, choices) -> str:
+    close = difflib.get_close_matches(name, list(choices), n=3)
+    return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
+
+
+def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Path, ...]) -> tuple[_Flat, GraphFile | None]:
+    file = str(path)
+    if path.resolve() in stack:
+        chain = " -> ".join(str(p) for p in (*stack, path))
+        problems.append(Problem(file, "include", f"includes itself ({chain})"))
+        return _Flat(), None
+    data = read_yaml(path)
+    if not isinstance(data, dict):
+        problems.append(Problem(file, "", "expected a mapping with 'evsda', 'blocks', 'connections', ..."))
+        return _Flat(), None
+    try:
+        spec = GraphFile.model_validate(data)
+    except ValidationError as exc:
+        for loc, message in describe_validation_error(exc):
+            problems.append(Problem(file, f"'{loc}'", message))
+        return _Flat(), None
+
+    def qualified(name: str) -> str:
+        return f"{prefix}{SEPARATOR}{name}" if prefix else name
+
+    flat = _Flat()
+    for name, entry in spec.blocks.items():
+        if not NAME_RE.match(name):
+            problems.append(Problem(file, f"block '{name}'", "block names are letters, digits and _, not starting with a digit"))
+            continue
+        params = dict(entry.params)
+        flat.blocks[qualified(name)] = BlockNode(qualified(name), entry.type, params, file)
+
+    aliases: dict[str, _Flat] = {}
+    for include in spec.include:
+        if include.as_ in spec.blocks or include.as_ in aliases:
+            problems.append(Problem(file, f"include '{include.as_}'", "name already used by a block or another include"))
+            continue
+        sub_path = library.resolve(include.file, path.parent)
+        if not sub_path.exists():
+            problems.append(Problem(file, f"include '{include.as_}'", f"file {include.file} not found"))
+            continue
+        sub, _ = _load_flat(sub_path, qualified(include.as_), problems, (*stack, path.resolve()))
+        _apply_overrides(sub, {f"{qualified(include.as_)}{SEPARATOR}{k}": v for k, v in include.set.items()},
+                         file, f"include '{include.as_}' set", problems)
+        aliases[include.as_] = sub
+        flat.blocks.update(sub.blocks)
+        flat.connections.extend(sub.connections)
+
+    def endpoint(text: str, direction: str, where: str) -> tuple[str, str] | None:
+        parts = _split_endpoint(text)
+        if parts is None:
+            problems.append(Problem(file, where, f"'{text}' is not block.port"))
+            return None
+        owner, port = parts
+        if owner in aliases:  # an include's exposed port
+            exposed = aliases[owner].exposed_inputs if direction == "to" else aliases[owner].exposed_outputs
+            if port not in exposed:
+                kind = "input" if direction == "to" else "output"
+                problems.append(Problem(file, where, f"include '{owner}' exposes no {kind} '{port}'; "
+                                                     f"it exposes {sorted(exposed) or 'none'}"))
+                return None
+            return exposed[port]
+        if owner not in spec.blocks:
+            problems.append(Problem(file, where, f"no block named '{owner}'{_suggest(owner, [*spec.blocks, *aliases])}"))
+            return None
+        return qualified(owner), port
+
+    for i, conn in enumerate(spec.connections):
+        where = f"connection {i + 1} ({conn.from_} -> {conn.to})"
+        src = endpoint(conn.from_, "from", where)
+        dst = endpoint(conn.to, "to", where)
+        if src and dst:
+            flat.connections.append((*src, *dst, file))
+
+    if spec.expose:
+        for name, target in spec.expose.inputs.items():
+            resolved = endpoint(target, "to", f"expose input '{name}'")
+            if resolved:
+                flat.exposed_inputs[name] = resolved
+        for name, target in spec.expose.outputs.items():
+            resolved = endpoint(target, "from", f"expose output '{name}'")
+            if resolved:
+                flat.exposed_outputs[name] = resolved
+    _apply_overrides(flat, {qualified(k): v for k, v in spec.set.items()}, file, "set", problems)
+    flat.requested = [endpoint(o, "from", f"output '{o}'") for o in (spec.outputs or [])]
+    return flat, spec
+
+
+def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Graph:
+    """Load, flatten and check a graph file; raise GraphError listing every problem."""
+    path = library.resolve(str(path))
+    problems: list[Problem] = []
+    flat, spec = _load_flat(path, "", problems, ())
+    file = str(path)
+    if isinstance(overrides, dict):
+        override_items = dict(overrides)
+    else:
+        override_items = {}
+        for text in overrides or []:
+            key, sep, value = text.partition("=")
+            if not sep:
+                problems.append(Problem(file, f"--set '{text}'", "expected block.param=value"))
+                continue
+            override_items[key.strip()] = parse_value(value.strip())
+    _apply_overrides(flat, override_items, file, "--set", problems)
+    if spec is None:
+        raise GraphError(problems)
+    graph = _check(file, spec, flat, path.parent, problems)
+    if problems:
+        raise GraphError(problems)
+    return graph
+
+
+def graph_from_dict(data: dict[str, Any], file: str = "<graph>") -> Graph:
+    """Check a resolved graph given as a dict (e.g. one stored with a run)."""
+    problems: list[Problem] = []
+    try:
+        spec = GraphFile.model_validate(data)
+    except ValidationError as exc:
+        raise GraphError([Problem(file, f"'{loc}'", m) for loc, m in describe_validation_error(exc)]) from None
+    flat = _Flat()
+    for name, entry in spec.blocks.items():
+        flat.blocks[name] = BlockNode(name, entry.type, dict(entry.params), file)
+    for conn in spec.connections:
+        src, dst = _split_endpoint(conn.from_), _split_endpoint(conn.to)
+        if src is None or dst is None:
+            problems.append(Problem(file, f"connection {conn.from_} -> {conn.to}", "expected block.port"))
+            continue
+        flat.connections.append((*src, *dst, file))
+    flat.requested = [_split_endpoint(o) for o in (spec.outputs or [])]
+    graph = _check(file, spec, flat, Path.cwd(), problems)
+    if problems:
+        raise GraphError(problems)
+    return graph
+
+
+def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[Problem]) -> Graph:
+    seed = spec.run.seed if spec.run else 0
+    available = registry.available()
+    for name, node in flat.blocks.items():
+        cls = available.get(node.type)
+        where = f"block '{name}'"
+        if cls is None:
+            problems.append(Problem(node.file, where, f"unknown block type '{node.type}'{_suggest(node.type, available)}"
+                                                      f" (see `evsda blocks`)"))
+            continue
+        node.cls = cls
+        params = dict(node.params)
+        for key in path_fields(cls.Params):
+            if isinstance(params.get(key), str):
+                params[key] = _resolve_path(params[key], Path(node.file).parent)
+        try:
+            node.block = cls(cls.Params.model_validate(params), name=name, seed=seed)
+        except ValidationError as exc:
+            problems.extend(params_problems(node.file, name, node.type, exc))
+        except ParameterError as exc:
+            problems.append(Problem(node.file, where, str(exc)))
+
+    digraph = nx.DiGraph()
+    digraph.add_nodes_from(flat.blocks)
+    connections = []
+    fan_in: dict[tuple[str, str], int] = {}
+    for src, sport, dst, dport, cfile in flat.connections:
+        where = f"connection {src}.{sport} -> {dst}.{dport}"
+        src_node, dst_node = flat.blocks.get(src), flat.blocks.get(dst)
+        if src_node is None or dst_node is None:
+            problems.append(Problem(cfile, where, f"no block named '{src if src_node is None else dst}'"))
+            continue
+        if src_node.cls is None or dst_node.cls is None:
+            continue  # unknown type, already reported
+        out_spec = src_node.cls.outputs.get(sport)
+        in_spec = dst_node.cls.inputs.get(dport)
+        if out_spec is None:
+            problems.append(Problem(cfile, where, f"block '{src}' ({src_node.type}) has no output port '{sport}'; "
+                                                  f"its outputs are {sorted(src_node.cls.outputs) or 'none'}"))
+        if in_spec is None:
+            problems.append(Problem(cfile, where, f"block '{dst}' ({dst_node.type}) has no input port '{dport}'; "
+                                                  f"its inputs are {sorted(dst_node.cls.inputs) or 'none'}"))
+        if out_spec is None or in_spec is None:
+            continue
+        if out_spec.type is not in_spec.type:
+            problems.append(Problem(cfile, where, f"port type mismatch: {src}.{sport} produces "
+                                                  f"{port_type_label(out_spec.type)} but {dst}.{dport} expects "
+                                                  f"{port_type_label(in_spec.type)}"))
+            continue
+        fan_in[(dst, dport)] = fan_in.get((dst, dport), 0) + 1
+        if fan_in[(dst, dport)] > 1 and not in_spec.multi:
+            problems.append(Problem(cfile, where, f"input {dst}.{dport} accepts one connection and already has one"))
+            continue
+        connections.append((src, sport, dst, dport))
+        if digraph.has_edge(src, dst):
+            digraph[src][dst]["ports"].append((sport, dport))
+        else:
+            digraph.add_edge(src, dst, ports=[(sport, dport)])
+
+    for name, node in flat.blocks.items():
+        if node.cls is None:
+            continue
+        for port, in_spec in node.cls.inputs.items():
+            if in_spec.required and (name, port) not in fan_in and (name, port) not in flat.exposed_inputs.values():
+                problems.append(Problem(node.file, f"block '{name}' input '{port}'",
+                                        f"required input ({port_type_label(in_spec.type)}) is not connected"))
+
+    try:
+        cycle = nx.find_cycle(digraph)
+        chain = " -> ".join([cycle[0][0], *[edge[1] for edge in cycle]])
+        problems.append(Problem(file, "connections", f"the graph has a cycle ({chain}); blocks must form a DAG"))
+    except nx.NetworkXNoCycle:
+        pass
+
+    requested = []
+    for item in flat.requested:
+        if item is None:
+            continue
+        block, port = item
+        node = flat.blocks.get(block)
+        if node is None:
+            problems.append(Problem(file, f"output '{block}.{port}'", f"no block named '{block}'"))
+        elif node.cls is not None and port not in node.cls.outputs:
+            problems.append(Problem(file, f"output '{block}.{port}'",
+                                    f"block '{block}' has no output '{port}'; its outputs are "
+                                    f"{sorted(node.cls.outputs) or 'none'}"))
+        else:
+            requested.append((block, port))
+
+    return Graph(file=file, name=spec.name or Path(file).stem, run=spec.run, nodes=flat.blocks,
+                 connections=connections, outputs=requested, exposed_inputs=flat.exposed_inputs,
+                 exposed_outputs=flat.exposed_outputs, digraph=digraph)
+
+
+def _resolve_path(value: str, base: Path) -> str:
+    """A file parameter relative to its graph file becomes absolute; ``library:`` stays as is."""
+    if value.startswith(library.PREFIX) or "\n" in value:
+        return value
+    return str(library.resolve(value, base))

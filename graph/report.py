@@ -1,0 +1,107 @@
+"""Text shown to users: block listings, block descriptions, end-of-run summaries."""
+
+from __future__ import annotations
+
+import re
+import textwrap
+
+from pydantic_core import PydanticUndefined
+
+from .block import NS_PER_S, Block
+from .ports import port_type_label
+
+UNIT_RE = re.compile(r"\s*\[([^\[\]]*)\]\s*$")
+
+
+def split_unit(description: str | None) -> tuple[str, str]:
+    """``"Die temperature [K]"`` -> ``("Die temperature", "K")``."""
+    description = description or ""
+    match = UNIT_RE.search(description)
+    if not match:
+        return description, ""
+    return description[: match.start()], match.group(1)
+
+
+def _type_name(annotation) -> str:
+    text = getattr(annotation, "__name__", None) or str(annotation)
+    return text.replace("typing.", "").replace("NoneType", "None")
+
+
+def _constraints(info) -> str:
+    parts = []
+    for item in info.metadata:
+        for attr, symbol in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<=")):
+            value = getattr(item, attr, None)
+            if value is not None:
+                parts.append(f"{symbol} {value}")
+    return ", ".join(parts)
+
+
+def list_blocks(blocks: dict[str, type[Block]]) -> str:
+    """One paragraph per block: summary, ports and parameter names."""
+    lines = []
+    for name, cls in blocks.items():
+        summary = (cls.__doc__ or "").strip().splitlines()[0] if cls.__doc__ else ""
+        lines.append(f"{name}  —  {summary}")
+        ins = ", ".join(f"{p}: {s.type.type_name()}{'[]' if s.multi else ''}{'' if s.required else '?'}"
+                        for p, s in cls.inputs.items())
+        outs = ", ".join(f"{p}: {s.type.type_name()}" for p, s in cls.outputs.items())
+        lines.append(f"    in:  {ins or '-'}")
+        lines.append(f"    out: {outs or '-'}")
+        params = ", ".join(cls.Params.model_fields)
+        lines.append(textwrap.fill(f"params: {params or '-'}", width=100, initial_indent="    ",
+                                   subsequent_indent="            "))
+    return "\n".join(lines)
+
+
+def describe_block(name: str, cls: type[Block]) -> str:
+    """Everything about one block type: docstring, ports with units, parameters with units and defaults."""
+    doc = textwrap.dedent(cls.__doc__ or "").strip()
+    lines = [name, "=" * len(name), doc, ""]
+    lines.append("Inputs:")
+    for port, spec in cls.inputs.items() or {}:
+        flags = [f for f, on in (("many", spec.multi), ("optional", not spec.required)) if on]
+        lines.append(f"  {port}: {port_type_label(spec.type)}{' (' + ', '.join(flags) + ')' if flags else ''}"
+                     f"  {spec.description}")
+    if not cls.inputs:
+        lines.append("  (none)")
+    lines.append("Outputs:")
+    for port, spec in cls.outputs.items():
+        lines.append(f"  {port}: {port_type_label(spec.type)}  {spec.description}")
+    if not cls.outputs:
+        lines.append("  (none)")
+    lines.append("Parameters:")
+    for field_name, info in cls.Params.model_fields.items():
+        text, unit = split_unit(info.description)
+        default = "required" if info.default is PydanticUndefined and info.default_factory is None else (
+            f"default {info.default_factory() if info.default_factory else info.default!r}")
+        limits = _constraints(info)
+        unit_text = f" [{unit}]" if unit else ""
+        lines.append(f"  {field_name}{unit_text}: {_type_name(info.annotation)}, {default}"
+                     f"{', ' + limits if limits else ''}")
+        if text:
+            lines.append(textwrap.fill(text, width=100, initial_indent="      ", subsequent_indent="      "))
+    return "\n".join(lines)
+
+
+def run_summary(graph, result) -> str:
+    """End-of-run summary: windows, events, metrics, reuse and time per block."""
+    lines = []
+    store = result.store
+    if store is not None:
+        lines.append(f"{store.path}: {store.committed_windows} of {graph.run_info().n_windows} windows, "
+                     f"{store.n_events} events recorded")
+    for block, source in result.reused.items():
+        lines.append(f"reused {block} from {source}")
+    if result.metrics:
+        lines.append("metrics:")
+        for key, value in result.metrics.items():
+            unit = result.metric_units.get(key, "")
+            shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+            lines.append(f"  {key:<40} {shown} {unit}".rstrip())
+    total = sum(result.timing_s.values()) or 1.0
+    simulated = graph.run_info().duration_ns / NS_PER_S
+    lines.append(f"time per block (wall clock, {simulated:g} s simulated):")
+    for block, seconds in sorted(result.timing_s.items(), key=lambda kv: -kv[1]):
+        lines.append(f"  {block:<40} {seconds:9.3f} s  {100 * seconds / total:5.1f} %")
+    return "\n".join(lines)

@@ -1,0 +1,200 @@
+"""Graph files: loading, includes, overrides, and one clear line per problem."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from evsda.graph import GraphError
+from evsda.graph.graphfile import load_graph, parse_value
+
+RUN = 'run: {start: "2024-03-01T02:15:00Z", duration_s: 0.05, window_s: 0.01, seed: 7}'
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def good_graph(tmp_path: Path) -> Path:
+    return write(tmp_path / "good.yaml", f"""\
+        evsda: 1
+        name: good
+        {RUN}
+        blocks:
+          ramp: {{type: test_ramp, params: {{slope_per_s: 50}}}}
+          spikes: {{type: test_spikes}}
+        connections:
+          - {{from: ramp.samples, to: spikes.samples}}
+        """)
+
+
+def problems_of(path, overrides=None) -> list[str]:
+    with pytest.raises(GraphError) as info:
+        load_graph(path, overrides)
+    return [str(p) for p in info.value.problems]
+
+
+def test_good_graph_loads_into_a_digraph(plugin, tmp_path):
+    graph = load_graph(good_graph(tmp_path))
+    assert set(graph.nodes) == {"ramp", "spikes"}
+    assert list(graph.digraph.edges) == [("ramp", "spikes")]
+    assert graph.nodes["ramp"].block.params.slope_per_s == 50
+    assert graph.run_info().n_windows == 5
+
+
+def test_set_overrides_a_parameter_with_yaml_scalars(plugin, tmp_path):
+    graph = load_graph(good_graph(tmp_path), ["ramp.slope_per_s=1e-3", "spikes.step=2"])
+    assert graph.nodes["ramp"].block.params.slope_per_s == pytest.approx(1e-3)
+    assert graph.nodes["spikes"].block.params.step == 2
+    assert parse_value("[1, 2]") == [1, 2] and parse_value("abc") == "abc"
+
+
+def test_every_problem_in_a_file_is_reported_together(plugin, tmp_path):
+    path = write(tmp_path / "bad.yaml", f"""\
+        evsda: 1
+        {RUN}
+        blocks:
+          ramp: {{type: test_ramp, params: {{cadence_s: -1, colour: red}}}}
+          spikes: {{type: test_spikes, params: {{step: "many"}}}}
+          ghost: {{type: test_rampp}}
+          count: {{type: test_counter}}
+          lonely: {{type: test_spikes}}
+        connections:
+          - {{from: ramp.samples, to: spikes.sample}}
+          - {{from: ramp.nothing, to: count.events}}
+          - {{from: ramp.samples, to: count.events}}
+        """)
+    lines = problems_of(path)
+    text = "\n".join(lines)
+    assert all(line.startswith(str(path)) for line in lines)
+    assert "block 'ramp' (test_ramp) parameter 'cadence_s': Input should be greater than 0" in text
+    assert "parameter 'colour': unknown parameter" in text
+    assert "block 'spikes' (test_spikes) parameter 'step'" in text and "'many'" in text
+    assert "unknown block type 'test_rampp'; did you mean 'test_ramp'" in text
+    assert "has no input port 'sample'; its inputs are ['samples']" in text
+    assert "has no output port 'nothing'; its outputs are ['samples']" in text
+    assert "port type mismatch: ramp.samples produces Samples [1] but count.events expects Events [event]" in text
+    assert "block 'lonely' input 'samples': required input (Samples [1]) is not connected" in text
+    assert "block 'spikes' input 'samples': required input (Samples [1]) is not connected" in text
+    assert len(lines) == 10
+
+
+def test_cycle_is_reported(plugin, tmp_path):
+    path = write(tmp_path / "cycle.yaml", f"""\
+        evsda: 1
+        {RUN}
+        blocks:
+          a: {{type: test_scale}}
+          b: {{type: test_scale}}
+        connections:
+          - {{from: a.samples, to: b.samples}}
+          - {{from: b.samples, to: a.samples}}
+        """)
+    (line,) = problems_of(path)
+    assert "the graph has a cycle (a -> b -> a)" in line or "the graph has a cycle (b -> a -> b)" in line
+
+
+def test_duplicate_names_are_errors_not_silently_merged(plugin, tmp_path):
+    path = write(tmp_path / "dup.yaml", f"""\
+        evsda: 1
+        {RUN}
+        blocks:
+          ramp: {{type: test_ramp}}
+          ramp: {{type: test_ramp}}
+        """)
+    (line,) = problems_of(path)
+    assert "duplicate key 'ramp'" in line and "line 5" in line
+
+
+def test_yaml_cannot_execute_code(plugin, tmp_path):
+    path = write(tmp_path / "evil.yaml", """\
+        evsda: 1
+        blocks: !!python/object/apply:os.system ["echo pwned"]
+        """)
+    (line,) = problems_of(path)
+    assert "not valid YAML" in line
+
+
+def test_structure_errors_name_the_key(plugin, tmp_path):
+    path = write(tmp_path / "struct.yaml", """\
+        evsda: 2
+        blocks: {a: {params: {}}}
+        conections: []
+        run: {start: "yesterday", duration_s: 0}
+        """)
+    text = "\n".join(problems_of(path))
+    assert "'evsda': Input should be 1" in text
+    assert "'blocks.a.type': required parameter is missing" in text
+    assert "'conections': unknown parameter" in text
+    assert "'run.duration_s'" in text and "'run.start'" in text
+
+
+def test_include_exposes_ports_and_takes_overrides(plugin, tmp_path):
+    write(tmp_path / "sensor.yaml", """\
+        evsda: 1
+        blocks:
+          spikes: {type: test_spikes, params: {step: 3}}
+        expose:
+          inputs: {signal: spikes.samples}
+          outputs: {events: spikes.events}
+        """)
+    main = write(tmp_path / "main.yaml", f"""\
+        evsda: 1
+        {RUN}
+        include:
+          - {{file: sensor.yaml, as: cam, set: {{spikes.latency_s: 2.0e-6}}}}
+        blocks:
+          ramp: {{type: test_ramp}}
+          count: {{type: test_counter}}
+        connections:
+          - {{from: ramp.samples, to: cam.signal}}
+          - {{from: cam.events, to: count.events}}
+        outputs: [count.metrics]
+        """)
+    graph = load_graph(main, ["cam/spikes.step=4"])
+    block = graph.nodes["cam/spikes"].block
+    assert (block.params.step, block.params.latency_s) == (4, 2e-6)
+    assert ("ramp", "samples", "cam/spikes", "samples") in graph.connections
+    assert graph.outputs == [("count", "metrics")]
+
+
+def test_include_errors_name_the_include(plugin, tmp_path):
+    write(tmp_path / "sensor.yaml", """\
+        evsda: 1
+        blocks:
+          spikes: {type: test_spikes}
+        expose:
+          inputs: {signal: spikes.samples}
+        """)
+    main = write(tmp_path / "main.yaml", f"""\
+        evsda: 1
+        {RUN}
+        include:
+          - {{file: sensor.yaml, as: cam, set: {{spikez.step: 1}}}}
+          - {{file: missing.yaml, as: other}}
+        blocks:
+          ramp: {{type: test_ramp}}
+        connections:
+          - {{from: ramp.samples, to: cam.signl}}
+        """)
+    text = "\n".join(problems_of(main, ["nope.x=1"]))
+    assert "include 'cam' set 'cam/spikez.step': no block named 'cam/spikez'; did you mean 'cam/spikes'?" in text
+    assert "include 'other': file missing.yaml not found" in text
+    assert "include 'cam' exposes no input 'signl'; it exposes ['signal']" in text
+    assert "--set 'nope.x': no block named 'nope'" in text
+
+
+def test_self_include_is_an_error(plugin, tmp_path):
+    path = write(tmp_path / "loop.yaml", """\
+        evsda: 1
+        include: [{file: loop.yaml, as: again}]
+        """)
+    assert any("includes itself" in line for line in problems_of(path))
+
+
+def test_missing_file_is_one_clear_error(plugin, tmp_path):
+    (line,) = problems_of(tmp_path / "nothing.yaml")
+    assert "cannot read the file" in line
