@@ -1,0 +1,204 @@
+"""Event-file writers: recorded events to the formats event-camera tools read.
+
+Every writer takes an iterable of event chunks (dicts of numpy arrays ``t_trigger_ns``,
+``t_readout_ns``, ``x``, ``y``, ``p``, ``cause``, as :meth:`RunStore.iter_events` yields
+them) and the sensor size, and streams: memory stays flat in the number of events.
+
+Time. Every format carries integer microseconds since the run's start epoch
+(``floor(t_ns / 1000)``), never shifted so that the first event is at zero:
+
+* ``aedat4`` (iniVation AEDAT 4.0) and ``evt2`` / ``evt3`` (Prophesee EVT 2.0 / 3.0 raw)
+  are camera formats; they carry the readout time ``t_a`` of paper Eq. 22, the time a real
+  camera stamps (monotonic, as these formats require). They are written with the
+  ``faery`` package with ``zero_t0=False``, so faery keeps absolute times: EVT 3.0's
+  24-bit time base wraps every 2**24 µs (16.8 s) and faery writes the wraps, so a reader
+  that counts them from the start of the file recovers the absolute time. EVT 2.0/3.0
+  address at most 2048 x 2048 pixels.
+* ``hdf5`` follows v2e's layout (dataset ``events``, one row ``[t, x, y, p]`` per event,
+  ``p`` 1 for ON and 0 for OFF) but stores int64, not v2e's uint32 of a float32 time that
+  loses microseconds after ~17 s (2**24 µs) and wraps after 71.6 min. Column ``t`` is the
+  readout time by default; the parallel datasets ``t_trigger_us`` (or ``t_readout_us``)
+  and ``cause`` (:class:`~evsda.blocks.ports.EventCause`, the simulation's truth) keep the
+  rest of the Eq. 22 record. Attributes give the sensor size and the time origin.
+* ``npy`` is a numpy structured array with tonic's fields and types
+  ``x`` int16, ``y`` int16, ``t`` int64 [µs], ``p`` bool (True = ON), readout time by
+  default.
+
+``time="trigger"`` writes the trigger time ``t_t`` instead (hdf5 and npy only: trigger
+times are not monotonic in readout order, which the camera formats forbid).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from evsda.graph import UserError
+
+Chunk = dict[str, np.ndarray]
+NS_PER_US = 1000
+TONIC_DTYPE = np.dtype([("x", np.int16), ("y", np.int16), ("t", np.int64), ("p", bool)])
+EVT_MAX_SIZE_PX = 2048          # EVT 2.0 and 3.0 carry 11-bit addresses [pixel]
+TIME_FIELDS = {"readout": "t_readout_ns", "trigger": "t_trigger_ns"}
+
+
+def _micros(chunk: Chunk, time: str) -> np.ndarray:
+    return np.asarray(chunk[TIME_FIELDS[time]], np.int64) // NS_PER_US
+
+
+def _counted(chunks: Iterable[Chunk], counter: list[int]) -> Iterator[Chunk]:
+    for chunk in chunks:
+        n = len(chunk["x"])
+        if n:
+            counter[0] += n
+            yield chunk
+
+
+# -- camera formats, through faery ------------------------------------------------------------
+def _faery_stream(chunks: Iterable[Chunk]) -> Iterator[np.ndarray]:
+    import faery
+
+    for chunk in chunks:
+        out = np.empty(len(chunk["x"]), dtype=faery.EVENTS_DTYPE)
+        out["t"] = _micros(chunk, "readout")
+        out["x"] = chunk["x"]
+        out["y"] = chunk["y"]
+        out["p"] = np.asarray(chunk["p"]) > 0
+        yield out
+
+
+def _write_faery(chunks, path, width, height, file_type: str, version: str | None) -> int:
+    from faery.file_encoder import events_to_file
+
+    counter = [0]
+    events_to_file(_faery_stream(_counted(chunks, counter)), Path(path), dimensions=(width, height),
+                   version=version, zero_t0=False, file_type=file_type)
+    return counter[0]
+
+
+def write_aedat4(chunks: Iterable[Chunk], path, width: int, height: int, time: str = "readout", **_) -> int:
+    """AEDAT 4.0 (one event stream, LZ4) with readout times [µs since the run epoch]; returns the count."""
+    _camera_time(time, "aedat4")
+    return _write_faery(chunks, path, width, height, "aedat", None)
+
+
+def _evt_writer(version: str) -> Callable[..., int]:
+    def write(chunks: Iterable[Chunk], path, width: int, height: int, time: str = "readout", **_) -> int:
+        _camera_time(time, version)
+        if width > EVT_MAX_SIZE_PX or height > EVT_MAX_SIZE_PX:
+            raise UserError(f"{version} addresses at most {EVT_MAX_SIZE_PX} x {EVT_MAX_SIZE_PX} pixels; "
+                            f"this sensor is {width} x {height}: export to aedat4, hdf5 or npy instead")
+        return _write_faery(chunks, path, width, height, "evt", version)
+
+    write.__name__ = f"write_{version}"
+    write.__doc__ = f"Prophesee {version.upper()} raw with readout times [µs since the run epoch]; returns the count."
+    return write
+
+
+write_evt2 = _evt_writer("evt2")
+write_evt3 = _evt_writer("evt3")
+
+
+def _camera_time(time: str, fmt: str) -> None:
+    if time != "readout":
+        raise UserError(f"{fmt} files carry the readout time (camera formats need monotonic timestamps); "
+                        f"use --time readout, or export to hdf5 or npy for trigger times")
+
+
+# -- HDF5 in v2e's layout ---------------------------------------------------------------------------
+def write_hdf5(chunks: Iterable[Chunk], path, width: int, height: int, time: str = "readout",
+               epoch: str | None = None, compression: str | None = None, **_) -> int:
+    """v2e-layout HDF5 with int64 microseconds (see the module docstring); returns the count."""
+    import h5py
+
+    other = "trigger" if time == "readout" else "readout"
+    rows = 1 << 16
+    with h5py.File(path, "w") as f:
+        events = f.create_dataset("events", shape=(0, 4), maxshape=(None, 4), dtype=np.int64,
+                                  chunks=(rows, 4), compression=compression)
+        extra_t = f.create_dataset(f"t_{other}_us", shape=(0,), maxshape=(None,), dtype=np.int64,
+                                   chunks=(rows,), compression=compression)
+        cause = f.create_dataset("cause", shape=(0,), maxshape=(None,), dtype=np.uint8,
+                                 chunks=(rows,), compression=compression)
+        f.attrs.update({
+            "width": width, "height": height, "time_unit": "us", "time_origin_utc": epoch or "",
+            "t_column": time, "columns": "t,x,y,p", "polarity": "1 ON, 0 OFF",
+            "layout": "v2e events (N, 4) with int64 instead of uint32", "source": "evsda",
+        })
+        n = 0
+        for chunk in chunks:
+            k = len(chunk["x"])
+            if not k:
+                continue
+            block = np.empty((k, 4), np.int64)
+            block[:, 0] = _micros(chunk, time)
+            block[:, 1] = chunk["x"]
+            block[:, 2] = chunk["y"]
+            block[:, 3] = np.asarray(chunk["p"]) > 0
+            for dataset in (events, extra_t, cause):
+                dataset.resize(n + k, axis=0)
+            events[n:n + k] = block
+            extra_t[n:n + k] = _micros(chunk, other)
+            cause[n:n + k] = chunk["cause"]
+            n += k
+    return n
+
+
+# -- numpy structured array (tonic's fields) ---------------------------------------------------------
+def write_npy(chunks: Iterable[Chunk], path, width: int, height: int, time: str = "readout", **_) -> int:
+    """A ``.npy`` of tonic's ``x, y, t, p`` structured dtype, streamed; returns the count.
+
+    The header is written first with room for any length and rewritten with the final
+    length at the end (numpy pads headers with spaces, so the size stays fixed).
+    """
+    if max(width, height) > np.iinfo(np.int16).max:
+        raise UserError(f"npy (tonic) stores x and y as int16; this sensor is {width} x {height}")
+    with open(path, "wb") as f:
+        f.write(_npy_header(0))
+        n = 0
+        for chunk in chunks:
+            k = len(chunk["x"])
+            if not k:
+                continue
+            out = np.empty(k, TONIC_DTYPE)
+            out["x"], out["y"] = chunk["x"], chunk["y"]
+            out["t"] = _micros(chunk, time)
+            out["p"] = np.asarray(chunk["p"]) > 0
+            f.write(out.tobytes())
+            n += k
+        f.seek(0)
+        f.write(_npy_header(n))
+    return n
+
+
+def _npy_header(n: int) -> bytes:
+    """A version 1.0 ``.npy`` header of fixed size for a 1-D array of ``n`` TONIC_DTYPE records."""
+    fields = {"descr": np.lib.format.dtype_to_descr(TONIC_DTYPE), "fortran_order": False, "shape": (n,)}
+    text = repr(fields)
+    room = len(repr({**fields, "shape": (2**63 - 1,)}))
+    body = text + " " * (room - len(text))
+    total = 10 + len(body) + 1                    # magic (6) + version (2) + length (2) + body + "\n"
+    body += " " * (-total % 64) + "\n"
+    return b"\x93NUMPY\x01\x00" + len(body).to_bytes(2, "little") + body.encode("latin1")
+
+
+WRITERS: dict[str, Callable[..., int]] = {
+    "aedat4": write_aedat4,
+    "evt2": write_evt2,
+    "evt3": write_evt3,
+    "hdf5": write_hdf5,
+    "npy": write_npy,
+}
+
+
+def export_events(chunks: Iterable[Chunk], path, fmt: str, width: int, height: int, **options) -> int:
+    """Write ``chunks`` to ``path`` in format ``fmt`` (one of :data:`WRITERS`); returns the count."""
+    try:
+        writer = WRITERS[fmt]
+    except KeyError:
+        raise UserError(f"unknown export format {fmt!r}; choose one of {', '.join(WRITERS)}") from None
+    if options.get("time", "readout") not in TIME_FIELDS:
+        raise UserError(f"--time must be 'readout' or 'trigger', got {options['time']!r}")
+    return writer(chunks, path, width, height, **options)
