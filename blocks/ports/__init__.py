@@ -17,8 +17,10 @@ from .core import (
     TriggeredEvents,
     add_stamp,
 )
+from .scene import Observer, Orbit, Pointing
 
 __all__ = [
     "EventCause", "Events", "FocalPlane", "Frame", "Irradiance", "Metrics", "PointSources",
     "SkyBackground", "SourceKind", "TriggeredEvents", "add_stamp",
+    "Observer", "Orbit", "Pointing",
 ]
