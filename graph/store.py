@@ -43,8 +43,9 @@ EVENT_FIELDS: dict[str, np.dtype] = {
     "p": np.dtype(np.int8),
     "cause": np.dtype(np.uint8),
 }
-EVENT_CHUNK = 1 << 18
-PRODUCT_CHUNK = 1 << 14
+EVENT_CHUNK_BYTES = 4 << 20     # events/ arrays are chunked by size: few files, fast appends
+PRODUCT_CHUNK_BYTES = 256 << 10
+EVENT_CHUNK = 1 << 20           # default number of events per chunk yielded by iter_events
 #: appended data waits in memory until a commit or until this many bytes are pending
 FLUSH_BYTES = 64 << 20
 #: fast, multithreaded compression: bit-shuffled LZ4 suits sorted timestamps and small integers
@@ -172,7 +173,8 @@ class RunStore:
         if len(sizes) != 1:
             raise ValueError(f"event fields have different lengths: {sizes}")
         for name, dtype in EVENT_FIELDS.items():
-            self._append(f"events/{name}", np.asarray(events[name]).astype(dtype, copy=False), EVENT_CHUNK)
+            self._append(f"events/{name}", np.asarray(events[name]).astype(dtype, copy=False),
+                         EVENT_CHUNK_BYTES // dtype.itemsize)
         if focal_plane is not None and "focal_plane" not in self.group["events"].attrs:
             self.group["events"].attrs["focal_plane"] = focal_plane.to_arrays()[1]
 
@@ -216,7 +218,7 @@ class RunStore:
             if data.dtype.kind in "USO":  # strings travel in the JSON document
                 attrs[name] = {"__strings__": data.tolist(), "shape": list(data.shape)}
                 continue
-            self._append(f"{base}/{name}", data.reshape(-1), PRODUCT_CHUNK)
+            self._append(f"{base}/{name}", data.reshape(-1), max(PRODUCT_CHUNK_BYTES // max(data.itemsize, 1), 1))
             self._append(f"{base}/{name}.shape", np.asarray([data.shape], dtype=np.int64), 1024)
         self._append(f"{base}/_attrs", np.array([json.dumps(attrs)], dtype=np.dtypes.StringDType()), 1024)
         group = self.group[base]

@@ -1,0 +1,110 @@
+"""The ``evsda`` command: exit codes, messages without tracebacks, plugin discovery, schema."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+
+from evsda.graph import registry
+from evsda.graph.schema import graph_schema
+from evsda.graph.store import RunStore
+
+GOOD = """\
+evsda: 1
+name: good
+run: {start: "2024-03-01T02:15:00Z", duration_s: 0.03, window_s: 0.01, seed: 3}
+blocks:
+  ramp: {type: test_ramp}
+  spikes: {type: test_spikes}
+connections:
+  - {from: ramp.samples, to: spikes.samples}
+"""
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_version(evsda_cli):
+    proc = evsda_cli("--version", check=True)
+    assert proc.stdout.startswith("evsda ")
+
+
+def test_plugin_blocks_are_found_through_their_entry_point(evsda_cli):
+    listing = evsda_cli("blocks", check=True).stdout
+    assert "test_ramp  —  A noisy ramp sampled on the run's global grid." in listing
+    assert "in:  samples: Samples" in listing
+    detail = evsda_cli("blocks", "test_ramp", check=True).stdout
+    assert "cadence_s [s]: float, default 0.001, > 0" in detail
+    assert "Sampling interval" in detail
+
+
+def test_unknown_block_is_exit_2_without_traceback(evsda_cli):
+    proc = evsda_cli("blocks", "nope")
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == "evsda: error: unknown block type 'nope'; `evsda blocks` lists them"
+
+
+def test_validate_reports_every_problem_and_exits_2(evsda_cli, tmp_path):
+    bad = write(tmp_path / "bad.yaml", GOOD.replace("test_spikes}", "test_spikes, params: {step: -1}}")
+                .replace("spikes.samples", "spikes.smples"))
+    proc = evsda_cli("validate", bad)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert all(line.startswith(f"evsda: error: {bad}:") for line in lines)
+    assert any("parameter 'step': Input should be greater than 0" in line for line in lines)
+    assert any("has no input port 'smples'" in line for line in lines)
+    good = write(tmp_path / "good.yaml", GOOD)
+    assert "ok — 2 blocks, 1 connections" in evsda_cli("validate", good, check=True).stdout
+
+
+def test_run_writes_a_store_refuses_to_overwrite_and_reruns_from_a_store(evsda_cli, tmp_path):
+    good = write(tmp_path / "good.yaml", GOOD)
+    proc = evsda_cli("run", good, "-o", tmp_path / "a.zarr", "--set", "spikes.step=2")
+    assert proc.returncode == 0, proc.stderr
+    assert "3 of 3 windows" in proc.stderr and "time per block" in proc.stderr
+    again = evsda_cli("run", good, "-o", tmp_path / "a.zarr")
+    assert again.returncode == 2 and "already exists" in again.stderr and "Traceback" not in again.stderr
+    rerun = evsda_cli("run", tmp_path / "a.zarr", "-o", tmp_path / "b.zarr")
+    assert rerun.returncode == 0, rerun.stderr
+    a, b = RunStore.open(tmp_path / "a.zarr").read_events(), RunStore.open(tmp_path / "b.zarr").read_events()
+    assert len(a["x"]) > 0 and all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_schema_is_written_checked_and_detects_staleness(evsda_cli, tmp_path):
+    folder = tmp_path / "schema"
+    assert evsda_cli("schema", "--dir", folder).returncode == 0
+    assert evsda_cli("schema", "--check", "--dir", folder).returncode == 0
+    graph_file = folder / "graph.schema.json"
+    graph_file.write_text(graph_file.read_text().replace('"title"', '"titel"', 1))
+    proc = evsda_cli("schema", "--check", "--dir", folder)
+    assert proc.returncode == 1 and "graph.schema.json is out of date" in proc.stderr
+
+
+def test_graph_schema_validates_block_params(plugin):
+    schema = graph_schema(["test_ramp", "test_spikes"])
+    good = {"evsda": 1, "blocks": {"r": {"type": "test_ramp", "params": {"cadence_s": 0.01}}}}
+    jsonschema.validate(good, schema)
+    for bad_params in ({"cadence_s": -1}, {"cadense_s": 1.0}):
+        bad = {"evsda": 1, "blocks": {"r": {"type": "test_ramp", "params": bad_params}}}
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate(bad, schema)
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate({"evsda": 1, "blocks": {"r": {"type": "no_such_block"}}}, schema)
+
+
+def test_registry_rejects_a_clashing_type_name(plugin):
+    from evsda_testblocks import RampSource
+
+    clash = type("Clash", (RampSource,), {"__doc__": "another"})
+    try:
+        registry.register(clash, "test")
+    except Exception as exc:  # UserError
+        assert "clashes" in str(exc)
+    else:
+        raise AssertionError("clash accepted")
