@@ -19,6 +19,7 @@ from .executor import run_graph
 from .graphfile import Graph, graph_from_dict, load_graph
 from .report import describe_block, list_blocks, run_summary
 from .store import RunStore
+from .sweep import read_grid, run_sweep
 
 
 def _load(args) -> Graph:
@@ -39,6 +40,14 @@ def cmd_run(args) -> int:
                        checkpoint_every_s=args.checkpoint_every)
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    grid = read_grid(args.grid, args.vary)
+    out = Path(args.output) if args.output else Path(f"{Path(args.graph).stem}_sweep")
+    run_sweep(args.graph, grid, out, overrides=args.set, jobs=args.jobs, overwrite=args.overwrite,
+              report=lambda line: print(line, file=sys.stderr))
     return 0
 
 
@@ -99,6 +108,16 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
                    help="show a progress bar (default: when stderr is a terminal)")
     p.add_argument("-q", "--quiet", action="store_true", help="no summary at the end")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("sweep", help="run a graph over a grid of parameter values (a trade study)")
+    graph_args(p)
+    p.add_argument("--grid", help="YAML file mapping block.param to a list of values")
+    p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=[V1,V2]",
+                   help="a parameter and its values (repeatable; combined with --grid)")
+    p.add_argument("-o", "--output", help="folder for one run store per point and sweep.csv (default: GRAPH_sweep)")
+    p.add_argument("-j", "--jobs", type=int, default=1, help="points run in parallel after the first")
+    p.add_argument("--overwrite", action="store_true", help="recompute points whose stores exist")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("validate", help="check a graph file without running it")
     graph_args(p)
