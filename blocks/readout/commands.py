@@ -1,3 +1,116 @@
-"""Command-line sub-commands contributed by the readout stage (see evsda.graph.commands)."""
+"""Command-line sub-commands contributed by the readout stage (see evsda.graph.commands):
 
-COMMANDS: list = []
+* ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger]``
+* ``evsda render STORE [--png F] [--gif F] [--start-s S] [--stop-s S] [--frames N] [--fps F]``
+
+Both read the recorded events of a run store in chunks, so memory stays flat.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from evsda.graph import UserError
+from evsda.graph.commands import Command
+
+from .exporters import WRITERS, export_events
+from .render import render_gif, render_png
+
+NS_PER_S = 1_000_000_000
+
+
+def _open(path: str):
+    from evsda.graph.store import RunStore
+
+    store = RunStore.open(path)
+    fp = store.focal_plane
+    if fp is None:
+        raise UserError(f"{path} holds no recorded events (no focal-plane geometry); run a graph whose "
+                        f"outputs include an arbiter's events")
+    return store, fp
+
+
+def _progress(chunks, total: int, what: str):
+    from tqdm import tqdm
+
+    with tqdm(total=total, unit="event", desc=what, disable=None, leave=False) as bar:
+        for chunk in chunks:
+            yield chunk
+            bar.update(len(chunk["x"]))
+
+
+class ExportCommand(Command):
+    name = "export"
+    help = "write a run's recorded events to an event-camera file format"
+
+    def configure(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("store", help="run store (.zarr) written by `evsda run`")
+        parser.add_argument("--format", required=True, choices=sorted(WRITERS),
+                            help="aedat4 (iniVation), evt2/evt3 (Prophesee raw), hdf5 (v2e layout, int64 µs), "
+                                 "npy (tonic's x, y, t, p)")
+        parser.add_argument("-o", "--output", required=True, help="file to write")
+        parser.add_argument("--time", choices=("readout", "trigger"), default="readout",
+                            help="which time of the Eq. 22 record to write (trigger: hdf5 and npy only)")
+        parser.add_argument("--chunk-size", type=int, default=1 << 20, help="events read at a time")
+
+    def run(self, args: argparse.Namespace) -> int:
+        store, fp = _open(args.store)
+        if args.chunk_size < 1:
+            raise UserError(f"--chunk-size must be at least 1, got {args.chunk_size}")
+        epoch = store.attrs.get("start_epoch")
+        chunks = _progress(store.iter_events(args.chunk_size), store.n_events, "export")
+        n = export_events(chunks, Path(args.output), args.format, fp.width_px, fp.height_px,
+                          time=args.time, epoch=epoch)
+        print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since {epoch or 'the run start'})")
+        return 0
+
+
+class RenderCommand(Command):
+    name = "render"
+    help = "draw a run's events: accumulated image (ON green, OFF red) and animation"
+
+    def configure(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("store", help="run store (.zarr) written by `evsda run`")
+        parser.add_argument("--png", help="accumulated event image to write (paper Fig. 6)")
+        parser.add_argument("--gif", help="animation of the events over time to write")
+        parser.add_argument("--start-s", type=float, default=None, help="first readout time shown [s]")
+        parser.add_argument("--stop-s", type=float, default=None, help="readout time where the images stop [s]")
+        parser.add_argument("--frames", type=int, default=100, help="frames of the animation")
+        parser.add_argument("--fps", type=float, default=10.0, help="frames per second of the animation")
+        parser.add_argument("--chunk-size", type=int, default=1 << 20, help="events read at a time")
+
+    def run(self, args: argparse.Namespace) -> int:
+        if not args.png and not args.gif:
+            raise UserError("evsda render needs --png FILE and/or --gif FILE")
+        if args.frames < 1 or args.fps <= 0:
+            raise UserError(f"--frames must be at least 1 and --fps positive, got {args.frames} and {args.fps}")
+        store, fp = _open(args.store)
+        start = None if args.start_s is None else round(args.start_s * NS_PER_S)
+        stop = None if args.stop_s is None else round(args.stop_s * NS_PER_S)
+        if start is not None and stop is not None and stop <= start:
+            raise UserError(f"--stop-s ({args.stop_s}) must be after --start-s ({args.start_s})")
+        if args.png:
+            on, off = render_png(store.iter_events(args.chunk_size), args.png, fp.width_px, fp.height_px, start, stop)
+            print(f"wrote {args.png}: {on} ON and {off} OFF events")
+        if args.gif:
+            lo = 0 if start is None else start
+            hi = stop if stop is not None else _end_ns(store)
+            if hi <= lo:
+                raise UserError(f"{args.store} has no events after {lo / NS_PER_S} s to animate; pass --stop-s")
+            n = render_gif(store.iter_events(args.chunk_size), args.gif, fp.width_px, fp.height_px, lo, hi,
+                           n_frames=args.frames, fps=args.fps)
+            print(f"wrote {args.gif}: {n} frames from {lo / NS_PER_S} s to {hi / NS_PER_S} s")
+        return 0
+
+
+def _end_ns(store) -> int:
+    """The end of the run (or just after its last recorded event) [ns]."""
+    duration = store.attrs.get("duration_ns")
+    last = 0
+    if store.n_events:
+        last = int(next(store.iter_events(1, start=store.n_events - 1))["t_readout_ns"][-1]) + 1
+    return max(int(duration or 0), last)
+
+
+COMMANDS: list = [ExportCommand(), RenderCommand()]
