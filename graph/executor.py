@@ -94,7 +94,10 @@ class Executor:
         self.reuse_stores = [RunStore.open(p) for p in reuse]
         self.loaded: dict[str, RunStore] = {}
         self.order = self._plan()
-        self.store = self._open_store(out, resume, overwrite) if out is not None else None
+        self.out = None if out is None else Path(out)
+        self.resume, self.overwrite = resume, overwrite
+        self.store: RunStore | None = None
+        self._check_output()
 
     # -- planning --------------------------------------------------------------------------------
     def _consumed_ports(self, name: str, active: set[str]) -> set[str]:
@@ -133,18 +136,25 @@ class Executor:
         return choice if isinstance(choice, bool) else name in choice
 
     # -- the store ---------------------------------------------------------------------------------
-    def _open_store(self, out, resume: bool, overwrite: bool) -> RunStore:
-        out = Path(out)
-        digest = self.graph.digest()
-        if resume:
-            if not out.exists():
-                raise StoreError(f"cannot resume: {out} does not exist")
+    def _check_output(self) -> None:
+        """Refuse a bad output before any work."""
+        if self.out is None:
+            return
+        if self.resume and not self.out.exists():
+            raise StoreError(f"cannot resume: {self.out} does not exist")
+        if not self.resume and self.out.exists() and not self.overwrite:
+            raise StoreError(f"{self.out} already exists; choose another output, pass --overwrite to replace it, "
+                             f"or --resume to continue the run it holds")
+
+    def _open_store(self) -> RunStore:
+        out, digest = self.out, self.graph.digest()
+        if self.resume:
             store = RunStore.open(out, mode="r+")
             if store.attrs.get("graph_hash") != digest:
                 raise StoreError(f"cannot resume {out}: it was made by a different graph or parameters; "
                                  f"run with the same graph file and --set values, or start a new store")
             return store
-        return RunStore.create(out, overwrite=overwrite, attrs={
+        return RunStore.create(out, overwrite=self.overwrite, attrs={
             "evsda_version": __version__,
             "graph": self.graph.to_dict(),
             "graph_hash": digest,
@@ -157,15 +167,17 @@ class Executor:
 
     # -- running -----------------------------------------------------------------------------------
     def execute(self) -> RunResult:
-        result = RunResult(store=self.store, reused={n: str(s.path) for n, s in self.loaded.items()})
         blocks: dict[str, Block] = {n: self.graph.nodes[n].block for n in self.order}
         running = [n for n in self.order if n not in self.loaded]
         timing = {n: 0.0 for n in running}
         timing["(store)"] = 0.0
 
         start_window = 0
-        for name in running:
+        for name in running:  # before the store exists: a scene that cannot be simulated leaves nothing behind
             blocks[name].setup(self.run)
+        if self.out is not None:
+            self.store = self._open_store()
+        result = RunResult(store=self.store, reused={n: str(s.path) for n, s in self.loaded.items()})
         if self.store is not None and self.store.committed_windows:
             start_window = self.store.committed_windows
             states = self.store.read_checkpoint()
