@@ -1,3 +1,5 @@
-"""pixel blocks."""
+"""Pixel blocks: photoreceptor, dark current, low-pass, comparator, noise, refractory (paper Sec. 2.3-2.5)."""
 
-BLOCKS: list = []
+from .block import DvsPixel
+
+BLOCKS: list = [DvsPixel]

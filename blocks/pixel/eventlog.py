@@ -1,0 +1,38 @@
+"""Collects the events of one window and turns them into the ``TriggeredEvents`` port."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evsda.blocks.ports import FocalPlane, TriggeredEvents
+
+
+class EventLog:
+    """Events as (step, pixel, polarity, cause) chunks, plus the window's lost-event count."""
+
+    def __init__(self):
+        self._chunks: list[tuple[np.ndarray, ...]] = []
+        self.n_loss = 0
+
+    def add(self, step, pixel, polarity, cause) -> None:
+        shape = np.shape(pixel)
+        if np.size(pixel):
+            self._chunks.append(tuple(np.broadcast_to(np.asarray(v, dtype), shape)
+                                      for v, dtype in ((step, np.int64), (pixel, np.int64),
+                                                       (polarity, np.int8), (cause, np.uint8))))
+
+    def lose(self, count) -> None:
+        self.n_loss += int(count)
+
+    def to_port(self, focal_plane: FocalPlane, dt_ns: int) -> TriggeredEvents:
+        """Events sorted by time, then row, then column, with times ``step dt`` [ns]."""
+        if not self._chunks:
+            out = TriggeredEvents.empty(focal_plane)
+            return TriggeredEvents(focal_plane, out.t_ns, out.x, out.y, out.p, out.cause, self.n_loss, (0, 0, 0, 0))
+        step, pixel, polarity, cause = (np.concatenate(parts) for parts in zip(*self._chunks))
+        order = np.lexsort((pixel, step))
+        step, pixel, polarity, cause = step[order], pixel[order], polarity[order], cause[order]
+        width = focal_plane.width_px
+        counts = tuple(int(c) for c in np.bincount(cause, minlength=4)[:4])
+        return TriggeredEvents(focal_plane, step * np.int64(dt_ns), (pixel % width).astype(np.uint16),
+                               (pixel // width).astype(np.uint16), polarity, cause, self.n_loss, counts)

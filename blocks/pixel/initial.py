@@ -1,0 +1,44 @@
+"""The pixels' state when a run starts (shared by both implementations, so they start identical).
+
+The photoreceptor starts settled on its first input (``L = Y``), as in v2e. The memorised
+value starts a uniformly random fraction of the ON threshold below it (``dI`` uniform in
+``[0, theta_ON)``), the stationary phase of the leak drift of Eqs. 18-19: a sensor that has
+been running shows leak events at a steady rate from the first moment instead of all
+pixels firing together one leak period after switch-on. That head start is charged to the
+leak and parasitic contributions in proportion to their rates; without either leak
+(``R_leak = R_para = 0``) the memorised value starts equal to ``L``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .comparator import draw_thresholds
+from .model import PixelModel
+
+
+class InitialPixels(NamedTuple):
+    theta_on: np.ndarray     # [n] (in ln of current)
+    theta_off: np.ndarray    # [n]
+    filtered: np.ndarray     # L [n]
+    memorised: np.ndarray    # M [n]
+    credit: np.ndarray       # [3, n] leak, parasitic, shot contributions to L - M
+
+
+def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> InitialPixels:
+    """Thresholds (paper Sec. 2.4) and settled photoreceptor and memory of every pixel."""
+    p = model.params
+    n = photon_flux.shape[0]
+    theta_on = draw_thresholds(rng, n, p.threshold_on, p.threshold_sigma, p.threshold_floor)
+    theta_off = draw_thresholds(rng, n, p.threshold_off, p.threshold_sigma, p.threshold_floor)
+    phase = rng.random(n)
+    drive = model.drive(photon_flux)
+    rate = p.leak_rate_hz + drive.parasitic_hz
+    head = np.where(rate > 0, phase * theta_on, 0.0)
+    share = np.divide(p.leak_rate_hz, rate, out=np.zeros(n), where=rate > 0)
+    credit = np.zeros((3, n))
+    credit[0] = head * share
+    credit[1] = head - credit[0]
+    return InitialPixels(theta_on, theta_off, drive.y.copy(), drive.y - head, credit)

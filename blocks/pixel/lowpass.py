@@ -1,0 +1,63 @@
+"""The photoreceptor's intensity-dependent low-pass filter (paper Eq. 16).
+
+A DVS photoreceptor has a bandwidth that grows with the photodiode current up to a
+maximum set by its amplifier, about 3 kHz for the DVS128 (Lichtsteiner, Posch &
+Delbruck 2008, IEEE JSSC 43(2):566). The paper discretises the one-pole filter with
+the backward-Euler (always stable) gain
+
+    eps = 2 pi dt f_3dB / (2 pi dt f_3dB + 1),     L <- (1 - eps) L + eps Y
+
+applied, as in v2e, to the lin-log value ``Y`` of Eq. 14 (the photoreceptor output is a
+voltage proportional to the log current; its bandwidth limit acts on that voltage).
+
+Two cutoff laws:
+
+* ``paper`` -- Eq. 16 as printed, ``f_3dB = (Y + 3) / 5.616 f_max`` with ``Y`` the lin-log
+  input (the constants are v2e's ``(DN + 20) / 275`` carried to log units: ln 20 = 3.0,
+  ln 275 = 5.616), capped at ``f_max``, the maximum the paper states. It varies only by a
+  factor ~2 from dark to bright.
+* ``proportional`` -- v2e's law in physical form: ``f_3dB = f_max min(1, x / x_sat)`` with
+  ``x`` the normalised total (photo + dark) current. The bandwidth then falls in proportion
+  to the current in the dark, so cooling, by lowering the dark current, also lowers the
+  dark-pixel bandwidth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+PAPER_OFFSET = 3.0        # Eq. 16 "+3" (ln 20 of v2e's DN offset) [1]
+PAPER_SCALE = 5.616       # Eq. 16 "/5.616" (ln 275 of v2e's DN normaliser) [1]
+
+
+def cutoff_hz(x, y, max_hz: float, model: str = "paper", saturation: float = 275.0):
+    """3 dB cutoff of the photoreceptor (paper Eq. 16) [Hz].
+
+    ``x`` is the normalised current and ``y = lin_log(x)``; ``saturation`` is the
+    normalised current at which the ``proportional`` law reaches ``max_hz``.
+    """
+    if model == "paper":
+        f = (np.asarray(y, dtype=float) + PAPER_OFFSET) / PAPER_SCALE * max_hz
+    elif model == "proportional":
+        f = np.asarray(x, dtype=float) / saturation * max_hz
+    else:
+        raise ValueError(f"unknown cutoff model {model!r}; expected 'paper' or 'proportional'")
+    return np.clip(f, 0.0, max_hz)
+
+
+def filter_gain(cutoff, dt_s: float):
+    """Backward-Euler gain ``eps`` of paper Eq. 16 for a step ``dt_s`` [1].
+
+    A cutoff of ``inf`` (no filter) gives ``eps = 1``: the output follows the input.
+    """
+    w = 2.0 * np.pi * dt_s * np.asarray(cutoff, dtype=float)
+    with np.errstate(invalid="ignore"):
+        eps = w / (w + 1.0)
+    return np.where(np.isinf(w), 1.0, eps)
+
+
+def log_retention(eps):
+    """``ln(1 - eps)``: after ``j`` steps at constant input ``L - Y`` is multiplied by ``exp(j ln(1 - eps))``."""
+    eps = np.asarray(eps, dtype=float)
+    with np.errstate(divide="ignore"):
+        return np.log1p(-eps)

@@ -1,0 +1,89 @@
+"""The pixel circuit's response to a constant photon flux: everything Eqs. 12-20 derive from the input.
+
+Both implementations of the block share this: given the photon flux on each pixel it
+returns the lin-log target ``Y`` (Eq. 12-15), the low-pass gain (Eq. 16), the parasitic
+leak rate (Eq. 19) and the shot-noise probability per step (Eq. 20).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import NamedTuple
+
+import numpy as np
+
+from . import dark_current, lowpass, noise, photoreceptor
+from .params import DvsPixelParams
+from .refractory import refractory_steps
+
+
+class Drive(NamedTuple):
+    """Per-pixel quantities set by a constant input flux."""
+
+    y: np.ndarray            # lin-log target of the photoreceptor, Eq. 14 [1]
+    eps: np.ndarray          # low-pass gain per step, Eq. 16 [1]
+    log_a: np.ndarray        # ln(1 - eps) [1]
+    parasitic_hz: np.ndarray # parasitic leak-event rate, Eq. 19 [Hz]
+    shot_p: np.ndarray       # shot-noise probability per step and polarity, Eq. 20 [1]
+
+
+@dataclass(frozen=True)
+class PixelModel:
+    """Eqs. 12-21 with the parameters of one sensor, its pixel area and the band's wavelength."""
+
+    params: DvsPixelParams
+    pixel_area_m2: float
+    wavelength_m: float
+
+    @cached_property
+    def dt_ns(self) -> int:
+        return max(1, round(self.params.time_step_s * 1e9))
+
+    @cached_property
+    def dt_s(self) -> float:
+        return self.dt_ns * 1e-9
+
+    @cached_property
+    def responsivity_A_per_W(self) -> float:
+        return photoreceptor.responsivity_A_per_W(self.params.quantum_efficiency, self.wavelength_m)
+
+    @cached_property
+    def dark_current_A(self) -> float:
+        p = self.params
+        return float(dark_current.dark_current_A(p.temperature_K, p.dark_current_density_A_m2, self.pixel_area_m2,
+                                                 p.dark_reference_temperature_K, p.dark_activation_energy_eV))
+
+    @cached_property
+    def refractory_steps(self) -> int:
+        return refractory_steps(round(self.params.refractory_period_s * 1e9), self.dt_ns)
+
+    @cached_property
+    def shot_p_max(self) -> float:
+        """Largest shot-noise probability per step and polarity over all inputs (Eq. 20) [1]."""
+        p = self.params
+        return p.shot_noise_rate_hz * max(1.0, p.shot_noise_intensity_factor) * self.dt_s
+
+    def normalised_current(self, photon_flux) -> np.ndarray:
+        """``x = (I_p + I_dark) / I_ref`` for a photon flux [photon s^-1] (Eqs. 12, 13, 15) [1]."""
+        power = photoreceptor.optical_power_W(photon_flux, self.wavelength_m)
+        current = photoreceptor.photocurrent_A(power, self.responsivity_A_per_W) + self.dark_current_A
+        return current / self.params.reference_current_A
+
+    def drive(self, photon_flux) -> Drive:
+        """Everything a constant ``photon_flux`` [photon s^-1 per pixel] sets in the circuit."""
+        p = self.params
+        flux = np.asarray(photon_flux, dtype=float)
+        x = self.normalised_current(flux)
+        y = photoreceptor.lin_log(x, p.linear_knee)
+        if p.cutoff_max_hz > 0:
+            f3db = lowpass.cutoff_hz(x, y, p.cutoff_max_hz, p.cutoff_model, p.cutoff_saturation)
+        else:
+            f3db = np.full_like(y, np.inf)
+        eps = lowpass.filter_gain(f3db, self.dt_s)
+        power = photoreceptor.optical_power_W(flux, self.wavelength_m)
+        lux = noise.illuminance_lux(power, self.pixel_area_m2, p.luminous_efficacy_lm_per_W)
+        parasitic = noise.parasitic_rate_hz(lux, p.parasitic_rate_per_lux_hz)
+        shot = noise.shot_noise_rate_hz(y, p.shot_noise_rate_hz, p.shot_noise_intensity_factor,
+                                        p.log_current_max) * self.dt_s
+        return Drive(y, eps, lowpass.log_retention(eps), parasitic, shot)

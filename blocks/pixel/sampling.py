@@ -1,0 +1,76 @@
+"""From the ``Irradiance`` port to the pixel time grid: sample-and-hold inputs and their changes.
+
+Pixel step ``n`` sits at ``t = n dt`` on one global grid. An irradiance sample taken at
+``t_k`` holds from the first step at or after ``t_k`` until the next sample (the
+``Irradiance`` convention); steps of a window before its first sample keep the input held
+from the previous window.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from evsda.blocks.ports import Irradiance
+
+
+def window_steps(start_ns: int, stop_ns: int, dt_ns: int) -> tuple[int, int]:
+    """``(n_start, n_end)``: the steps ``n`` with ``start_ns <= n dt < stop_ns``."""
+    return -(-start_ns // dt_ns), -(-stop_ns // dt_ns)
+
+
+def sample_steps(irradiance: Irradiance, dt_ns: int, n_start: int, n_end: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the samples that take effect in ``[n_start, n_end)`` and the step at which each does.
+
+    Samples before the window take effect at ``n_start`` (only the last of them counts);
+    when several samples fall on one step the last one wins.
+    """
+    t = np.asarray(irradiance.t_ns, dtype=np.int64)
+    steps = np.maximum(-(-t // dt_ns), n_start)
+    keep = steps < n_end
+    index = np.flatnonzero(keep)
+    steps = steps[keep]
+    if index.size:
+        last_of_step = np.r_[steps[1:] != steps[:-1], True]
+        index, steps = index[last_of_step], steps[last_of_step]
+    return index, steps
+
+
+@dataclass(frozen=True)
+class StampPixels:
+    """Stamp flux summed per (sample, pixel): ``flux[i]`` is added to the background at sample ``sample[i]``."""
+
+    sample: np.ndarray   # int64 position in the list of samples
+    pixel: np.ndarray    # int64 flat pixel index (row * width + column)
+    flux: np.ndarray     # float64 [photon s^-1]
+
+
+def stamp_pixels(irradiance: Irradiance, samples: np.ndarray) -> StampPixels:
+    """The stamps of ``samples`` as sparse (sample, pixel, flux) triples, clipped to the sensor and summed."""
+    height, width = irradiance.focal_plane.shape
+    flux = np.asarray(irradiance.stamp_flux)
+    if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0 or flux.shape[2] * flux.shape[3] == 0:
+        empty = np.zeros(0, np.int64)
+        return StampPixels(empty, empty, np.zeros(0))
+    _, n_stamps, h, w = flux.shape
+    origin = np.asarray(irradiance.stamp_origin, dtype=np.int64)[samples]          # [K, S, 2]
+    rows = origin[:, :, 1, None, None] + np.arange(h)[None, None, :, None]        # [K, S, h, 1]
+    cols = origin[:, :, 0, None, None] + np.arange(w)[None, None, None, :]        # [K, S, 1, w]
+    rows, cols = np.broadcast_arrays(rows, cols)
+    inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
+    which = np.broadcast_to(np.arange(samples.size)[:, None, None, None], inside.shape)
+    values = flux[samples]
+    key = which[inside] * np.int64(height * width) + rows[inside] * width + cols[inside]
+    unique, inverse = np.unique(key, return_inverse=True)
+    summed = np.bincount(inverse, weights=values[inside], minlength=unique.size)
+    return StampPixels(unique // (height * width), unique % (height * width), summed)
+
+
+def dense_frames(irradiance: Irradiance, samples: np.ndarray) -> np.ndarray:
+    """Full ``[K, height * width]`` photon-flux frames of ``samples`` [photon s^-1 per pixel]."""
+    height, width = irradiance.focal_plane.shape
+    frames = np.repeat(np.asarray(irradiance.background, dtype=float)[samples, None], height * width, axis=1)
+    sparse = stamp_pixels(irradiance, samples)
+    np.add.at(frames, (sparse.sample, sparse.pixel), sparse.flux)
+    return frames
