@@ -1,3 +1,8 @@
-"""scene blocks."""
+"""Scene blocks: orbits, observers, pointing, field of view, visibility, radiometry, stars and sky (paper Sec. 2.1)."""
 
-BLOCKS: list = []
+from .satellite import Satellite
+from .sky import SkyBackgroundBlock
+from .sources import Camera, GroundSite, PointingLaw, SpaceObserver, TleSource
+from .stars import StarField
+
+BLOCKS: list = [TleSource, GroundSite, SpaceObserver, Camera, PointingLaw, Satellite, StarField, SkyBackgroundBlock]

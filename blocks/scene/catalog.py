@@ -1,0 +1,66 @@
+"""The bundled Hipparcos excerpt (ESA 1997, SP-1200), read without pandas."""
+
+from __future__ import annotations
+
+import functools
+import gzip
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from evsda.graph import ParameterError
+
+HIPPARCOS_EPOCH_JYEAR = 1991.25       # catalogue epoch of positions (Julian year, TT)
+
+
+@dataclass(frozen=True)
+class StarCatalog:
+    """Stars with ICRS positions at ``epoch_jyear`` and proper motions."""
+
+    name: np.ndarray                  # str [n], e.g. "HIP 32349"
+    vmag: np.ndarray                  # Johnson V [mag]
+    ra_deg: np.ndarray                # ICRS right ascension [deg]
+    dec_deg: np.ndarray               # ICRS declination [deg]
+    pm_ra_mas_yr: np.ndarray          # proper motion in RA times cos(Dec) [mas/yr]
+    pm_dec_mas_yr: np.ndarray         # proper motion in Dec [mas/yr]
+    parallax_mas: np.ndarray          # [mas]
+    epoch_jyear: float = HIPPARCOS_EPOCH_JYEAR
+
+    def __len__(self) -> int:
+        return int(self.vmag.shape[0])
+
+    def select(self, mask: np.ndarray) -> "StarCatalog":
+        return StarCatalog(self.name[mask], self.vmag[mask], self.ra_deg[mask], self.dec_deg[mask],
+                           self.pm_ra_mas_yr[mask], self.pm_dec_mas_yr[mask], self.parallax_mas[mask],
+                           self.epoch_jyear)
+
+    def unit_vectors(self) -> np.ndarray:
+        """ICRS unit vectors at the catalogue epoch, ``[n, 3]``."""
+        ra, dec = np.radians(self.ra_deg), np.radians(self.dec_deg)
+        return np.stack([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)], axis=-1)
+
+
+@functools.lru_cache(maxsize=4)
+def load_hipparcos(path: str) -> StarCatalog:
+    """Read ``hip_main.dat`` (pipe-separated, optionally gzipped): HIP, Vmag, RAdeg, DEdeg, Plx, pmRA, pmDE.
+
+    Stars without an astrometric solution (blank RA) are skipped; a missing parallax or
+    proper motion counts as 0.
+    """
+    opener = gzip.open if Path(path).suffix == ".gz" else open
+    rows = []
+    try:
+        with opener(path, "rt", encoding="ascii", errors="replace") as f:
+            for line in f:
+                fields = line.split("|")
+                if len(fields) < 14 or not fields[8].strip() or not fields[5].strip():
+                    continue
+                rows.append((fields[1].strip(), fields[5], fields[8], fields[9], fields[11], fields[12], fields[13]))
+    except OSError as exc:
+        raise ParameterError(f"star catalogue {path!r} cannot be read ({exc.strerror or exc})") from None
+    if not rows:
+        raise ParameterError(f"star catalogue {path!r} holds no Hipparcos records")
+    hip, *columns = zip(*rows)
+    values = [np.array([float(v) if v.strip() else 0.0 for v in column]) for column in columns]
+    return StarCatalog(np.array([f"HIP {h}" for h in hip]), *values)
