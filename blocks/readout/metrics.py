@@ -1,0 +1,250 @@
+"""Validation metrics of an event-sensor run (paper Sec. 3), accumulated over windows.
+
+The paper names three figures to compare a simulation with a real sensor: "the ratio of
+number of events to the expected number of events, the event-loss rate, and background
+noise rate" (Sec. 3), and the arbiter's ordering errors and delays (Sec. 2.5). Here:
+
+* expected events ``N_exp = N_trig + N_loss``: the events the pixels would have produced
+  had every threshold crossing been an event, i.e. the triggered events plus those lost
+  in the pixel (``|N_loss|`` of Eq. 17 and events suppressed by the refractory period,
+  :attr:`TriggeredEvents.n_loss`).
+* ``ratio_recorded_to_expected = N_rec / N_exp``.
+* loss: ``loss_fraction_pixel = N_loss / N_exp`` (refractory period and N_loss),
+  ``loss_fraction_readout = N_drop / N_exp`` (dropped by the arbiter), and the paper's
+  ``loss_to_recorded = (N_loss + N_drop) / N_rec``.
+* background rate: recorded events per second per pixel in the pixels farther than
+  ``track_radius_px`` from every source's path (satellites and stars) [Hz pixel^-1]. A
+  path is drawn straight between the source's samples; a pixel is on it when its centre
+  is within ``track_radius_px`` of a point of the path taken every 0.5 pixel, so the
+  tube is exact to 0.25 pixel.
+* track: recorded events within ``track_radius_px`` of a satellite's path, the background
+  expected there, and ``track_snr = (N_track - B_track) / sqrt(N_track)``.
+* ordering: the fraction of recorded events whose trigger time is earlier than that of an
+  event recorded strictly before them (recorded out of trigger order).
+* readout delay ``t_a - t_t``: mean and maximum exactly; percentiles from a histogram of
+  ``bins_per_decade`` logarithmic bins per decade (relative resolution
+  ``10**(1/bins_per_decade) - 1``; a zero delay has its own bin).
+
+The block is a sink: it returns the running figures every window and the final ones
+from :meth:`finish`; all units are in :attr:`Metrics.units`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from evsda.blocks.ports import Events, EventCause, Metrics, PointSources, SourceKind, TriggeredEvents
+from evsda.graph import Block, BlockParams, Input, Output, Window
+
+NS_PER_S = 1_000_000_000
+DELAY_DECADES = 14            # delays from 1 ns to 1e14 ns (~28 h) [decade]
+SOURCE_BIT, SATELLITE_BIT = 1, 2
+
+
+class EventMetrics(Block):
+    """Paper Sec. 3 metrics: recorded/expected ratio, losses, background rate, ordering, delays."""
+
+    type_name = "event_metrics"
+    is_sink = True
+
+    class Params(BlockParams):
+        track_radius_px: float = Field(3.0, ge=0, description="Pixels within this distance of a source's path "
+                                                              "belong to its track [pixel]")
+        bins_per_decade: int = Field(100, ge=1, le=1000, description="Logarithmic bins per decade of the "
+                                                                     "readout-delay histogram [1]")
+
+    inputs = {
+        "triggered": Input(TriggeredEvents, "events as the pixels trigger them (counts and N_loss)"),
+        "events": Input(Events, "events as the readout records them"),
+        "sources": Input(PointSources, "source positions, to tell the track from the background", required=False),
+    }
+    outputs = {"metrics": Output(Metrics, "running figures of the run (final ones from finish)")}
+    state = ("counts", "delays", "image", "tracks", "last_xy", "order")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.counts = {"triggered": 0, "lost_pixel": 0, "recorded": 0, "dropped": 0, "duration_ns": 0,
+                       "out_of_order": 0, "delay_sum_ns": 0.0, "delay_max_ns": 0,
+                       "triggered_by_cause": [0] * len(EventCause), "recorded_by_cause": [0] * len(EventCause)}
+        self.delays = np.zeros(DELAY_DECADES * self.params.bins_per_decade + 1, np.int64)
+        self.image = None          # recorded events per pixel, int64 (height, width)
+        self.tracks = None         # uint8 (height, width): SOURCE_BIT near any source, SATELLITE_BIT near a satellite
+        self.last_xy = None        # float64 [n_src, 2] last known position of each source (track continuity)
+        self.order = {"last_t_a": -1, "max_before_last": np.iinfo(np.int64).min, "max_all": np.iinfo(np.int64).min}
+        self._box = _box_offsets(self.params.track_radius_px)
+
+    # -- accumulation -----------------------------------------------------------------------------
+    def step(self, window: Window, triggered: TriggeredEvents, events: Events,
+             sources: PointSources | None = None) -> dict:
+        fp = events.focal_plane
+        if self.image is None:
+            self.image = np.zeros(fp.shape, np.int64)
+            self.tracks = np.zeros(fp.shape, np.uint8)
+        c = self.counts
+        c["triggered"] += len(triggered)
+        c["lost_pixel"] += int(triggered.n_loss)
+        c["recorded"] += len(events)
+        c["dropped"] += int(events.n_dropped)
+        c["duration_ns"] += window.duration_ns
+        by_cause = np.bincount(triggered.cause, minlength=len(EventCause))[: len(EventCause)]
+        c["triggered_by_cause"] = [a + int(b) for a, b in zip(c["triggered_by_cause"], by_cause)]
+        by_cause = np.bincount(events.cause, minlength=len(EventCause))[: len(EventCause)]
+        c["recorded_by_cause"] = [a + int(b) for a, b in zip(c["recorded_by_cause"], by_cause)]
+        if len(events):
+            index = events.y.astype(np.int64) * fp.width_px + events.x.astype(np.int64)
+            self.image += np.bincount(index, minlength=self.image.size).reshape(fp.shape)
+            self._delays(events.t_readout_ns - events.t_trigger_ns)
+            c["out_of_order"] += self._out_of_order(events.t_readout_ns, events.t_trigger_ns)
+        if sources is not None:
+            self._mark_tracks(sources)
+        return {"metrics": self.summary(with_tracks=sources is not None)}
+
+    def finish(self) -> dict:
+        return {"metrics": self.summary(with_tracks=self.tracks is not None and bool(self.tracks.any()))}
+
+    def _delays(self, delay_ns: np.ndarray) -> None:
+        c = self.counts
+        c["delay_sum_ns"] += float(np.sum(delay_ns, dtype=np.float64))
+        c["delay_max_ns"] = max(c["delay_max_ns"], int(delay_ns.max()))
+        k = self.params.bins_per_decade
+        positive = delay_ns > 0
+        bins = np.zeros(delay_ns.size, np.int64)
+        bins[positive] = 1 + np.floor(np.log10(delay_ns[positive]) * k).astype(np.int64)
+        self.delays += np.bincount(np.minimum(bins, self.delays.size - 1), minlength=self.delays.size)
+
+    def _out_of_order(self, t_a: np.ndarray, t_t: np.ndarray) -> int:
+        """Events whose trigger time is before that of an event recorded strictly earlier."""
+        o = self.order
+        new_group = np.empty(t_a.size, bool)
+        new_group[0] = t_a[0] != o["last_t_a"]
+        np.not_equal(t_a[1:], t_a[:-1], out=new_group[1:])
+        running = np.maximum.accumulate(t_t)
+        start = np.maximum.accumulate(np.where(new_group, np.arange(t_a.size), 0))
+        before = np.where(start > 0, running[np.maximum(start - 1, 0)], np.iinfo(np.int64).min)
+        carried = np.where(~new_group[0] & (start == 0), o["max_before_last"], o["max_all"])
+        before = np.maximum(before, carried)
+        o["max_before_last"] = int(before[-1])
+        o["max_all"] = max(o["max_all"], int(running[-1]))
+        o["last_t_a"] = int(t_a[-1])
+        return int(np.count_nonzero(t_t < before))
+
+    def _mark_tracks(self, sources: PointSources) -> None:
+        """Rasterise each source's path (straight between samples, 0.5 pixel steps) into ``tracks``."""
+        xy = np.stack([sources.x_px, sources.y_px], axis=-1)           # [n_t, n_src, 2]
+        if self.last_xy is not None and self.last_xy.shape[0] == xy.shape[1]:
+            xy = np.concatenate([self.last_xy[None], xy])
+        if xy.shape[0] == 0:
+            return
+        seen = np.where(np.isfinite(xy).all(axis=-1, keepdims=True), xy, np.nan)
+        self.last_xy = seen[-1].copy()          # NaN if the source was lost: the next window starts afresh
+        for s in range(xy.shape[1]):
+            bit = SOURCE_BIT | (SATELLITE_BIT if sources.kind[s] == SourceKind.SATELLITE else 0)
+            points = _densify(seen[:, s])
+            if points.size:
+                self._stamp(points, bit)
+
+    def _stamp(self, points: np.ndarray, bit: int) -> None:
+        """Set ``bit`` on every pixel whose centre is within ``track_radius_px`` of one of ``points``."""
+        h, w = self.tracks.shape
+        r = self.params.track_radius_px
+        base = np.floor(points).astype(np.int64)
+        pix = (base[:, None, :] + self._box[None]).reshape(-1, 2)
+        near = (((pix - np.repeat(points, self._box.shape[0], axis=0)) ** 2).sum(axis=1) <= r * r)
+        near &= (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
+        pix = pix[near]
+        self.tracks[pix[:, 1], pix[:, 0]] |= np.uint8(bit)
+
+    # -- the figures ----------------------------------------------------------------------------------
+    def summary(self, with_tracks: bool) -> Metrics:
+        c = self.counts
+        expected = c["triggered"] + c["lost_pixel"]
+        duration_s = c["duration_ns"] / NS_PER_S
+        values = {
+            "events_triggered": c["triggered"],
+            "events_lost_pixel": c["lost_pixel"],
+            "events_expected": expected,
+            "events_recorded": c["recorded"],
+            "events_dropped_readout": c["dropped"],
+            "events_pending_readout": c["triggered"] - c["recorded"] - c["dropped"],
+            "ratio_recorded_to_expected": _ratio(c["recorded"], expected),
+            "loss_fraction_pixel": _ratio(c["lost_pixel"], expected),
+            "loss_fraction_readout": _ratio(c["dropped"], expected),
+            "loss_to_recorded": _ratio(c["lost_pixel"] + c["dropped"], c["recorded"]),
+            "out_of_order_fraction": _ratio(c["out_of_order"], c["recorded"]),
+            "duration_s": duration_s,
+        }
+        units = {name: "event" for name in values if name.startswith("events_")}
+        units.update({name: "1" for name in ("ratio_recorded_to_expected", "loss_fraction_pixel",
+                                             "loss_fraction_readout", "loss_to_recorded", "out_of_order_fraction")})
+        units["duration_s"] = "s"
+        for cause in EventCause:
+            values[f"events_triggered_{cause.name.lower()}"] = c["triggered_by_cause"][cause]
+            values[f"events_recorded_{cause.name.lower()}"] = c["recorded_by_cause"][cause]
+            units[f"events_triggered_{cause.name.lower()}"] = units[f"events_recorded_{cause.name.lower()}"] = "event"
+        if c["recorded"]:
+            values["readout_delay_mean_s"] = c["delay_sum_ns"] / c["recorded"] / NS_PER_S
+            values["readout_delay_max_s"] = c["delay_max_ns"] / NS_PER_S
+            for q in (50, 90, 99, 99.9):
+                values[f"readout_delay_p{q:g}_s".replace(".", "_")] = self.delay_percentile(q) / NS_PER_S
+            units.update({name: "s" for name in values if name.startswith("readout_delay")})
+        if self.image is not None and duration_s > 0:
+            background = (self.tracks & SOURCE_BIT) == 0 if with_tracks else np.ones(self.image.shape, bool)
+            n_bg = int(np.count_nonzero(background))
+            rate = _ratio(int(self.image[background].sum()), n_bg * duration_s)
+            values["background_rate_hz_per_pixel"] = rate
+            values["background_pixels"] = n_bg
+            units.update(background_rate_hz_per_pixel="Hz pixel^-1", background_pixels="pixel")
+            if with_tracks:
+                track = (self.tracks & SATELLITE_BIT) != 0
+                n_track = int(self.image[track].sum())
+                expected_bg = rate * int(np.count_nonzero(track)) * duration_s
+                values.update(track_pixels=int(np.count_nonzero(track)), track_events=n_track,
+                              track_background_events=expected_bg,
+                              track_snr=(n_track - expected_bg) / np.sqrt(n_track) if n_track else 0.0)
+                units.update(track_pixels="pixel", track_events="event", track_background_events="event",
+                             track_snr="1")
+        return Metrics(values, units)
+
+    def delay_percentile(self, q: float) -> float:
+        """The ``q``-th percentile of the readout delay from the histogram [ns] (log-interpolated in its bin)."""
+        total = int(self.delays.sum())
+        if total == 0:
+            return float("nan")
+        rank = q / 100 * total
+        cum = np.cumsum(self.delays)
+        b = int(np.searchsorted(cum, rank, side="left"))
+        if b == 0:
+            return 0.0
+        k = self.params.bins_per_decade
+        below = cum[b - 1]
+        frac = (rank - below) / self.delays[b] if self.delays[b] else 0.0
+        return float(10 ** ((b - 1 + frac) / k))
+
+
+def _ratio(a, b) -> float:
+    return float(a) / float(b) if b else 0.0
+
+
+def _box_offsets(radius: float) -> np.ndarray:
+    """Offsets from ``floor(point)`` covering every pixel centre within ``radius`` of the point."""
+    r = int(np.ceil(radius))
+    dx, dy = np.meshgrid(np.arange(-r, r + 2), np.arange(-r, r + 2))
+    return np.stack([dx.ravel(), dy.ravel()], axis=-1).astype(np.int64)
+
+
+def _densify(xy: np.ndarray, step_px: float = 0.5) -> np.ndarray:
+    """Points every ``step_px`` along the straight segments between consecutive finite samples."""
+    finite = np.isfinite(xy).all(axis=1)
+    pts = xy[finite]
+    if pts.shape[0] < 2:
+        return pts
+    # only join samples that were consecutive (a gap of NaN breaks the path)
+    idx = np.flatnonzero(finite)
+    joined = np.diff(idx) == 1
+    a, b = pts[:-1][joined], pts[1:][joined]
+    n = np.maximum(1, np.ceil(np.abs(b - a).max(axis=1) / step_px).astype(np.int64))
+    seg = np.repeat(np.arange(a.shape[0]), n)
+    frac = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
+    inner = a[seg] + (b[seg] - a[seg]) * frac[:, None]
+    return np.concatenate([inner, pts])
