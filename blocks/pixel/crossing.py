@@ -11,8 +11,8 @@ memorised value drifts down linearly by the leak and parasitic currents (Eqs. 18
 which is monotone when ``D <= 0`` and convex with a single minimum when ``D > 0``. The
 first ``j >= j0`` with ``g(j) >= theta_ON`` or ``g(j) <= -theta_OFF`` is therefore found
 without stepping: in closed form when ``g`` is linear, by bisection on a monotone stretch
-otherwise. This is the same recursion the dense reference steps through, so the two agree
-to floating-point rounding.
+otherwise. This is the recursion the dense reference steps through, so the two agree to
+floating-point rounding.
 """
 
 from __future__ import annotations
@@ -20,116 +20,131 @@ from __future__ import annotations
 import numpy as np
 
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
-_J_LIMIT = np.int64(1) << np.int64(52)     # longest look-ahead; beyond it a crossing counts as never [steps]
+J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
 
 
 def comparator_input(j, c, d, log_a, delta):
-    """``g(j) = C + D a^j + delta j`` (``a^j`` as ``exp(j ln a)``; ``a = 0`` gives 0 for ``j >= 1``)."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        decay = np.exp(np.where(j > 0, j * log_a, 0.0))
-    return c + d * decay + delta * j
+    """``g(j) = C + D a^j + delta j`` for ``j >= 1`` (``a^j`` as ``exp(j ln a)``; ``a = 0`` gives 0)."""
+    return c + d * np.exp(j * log_a) + delta * j
 
 
-def _first_true(lo, hi, pred):
-    """Smallest ``j`` in ``(lo, hi]`` with ``pred(j)``, given ``pred`` false at ``lo``, true at ``hi``, monotone between."""
+def _bisect(lo, hi, c, d, log_a, delta, level, upward: bool):
+    """Smallest ``j`` in ``(lo, hi]`` with ``g(j) >= level`` (``upward``) or ``<= level``.
+
+    Requires the test false at ``lo``, true at ``hi`` and monotone in between. A
+    safeguarded Newton iteration on the continuous ``g``: each Newton estimate (the
+    midpoint when it leaves the bracket) and the integer after it are tested and the
+    bracket shrinks around them, so it ends in a few steps near the root and never
+    takes more than a bisection would.
+    """
     lo, hi = lo.copy(), hi.copy()
-    open_ = hi - lo > 1
-    while open_.any():
-        idx = np.flatnonzero(open_)
-        mid = lo[idx] + (hi[idx] - lo[idx]) // 2
-        ok = pred(idx, mid)
-        hi[idx] = np.where(ok, mid, hi[idx])
-        lo[idx] = np.where(ok, lo[idx], mid)
-        open_[idx] = hi[idx] - lo[idx] > 1
-    return hi
+    x = (lo + hi) * 0.5
+    while True:
+        open_ = hi - lo > 1
+        if not open_.any():
+            return hi
+        decay = np.exp(x * log_a)
+        slope = d * decay * log_a + delta
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = x + (level - (c + d * decay + delta * x)) / slope
+        x = np.where(np.isfinite(x) & (x > lo) & (x < hi), x, (lo + hi) * 0.5)
+        m1 = np.minimum(np.maximum(np.floor(x).astype(np.int64), lo + 1), hi - 1)
+        m2 = np.minimum(m1 + 1, hi - 1)
+        for m in (m1, m2):
+            g = comparator_input(m, c, d, log_a, delta)
+            ok = (g >= level if upward else g <= level) & open_
+            hi = np.where(ok & (m < hi), m, hi)
+            lo = np.where(~ok & open_ & (m > lo), m, lo)
 
 
 def _ceil_steps(x):
-    """``ceil(x)`` as steps, clipped to ``[0, _J_LIMIT]`` (NaN -> limit)."""
-    x = np.where(np.isfinite(x), x, float(_J_LIMIT))
-    return np.clip(np.ceil(x), 0, float(_J_LIMIT)).astype(np.int64)
+    """``ceil(x)`` as steps, clipped to ``[0, J_LIMIT]`` (NaN -> limit)."""
+    x = np.where(np.isfinite(x), x, float(J_LIMIT))
+    return np.clip(np.ceil(x), 0, float(J_LIMIT)).astype(np.int64)
 
 
-def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off):
-    """First ``j >= j0`` at which ``g`` reaches ``theta_on`` (polarity +1) or ``-theta_off`` (-1).
+def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
+    """First ``j`` in ``[j0, horizon]`` at which ``g`` reaches ``theta_on`` (polarity +1) or ``-theta_off`` (-1).
 
-    All arguments are arrays of one length (``j0 >= 1``). Returns ``(j, polarity)`` with
-    ``j = NEVER`` and polarity 0 where the input never leaves the band.
+    All arguments are arrays of one length, ``j0 >= 1``; ``horizon`` (default: no limit)
+    bounds the search where the answer stops mattering (the pixel's next input change).
+    Returns ``(j, polarity)`` with ``j = NEVER``, polarity 0, where there is none.
     """
     n = j0.shape[0]
     j0 = j0.astype(np.int64)
+    horizon = np.full(n, J_LIMIT) if horizon is None else np.minimum(horizon.astype(np.int64), J_LIMIT)
     out = np.full(n, NEVER, dtype=np.int64)
     pol = np.zeros(n, dtype=np.int8)
 
-    def g(idx, j):
-        return comparator_input(j, c[idx], d[idx], log_a[idx], delta[idx])
-
-    everyone = np.arange(n)
-    g0 = g(everyone, j0)
+    g0 = comparator_input(j0, c, d, log_a, delta)
     on0, off0 = g0 >= theta_on, g0 <= -theta_off
-    out[on0], pol[on0] = j0[on0], 1
     off0 &= ~on0
+    out[on0], pol[on0] = j0[on0], 1
     out[off0], pol[off0] = j0[off0], -1
-    todo = ~(on0 | off0)
+    todo = ~(on0 | off0) & (horizon > j0)
 
     # -- linear: no relaxation left (D = 0, a = 1, or a = 0 which leaves L = Y after one step)
-    linear = todo & ((d == 0) | (log_a == 0) | np.isneginf(log_a))
-    idx = np.flatnonzero(linear & (delta > 0))
+    linear = (d == 0) | (log_a == 0) | np.isneginf(log_a)
+    idx = np.flatnonzero(todo & linear & (delta > 0))
     if idx.size:
-        c_eff = c[idx] + np.where(log_a[idx] == 0, d[idx], 0.0)
-        j = np.maximum(_ceil_steps((theta_on[idx] - c_eff) / delta[idx]), j0[idx])
+        ci, di, la, dl, th = c[idx], d[idx], log_a[idx], delta[idx], theta_on[idx]
+        c_eff = ci + np.where(la == 0, di, 0.0)
+        j = np.maximum(_ceil_steps((th - c_eff) / dl), j0[idx] + 1)
         # the closed form can be one step off through rounding: settle it on g itself
-        j = np.where(g(idx, j) >= theta_on[idx], j, j + 1)
-        j = np.where((j - 1 > j0[idx]) & (g(idx, j - 1) >= theta_on[idx]), j - 1, j)
-        good = (j < _J_LIMIT) & (g(idx, j) >= theta_on[idx])
+        j = np.where(comparator_input(j, ci, di, la, dl) >= th, j, j + 1)
+        back = (j - 1 > j0[idx]) & (comparator_input(j - 1, ci, di, la, dl) >= th)
+        j = np.where(back, j - 1, j)
+        good = (j <= horizon[idx]) & (comparator_input(j, ci, di, la, dl) >= th)
         out[idx[good]], pol[idx[good]] = j[good], 1
 
-    # -- rising (D < 0): g increases; only an ON crossing is possible after j0
+    # -- rising (D < 0): g increases, so after j0 only an ON crossing is possible
     idx = np.flatnonzero(todo & ~linear & (d < 0))
     if idx.size:
-        dl, cl, la, th = delta[idx], c[idx], log_a[idx], theta_on[idx]
+        ci, di, la, dl, th = c[idx], d[idx], log_a[idx], delta[idx], theta_on[idx]
         with np.errstate(divide="ignore", invalid="ignore"):
-            hi_drift = _ceil_steps((th - cl - d[idx]) / dl) + 1
-            hi_relax = _ceil_steps(np.log((th - cl) / d[idx]) / la) + 1
-        hi = np.where(dl > 0, hi_drift, np.where(cl > th, hi_relax, _J_LIMIT))
-        hi = np.maximum(np.minimum(hi, _J_LIMIT), j0[idx] + 1)
-        ok = g(idx, hi) >= th
-        sel = idx[ok]
-        if sel.size:
-            j = _first_true(j0[sel], hi[ok], lambda k, m: g(sel[k], m) >= theta_on[sel[k]])
-            out[sel], pol[sel] = j, 1
+            hi_drift = _ceil_steps((th - ci - di) / dl) + 1          # g >= C + D + delta j
+            hi_relax = _ceil_steps(np.log((th - ci) / di) / la) + 1  # without drift
+        hi = np.where(dl > 0, hi_drift, np.where(ci > th, hi_relax, J_LIMIT))
+        hi = np.maximum(np.minimum(hi, horizon[idx]), j0[idx] + 1)
+        ok = comparator_input(hi, ci, di, la, dl) >= th
+        if ok.any():
+            k = np.flatnonzero(ok)
+            j = _bisect(j0[idx[k]], hi[k], ci[k], di[k], la[k], dl[k], th[k], upward=True)
+            out[idx[k]], pol[idx[k]] = j, 1
 
     # -- falling (D > 0): g convex, decreasing until j*, increasing after
     idx = np.flatnonzero(todo & ~linear & (d > 0))
     if idx.size:
-        dl, cl, la, dd = delta[idx], c[idx], log_a[idx], d[idx]
+        ci, di, la, dl = c[idx], d[idx], log_a[idx], delta[idx]
+        jlo, hz = j0[idx], horizon[idx]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = dl / (-dd * la)                        # a^{j*} at the minimum
-            j_star = np.where(dl > 0, np.log(ratio) / la, np.inf)
-        j_min = np.clip(np.floor(np.where(np.isfinite(j_star), j_star, float(_J_LIMIT))), 0, float(_J_LIMIT))
-        j_min = np.maximum(j_min.astype(np.int64), j0[idx])
-        # OFF: on the decreasing stretch (j0, j_min + 1]
-        tf = -theta_off[idx]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            hi_relax = _ceil_steps(np.log((tf - cl) / dd) / la) + 1
-        hi_off = np.where(dl > 0, j_min, np.where(cl < tf, hi_relax, _J_LIMIT))
-        hi_off = np.maximum(np.minimum(hi_off, _J_LIMIT), j0[idx] + 1)
-        hi_off = np.where(g(idx, hi_off) <= tf, hi_off,
-                          np.where((dl > 0) & (g(idx, hi_off + 1) <= tf), hi_off + 1, -1))
-        has_off = hi_off > 0
-        sel = idx[has_off]
-        if sel.size:
-            j = _first_true(j0[sel], hi_off[has_off], lambda k, m: g(sel[k], m) <= -theta_off[sel[k]])
-            out[sel], pol[sel] = j, -1
-        # ON: after the minimum, where g increases
-        rest = ~has_off & (dl > 0)
-        sel = idx[rest]
-        if sel.size:
-            lo = np.maximum(j_min[rest], j0[sel])
-            hi = np.maximum(np.minimum(_ceil_steps((theta_on[sel] - c[sel]) / delta[sel]) + 1, _J_LIMIT), lo + 1)
-            ok = g(sel, hi) >= theta_on[sel]
-            sel, lo, hi = sel[ok], lo[ok], hi[ok]
-            if sel.size:   # g(lo) <= g(j0) < theta_on, as g decreases from j0 to j_min
-                out[sel] = _first_true(lo, hi, lambda k, m: g(sel[k], m) >= theta_on[sel[k]])
-                pol[sel] = 1
+            j_star = np.where(dl > 0, np.log(dl / (-di * la)) / la, np.inf)   # a^{j*} = delta / (-D ln a)
+            tf = -theta_off[idx]
+            hi_relax = _ceil_steps(np.log((tf - ci) / di) / la) + 1          # OFF without drift
+        j_min = np.clip(np.floor(np.where(np.isfinite(j_star), j_star, float(J_LIMIT))), 0, float(J_LIMIT))
+        j_min = np.minimum(np.maximum(j_min.astype(np.int64), jlo), hz)
+        # OFF: on the decreasing stretch (j0, min(j_min + 1, horizon)]
+        hi = np.where(dl > 0, j_min, np.where(ci < tf, hi_relax, J_LIMIT))
+        hi = np.maximum(np.minimum(hi, hz), jlo + 1)
+        hi = np.where(comparator_input(hi, ci, di, la, dl) <= tf, hi,
+                      np.where((dl > 0) & (hi + 1 <= hz) & (comparator_input(hi + 1, ci, di, la, dl) <= tf),
+                               hi + 1, -1))
+        off = hi > 0
+        if off.any():
+            k = np.flatnonzero(off)
+            j = _bisect(jlo[k], hi[k], ci[k], di[k], la[k], dl[k], tf[k], upward=False)
+            out[idx[k]], pol[idx[k]] = j, -1
+        # ON: after the minimum, where g increases (g(j_min) <= g(j0) < theta_ON)
+        on = ~off & (dl > 0) & (j_min < hz)
+        if on.any():
+            k = np.flatnonzero(on)
+            th = theta_on[idx[k]]
+            lo = j_min[k]
+            hi = np.minimum(_ceil_steps((th - ci[k]) / dl[k]) + 1, hz[k])      # g >= C + delta j
+            hi = np.maximum(hi, lo + 1)
+            ok = comparator_input(hi, ci[k], di[k], la[k], dl[k]) >= th
+            if ok.any():
+                k, lo, hi, th = k[ok], lo[ok], hi[ok], th[ok]
+                j = _bisect(lo, hi, ci[k], di[k], la[k], dl[k], th, upward=True)
+                out[idx[k]], pol[idx[k]] = j, 1
     return out, pol

@@ -92,11 +92,14 @@ class EventDrivenPixels:
             do_event = ~do_change & (t_event < n_end)
             if do_change.any():
                 sel = np.flatnonzero(do_change)
-                self._change(active[sel], t_change[sel], change_flux[ptr[sel]])
                 ptr[sel] += 1
+                following = np.full(sel.size, NEVER)
+                more = ptr[sel] < end[sel]
+                following[more] = change_step[ptr[sel][more]]
+                self._change(active[sel], t_change[sel], change_flux[ptr[sel] - 1], following)
             if do_event.any():
                 sel = np.flatnonzero(do_event)
-                self._event(active[sel], t_event[sel], log)
+                self._event(active[sel], t_event[sel], t_change[sel], log)
             keep = (ptr < end) | (np.minimum(s["cmp_next"][active], s["shot_next"][active]) < n_end)
             active, ptr, end = active[keep], ptr[keep], end[keep]
 
@@ -117,16 +120,21 @@ class EventDrivenPixels:
         s["credit"][1, idx] += para
         s["step"][idx] = t
 
-    def _schedule(self, idx: np.ndarray) -> None:
-        """Next comparator event of pixels ``idx`` from their current state (:func:`.crossing.first_crossing`)."""
+    def _schedule(self, idx: np.ndarray, next_change: np.ndarray | None = None) -> None:
+        """Next comparator event of pixels ``idx`` from their current state (:func:`.crossing.first_crossing`).
+
+        Only crossings before ``next_change`` (the step of the pixel's next input change,
+        where it is rescheduled anyway) are looked for.
+        """
         s = self.s
         step = s["step"][idx]
         y = self.y[idx]
         theta_on = s["theta_on"][idx]
         drift = (self._leak_dt + self.para_hz[idx] * self.model.dt_s) * theta_on
         j0 = np.maximum(s["ready"][idx] - step, 1)
+        horizon = None if next_change is None else np.where(next_change >= NEVER, NEVER, next_change - 1 - step)
         j, _ = first_crossing(j0, y - s["memorised"][idx], s["filtered"][idx] - y, self.log_a[idx], drift,
-                              theta_on, s["theta_off"][idx])
+                              theta_on, s["theta_off"][idx], horizon)
         s["cmp_next"][idx] = np.where(j >= NEVER, NEVER, step + j)
 
     def _draw_shot(self, idx: np.ndarray, after: np.ndarray) -> None:
@@ -139,18 +147,18 @@ class EventDrivenPixels:
         gap = np.floor(np.log(u) / self._log_1mq) + 1.0 if np.isfinite(self._log_1mq) else np.ones(idx.size)
         s["shot_next"][idx] = np.minimum(after + np.minimum(gap, float(NEVER)).astype(np.int64), NEVER)
 
-    def _change(self, idx: np.ndarray, t: np.ndarray, flux: np.ndarray) -> None:
-        """A new input holds from step ``t`` on."""
+    def _change(self, idx: np.ndarray, t: np.ndarray, flux: np.ndarray, next_change: np.ndarray) -> None:
+        """A new input holds from step ``t`` on (until ``next_change``)."""
         self._advance(idx, t - 1)
         self.s["flux"][idx] = flux
         drive = self.model.drive(flux)
         self.y[idx], self.log_a[idx], self.para_hz[idx] = drive.y, drive.log_a, drive.parasitic_hz
         if self.model.shot_p_max > 0:
             self.accept[idx] = drive.shot_p / self.model.shot_p_max
-        self._schedule(idx)
+        self._schedule(idx, next_change)
 
-    def _event(self, idx: np.ndarray, t: np.ndarray, log: EventLog) -> None:
-        """Comparator events and shot-noise arrivals of pixels ``idx`` at steps ``t``."""
+    def _event(self, idx: np.ndarray, t: np.ndarray, next_change: np.ndarray, log: EventLog) -> None:
+        """Comparator events and shot-noise arrivals of pixels ``idx`` at steps ``t`` (before ``next_change``)."""
         s = self.s
         p = self.model.params
         k_refr = self.model.refractory_steps
@@ -196,7 +204,7 @@ class EventDrivenPixels:
                     self._redraw(pe, se)
             s["shot_count"][pix] += 1
             self._draw_shot(pix, tt)
-        self._schedule(idx)
+        self._schedule(idx, next_change)
 
     def _redraw(self, pix: np.ndarray, sign: np.ndarray) -> None:
         """IEBCS: a new threshold of the polarity that fired, addressed by the pixel's event count."""
