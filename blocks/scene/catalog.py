@@ -43,7 +43,7 @@ class StarCatalog:
 
 @functools.lru_cache(maxsize=4)
 def load_hipparcos(path: str) -> StarCatalog:
-    """Read ``hip_main.dat`` (pipe-separated, optionally gzipped): HIP, Vmag, RAdeg, DEdeg, Plx, pmRA, pmDE.
+    """Read ``hip_main.dat`` (pipe-separated, optionally gzipped): fields HIP, Vmag, RAdeg, DEdeg, Plx, pmRA, pmDE.
 
     Stars without an astrometric solution (blank RA) are skipped; a missing parallax or
     proper motion counts as 0.
@@ -56,7 +56,7 @@ def load_hipparcos(path: str) -> StarCatalog:
                 fields = line.split("|")
                 if len(fields) < 14 or not fields[8].strip() or not fields[5].strip():
                     continue
-                rows.append((fields[1].strip(), fields[5], fields[8], fields[9], fields[11], fields[12], fields[13]))
+                rows.append((fields[1].strip(), fields[5], fields[8], fields[9], fields[12], fields[13], fields[11]))
     except OSError as exc:
         raise ParameterError(f"star catalogue {path!r} cannot be read ({exc.strerror or exc})") from None
     if not rows:

@@ -1,0 +1,131 @@
+"""Star field: apparent places against Skyfield, sidereal drift, star counts, windows and resume."""
+
+from datetime import timedelta
+
+import numpy as np
+import pytest
+from skyfield.api import Star
+from skyfield.framelib import galactic_frame
+
+from evsda import library
+from evsda.blocks.ports import FocalPlane
+from evsda.blocks.ports.scene import Pointing
+from evsda.blocks.scene import projection
+from evsda.blocks.scene.catalog import load_hipparcos
+from evsda.blocks.scene.ephemeris import skyfield_time, timescale
+from evsda.blocks.scene.starcounts import integrated_counts_per_deg2
+from evsda.blocks.scene.stars import StarField
+from evsda.graph import RunInfo, Window
+
+NS = 10**9
+
+
+def field(fov_deg: float) -> FocalPlane:
+    pitch = 4.86e-6
+    return FocalPlane(1280, 720, pitch, 1280 * pitch / (2 * np.tan(np.radians(fov_deg) / 2)))
+
+
+def started(block, epoch, duration_s=10.0, window_s=1.0, seed=1):
+    block.setup(RunInfo(epoch=epoch, duration_ns=int(duration_s * NS), window_ns=int(window_s * NS), seed=seed))
+    return block
+
+
+def test_positions_match_skyfield_at_every_sample(graz, pass_start):
+    fp = field(6.0)
+    pointing = Pointing(mode="stare", azimuth_deg=343.75, elevation_deg=40.57, roll_deg=10)
+    block = started(StarField(faint_limit_mag=9.0), pass_start)
+    window = Window(0, 0, 2 * NS, pass_start)
+    out = block.step(window, observer=graz, pointing=pointing, focal_plane=fp)["sources"]
+    stars = block._stars
+    assert len(stars) > 10
+    picks = np.arange(0, len(out.t_ns), 97)
+    catalog_epoch = timescale().J(stars.epoch_jyear)
+    star = Star(ra_hours=stars.ra_deg / 15, dec_degrees=stars.dec_deg, ra_mas_per_year=stars.pm_ra_mas_yr,
+                dec_mas_per_year=stars.pm_dec_mas_yr, parallax_mas=stars.parallax_mas, epoch=catalog_epoch)
+    observer = block._observer.skyfield_observer()
+    for k in picks:
+        t_ns = out.t_ns[k : k + 1]
+        direction = observer.at(skyfield_time(pass_start, t_ns)[0]).observe(star).apparent().xyz.m.T
+        b, r, u = (np.repeat(a, len(stars), axis=0) for a in block._pointing.frame(t_ns))
+        x, y = projection.project(direction / np.linalg.norm(direction, axis=1, keepdims=True), b, r, u, fp)
+        seen = np.isfinite(out.x_px[k])
+        assert np.abs(out.x_px[k, seen] - x[seen]).max() < 1e-3 and np.abs(out.y_px[k, seen] - y[seen]).max() < 1e-3
+
+
+def test_staring_field_drifts_at_the_sidereal_rate(graz, gen4, pass_start):
+    """Stars cross a stare at 15.041 arcsec/s * cos(dec) (Earth's rotation relative to the stars)."""
+    block = started(StarField(faint_limit_mag=11.0), pass_start)
+    pointing = Pointing(mode="stare", azimuth_deg=180.0, elevation_deg=40.0)    # on the meridian, south
+    out = block.step(Window(0, 0, 10 * NS, pass_start), observer=graz, pointing=pointing, focal_plane=gen4)["sources"]
+    seen = np.isfinite(out.x_px[0]) & np.isfinite(out.x_px[-1])
+    assert seen.sum() >= 2
+    speed_arcsec_s = np.hypot(out.x_px[-1, seen] - out.x_px[0, seen], out.y_px[-1, seen] - out.y_px[0, seen]) \
+        / ((out.t_ns[-1] - out.t_ns[0]) / NS) * np.degrees(gen4.pixel_scale_rad) * 3600
+    dec = np.radians(40.0 + graz.latitude_deg - 90.0)                   # declination on the meridian
+    assert speed_arcsec_s == pytest.approx(np.full(seen.sum(), 15.041 * np.cos(dec)), rel=2e-3)
+
+
+def test_sidereal_pointing_holds_a_star_at_the_centre(graz, gen4, pass_start):
+    capella = load_hipparcos(str(library.path("stars/hip_main.dat.gz")))
+    capella = capella.select(capella.name == "HIP 24608")
+    star = Star(ra_hours=capella.ra_deg[0] / 15, dec_degrees=capella.dec_deg[0], ra_mas_per_year=capella.pm_ra_mas_yr[0],
+                dec_mas_per_year=capella.pm_dec_mas_yr[0], parallax_mas=capella.parallax_mas[0],
+                epoch=timescale().J(capella.epoch_jyear))
+    earth = __import__("evsda.blocks.scene.ephemeris", fromlist=["planets"]).planets()["earth"]
+    ra, dec, _ = earth.at(skyfield_time(pass_start, np.zeros(1))[0]).observe(star).radec()   # ICRS at the date
+    block = started(StarField(faint_limit_mag=6.5), pass_start)
+    pointing = Pointing(mode="sidereal", ra_deg=ra._degrees, dec_deg=dec.degrees)
+    out = block.step(Window(0, 0, 10 * NS, pass_start), observer=graz, pointing=pointing, focal_plane=gen4)["sources"]
+    i = list(out.source_id).index("HIP 24608")
+    assert np.abs(out.x_px[:, i] - 639.5).max() < 0.05 and np.abs(out.y_px[:, i] - 359.5).max() < 0.05
+    assert out.magnitude[0, i] == pytest.approx(0.08 + 0.2 * 1.2, abs=0.3)   # Capella V = 0.08, extinction at X~1-2
+
+
+def test_bahcall_soneira_counts_against_hipparcos():
+    """Integrated counts V < 6 over |b| >= 20 deg: the model against the catalogue (15% per the authors)."""
+    catalog = load_hipparcos(str(library.path("stars/hip_main.dat.gz")))
+    galactic = catalog.unit_vectors() @ galactic_frame.rotation_at(None).T
+    b = np.degrees(np.arcsin(galactic[:, 2]))
+    observed = np.sum((np.abs(b) >= 20) & (catalog.vmag < 6.0))
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(20000, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    gb = np.degrees(np.arcsin(v[:, 2]))
+    gl = np.degrees(np.arctan2(v[:, 1], v[:, 0]))
+    high = np.abs(gb) >= 20
+    model = np.mean([integrated_counts_per_deg2(6.0, l, b_) for l, b_ in zip(gl[high], gb[high])])
+    assert model * 41252.96 * high.mean() == pytest.approx(observed, rel=0.15)
+
+
+def test_faint_stars_follow_the_counts(graz, pass_start):
+    fp = field(3.0)
+    block = started(StarField(faint_limit_mag=13.0, catalog_limit_mag=6.5), pass_start, duration_s=1.0)
+    pointing = Pointing(mode="stare", azimuth_deg=90.0, elevation_deg=60.0)
+    out = block.step(Window(0, 0, NS // 10, pass_start), observer=graz, pointing=pointing, focal_plane=fp)["sources"]
+    synthetic = np.char.startswith(out.source_id.astype(str), "BS ")
+    on = np.isfinite(out.x_px[0]) & synthetic
+    b_dir = block._pointing.frame(np.zeros(1))[0][0]
+    g = galactic_frame.rotation_at(None) @ b_dir
+    l, b = np.degrees(np.arctan2(g[1], g[0])), np.degrees(np.arcsin(g[2]))
+    half_w, half_h = projection.half_extent_rad(fp)
+    area = 4 * half_w * half_h * np.degrees(1) ** 2                      # tangent-plane area, deg^2
+    expected = area * (integrated_counts_per_deg2(13.0, l, b) - integrated_counts_per_deg2(6.5, l, b))
+    assert abs(on.sum() - expected) < 4 * np.sqrt(expected)
+    mags = out.magnitude[0, on]
+    assert np.mean(mags > 12.0) > 0.4                                     # counts rise steeply to the faint end
+
+
+def test_windows_and_resume_give_identical_output(graz, gen4, quickstart_pointing, pass_start):
+    scene = dict(observer=graz, pointing=quickstart_pointing, focal_plane=gen4)
+    whole = started(StarField(faint_limit_mag=14.0, name="stars"), pass_start, 1.0, 1.0)
+    reference = whole.step(Window(0, 0, NS, pass_start), **scene)["sources"]
+    first = started(StarField(faint_limit_mag=14.0, name="stars"), pass_start, 1.0, 0.1)
+    parts = [first.step(w, **scene)["sources"] for w in list(first.run.windows())[:4]]
+    state = first.get_state()
+    resumed = started(StarField(faint_limit_mag=14.0, name="stars"), pass_start, 1.0, 0.1)
+    resumed.set_state(state)
+    parts += [resumed.step(w, **scene)["sources"] for w in list(resumed.run.windows())[4:]]
+    assert reference.n_sources > 10
+    for name in ("t_ns", "x_px", "y_px", "photon_flux"):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(reference, name))
+    np.testing.assert_array_equal(parts[-1].source_id, reference.source_id)
