@@ -10,14 +10,13 @@ record, skipping events"). An accepted event is granted the bus at
 
 which is the D/1/K queue of queueing theory with deterministic service. Without drops
 the recursion has the closed form ``g_i = i*s + max(g_{-1} + s, max_{j<=i}(a_j - j*s))``
-(a running maximum), which is evaluated with numpy; only stretches where the FIFO is
-full fall back to an event-by-event loop, and that loop jumps over the arrivals that a
-full FIFO refuses, so its cost grows with the accepted events, not the flood.
+(a running maximum), which is evaluated with numpy; a busy period that starts with a full FIFO has a closed
+form too (a running minimum, see :func:`_busy_period`), so floods cost no Python loop
+per event.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,10 +44,10 @@ def run_fifo(arrival: np.ndarray, service: int, depth: int, waiting: np.ndarray,
     accepted = np.zeros(n, dtype=bool)
     grant = np.zeros(n, dtype=np.int64)
     prior = np.asarray(waiting, dtype=np.int64)
-    i = 0
+    i, batch = 0, n
     while i < n:
-        # fast path: assume every arrival from i on is accepted, find the first overflow
-        seg = a[i:]
+        # no FIFO overflow: the closed form of the Lindley recursion, up to the first overflow
+        seg = a[i:i + batch]
         j = np.arange(seg.size, dtype=np.int64)
         j *= service
         g = seg - j
@@ -56,35 +55,59 @@ def run_fifo(arrival: np.ndarray, service: int, depth: int, waiting: np.ndarray,
         np.maximum(g, last_grant + service, out=g)
         g += j
         full = _overflows(seg, g, prior, service, depth)
-        if full is None and i == 0:                   # nothing dropped: no copies
+        if full is None and seg.size == n:            # nothing dropped: no copies
             return FifoResult(np.ones(n, dtype=bool), g, int(g[-1]))
         m = seg.size if full is None else full
         accepted[i:i + m] = True
         grant[i:i + m] = g[:m]
         if m:
             last_grant = int(g[m - 1])
-        if full is None:
-            break
-        # slow path from the first overflow, until the FIFO is empty again
-        queue = deque(int(x) for x in prior[prior > seg[m]])
-        queue.extend(int(x) for x in g[:m][g[:m] > seg[m]])
         i += m
-        while i < n:
-            t = int(a[i])
-            while queue and queue[0] <= t:
-                queue.popleft()
-            if not queue:
-                break                     # back to the fast path with an empty FIFO
-            if len(queue) >= depth:       # full: refuse everything until a slot frees
-                i = max(i + 1, int(np.searchsorted(a, queue[0], side="left")))
-                continue
-            last_grant = max(t, last_grant + service)
-            queue.append(last_grant)
-            accepted[i] = True
-            grant[i] = last_grant
-            i += 1
-        prior = np.asarray(queue, dtype=np.int64)
+        if full is None:                              # the batch went through: carry its waiting grants
+            prior = np.concatenate([prior, g])
+            prior = prior[prior > a[i]] if i < n else prior[:0]
+            batch *= 2
+            continue
+        # a full FIFO: serve the busy period that follows until the FIFO empties
+        waits = np.concatenate([prior[prior > a[i]], g[:m][g[:m] > a[i]]])
+        i, last_grant = _busy_period(a, i, int(waits[0]), waits.size, service, depth, last_grant, accepted, grant)
+        prior, batch = np.zeros(0, np.int64), 1024
     return FifoResult(accepted, grant, last_grant)
+
+
+def _busy_period(a: np.ndarray, i: int, head: int, waiting: int, service: int, depth: int, last_grant: int,
+                 accepted: np.ndarray, grant: np.ndarray) -> tuple[int, int]:
+    """Serve arrivals from ``i`` while the bus stays busy; returns ``(first arrival that finds the
+    FIFO empty, last grant)``.
+
+    While the bus is busy its grants follow back to back: the ``waiting`` events wait for
+    ``head, head + s, ...`` and the ``r``-th event accepted after them gets
+    ``last_grant + r s``. By an arrival at ``a`` the grants up to it have freed
+    ``F(a) = max(0, floor((a - head) / s) + 1)`` slots, so it finds
+    ``waiting + r - F(a)`` events waiting and is accepted iff ``r < c = depth - waiting + F(a)``.
+    With ``c`` non-decreasing the count of accepted events obeys
+    ``r_{k+1} = min(r_k + 1, c_k)``, whose solution is ``r_{k+1} = k + min(1, min_{j<=k}(c_j - j))``
+    (a running minimum): the whole busy period is evaluated with numpy.
+    """
+    n, taken, batch = a.size, 0, 256
+    while i < n:
+        seg = a[i:i + batch]
+        k = np.arange(seg.size, dtype=np.int64)
+        freed = np.maximum(0, (seg - head) // service + 1)
+        c = depth - waiting - taken + freed
+        after = k + np.minimum(1, np.minimum.accumulate(c - k))    # accepted after each arrival
+        before = np.concatenate([[0], after[:-1]])
+        empty = np.flatnonzero(freed >= waiting + taken + before)  # every grant passed: FIFO empty
+        stop = seg.size if empty.size == 0 else int(empty[0])
+        took = np.flatnonzero(after[:stop] > before[:stop])
+        accepted[i + took] = True
+        grant[i + took] = last_grant + service * (taken + after[took])
+        taken += int(after[stop - 1]) if stop else 0
+        if stop < seg.size:
+            return i + stop, last_grant + taken * service
+        i += seg.size
+        batch *= 2
+    return n, last_grant + taken * service
 
 
 def _overflows(a: np.ndarray, g: np.ndarray, prior: np.ndarray, service: int, depth: int) -> int | None:
@@ -102,10 +125,15 @@ def _overflows(a: np.ndarray, g: np.ndarray, prior: np.ndarray, service: int, de
     candidates = np.flatnonzero(lag > (depth - 1) * service)
     if prior.size:
         candidates = np.union1d(candidates, np.arange(np.searchsorted(a, prior[-1], side="left")))
-    if candidates.size == 0:
-        return None
-    at = a[candidates]
-    left_before = np.minimum(np.searchsorted(g, at, side="right"), candidates)
-    occupancy = (candidates - left_before) + (prior.size - np.searchsorted(prior, at, side="right"))
-    full = np.flatnonzero(occupancy >= depth)
-    return int(candidates[full[0]]) if full.size else None
+    lo, block = 0, 1024                             # look at the candidates in growing blocks,
+    while lo < candidates.size:                     # as the first overflow is often early
+        cand = candidates[lo:lo + block]
+        at = a[cand]
+        left_before = np.minimum(np.searchsorted(g, at, side="right"), cand)
+        occupancy = (cand - left_before) + (prior.size - np.searchsorted(prior, at, side="right"))
+        full = np.flatnonzero(occupancy >= depth)
+        if full.size:
+            return int(cand[full[0]])
+        lo += block
+        block *= 4
+    return None
