@@ -5,6 +5,7 @@ simulation of the scanner, FIFO and bus (written from the model's description, n
 from the vectorised code); and exact conservation triggered = recorded + dropped.
 """
 
+import bisect
 from collections import deque
 
 import numpy as np
@@ -193,7 +194,7 @@ def test_row_scan_matches_tick_by_tick_reference(seed, depth, row_cycles, bus_cy
 def reference_fifo(arrival, service, depth):
     grants, accepted, last = [], [], NEVER
     for a in arrival:
-        waiting = sum(g > a for g in grants)
+        waiting = len(grants) - bisect.bisect_right(grants, a)      # grants are increasing
         if waiting >= depth:
             accepted.append(False)
             continue
@@ -219,6 +220,20 @@ def test_fifo_matches_reference_also_when_cut_in_two(arrivals, service, depth, c
     g1 = first.grant[first.accepted]
     second = run_fifo(a[m:], service, depth, g1[g1 >= h], first.last_grant)
     np.testing.assert_array_equal(np.concatenate([first.accepted, second.accepted]), want_acc)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_fifo_through_long_floods_matches_reference(seed):
+    """Tens of thousands of arrivals in bursts far above the bus rate: long busy periods."""
+    rng = np.random.default_rng(seed)
+    bursts = rng.integers(0, 200_000, 40)
+    a = np.sort(np.concatenate([b + rng.integers(0, rng.integers(1, 3000), 500) for b in bursts]))
+    for service, depth in [(3, 1), (2, 16), (7, 5)]:
+        want_acc, want_grant = reference_fifo(a.tolist(), service, depth)
+        got = run_fifo(a, service, depth, np.zeros(0, np.int64), int(NEVER))
+        np.testing.assert_array_equal(got.accepted, want_acc)
+        np.testing.assert_array_equal(got.grant[got.accepted], want_grant)
+        assert 0 < want_acc.sum() < a.size
 
 
 # -- conservation, windowing, resume ---------------------------------------------------------------------
