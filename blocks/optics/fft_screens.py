@@ -1,0 +1,102 @@
+"""FFT phase screens with subharmonics, and the structure function of a screen.
+
+The FFT method (McGlamery 1976; Schmidt 2010 Sec. 9.3, Listing 9.2) draws complex
+Gaussian Fourier coefficients with variance ``PSD(f) df^2`` on the grid's frequencies
+and transforms them; the real and imaginary parts are two independent screens. Its
+lowest frequency is ``1 / (N delta)``, so large scales (tilt) are missing; the
+subharmonic method of Lane, Glindemann & Dainty 1992 (Waves Random Media 2, 209),
+as in Schmidt 2010 Listing 9.3 (three levels of 3 x 3 frequencies spaced
+``1 / (3^p N delta)``), adds them back.
+
+One change from Listing 9.3: each subharmonic's variance is the PSD *integrated over
+its frequency cell* rather than the PSD at the cell centre times the cell area
+(Johansson & Gavel 1994, Proc. SPIE 2200, 372, reweight these cells for the same
+reason). The ``f^(-11/3)`` PSD varies by orders of magnitude across a subharmonic
+cell and the point value leaves the structure function 15-35 % low at large
+separations; with cell integrals it stays within 9 % of ``6.88 (r/r0)^(5/3)`` from
+one sample to half the screen (tests/optics).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft as sfft
+
+from .kolmogorov import phase_psd
+
+
+def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float, L0: float = np.inf,
+                      subharmonics: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Two independent ``n x n`` screens [rad] sampled every ``delta`` [m] with Fried parameter ``r0`` [m].
+
+    ``L0`` is the von Karman outer scale [m]; ``subharmonics`` adds Lane et al. 1992's low frequencies.
+    """
+    df = 1.0 / (n * delta)
+    fx = sfft.fftfreq(n, delta)
+    f = np.hypot(fx[:, None], fx[None, :])
+    psd = phase_psd(f, r0, L0)
+    psd[0, 0] = 0.0                                             # no piston
+    coefficients = (rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))) * np.sqrt(psd) * df
+    screen = sfft.ifft2(coefficients, workers=-1) * (n * n)    # sum_k c_k exp(2 pi i f_k . x)
+    if subharmonics:
+        screen = screen + _subharmonics(rng, n, delta, r0, L0)
+    return np.ascontiguousarray(screen.real), np.ascontiguousarray(screen.imag)
+
+
+def _subharmonics(rng: np.random.Generator, n: int, delta: float, r0: float, L0: float) -> np.ndarray:
+    """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3)."""
+    x = (np.arange(n) - n / 2) * delta
+    low = np.zeros((n, n), dtype=complex)
+    for p in (1, 2, 3):
+        df = 1.0 / (3**p * n * delta)
+        f1 = np.array([-1.0, 0.0, 1.0]) * df
+        power = _cell_integrated_psd(f1, df, r0, L0)
+        c = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) * np.sqrt(power)
+        ey = np.exp(2j * np.pi * np.outer(x, f1))                # rows: y, columns: fy
+        ex = np.exp(2j * np.pi * np.outer(f1, x))                # rows: fx, columns: x
+        low += ey @ c @ ex                                       # c[iy, ix]
+    return low - low.mean()
+
+
+def _cell_integrated_psd(f1: np.ndarray, df: float, r0: float, L0: float, samples: int = 16) -> np.ndarray:
+    """``integral of PSD over the df x df cell around each of the 3 x 3 frequencies`` [rad^2], centre cell 0."""
+    offsets = ((np.arange(samples) + 0.5) / samples - 0.5) * df
+    power = np.zeros((3, 3))
+    for iy in range(3):
+        for ix in range(3):
+            if iy == 1 and ix == 1:
+                continue
+            fy = f1[iy] + offsets[:, None]
+            fx = f1[ix] + offsets[None, :]
+            power[iy, ix] = phase_psd(np.hypot(fx, fy), r0, L0).mean() * df * df
+    return power
+
+
+def structure_function_2d(phase: np.ndarray, mask: np.ndarray, delta: float) -> np.ndarray:
+    """Structure function ``D(dx, dy)`` [rad^2] of ``phase`` over ``mask``, by FFT (Schmidt 2010 Listing 3.7).
+
+    The result is centred: index ``[n//2, n//2]`` is zero separation. ``mask`` should not
+    fill more than half of the grid so that the correlations do not wrap.
+    """
+    n = phase.shape[0]
+    w = mask.astype(float)
+    p = sfft.fft2(phase * w)
+    s = sfft.fft2(phase**2 * w)
+    wf = sfft.fft2(w)
+    overlap = sfft.ifft2(np.abs(wf) ** 2).real
+    numerator = 2 * sfft.ifft2((s * np.conj(wf)).real - np.abs(p) ** 2).real
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(overlap > 0.5, numerator / np.maximum(overlap, 0.5), np.nan)
+    return sfft.fftshift(d)
+
+
+def radial_profile(values: np.ndarray, delta: float, radii: np.ndarray) -> np.ndarray:
+    """Mean of a centred 2-D array along rings at ``radii`` [m] (bins of width ``delta``), NaNs ignored."""
+    n = values.shape[0]
+    y, x = np.indices(values.shape) - n // 2
+    r = np.hypot(x, y) * delta
+    out = np.empty(len(radii))
+    for i, radius in enumerate(radii):
+        ring = np.abs(r - radius) < 0.5 * delta
+        out[i] = np.nanmean(values[ring])
+    return out

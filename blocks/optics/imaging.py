@@ -1,0 +1,463 @@
+"""A telescope looking through a layered atmosphere at point sources: stamps of pixel energies.
+
+:class:`Imager` is the optics stage as a plain Python object (the ``optics`` block wraps
+it): give it the telescope, the focal plane, the band's wavelength and an atmosphere
+(or ``None`` above it), then ask for stamps of a source along its track::
+
+    imager = Imager(Telescope(0.35, 0.3), focal_plane, 550e-9, Atmosphere.hufnagel_valley())
+    origin, stamps, paths = imager.render("sat", t_s, x_px, y_px, zenith_rad, range_m)
+
+``stamps[k]`` holds the fraction of the power incident on the collecting area that lands
+in each pixel of the stamp whose first pixel is ``origin[k]`` (x, y).
+
+Geometry of frozen flow (Taylor's hypothesis; Poyneer et al. 2009): layer ``l`` at
+altitude ``h`` is a screen moving with its wind ``v``; the line of sight to a source at
+sky offset ``theta`` from the boresight crosses it at slant distance ``L = h sec(zeta)``,
+so the pupil's footprint on the screen is centred at ``L theta - v t`` and, for a source
+at range ``R``, shrunk by ``1 - L/R`` (the cone of a finite-range source). A satellite
+crossing the field therefore sweeps the high layers at ``L dtheta/dt``, much faster than
+the wind. Each source sees its own screens: sources a few arcseconds apart are already
+beyond the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7).
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy.special import erf
+
+from evsda.blocks.ports import FocalPlane
+
+from .atmosphere import Atmosphere
+from .fft_screens import fft_phase_screens
+from .layer_screen import MARGIN, LayerScreen
+from .paths import LOG, PATHS, PROBE_FRAMES, PathChoice, pick, scintillation_error, total_variation
+from .propagation import plane_spacings, point_source_field, propagate
+from .psf import long_exposure_encircled_energy, long_exposure_profile
+from .render import PupilRenderer, RadialRenderer, StampSampler, oversampling_for, stamp_placement
+from .sampling import PropagationGeometry, PropagationGrid, check_grid, choose_grid, planes_for
+
+#: a source farther than this is propagated from this range (its wavefront curvature over any
+#: aperture, Fresnel number D^2 / (lambda R) < 1e-3, is negligible) [m]
+FAR_RANGE_M = 1e9
+#: zenith-angle bin of path decisions [rad] and range bin (ratio) [1]
+ZENITH_BIN_RAD = np.deg2rad(1.0)
+RANGE_BIN_RATIO = 1.05
+
+
+@dataclass(frozen=True)
+class PupilGeometry:
+    """Sampling chosen once per run (kept in the block's state so a resumed run is identical)."""
+
+    n_pupil: int                 # pupil samples across the grid
+    delta_m: float               # pupil sample spacing [m]
+    stamp_size: int              # stamp width [pixel]
+    oversample: int              # sub-pixels per pixel along an axis
+    layer_delta_m: tuple         # screen sample spacing of each layer [m]
+    layer_n: tuple               # screen window width of each layer [samples]
+
+
+class Imager:
+    """Point-source imaging through turbulence with a choice of PSF paths (:mod:`.paths`)."""
+
+    def __init__(self, telescope, focal_plane: FocalPlane, wavelength_m: float, atmosphere: Atmosphere | None,
+                 *, tolerance: float = 0.05, path: str = "auto", focus: str = "source",
+                 screen_method: str = "fft", screen_update: str = "extend", n_zernike_modes: int = 66,
+                 revisit_s: float | None = None, pupil_samples: int | None = None,
+                 stamp_size_px: int | None = None, grid_size: int | None = None, seed: tuple = (0,),
+                 name: str = "optics"):
+        self.telescope, self.focal_plane, self.wavelength = telescope, focal_plane, float(wavelength_m)
+        self.atmosphere = atmosphere if atmosphere is not None and atmosphere.layers else None
+        self.tolerance, self.forced_path, self.focus = float(tolerance), path, focus
+        self.screen_method, self.screen_update, self.n_zernike_modes = screen_method, screen_update, n_zernike_modes
+        self.revisit_s, self.pupil_samples, self.stamp_size_px = revisit_s, pupil_samples, stamp_size_px
+        self.grid_size, self.seed, self.name = grid_size, tuple(int(s) for s in seed), name
+        self.pixel_scale = focal_plane.pixel_scale_rad
+        self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
+        self.geometry: PupilGeometry | None = None
+        self.screens: dict[str, list[LayerScreen]] = {}
+        self.reference_screens: dict[str, list[LayerScreen]] = {}
+        self._choices: dict[tuple, PathChoice] = {}
+        self._profiles: dict[tuple, RadialRenderer] = {}
+        self._pupil_renderer: PupilRenderer | None = None
+        self._amplitude: np.ndarray | None = None
+
+    # -- turbulence strength ----------------------------------------------------------------------
+    def turbulent(self, zenith_rad: float) -> bool:
+        return self.atmosphere is not None and bool(np.isfinite(zenith_rad))
+
+    def r0(self, zenith_rad: float) -> float:
+        """Fried parameter of the line of sight at the band's wavelength [m] (inf above the atmosphere)."""
+        return self.atmosphere.r0(self.wavelength, zenith_rad) if self.turbulent(zenith_rad) else np.inf
+
+    # -- sampling, fixed at first use ------------------------------------------------------------
+    def ensure_geometry(self, zenith_rad: float) -> PupilGeometry:
+        if self.geometry is not None:
+            return self.geometry
+        d, lam, p, tol = self.telescope.diameter_m, self.wavelength, self.pixel_scale, self.tolerance
+        # design for r0 at 0.75 x its first value: about 25 degrees more zenith angle near 45 degrees
+        r0 = 0.75 * self.r0(zenith_rad)
+        if self.stamp_size_px is not None:
+            size = int(self.stamp_size_px)
+        else:
+            # enclose all but half the tolerance of the long-exposure (or Airy) PSF's power
+            theta = np.arange(1, 1025) * p / 4
+            enclosed = long_exposure_encircled_energy(self.telescope, lam, r0, self._L0, theta)
+            radius = theta[min(np.searchsorted(enclosed, 1 - tol / 2), theta.size - 1)]
+            size = int(np.clip(2 * np.ceil(radius / p) + 1, 3, 129))
+        # midpoint-rule error ~ 0.03 (sub-pixels per lambda/2D)^-2 (tests/optics), a quarter of the tolerance
+        density = float(np.clip(np.sqrt(0.12 / tol), 1.0, 4.0))
+        oversample = oversampling_for(p / density, d, lam)
+        if self.pupil_samples is not None:
+            n_pupil = int(self.pupil_samples)
+            delta = d / (n_pupil - 2)
+        else:
+            delta = min(d / 24, r0 / 4, lam / (1.25 * size * p))
+            n_pupil = int(np.ceil(d / delta)) + 2
+            n_pupil += n_pupil % 2
+            delta = d / (n_pupil - 2)
+        footprint = n_pupil * delta
+        layer_delta, layer_n = [], []
+        if self.atmosphere is not None:
+            layer_r0 = 0.75 * self.atmosphere.layer_r0(lam, zenith_rad if np.isfinite(zenith_rad) else 0.0)
+            for r0_l in layer_r0:
+                step = float(np.clip(r0_l / 6, delta, d / 8))
+                across = int(np.ceil(footprint / step))
+                n = (4 if self.screen_method == "zernike" else 3) * across + 2 * MARGIN + 2
+                layer_delta.append(step)
+                layer_n.append(n + n % 2)
+        self.geometry = PupilGeometry(n_pupil, delta, size, oversample, tuple(layer_delta), tuple(layer_n))
+        LOG.info("%s: pupil %d x %d samples of %.3g mm, stamps %d x %d pixels with %d x %d sub-pixels, "
+                 "layer screens %s samples of %s mm", self.name, n_pupil, n_pupil, delta * 1e3, size, size,
+                 oversample, oversample, list(layer_n), [round(s * 1e3, 2) for s in layer_delta])
+        return self.geometry
+
+    @property
+    def _L0(self) -> float:
+        return self.atmosphere.L0 if self.atmosphere is not None else np.inf
+
+    @property
+    def sampler(self) -> StampSampler:
+        g = self.geometry
+        return StampSampler(g.stamp_size, self.pixel_scale, g.oversample)
+
+    @property
+    def pupil_renderer(self) -> PupilRenderer:
+        if self._pupil_renderer is None:
+            g = self.geometry
+            self._pupil_renderer = PupilRenderer(self.sampler, g.n_pupil, g.delta_m, self.wavelength,
+                                                 self.telescope.collecting_area_m2)
+            self._amplitude = self.telescope.pupil(g.n_pupil, g.delta_m)
+        return self._pupil_renderer
+
+    @property
+    def pupil_amplitude(self) -> np.ndarray:
+        self.pupil_renderer
+        return self._amplitude
+
+    # -- path choice ------------------------------------------------------------------------------
+    def conditions_key(self, zenith_rad: float, range_m: float) -> tuple:
+        z = -1 if not self.turbulent(zenith_rad) else int(np.floor(zenith_rad / ZENITH_BIN_RAD))
+        r = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log(range_m) / np.log(RANGE_BIN_RATIO)))
+        return z, r
+
+    def _representative(self, key: tuple) -> tuple[float, float]:
+        z, r = key
+        zenith = np.nan if z < 0 else (z + 0.5) * ZENITH_BIN_RAD
+        range_m = np.inf if r < 0 else RANGE_BIN_RATIO ** (r + 0.5)
+        return zenith, range_m
+
+    def choose(self, zenith_rad: float, range_m: float, source: str = "") -> PathChoice:
+        """The path for these conditions (forced, or the cheapest within tolerance); logged once per condition."""
+        key = self.conditions_key(zenith_rad, range_m)
+        if key not in self._choices:
+            self.ensure_geometry(zenith_rad)
+            zenith, range_rep = self._representative(key)
+            context = self._context(zenith, range_rep)
+            if self.forced_path != "auto":
+                choice = PathChoice(self.forced_path, {}, f"path '{self.forced_path}' forced by psf_path ({context})")
+            else:
+                choice = pick(self.estimate_errors(zenith, range_rep), self.tolerance, context)
+            self._choices[key] = choice
+            LOG.info("%s%s: %s", self.name, f" source {source}" if source else "", choice.reason)
+        return self._choices[key]
+
+    def _context(self, zenith: float, range_m: float) -> str:
+        d = self.telescope.diameter_m
+        parts = []
+        if self.turbulent(zenith):
+            parts.append(f"D/r0 = {d / self.r0(zenith):.3g} at zenith angle {np.rad2deg(zenith):.1f} deg")
+        else:
+            parts.append("no atmosphere")
+        if np.isfinite(range_m):
+            parts.append(f"Fresnel number D^2/(lambda R) = {d**2 / (self.wavelength * range_m):.3g}")
+        return ", ".join(parts)
+
+    def estimate_errors(self, zenith_rad: float, range_m: float) -> dict[str, float]:
+        """Estimated error [1] of each path against the reference (:mod:`.paths`)."""
+        if self.turbulent(zenith_rad):
+            sigma2 = self.atmosphere.scintillation_index(self.telescope.diameter_m, self.wavelength, zenith_rad,
+                                                         range_m)
+        else:
+            sigma2 = 0.0
+        pupil_error = scintillation_error(sigma2)
+        rng = np.random.Generator(np.random.PCG64(zlib.crc32(repr((zenith_rad, range_m, self.seed)).encode())))
+        offsets = rng.uniform(-0.5, 0.5, (PROBE_FRAMES, 2))
+        frames = PROBE_FRAMES if self.turbulent(zenith_rad) else 1
+        offsets = offsets[:frames]
+        phase = self._probe_phase(rng, zenith_rad, range_m, frames)
+        pupil = self.pupil_renderer.stamps(self.pupil_amplitude, phase, offsets)
+        flux = pupil.sum(axis=(1, 2)).mean()
+        estimates = {"reference": 0.0, "pupil_fft": pupil_error}
+        for name in ("airy", "long_exposure"):
+            analytic = self.radial_renderer(name, zenith_rad).stamps(offsets)
+            estimates[name] = float(total_variation(analytic, pupil, flux).mean()) + pupil_error
+        if not self.turbulent(zenith_rad):
+            estimates.pop("long_exposure")
+        return estimates
+
+    def _probe_phase(self, rng, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
+        g = self.geometry
+        phase = np.zeros((frames, g.n_pupil, g.n_pupil))
+        phase += self._defocus(np.full(frames, range_m))
+        if self.turbulent(zenith_rad):
+            r0 = self.r0(zenith_rad)
+            for k in range(0, frames, 2):
+                pair = fft_phase_screens(rng, 2 * g.n_pupil, g.delta_m, r0, self._L0)
+                for j, screen in enumerate(pair[: min(2, frames - k)]):
+                    phase[k + j] += screen[: g.n_pupil, : g.n_pupil]
+        return phase
+
+    # -- analytic PSFs ---------------------------------------------------------------------------
+    def radial_renderer(self, path: str, zenith_rad: float) -> RadialRenderer:
+        r0 = self.r0(zenith_rad) if path == "long_exposure" else np.inf
+        key = (path, None if not np.isfinite(r0) else self.conditions_key(zenith_rad, np.inf))
+        if key not in self._profiles:
+            if path == "long_exposure" and np.isfinite(r0):
+                r0 = self.r0(self._representative(key[1])[0])
+            s = self.sampler
+            theta = np.linspace(0.0, (s.size / 2 + 2) * np.sqrt(2) * self.pixel_scale, 2048)
+            if np.isfinite(r0):
+                profile = long_exposure_profile(self.telescope, self.wavelength, r0, self._L0, theta, 2048)
+            else:
+                profile = self.telescope.airy(theta, self.wavelength)
+            self._profiles[key] = RadialRenderer(s, theta, profile)
+        return self._profiles[key]
+
+    def _defocus(self, range_m: np.ndarray) -> np.ndarray:
+        """Pupil phase [rad] of a finite-range source for a telescope focused at infinity, ``pi r^2/(lambda R)``."""
+        g = self.geometry
+        x = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
+        r2 = x[None, :] ** 2 + x[:, None] ** 2
+        if self.focus == "source":
+            return np.zeros((len(range_m), 1, 1))
+        curvature = np.where(np.isfinite(range_m), 1.0 / np.asarray(range_m, dtype=float), 0.0)
+        return np.pi / self.wavelength * curvature[:, None, None] * r2[None]
+
+    # -- rendering --------------------------------------------------------------------------------
+    def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
+               zenith_rad: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame."""
+        t_s, x_px, y_px = (np.asarray(a, dtype=float) for a in (t_s, x_px, y_px))
+        zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), t_s.shape)
+        range_m = np.broadcast_to(np.asarray(range_m, dtype=float), t_s.shape)
+        self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
+        origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
+        size = self.geometry.stamp_size
+        stamps = np.zeros((len(t_s), size, size))
+        paths = [self.choose(z, r, source).path for z, r in zip(zenith_rad, range_m)]
+        for path in PATHS:
+            idx = np.array([i for i, p in enumerate(paths) if p == path], dtype=int)
+            if idx.size == 0:
+                continue
+            if path in ("airy", "long_exposure"):
+                for key in sorted({self.conditions_key(z, np.inf) for z in zenith_rad[idx]}):
+                    sub = idx[[self.conditions_key(z, np.inf) == key for z in zenith_rad[idx]]]
+                    stamps[sub] = self.radial_renderer(path, zenith_rad[sub[0]]).stamps(offset[sub])
+            elif path == "pupil_fft":
+                stamps[idx] = self._render_pupil(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
+                                                 range_m[idx], offset[idx])
+            else:
+                stamps[idx] = self._render_reference(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
+                                                     range_m[idx], offset[idx])
+        return origin, stamps, paths
+
+    def _source_seed(self, source: str, family: int) -> tuple:
+        return (*self.seed, zlib.crc32(source.encode()), family)
+
+    def _layer_screens(self, source: str) -> list[LayerScreen]:
+        if source not in self.screens:
+            g = self.geometry
+            self.screens[source] = [
+                LayerScreen(n, step, (*self._source_seed(source, 0), i), L0=self._L0, method=self.screen_method,
+                            update=self.screen_update, n_modes=self.n_zernike_modes)
+                for i, (n, step) in enumerate(zip(g.layer_n, g.layer_delta_m))]
+        return self.screens[source]
+
+    def _epochs(self, t_s: np.ndarray) -> np.ndarray:
+        if not self.revisit_s:
+            return np.zeros(t_s.shape, dtype=np.int64)
+        return np.floor(t_s / self.revisit_s + 1e-9).astype(np.int64)
+
+    def _footprints(self, layer, t_s, x_px, y_px, zenith_rad, range_m):
+        """Footprint centre on a layer (F, 2) (x, y) [m] and its scale (F,) [1]."""
+        slant = layer.altitude_m / np.cos(zenith_rad)
+        theta = (np.stack([x_px, y_px], axis=-1) - self.boresight) * self.pixel_scale
+        centre = slant[:, None] * theta - layer.wind_m_s[None, :] * t_s[:, None]
+        scale = np.where(np.isfinite(range_m), 1.0 - slant / np.where(np.isfinite(range_m), range_m, 1.0), 1.0)
+        return centre, scale
+
+    def turbulent_phase(self, source: str, t_s, x_px, y_px, zenith_rad, range_m) -> np.ndarray:
+        """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight."""
+        g = self.geometry
+        frames = len(t_s)
+        phase = np.zeros((frames, g.n_pupil, g.n_pupil))
+        if not self.atmosphere:
+            return phase
+        turbulent = np.isfinite(zenith_rad)
+        xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
+        k2 = (2 * np.pi / self.wavelength) ** 2
+        epochs = self._epochs(t_s)
+        for layer, screen in zip(self.atmosphere.layers, self._layer_screens(source)):
+            if layer.cn2_dh <= 0:
+                continue
+            centre, scale = self._footprints(layer, t_s, x_px, y_px, np.where(turbulent, zenith_rad, 0.0), range_m)
+            rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
+            cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
+            # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
+            weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
+            weight = np.where(turbulent, weight, 0.0)
+            low = np.stack([rows[:, 0], cols[:, 0]], axis=-1)
+            high = np.stack([rows[:, -1], cols[:, -1]], axis=-1)
+            start = 0
+            while start < frames:
+                # frames from `start` that the window already holds, in the same revisit epoch
+                ok = screen.usable(low[start:], high[start:]) & (epochs[start:] == screen.epoch)
+                stop = start + (int(np.argmin(ok)) if not ok.all() else len(ok))
+                if stop > start:
+                    phase[start:stop] += weight[start:stop, None, None] * screen.sample(rows[start:stop],
+                                                                                        cols[start:stop])
+                if stop < frames:
+                    screen.cover(low[stop], high[stop], int(epochs[stop]))
+                start = stop if stop > start else start
+                if stop == start and stop < frames and not (screen.usable(low[stop], high[stop])
+                                                             and epochs[stop] == screen.epoch):
+                    raise RuntimeError("layer screen could not cover a footprint")
+        return phase
+
+    def _render_pupil(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
+        phase = self.turbulent_phase(source, t_s, x_px, y_px, zenith_rad, range_m)
+        phase += self._defocus(range_m)
+        out = np.empty((len(t_s), self.geometry.stamp_size, self.geometry.stamp_size))
+        for start in range(0, len(t_s), 256):                       # bounded memory
+            sl = slice(start, start + 256)
+            out[sl] = self.pupil_renderer.stamps(self.pupil_amplitude, phase[sl], offset[sl])
+        return out
+
+    # -- reference path ---------------------------------------------------------------------------
+    def reference_grid(self, zenith_rad: float, range_m: float) -> tuple[PropagationGeometry, PropagationGrid, dict]:
+        """The propagation grid for a source at ``range_m`` and the plane index of each layer."""
+        g = self.geometry
+        distance = min(range_m, FAR_RANGE_M)
+        layers = self.atmosphere.layers if self.turbulent(zenith_rad) else ()
+        slant = {i: layer.altitude_m / np.cos(zenith_rad) for i, layer in enumerate(layers) if layer.cn2_dh > 0}
+        slant = {i: s for i, s in slant.items() if s < distance}
+        geometry = PropagationGeometry(self.wavelength, distance, self.telescope.diameter_m, r0_m=self.r0(zenith_rad),
+                                       turbulence_length_m=max(slant.values(), default=0.0))
+        layer_planes = {i: distance - s for i, s in slant.items()}
+        if self.grid_size is None:
+            grid = choose_grid(geometry, g.delta_m, tuple(layer_planes.values()))
+        else:
+            free = choose_grid(geometry, g.delta_m, tuple(layer_planes.values()))
+            grid = PropagationGrid(int(self.grid_size), free.delta1_m, g.delta_m,
+                                   planes_for(geometry, int(self.grid_size), free.delta1_m, g.delta_m,
+                                           tuple(layer_planes.values())))
+            check_grid(geometry, grid, f"block '{self.name}' parameter 'grid_size'")
+        index = {i: grid.planes_m.index(z) + 1 for i, z in layer_planes.items()}
+        return geometry, grid, index
+
+    def reference_field(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
+                        range_m: float) -> np.ndarray:
+        """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude."""
+        g = self.geometry
+        geometry, grid, index = self.reference_grid(zenith_rad, range_m)
+        distance = geometry.distance_m
+        spacing = grid.spacings_m
+        screens = {}
+        if index:
+            per_layer = self._reference_screens(source, grid, index)
+            k2 = (2 * np.pi / self.wavelength) ** 2
+            for i, plane in index.items():
+                layer, screen = self.atmosphere.layers[i], per_layer[i]
+                centre, _ = self._footprints(layer, np.array([t_s]), np.array([x_px]), np.array([y_px]),
+                                             np.array([zenith_rad]), np.array([np.inf]))
+                axis = (np.arange(grid.n) - grid.n // 2) * spacing[plane]
+                rows = ((centre[0, 1] + axis) / screen.delta)[None]
+                cols = ((centre[0, 0] + axis) / screen.delta)[None]
+                screen.cover(np.array([rows[0, 0], cols[0, 0]]), np.array([rows[0, -1], cols[0, -1]]),
+                             int(self._epochs(np.array([t_s]))[0]))
+                weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
+                screens[plane] = weight * screen.sample(rows, cols)[0]
+        source_field = point_source_field(grid.n, grid.delta1_m, self.wavelength, distance, geometry.roi_m,
+                                          curvature=False)
+        field = propagate(source_field, self.wavelength, grid.delta1_m, grid.deltan_m, grid.planes_m, screens,
+                          source_curvature=-distance, collimate=distance if self.focus == "source" else np.inf)
+        start = grid.n // 2 - g.n_pupil // 2
+        pupil = field[start:start + g.n_pupil, start:start + g.n_pupil]
+        # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)
+        return pupil * (1j * self.wavelength * distance / erf(2 * np.pi) ** 2) * self.pupil_amplitude
+
+    def _reference_screens(self, source: str, grid: PropagationGrid, index: dict) -> dict[int, LayerScreen]:
+        spacing = grid.spacings_m
+        screens = self.reference_screens.setdefault(source, {})
+        for i, plane in index.items():
+            needed = grid.n * 1.0 + 2 * MARGIN + 4
+            if i not in screens or screens[i].n < needed:
+                n = int(np.ceil(1.3 * needed))
+                n += n % 2
+                screens[i] = LayerScreen(n, float(spacing[plane]), (*self._source_seed(source, 1), i), L0=self._L0,
+                                         method="fft", update="extend" if np.isfinite(self._L0) else "regenerate")
+        return screens
+
+    def _render_reference(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
+        out = np.empty((len(t_s), self.geometry.stamp_size, self.geometry.stamp_size))
+        for f in range(len(t_s)):
+            field = self.reference_field(source, t_s[f], x_px[f], y_px[f], zenith_rad[f], range_m[f])
+            out[f] = self.pupil_renderer.stamps_from_field(field[None], offset[f:f + 1])[0]
+        return out
+
+    # -- checkpoint -------------------------------------------------------------------------------
+    def state(self) -> dict:
+        return {
+            "geometry": None if self.geometry is None else {k: (list(v) if isinstance(v, tuple) else v)
+                                                            for k, v in asdict(self.geometry).items()},
+            "screens": {key: [s.state() for s in screens] for key, screens in self.screens.items()},
+            "reference_screens": {key: {str(i): s.state() | {"n": s.n, "delta": s.delta} for i, s in screens.items()}
+                                  for key, screens in self.reference_screens.items()},
+        }
+
+    def set_state(self, state: dict) -> None:
+        geometry = state.get("geometry")
+        self.geometry = None if geometry is None else PupilGeometry(
+            int(geometry["n_pupil"]), float(geometry["delta_m"]), int(geometry["stamp_size"]),
+            int(geometry["oversample"]), tuple(float(v) for v in geometry["layer_delta_m"]),
+            tuple(int(v) for v in geometry["layer_n"]))
+        self._pupil_renderer = None
+        self._profiles.clear()
+        self._choices.clear()
+        self.screens = {}
+        for key, states in (state.get("screens") or {}).items():
+            screens = self._layer_screens(key)
+            for screen, s in zip(screens, states):
+                screen.set_state(s)
+        self.reference_screens = {}
+        for key, per_layer in (state.get("reference_screens") or {}).items():
+            screens = {}
+            for i, s in per_layer.items():
+                screen = LayerScreen(int(s["n"]), float(s["delta"]), (*self._source_seed(key, 1), int(i)),
+                                     L0=self._L0, update="extend" if np.isfinite(self._L0) else "regenerate")
+                screen.set_state(s)
+                screens[int(i)] = screen
+            self.reference_screens[key] = screens
