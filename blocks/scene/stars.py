@@ -27,6 +27,7 @@ log = logging.getLogger(__name__)
 
 ABERRATION_MARGIN_RAD = np.radians(30.0 / 3600.0)   # apparent minus catalogue place, at most ~21 arcsec
 MAX_SYNTHETIC_STARS = 2_000_000
+CHUNK = 1000                                        # samples projected together
 
 
 class StarField(Block):
@@ -81,6 +82,7 @@ class StarField(Block):
         self.faint_stars: dict | None = None       # drawn once per run with self.rng; checkpointed
         self._key = None
         self._stars: StarCatalog | None = None
+        self._photometry_cache: dict[int, tuple] = {}
 
     @property
     def cadence_ns(self) -> int:
@@ -111,6 +113,7 @@ class StarField(Block):
                     parallax_mas=self._stars.parallax_mas, epoch=catalog_epoch)
         self._places = KnotGrid(window.epoch, knot_ns, lambda t: (np.stack(
             [unit(sky_observer.at(t[i]).observe(star).apparent().xyz.m.T) for i in range(len(t))]),))
+        self._photometry_cache = {}
         self._key = key
         log.info("%s '%s': %d stars swept by the field (%d from the catalogue)", self.type_name, self.name,
                  len(self._stars), int(np.sum(near[: len(bright)])))
@@ -160,63 +163,116 @@ class StarField(Block):
     def step(self, window: Window, observer: Observer, pointing: Pointing, focal_plane: FocalPlane) -> dict:
         self._prepare(window, observer, pointing, focal_plane)
         t_ns = window.sample_times_ns(self.cadence_ns)
-        x, y, up_dot = self.project(t_ns)
-        stars = self._stars
-        band = radiometry.V_BAND
-        flux = radiometry.photon_flux_of_magnitude(stars.vmag, band)[None, :] * np.ones((len(t_ns), 1))
-        visible = np.ones_like(x, dtype=bool)
-        if observer.is_ground:
-            visible = up_dot > 0
-            flux = flux * np.nan_to_num(radiometry.transmission(observer.extinction_mag_per_airmass,
-                                                                np.arccos(np.clip(up_dot, -1, 1))))
-        else:
-            visible = self._clear_of_earth(t_ns, x.shape)
+        x, y = self.project(t_ns)
+        stars, band = self._stars, radiometry.V_BAND
+        k, w = self._knot_weights(t_ns)
+        flux, mag = (self._between_knots(k, w, self._knot_photometry, m) for m in (1, 2))
         margin = self.params.margin_px
-        on_detector = (x >= -0.5 - margin) & (x < focal_plane.width_px - 0.5 + margin) \
-            & (y >= -0.5 - margin) & (y < focal_plane.height_px - 0.5 + margin)
-        hidden = ~(on_detector & visible)
-        x[hidden] = np.nan
-        y[hidden] = np.nan
+        with np.errstate(invalid="ignore"):
+            on_detector = (x >= -0.5 - margin) & (x < focal_plane.width_px - 0.5 + margin)
+            on_detector &= y >= -0.5 - margin
+            on_detector &= y < focal_plane.height_px - 0.5 + margin
+        for k0 in np.unique(k):
+            # above the horizon (or clear of the Earth) at both knots around these samples
+            visible = (self._knot_photometry(int(k0))[0] > 0) & (self._knot_photometry(int(k0) + 1)[0] > 0)
+            on_detector[k == k0] &= visible
+        np.putmask(x, ~on_detector, np.nan)
+        np.putmask(y, ~on_detector, np.nan)
         b, _, _ = self._pointing.frame(t_ns)
         n = len(stars)
         return {"sources": PointSources(
             focal_plane=focal_plane, wavelength_m=band.effective_wavelength_m, t_ns=t_ns, source_id=stars.name,
-            kind=np.full(n, SourceKind.STAR, dtype=np.int8), x_px=x, y_px=y, photon_flux=flux,
-            magnitude=radiometry.magnitude(flux, band), range_m=np.full((len(t_ns), n), np.inf),
-            zenith_angle_rad=self._pointing.zenith_angle(t_ns, b))}
+            kind=np.full(n, SourceKind.STAR, dtype=np.int8), x_px=x, y_px=y, photon_flux=flux, magnitude=mag,
+            range_m=np.full((len(t_ns), n), np.inf), zenith_angle_rad=self._pointing.zenith_angle(t_ns, b))}
 
-    def project(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pixel coordinates ``[n_t, n_stars]`` (NaN behind the sensor) and each star's ``s . up``."""
-        t = np.asarray(t_ns, dtype=np.float64)
-        b, r, u = self._pointing.frame(t)
-        _, _, up = self._observer.enu(t)
-        axes = np.stack([b, r, u, up], axis=1)                      # [n_t, 4, 3]
+    def _knot_weights(self, t_ns) -> tuple[np.ndarray, np.ndarray]:
         step = self._places.step_ns
+        t = np.asarray(t_ns, dtype=np.float64)
         k = np.floor(t / step).astype(np.int64)
-        w = (t - k * step) / step
-        n_t, n_s = len(t), len(self._stars)
-        dots = np.empty((4, n_t, n_s))
+        return k, (t - k * step) / step
+
+    def _between_knots(self, k, w, knot_values, member: int) -> np.ndarray:
+        """``[n_t, n_stars]`` linear interpolation between knots of a per-star quantity."""
+        out = np.empty((len(k), len(self._stars)))
         for k0 in np.unique(k):
             rows = np.flatnonzero(k == k0)
-            (s0,) = self._places.values(np.array([k0]))
-            (s1,) = self._places.values(np.array([k0 + 1]))
-            a = axes[rows]                                        # [m, 4, 3]
-            d0 = np.einsum("mac,sc->ams", a, s0[0])
-            d1 = np.einsum("mac,sc->ams", a, s1[0])
-            wr = w[rows][None, :, None]
-            dots[:, rows] = (1 - wr) * d0 + wr * d1
-        x, y = projection.to_pixels(*projection.tangent_plane(dots[0], dots[1], dots[2]), self._focal_plane)
-        return x, y, dots[3]
+            v0, v1 = knot_values(int(k0))[member], knot_values(int(k0) + 1)[member]
+            out[rows] = v0 + w[rows, None] * (v1 - v0)
+        return out
 
-    def _clear_of_earth(self, t_ns, shape) -> np.ndarray:
-        """Space observer: whether each star's line of sight clears the Earth plus the grazing height."""
-        r_obs, _ = self._observer.state(np.asarray(t_ns, dtype=np.float64))
-        distance = np.linalg.norm(r_obs, axis=-1)
-        limb = np.arcsin(np.clip((EARTH_RADIUS_M + self._observer.observer.min_grazing_altitude_m) / distance, 0, 1))
-        (s0,) = self._places.values(np.floor(np.asarray(t_ns) / self._places.step_ns).astype(np.int64))
-        nadir = -r_obs / distance[:, None]
-        angle_from_nadir = np.arccos(np.clip(np.einsum("tsc,tc->ts", s0, nadir), -1, 1))
-        return np.broadcast_to(angle_from_nadir > limb[:, None], shape)
+    def _knot_photometry(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Visibility (1/0), photon flux and magnitude of every star at knot ``k``.
+
+        The flux at the aperture is ``N0 10**(-0.4 V)`` times the transmission at the
+        star's own airmass (ground); between knots, 10 s apart by default, it is
+        interpolated linearly: a star's airmass changes by ~1e-3 in that time.
+        """
+        cached = self._photometry_cache.get(k)
+        if cached is not None:
+            return cached
+        t = np.array([k * self._places.step_ns], dtype=np.float64)
+        (places,) = self._places.values(np.array([k]))
+        band, stars = radiometry.V_BAND, self._stars
+        flux = radiometry.photon_flux_of_magnitude(stars.vmag, band)
+        observer = self._observer.observer
+        if observer.is_ground:
+            _, _, up = self._observer.enu(t)
+            sin_elevation = places[0] @ up[0]
+            visible = (sin_elevation > 0).astype(float)
+            transmission = np.nan_to_num(radiometry.transmission(observer.extinction_mag_per_airmass,
+                                                                 np.arccos(np.clip(sin_elevation, -1, 1))))
+            flux = flux * transmission
+        else:
+            r_obs, _ = self._observer.state(t)
+            distance = np.linalg.norm(r_obs[0])
+            limb = np.arcsin(min(1.0, (EARTH_RADIUS_M + observer.min_grazing_altitude_m) / distance))
+            visible = (np.arccos(np.clip(places[0] @ (-r_obs[0] / distance), -1, 1)) > limb).astype(float)
+        result = (visible, flux, radiometry.magnitude(flux, band))
+        self._photometry_cache[k] = result
+        return result
+
+    def project(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixel coordinates ``[n_t, n_stars]`` of the stars near the detector (NaN elsewhere).
+
+        Apparent places are linear between knots, so their dot products with the sensor
+        axes are too: two matrix products per knot interval. Samples go in chunks of
+        ``CHUNK`` (1 s at 1 ms); a star is projected at every sample of a chunk only if,
+        at the chunk's first, middle or last sample, it lies within the detector plus
+        ``margin_px`` plus twice the field's drift over the chunk, so stars that stay
+        far from the detector cost three samples, not a thousand.
+        """
+        t = np.asarray(t_ns, dtype=np.float64)
+        n_t, n_s = len(t), len(self._stars)
+        x, y = np.full((n_t, n_s), np.nan), np.full((n_t, n_s), np.nan)
+        axes = np.stack(self._pointing.frame(t))                  # [3, n_t, 3]: b, r, u
+        k, w = self._knot_weights(t_ns)
+        fp = self._focal_plane
+        half_w, half_h = projection.half_extent_rad(fp)
+        margin = (self.params.margin_px + 1.0) * fp.pixel_scale_rad
+        for k0 in np.unique(k):
+            in_interval = np.flatnonzero(k == k0)
+            s0 = self._places.values(np.array([k0]))[0][0]
+            ds = self._places.values(np.array([k0 + 1]))[0][0] - s0
+            for first in range(0, len(in_interval), CHUNK):
+                rows = in_interval[first:first + CHUNK]
+                probe = rows[[0, len(rows) // 2, -1]]
+                xi, eta = self._tangent(axes[:, probe], w[probe], s0, ds)
+                with np.errstate(invalid="ignore"):
+                    drift = np.nanmax(np.hypot(xi[-1] - xi[0], eta[-1] - eta[0]), initial=0.0)
+                    near = ((np.abs(xi) <= half_w + margin + 2 * drift)
+                            & (np.abs(eta) <= half_h + margin + 2 * drift)).any(axis=0)
+                cols = np.flatnonzero(near)
+                if cols.size:
+                    xs, ys = projection.to_pixels(*self._tangent(axes[:, rows], w[rows], s0[cols], ds[cols]), fp)
+                    x[rows[:, None], cols] = xs
+                    y[rows[:, None], cols] = ys
+        return x, y
+
+    @staticmethod
+    def _tangent(axes, w, s0, ds):
+        """Tangent-plane coordinates of places ``s0 + w ds`` in frames ``axes`` ``[3, m, 3]``."""
+        dots = axes @ s0.T + w[:, None] * (axes @ ds.T)
+        return projection.tangent_plane(dots[0], dots[1], dots[2])
 
 
 def _catalog_of(drawn: dict) -> StarCatalog:
