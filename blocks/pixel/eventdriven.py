@@ -28,7 +28,7 @@ import numpy as np
 
 from . import counter_rng
 from .comparator import charge_cause
-from .crossing import NEVER, first_crossing
+from .crossing import NEVER, first_crossing, may_cross
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
@@ -83,6 +83,9 @@ class EventDrivenPixels:
             has = changed[where] == active
             ptr[has] = first[where[has]]
             end[has] = ptr[has] + counts[where[has]]
+        drive = self.model.drive(change_flux)            # every new input of this window, at once
+        accept = drive.shot_p / self.model.shot_p_max if self.model.shot_p_max > 0 else np.zeros(change_flux.size)
+        new_input = (change_flux, drive.y, drive.log_a, drive.parasitic_hz, accept)
         while active.size:
             t_event = np.minimum(s["cmp_next"][active], s["shot_next"][active])
             pending = ptr < end
@@ -91,17 +94,92 @@ class EventDrivenPixels:
             do_change = t_change <= t_event
             do_event = ~do_change & (t_event < n_end)
             if do_change.any():
-                sel = np.flatnonzero(do_change)
-                ptr[sel] += 1
-                following = np.full(sel.size, NEVER)
-                more = ptr[sel] < end[sel]
-                following[more] = change_step[ptr[sel][more]]
-                self._change(active[sel], t_change[sel], change_flux[ptr[sel] - 1], following)
+                self._changes(active, np.flatnonzero(do_change), ptr, end, change_step, new_input)
             if do_event.any():
                 sel = np.flatnonzero(do_event)
                 self._event(active[sel], t_event[sel], t_change[sel], log)
             keep = (ptr < end) | (np.minimum(s["cmp_next"][active], s["shot_next"][active]) < n_end)
             active, ptr, end = active[keep], ptr[keep], end[keep]
+
+    def _changes(self, active, sel, ptr, end, change_step, new_input) -> None:
+        """Apply the next input changes of ``active[sel]`` up to the first segment where something may happen.
+
+        Looking ahead over all the pixel's remaining input segments at once
+        (:meth:`_first_busy_segment`), changes are applied one by one, in order -- so the
+        state is the same whatever the windows -- up to the first segment that may hold a
+        comparator crossing or holds a shot-noise trial, which is then scheduled exactly.
+        """
+        s = self.s
+        pix = active[sel]
+        n_apply = self._first_busy_segment(pix, ptr[sel], end[sel], change_step, new_input) + 1
+        todo = np.arange(sel.size)
+        depth = 0
+        while todo.size:
+            p_sel, k = pix[todo], ptr[sel[todo]]
+            self._advance(p_sel, change_step[k] - 1)
+            s["flux"][p_sel], self.y[p_sel], self.log_a[p_sel], self.para_hz[p_sel], self.accept[p_sel] = (
+                v[k] for v in new_input)
+            ptr[sel[todo]] += 1
+            depth += 1
+            todo = todo[n_apply[todo] > depth]
+        more = ptr[sel] < end[sel]
+        following = np.full(sel.size, NEVER)
+        following[more] = change_step[ptr[sel][more]]
+        self._schedule(pix, following)
+
+    def _first_busy_segment(self, pix, first, end, change_step, new_input) -> np.ndarray:
+        """Index (0 = the segment starting at change ``first``) of the first input segment that may hold an event.
+
+        The low-pass output at each segment start follows from the affine recursion
+        ``L' = A L + (1 - A) Y`` (``A = a^length``), evaluated for all segments by a parallel
+        prefix scan; the memory drifts linearly. A segment is quiet when
+        :func:`.crossing.may_cross` proves, with a margin far above the rounding of this
+        look-ahead, that the comparator cannot fire in it, and no shot-noise trial falls
+        in it. The last segment of the window counts as busy.
+        """
+        s, dt = self.s, self.model.dt_s
+        n_seg = end - first
+        m = int(n_seg.max())
+        col = np.arange(m)
+        valid = col[None, :] < n_seg[:, None]
+        k = np.where(valid, first[:, None] + col[None, :], first[:, None])
+        start = change_step[k]                                            # [P, m] first step of each segment
+        stop = np.where(col[None, :] + 1 < n_seg[:, None], change_step[np.minimum(k + 1, change_step.size - 1)],
+                        NEVER)
+        _, y, log_a, para, _ = (v[k] for v in new_input)
+        length = np.where(stop < NEVER, stop - start, 0)
+        theta_on = s["theta_on"][pix]
+        drift = (self._leak_dt + para * dt) * theta_on[:, None]           # per step, per segment
+        # state just before the first new segment, from the current one
+        step = s["step"][pix]
+        lead = start[:, 0] - 1 - step
+        y_now = self.y[pix]
+        l0 = y_now + (s["filtered"][pix] - y_now) * np.exp(np.where(lead > 0, lead * self.log_a[pix], 0.0))
+        m0 = s["memorised"][pix] - (self._leak_dt + self.para_hz[pix] * dt) * theta_on * lead
+        # affine prefix scan of x -> A x + B over the segments (Hillis-Steele)
+        with np.errstate(invalid="ignore"):
+            a = np.exp(np.where(length > 0, length * log_a, 0.0))
+        b = y * (1.0 - a)
+        shift = 1
+        while shift < m:
+            a_prev, b_prev = a[:, :-shift].copy(), b[:, :-shift].copy()
+            b[:, shift:] = a[:, shift:] * b_prev + b[:, shift:]
+            a[:, shift:] = a[:, shift:] * a_prev
+            shift *= 2
+        l_start = np.empty_like(a)
+        l_start[:, 0] = l0
+        l_start[:, 1:] = a[:, :-1] * l0[:, None] + b[:, :-1]
+        m_start = m0[:, None] - np.concatenate([np.zeros((pix.size, 1)), np.cumsum(drift * length, axis=1)[:, :-1]],
+                                               axis=1)
+        ref = start - 1
+        j0 = np.maximum(s["ready"][pix][:, None] - ref, 1)
+        margin = 1e-9
+        busy = may_cross(j0.ravel(), (stop - 1 - ref).ravel(), (y - m_start).ravel(), (l_start - y).ravel(),
+                         log_a.ravel(), drift.ravel(), np.repeat(theta_on - margin, m),
+                         np.repeat(s["theta_off"][pix] - margin, m)).reshape(pix.size, m)
+        busy |= (s["shot_next"][pix][:, None] >= start) & (s["shot_next"][pix][:, None] < stop)
+        busy |= col[None, :] + 1 >= n_seg[:, None]
+        return np.argmax(busy & valid, axis=1)
 
     # -- pieces -------------------------------------------------------------------------------
     def _advance(self, idx: np.ndarray, t: np.ndarray) -> None:
@@ -146,16 +224,6 @@ class EventDrivenPixels:
         u = counter_rng.uniform_open(s["key"], GAP, idx, s["shot_count"][idx])
         gap = np.floor(np.log(u) / self._log_1mq) + 1.0 if np.isfinite(self._log_1mq) else np.ones(idx.size)
         s["shot_next"][idx] = np.minimum(after + np.minimum(gap, float(NEVER)).astype(np.int64), NEVER)
-
-    def _change(self, idx: np.ndarray, t: np.ndarray, flux: np.ndarray, next_change: np.ndarray) -> None:
-        """A new input holds from step ``t`` on (until ``next_change``)."""
-        self._advance(idx, t - 1)
-        self.s["flux"][idx] = flux
-        drive = self.model.drive(flux)
-        self.y[idx], self.log_a[idx], self.para_hz[idx] = drive.y, drive.log_a, drive.parasitic_hz
-        if self.model.shot_p_max > 0:
-            self.accept[idx] = drive.shot_p / self.model.shot_p_max
-        self._schedule(idx, next_change)
 
     def _event(self, idx: np.ndarray, t: np.ndarray, next_change: np.ndarray, log: EventLog) -> None:
         """Comparator events and shot-noise arrivals of pixels ``idx`` at steps ``t`` (before ``next_change``)."""
