@@ -123,8 +123,9 @@ def _overflows(a: np.ndarray, g: np.ndarray, prior: np.ndarray, service: int, de
     lag[0] = np.iinfo(np.int64).min
     np.subtract(g[:-1], a[1:], out=lag[1:])
     candidates = np.flatnonzero(lag > (depth - 1) * service)
-    if prior.size:
-        candidates = np.union1d(candidates, np.arange(np.searchsorted(a, prior[-1], side="left")))
+    if prior.size:                                  # arrivals before the last prior grant, too
+        head = int(np.searchsorted(a, prior[-1], side="left"))
+        candidates = np.concatenate([np.arange(head), candidates[candidates >= head]])
     lo, block = 0, 1024                             # look at the candidates in growing blocks,
     while lo < candidates.size:                     # as the first overflow is often early
         cand = candidates[lo:lo + block]
