@@ -1,3 +1,11 @@
-"""optics blocks."""
+"""Optics: point sources through a turbulent atmosphere and a telescope onto the pixels (paper Sec. 2.2, Eq. 3-11).
 
-BLOCKS: list = []
+Library modules (usable without a graph): :mod:`.zernike`, :mod:`.karhunen_loeve`,
+:mod:`.kolmogorov`, :mod:`.fft_screens`, :mod:`.autoregressive`, :mod:`.layer_screen`,
+:mod:`.atmosphere`, :mod:`.propagation`, :mod:`.sampling`, :mod:`.telescope`, :mod:`.psf`,
+:mod:`.render`, :mod:`.paths`, :mod:`.imaging`. The block is :class:`.block.PointSourceOptics`.
+"""
+
+from .block import PointSourceOptics
+
+BLOCKS: list = [PointSourceOptics]

@@ -1,0 +1,180 @@
+"""Phase screens: FFT with subharmonics (structure function, Noll residuals), AR extension, frozen-flow windows."""
+
+import warnings
+
+import numpy as np
+import pytest
+from scipy.integrate import IntegrationWarning
+from scipy.ndimage import map_coordinates, spline_filter
+
+from evsda.blocks.optics.autoregressive import extension_operator
+from evsda.blocks.optics.fft_screens import fft_phase_screens, radial_profile, structure_function_2d
+from evsda.blocks.optics.kolmogorov import (
+    kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
+from evsda.blocks.optics.layer_screen import LayerScreen
+from evsda.blocks.optics.zernike import NOLL_1976_RESIDUALS, zernike_basis
+
+
+def test_kolmogorov_constants():
+    # D(r) = 6.88 (r/r0)^(5/3) (Fried 1965) and PSD 0.023 r0^(-5/3) f^(-11/3) (Schmidt 2010 Eq. 9.42)
+    assert kolmogorov_structure_function(1.0, 1.0) == pytest.approx(6.88, abs=0.005)
+    assert phase_psd(1.0, 1.0) == pytest.approx(0.023, abs=0.0002)
+
+
+def test_von_karman_structure_function_is_the_transform_of_its_psd():
+    # D(r) = 2 int (1 - J0(2 pi f r)) PSD(f) 2 pi f df, integrated numerically, against the Bessel-K closed form
+    from scipy.integrate import quad
+    from scipy.special import j0
+    r0, L0 = 0.1, 20.0
+    for r in (0.003, 0.05, 0.5, 5.0):
+        integrand = lambda f: 2 * (1 - j0(2 * np.pi * f * r)) * phase_psd(f, r0, L0) * 2 * np.pi * f
+        edges = [0, 0.1 / r, 1 / r, 10 / r, 100 / r, np.inf]
+        with warnings.catch_warnings():                  # the J0 tail oscillates; its share is < 1e-4
+            warnings.simplefilter("ignore", IntegrationWarning)
+            value = sum(quad(integrand, a, b, limit=500)[0] for a, b in zip(edges[:-1], edges[1:]))
+        assert structure_function(r, r0, L0) == pytest.approx(value, rel=2e-3)
+    # far below L0 it becomes Kolmogorov's 6.88 (r/r0)^(5/3)
+    r = 1e-9 * L0
+    assert structure_function(r, r0, L0) / kolmogorov_structure_function(r, r0) == pytest.approx(1.0, abs=2e-3)
+
+
+def test_fft_screens_follow_kolmogorov_structure_function():
+    # Schmidt 2010 Fig. 9.5: averaged D(r) of FFT+subharmonic screens vs 6.88 (r/r0)^(5/3)
+    rng = np.random.default_rng(11)
+    n, delta, r0 = 128, 0.01, 0.05
+    mask = np.zeros((2 * n, 2 * n))
+    mask[:n, :n] = 1
+    total = np.zeros((2 * n, 2 * n))
+    count = 0
+    for _ in range(15):
+        for screen in fft_phase_screens(rng, n, delta, r0):
+            padded = np.zeros((2 * n, 2 * n))
+            padded[:n, :n] = screen
+            total += structure_function_2d(padded, mask, delta)
+            count += 1
+    radii = np.array([2, 4, 8, 16, 32]) * delta          # resolved scales: 2 samples to a quarter screen
+    measured = radial_profile(total / count, delta, radii)
+    np.testing.assert_allclose(measured / kolmogorov_structure_function(radii, r0), 1.0, atol=0.1)
+
+
+def test_fft_screens_reproduce_noll_residuals():
+    # residual variance after removing J Zernike modes over an aperture half the screen (Noll 1976 Table IV),
+    # within 3 standard errors of the number of screens (plus 5 % for the known FFT tilt deficit at J <= 2)
+    rng = np.random.default_rng(5)
+    n, n_pupil = 128, 64
+    delta = 1.0 / n_pupil                                 # D = 1 m, r0 = 1 m
+    x = (np.arange(n_pupil) - n_pupil / 2 + 0.5) * delta
+    xx, yy = np.meshgrid(x, x)
+    inside = np.hypot(xx, yy) <= 0.5
+    q, _ = np.linalg.qr(zernike_basis(21, xx[inside], yy[inside], 0.5).T)
+    residuals = []
+    for _ in range(200):
+        for screen in fft_phase_screens(rng, n, delta, 1.0):
+            row, col = rng.integers(0, n - n_pupil, 2)
+            phase = screen[row:row + n_pupil, col:col + n_pupil][inside]
+            c2 = np.cumsum((q.T @ phase) ** 2)
+            residuals.append((np.sum(phase**2) - c2) / phase.size)
+    residuals = np.array(residuals)
+    mean, err = residuals.mean(axis=0), residuals.std(axis=0) / np.sqrt(len(residuals))
+    for J in (1, 2, 3, 4, 6, 10, 15, 21):
+        allowance = 3 * err[J - 1] + (0.05 * NOLL_1976_RESIDUALS[J] if J <= 2 else 0.0)
+        assert abs(mean[J - 1] - NOLL_1976_RESIDUALS[J]) < allowance, J
+
+
+def test_extension_reproduces_von_karman_statistics():
+    # Assemat et al. 2006: columns drawn conditionally on an exact (Cholesky) screen have the target covariance
+    n, k, delta, L0 = 12, 3, 0.02, 20.0
+    op = extension_operator(n, k, delta, L0, n)
+    yy, xx = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    points = np.c_[yy.ravel(), xx.ravel()].astype(float)
+    r = np.hypot(*(points[:, None, :] - points[None, :, :]).transpose(2, 0, 1)) * delta
+    chol = np.linalg.cholesky(von_karman_covariance(r, 1.0, L0) + 1e-10 * np.eye(n * n))
+    rng = np.random.default_rng(2)
+    screens = (chol @ rng.standard_normal((n * n, 3000))).T.reshape(-1, n, n)
+    blocks = np.stack([op.extend_right(s, rng.standard_normal(n * k)) for s in screens])
+    full = np.concatenate([screens, blocks], axis=2)
+    for gap in (1, 2, 3):
+        across = np.mean((full[:, :, n - 1 + gap] - full[:, :, n - 1]) ** 2, axis=1)
+        expected = structure_function(gap * delta, 1.0, L0)
+        assert across.mean() == pytest.approx(expected, abs=4 * across.std() / np.sqrt(len(across)))
+    variance = np.var(blocks[:, :, -1])
+    assert variance == pytest.approx(von_karman_covariance(0.0, 1.0, L0), rel=0.1)
+
+
+def test_extended_screen_keeps_its_structure_function_far_from_the_start():
+    rng_seeds = range(60)
+    delta, L0, n = 0.02, 20.0, 40
+    seps = np.array([1, 2, 4])
+    along, across = [], []
+    for seed in rng_seeds:
+        screen = LayerScreen(n, delta, (seed,), L0=L0)
+        screen.cover(np.array([10.0, 10.0]), np.array([20.0, 20.0]))
+        for shift in range(0, 300, 10):                   # several window widths of wind
+            screen.cover(np.array([10.0, 10.0 + shift]), np.array([20.0, 20.0 + shift]))
+        v = screen.values
+        along.append([np.mean((v[:, s:] - v[:, :-s]) ** 2) for s in seps])
+        across.append([np.mean((v[s:, :] - v[:-s, :]) ** 2) for s in seps])
+    expected = structure_function(seps * delta, 1.0, L0)
+    np.testing.assert_allclose(np.mean(along, axis=0) / expected, 1.0, atol=0.1)
+    np.testing.assert_allclose(np.mean(across, axis=0) / expected, 1.0, atol=0.1)
+
+
+def test_spline_sampling_matches_scipy_map_coordinates():
+    screen = LayerScreen(48, 0.01, (1,), L0=25.0)
+    screen.cover(np.array([0.0, 0.0]), np.array([10.0, 10.0]))
+    rng = np.random.default_rng(0)
+    rows = screen.origin[0] + 10 + rng.uniform(0, 5, (4, 1)) + 0.9 * np.arange(20)[None]
+    cols = screen.origin[1] + 10 + rng.uniform(0, 5, (4, 1)) + 0.95 * np.arange(18)[None]
+    sampled = screen.sample(rows, cols)
+    coefficients = spline_filter(screen.values, order=3, mode="mirror")
+    for f in range(4):
+        r, c = np.meshgrid(rows[f] - screen.origin[0], cols[f] - screen.origin[1], indexing="ij")
+        np.testing.assert_allclose(sampled[f], map_coordinates(coefficients, [r, c], order=3, prefilter=False),
+                                   atol=1e-12)
+    # on the samples themselves the spline interpolates exactly
+    on_grid = screen.sample(screen.origin[0] + np.arange(8, 20)[None] * 1.0, screen.origin[1] + np.arange(8, 20)[None] * 1.0)
+    np.testing.assert_allclose(on_grid[0], screen.values[8:20, 8:20], atol=1e-10)
+
+
+def _walk(screen, boxes, chunks):
+    """Sample a sequence of footprints, cutting it into the given chunk sizes (as windows would)."""
+    out, start = [], 0
+    for size in chunks:
+        for low, high in boxes[start:start + size]:
+            screen.cover(low, high)
+            out.append(screen.sample(np.array([[low[0] + 2.5]]), np.array([[low[1] + 1.5]]))[0, 0, 0])
+        start += size
+    return np.array(out)
+
+
+@pytest.mark.parametrize("update", ["extend", "regenerate"])
+def test_screen_values_do_not_depend_on_how_the_walk_is_cut(update):
+    boxes = [(np.array([5.0 + 0.3 * i, 5.0 - 0.7 * i]), np.array([15.0 + 0.3 * i, 15.0 - 0.7 * i])) for i in range(120)]
+    a = _walk(LayerScreen(32, 0.02, (7, 1), update=update), boxes, [120])
+    b = _walk(LayerScreen(32, 0.02, (7, 1), update=update), boxes, [7, 50, 13, 50])
+    np.testing.assert_array_equal(a, b)
+    c = _walk(LayerScreen(32, 0.02, (7, 2), update=update), boxes, [120])
+    assert not np.allclose(a, c)                          # another seed, another screen
+
+
+def test_screen_state_round_trip_continues_identically():
+    boxes = [(np.array([5.0, 5.0 + 2 * i]), np.array([15.0, 15.0 + 2 * i])) for i in range(80)]
+    whole = _walk(LayerScreen(32, 0.02, (3,)), boxes, [80])
+    first = LayerScreen(32, 0.02, (3,))
+    head = _walk(first, boxes[:30], [30])
+    resumed = LayerScreen(32, 0.02, (3,))
+    resumed.set_state(first.state())
+    tail = _walk(resumed, boxes[30:], [50])
+    np.testing.assert_array_equal(whole, np.r_[head, tail])
+
+
+def test_zernike_screens_regenerate_when_the_footprint_leaves_their_disk():
+    screen = LayerScreen(40, 0.02, (1,), method="zernike", update="regenerate", n_modes=20)
+    screen.cover(np.array([0.0, 0.0]), np.array([5.0, 5.0]))
+    first = screen.values.copy()
+    screen.cover(np.array([0.0, 3.0]), np.array([5.0, 8.0]))
+    np.testing.assert_array_equal(screen.values, first)   # still inside the disk
+    screen.cover(np.array([0.0, 30.0]), np.array([5.0, 35.0]))
+    assert not np.array_equal(screen.values, first) and screen.n_regenerations == 1
+    with pytest.raises(ValueError):
+        LayerScreen(40, 0.02, (1,), method="zernike", update="extend")
