@@ -50,10 +50,29 @@ def von_karman_covariance(r: np.ndarray, r0: float, L0: float) -> np.ndarray:
 
 
 def structure_function(r: np.ndarray, r0: float, L0: float = np.inf) -> np.ndarray:
-    """Phase structure function [rad^2]: Kolmogorov for ``L0 = inf``, else ``2 (B(0) - B(r))``."""
+    """Phase structure function [rad^2]: Kolmogorov for ``L0 = inf``, else ``2 (B(0) - B(r))``.
+
+    Below ``u = 2 pi r / L0 = 1`` the difference is summed from the power series of
+    ``u^nu K_nu(u) = pi / (2 sin nu pi) u^nu (I_-nu(u) - I_nu(u))`` (Abramowitz & Stegun 9.6.2,
+    9.6.10), which avoids cancelling ``B(0) ~ (L0/r0)^(5/3)`` against ``B(r)``.
+    """
     if not np.isfinite(L0):
         return kolmogorov_structure_function(r, r0)
-    return 2 * (von_karman_covariance(0.0, r0, L0) - von_karman_covariance(r, r0, L0))
+    r = np.asarray(r, dtype=float)
+    u = 2 * np.pi * r / L0
+    nu = 5 / 6
+    scale = 2 * np.pi * PSD_COEFFICIENT * 2 ** (-5 / 6) / gamma(11 / 6) * (L0 / r0) ** (5 / 3)
+    half = np.minimum(u, 1.0) / 2
+    series = np.zeros_like(u)
+    power = np.ones_like(u)                          # (u/2)^(2k) / k!
+    for k in range(0, 30):
+        if k > 0:
+            power = power * half**2 / k
+            series -= power / gamma(k - nu + 1)
+        series += power * half ** (2 * nu) / gamma(k + nu + 1)
+    small = 2 * scale * np.pi * 2**nu / (2 * np.sin(nu * np.pi)) * series
+    large = 2 * (von_karman_covariance(0.0, r0, L0) - von_karman_covariance(np.maximum(r, L0 / (2 * np.pi)), r0, L0))
+    return np.where(u < 1.0, small, large)
 
 
 def atmospheric_mtf(f_angular: np.ndarray, wavelength: float, r0: float, L0: float = np.inf) -> np.ndarray:

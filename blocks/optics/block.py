@@ -1,0 +1,244 @@
+"""The ``optics`` block: point sources through a turbulent atmosphere and a telescope onto the pixels."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground
+from evsda.graph import Block, BlockParams, Input, InputError, Output, ParameterError, RunInfo, Window
+from evsda.graph.params import DataFile
+
+from .atmosphere import Atmosphere
+from .imaging import Imager
+from .telescope import Telescope
+
+
+class PointSourceOptics(Block):
+    """Photon flux on the detector from point sources seen through turbulence (paper Sec. 2.2, Eq. 3-11).
+
+    Each source's flux at the aperture [photon s^-1 m^-2] times the collecting area
+    ``pi D^2 (1 - eps^2) / 4`` [m^2], the throughput and the fraction of the PSF's energy
+    in each pixel gives the stamps of :class:`~evsda.blocks.ports.Irradiance`
+    [photon s^-1 pixel^-1], sampled every ``1 / render_rate_hz`` on the run's global grid;
+    the sky background is uniform. The PSF follows the cheapest path whose estimated
+    error stays within ``tolerance`` (``airy``, ``long_exposure``, ``pupil_fft``,
+    ``reference``; see :mod:`evsda.blocks.optics.paths`), or the one ``psf_path`` forces;
+    the choice and its reasons are logged on ``evsda.blocks.optics``. Turbulence is a
+    Cn^2 profile lumped into layers with frozen flow (:mod:`evsda.blocks.optics.imaging`).
+
+    Example::
+
+        optics = PointSourceOptics(aperture_m=0.3, obscuration=0.3, seed=1)
+        optics.setup(RunInfo())
+        out = optics.step(Window.from_seconds(0, 0.1), sources=[point_sources])
+    """
+
+    type_name = "optics"
+
+    class Params(BlockParams):
+        aperture_m: float = Field(0.35, gt=0, le=50, description="Telescope aperture diameter [m]")
+        obscuration: float = Field(0.0, ge=0, lt=0.95,
+                                   description="Central obscuration diameter over the aperture diameter [1]")
+        throughput: float = Field(1.0, gt=0, le=1, description="Optical transmission of the telescope [1]")
+        render_rate_hz: float = Field(1000.0, gt=0, le=1e6, description="Rate of rendered PSF samples [Hz]")
+        psf_path: Literal["auto", "airy", "long_exposure", "pupil_fft", "reference"] = Field(
+            "auto", description="PSF path; 'auto' picks the cheapest whose error is within tolerance [-]")
+        tolerance: float = Field(0.05, gt=0, lt=1,
+                                 description="Largest fraction of a source's flux a fast path may misplace [1]")
+        focus: Literal["source", "infinity"] = Field(
+            "source", description="Focus on the source (paper Eq. 4 collimation) or at infinity [-]")
+        atmosphere: Literal["hufnagel_valley", "table", "none"] = Field(
+            "hufnagel_valley", description="Cn^2 profile: Hufnagel-Valley, a CSV table, or none [-]")
+        profile_file: DataFile | None = Field(
+            None, description="Cn^2 table (CSV altitude_m, cn2_dh_m13, wind_speed_m_s, wind_direction_deg) [-]")
+        r0_500nm_m: float | None = Field(None, gt=0, le=10,
+                                         description="Rescale the profile to this zenith r0 at 500 nm [m]")
+        hv_wind_rms_m_s: float = Field(21.0, ge=0, le=100,
+                                       description="Hufnagel-Valley high-altitude rms wind (21 for HV5/7) [m/s]")
+        hv_ground_cn2: float = Field(1.7e-14, ge=0, le=1e-11,
+                                     description="Hufnagel-Valley ground term A (1.7e-14 for HV5/7) [m^-2/3]")
+        n_layers: int = Field(4, ge=1, le=32, description="Layers the Hufnagel-Valley profile is lumped into [1]")
+        ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
+        wind_direction_deg: float = Field(0.0, ge=-360, le=360,
+                                          description="Wind direction from the focal plane's +x toward +y [deg]")
+        outer_scale_m: float = Field(25.0, gt=0, le=1e4, description="Von Karman outer scale L0 [m]")
+        screen_method: Literal["fft", "zernike"] = Field(
+            "fft", description="Layer screens: FFT with subharmonics, or Karhunen-Loeve Zernike modes [-]")
+        screen_update: Literal["extend", "regenerate"] = Field(
+            "extend", description="When a footprint runs off a screen: extend it, or draw a new one [-]")
+        n_zernike_modes: int = Field(66, ge=2, le=1000,
+                                     description="Zernike modes (from tilt) of 'zernike' screens [1]")
+        screen_revisit_s: float | None = Field(None, gt=0, description="Redraw all screens after this time [s]")
+        pupil_samples: int | None = Field(None, ge=8, le=4096,
+                                          description="Pupil grid width; None chooses from D/r0 [1]")
+        stamp_size_px: int | None = Field(None, ge=1, le=511,
+                                          description="Stamp width; None encloses all but tolerance/2 [pixel]")
+        grid_size: int | None = Field(None, ge=16, le=16384,
+                                      description="Reference propagation grid width; None picks a valid one [1]")
+
+        @model_validator(mode="after")
+        def _consistent(self):
+            if self.screen_method == "zernike" and self.screen_update == "extend":
+                raise ValueError("screen_method 'zernike' needs screen_update 'regenerate' "
+                                 "(modal screens cannot be extended)")
+            if self.atmosphere == "table" and not self.profile_file:
+                raise ValueError("atmosphere 'table' needs profile_file")
+            return self
+
+    inputs = {
+        "sources": Input(PointSources, "point sources on the focal plane (satellites, stars)", multi=True),
+        "background": Input(SkyBackground, "diffuse sky brightness per pixel", required=False),
+    }
+    outputs = {"irradiance": Output(Irradiance, "photon flux per pixel: stamps around sources plus background")}
+    state = ("optics_state", "held")
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.optics_state: dict | None = None
+        self.held: dict = {}
+        self._imager: Imager | None = None
+        self._atmosphere: Atmosphere | None = None
+        self._atmosphere_ready = False
+
+    # -- configuration --------------------------------------------------------------------------
+    @property
+    def telescope(self) -> Telescope:
+        p = self.params
+        return Telescope(p.aperture_m, p.obscuration, p.throughput)
+
+    def build_atmosphere(self) -> Atmosphere | None:
+        p = self.params
+        if p.atmosphere == "none":
+            return None
+        if p.atmosphere == "hufnagel_valley":
+            atmosphere = Atmosphere.hufnagel_valley(p.n_layers, p.hv_wind_rms_m_s, p.hv_ground_cn2, p.ground_wind_m_s,
+                                                    np.deg2rad(p.wind_direction_deg), p.outer_scale_m)
+        else:
+            from evsda.library import resolve
+            path = resolve(p.profile_file)
+            try:
+                atmosphere = Atmosphere.from_table(path, p.outer_scale_m)
+            except (OSError, ValueError) as exc:
+                raise ParameterError(f"block '{self.name}' parameter 'profile_file': {exc}") from None
+        if atmosphere.total_cn2_dh <= 0:
+            return None
+        if p.r0_500nm_m is not None:
+            atmosphere = atmosphere.scaled_to_r0(p.r0_500nm_m)
+        return atmosphere
+
+    def setup(self, run: RunInfo) -> None:
+        super().setup(run)
+        self._atmosphere = self.build_atmosphere()
+        self._atmosphere_ready = True
+        self._imager = None
+
+    def _ensure_imager(self, focal_plane: FocalPlane, wavelength: float) -> Imager:
+        if self._imager is None:
+            if not self._atmosphere_ready:
+                self._atmosphere, self._atmosphere_ready = self.build_atmosphere(), True
+            p = self.params
+            seed = tuple(int(w) for w in self.rng.bit_generator.seed_seq.generate_state(2))
+            self._imager = Imager(
+                self.telescope, focal_plane, wavelength, self._atmosphere, tolerance=p.tolerance, path=p.psf_path,
+                focus=p.focus, screen_method=p.screen_method, screen_update=p.screen_update,
+                n_zernike_modes=p.n_zernike_modes, revisit_s=p.screen_revisit_s, pupil_samples=p.pupil_samples,
+                stamp_size_px=p.stamp_size_px, grid_size=p.grid_size, seed=seed, name=self.name)
+            if self.optics_state:
+                self._imager.set_state(self.optics_state)
+        return self._imager
+
+    # -- state ----------------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        if self._imager is not None:
+            self.optics_state = self._imager.state()
+        return super().get_state()
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        self.held = self.held or {}
+        if self._imager is not None and self.optics_state:
+            self._imager.set_state(self.optics_state)
+
+    # -- work -----------------------------------------------------------------------------------
+    def _common(self, sources: list[PointSources]) -> tuple[FocalPlane, float]:
+        if not sources:
+            raise InputError(f"block '{self.name}' input 'sources' received no PointSources")
+        first = sources[0]
+        for other in sources[1:]:
+            a, b = first.focal_plane, other.focal_plane
+            if (a.width_px, a.height_px, a.pixel_pitch_m, a.focal_length_m) != \
+                    (b.width_px, b.height_px, b.pixel_pitch_m, b.focal_length_m):
+                raise InputError(f"block '{self.name}' input 'sources': connected PointSources disagree on the "
+                                 f"focal plane ({a} vs {b})")
+            if not np.isclose(first.wavelength_m, other.wavelength_m, rtol=1e-9):
+                raise InputError(f"block '{self.name}' input 'sources': connected PointSources disagree on the "
+                                 f"wavelength ({first.wavelength_m} m vs {other.wavelength_m} m)")
+        return first.focal_plane, float(first.wavelength_m)
+
+    def _held_samples(self, key: str, src: PointSources, t_ns: np.ndarray) -> dict[str, np.ndarray]:
+        """Sample-and-hold the input at the render times, carrying the last sample across windows."""
+        n_src = src.n_sources
+        fields = {"x": src.x_px, "y": src.y_px, "flux": src.photon_flux, "range": src.range_m,
+                  "zenith": np.broadcast_to(np.asarray(src.zenith_angle_rad, dtype=float)[:, None],
+                                            (len(src.t_ns), n_src))}
+        index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
+        held = self.held.get(key)
+        out = {}
+        for name, values in fields.items():
+            values = np.asarray(values, dtype=float).reshape(len(src.t_ns), n_src)
+            if len(src.t_ns):
+                sampled = values[np.clip(index, 0, None)]
+            else:
+                sampled = np.full((len(t_ns), n_src), np.nan)
+            before = index < 0
+            if before.any():
+                if held is not None and np.asarray(held[name]).shape == (n_src,):
+                    sampled[before] = np.asarray(held[name], dtype=float)
+                elif not len(src.t_ns):
+                    sampled[before] = np.nan
+            out[name] = sampled
+        if len(src.t_ns):
+            self.held[key] = {name: np.asarray(values, dtype=float).reshape(len(src.t_ns), n_src)[-1].copy()
+                              for name, values in fields.items()}
+        return out
+
+    def step(self, window: Window, sources: list[PointSources] | PointSources,
+             background: SkyBackground | None = None) -> dict:
+        if isinstance(sources, PointSources):
+            sources = [sources]
+        sources = [s for s in (sources or []) if s is not None]
+        focal_plane, wavelength = self._common(sources)
+        imager = self._ensure_imager(focal_plane, wavelength)
+        cadence_ns = max(1, round(1e9 / self.params.render_rate_hz))
+        t_ns = window.sample_times_ns(cadence_ns)
+        t_s = t_ns * 1e-9
+        collected = self.telescope.collecting_area_m2 * self.params.throughput      # [m^2]
+
+        tracks = []
+        for i, src in enumerate(sources):
+            samples = self._held_samples(str(i), src, t_ns)
+            for j, source_id in enumerate(np.asarray(src.source_id)):
+                tracks.append((f"{i}:{source_id}", {name: v[:, j] for name, v in samples.items()}))
+
+        zenith_first = next((float(tr["zenith"][0]) for _, tr in tracks if len(tr["zenith"])), np.nan)
+        geometry = imager.ensure_geometry(zenith_first)
+        size = geometry.stamp_size
+        origin = np.zeros((len(t_ns), len(tracks), 2), dtype=np.int32)
+        flux = np.zeros((len(t_ns), len(tracks), size, size))
+        for s, (key, tr) in enumerate(tracks):
+            visible = np.isfinite(tr["x"]) & np.isfinite(tr["y"]) & (np.nan_to_num(tr["flux"]) > 0)
+            if not visible.any():
+                continue
+            idx = np.nonzero(visible)[0]
+            o, stamps, _ = imager.render(key, t_s[idx], tr["x"][idx], tr["y"][idx], tr["zenith"][idx], tr["range"][idx])
+            origin[idx, s] = o
+            flux[idx, s] = stamps * (tr["flux"][idx] * collected)[:, None, None]
+
+        sky = np.zeros(len(t_ns))
+        if background is not None and len(background.t_ns):
+            k = np.clip(np.searchsorted(np.asarray(background.t_ns), t_ns, side="right") - 1, 0, None)
+            sky = np.asarray(background.photon_flux_per_pixel, dtype=float)[k] * collected
+        return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux)}
