@@ -28,17 +28,18 @@ def comparator_input(j, c, d, log_a, delta):
     return c + d * np.exp(j * log_a) + delta * j
 
 
-def _bisect(lo, hi, c, d, log_a, delta, level, upward: bool):
+def _bisect(lo, hi, c, d, log_a, delta, level, upward: bool, from_left: bool = True):
     """Smallest ``j`` in ``(lo, hi]`` with ``g(j) >= level`` (``upward``) or ``<= level``.
 
     Requires the test false at ``lo``, true at ``hi`` and monotone in between. A
-    safeguarded Newton iteration on the continuous ``g``: each Newton estimate (the
-    midpoint when it leaves the bracket) and the integer after it are tested and the
-    bracket shrinks around them, so it ends in a few steps near the root and never
-    takes more than a bisection would.
+    safeguarded Newton iteration on the continuous ``g``, started from the side where it
+    converges monotonically (``from_left`` for a concave rise or a convex fall, from the
+    right for a convex rise): the integers around each estimate (the midpoint when it
+    leaves the bracket) are tested and the bracket shrinks around them, so it ends a few
+    steps after Newton converges and never takes more than a bisection would.
     """
     lo, hi = lo.copy(), hi.copy()
-    x = (lo + hi) * 0.5
+    x = (lo if from_left else hi).astype(float)
     while True:
         open_ = hi - lo > 1
         if not open_.any():
@@ -145,7 +146,7 @@ def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
             ok = comparator_input(hi, ci[k], di[k], la[k], dl[k]) >= th
             if ok.any():
                 k, lo, hi, th = k[ok], lo[ok], hi[ok], th[ok]
-                j = _bisect(lo, hi, ci[k], di[k], la[k], dl[k], th, upward=True)
+                j = _bisect(lo, hi, ci[k], di[k], la[k], dl[k], th, upward=True, from_left=False)
                 out[idx[k]], pol[idx[k]] = j, 1
     return out, pol
 
