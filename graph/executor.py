@@ -173,20 +173,15 @@ class Executor:
         timing["(store)"] = 0.0
 
         start_window = 0
-        for name in running:  # before the store exists: a scene that cannot be simulated leaves nothing behind
+        for name in running:
             blocks[name].setup(self.run)
-        if self.out is not None:
-            self.store = self._open_store()
-        result = RunResult(store=self.store, reused={n: str(s.path) for n, s in self.loaded.items()})
-        if self.store is not None and self.store.committed_windows:
+        result = RunResult(store=None, reused={n: str(s.path) for n, s in self.loaded.items()})
+        if self.resume:
+            self._ensure_store(result, running)
             start_window = self.store.committed_windows
             states = self.store.read_checkpoint()
             for name in running:
                 blocks[name].set_state(states.get(name, {}))
-        if self.store is not None:
-            for name in running:
-                if self._stores_products(name):
-                    self.store.set_product_hash(name, self.hashes[name])
 
         readers = {
             (name, port): self.loaded[name].product_windows(name, port, start=start_window)
@@ -205,6 +200,7 @@ class Executor:
                 values: dict[tuple[str, str], Any] = {}
                 for key, reader in readers.items():
                     values[key] = next(reader)
+                produced = []
                 for name in running:
                     block = blocks[name]
                     kwargs = self._gather(block, inputs_of[name], values)
@@ -214,9 +210,15 @@ class Executor:
                     self._check_outputs(name, block, outputs)
                     for port, value in outputs.items():
                         values[(name, port)] = value
-                    t0 = time.perf_counter()
+                    produced.append((name, outputs))
+                # The store is created once the first window has been computed in full: a scene that
+                # cannot be simulated (say, a satellite that never enters the field) leaves nothing behind.
+                t0 = time.perf_counter()
+                if self.out is not None and self.store is None:
+                    self._ensure_store(result, running)
+                for name, outputs in produced:
                     self._record(name, outputs, window, result)
-                    timing["(store)"] += time.perf_counter() - t0
+                timing["(store)"] += time.perf_counter() - t0
                 result.windows_run += 1
                 if self.store is not None:
                     now = time.perf_counter()
@@ -238,6 +240,8 @@ class Executor:
                 timing[name] += time.perf_counter() - t0
                 self._record(name, outputs, None, result)
         result.timing_s = timing
+        if self.out is not None and self.store is None:
+            self._ensure_store(result, running)
         if self.store is not None:
             previous = self.store.attrs.get("timing", {})
             self.store.set_attrs(timing={k: v + previous.get(k, 0.0) for k, v in timing.items()},
@@ -245,6 +249,12 @@ class Executor:
             self.store.commit()
             result.metrics, result.metric_units = self.store.metrics, self.store.metric_units
         return result
+
+    def _ensure_store(self, result: RunResult, running: list[str]) -> None:
+        self.store = result.store = self._open_store()
+        for name in running:
+            if self._stores_products(name):
+                self.store.set_product_hash(name, self.hashes[name])
 
     def _gather(self, block: Block, connections, values) -> dict[str, Any]:
         kwargs: dict[str, Any] = {}

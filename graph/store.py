@@ -32,6 +32,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
 
+from . import registry
 from .errors import StoreError
 from .ports import PORT_TYPES, PortValue
 
@@ -186,9 +187,7 @@ class RunStore:
     def focal_plane(self):
         if "events" not in self.group or "focal_plane" not in self.group["events"].attrs:
             return None
-        from evsda.blocks.ports import FocalPlane  # the store reads back the vocabulary's type
-
-        return FocalPlane(**self.group["events"].attrs["focal_plane"])
+        return port_type("FocalPlane")(**self.group["events"].attrs["focal_plane"])
 
     def iter_events(self, chunk_size: int = EVENT_CHUNK, start: int = 0, stop: int | None = None
                     ) -> Iterator[dict[str, np.ndarray]]:
@@ -236,7 +235,7 @@ class RunStore:
             self.flush()
         if not self.has_product(block, port):
             raise StoreError(f"{self.path} holds no products of {block}.{port}")
-        port_type = PORT_TYPES[self.group[base].attrs["type"]]
+        value_type = port_type(self.group[base].attrs["type"])
         documents = self.group[f"{base}/_attrs"]
         n = min(self._lengths.get(f"{base}/_attrs", 0), documents.shape[0])
         stop = n if stop is None else min(stop, n)
@@ -252,7 +251,7 @@ class RunStore:
             for key in [k for k, v in attrs.items() if isinstance(v, dict) and "__strings__" in v]:
                 doc = attrs.pop(key)
                 arrays[key] = np.asarray(doc["__strings__"], dtype=str).reshape(doc["shape"])
-            yield port_type.from_arrays(arrays, attrs)
+            yield value_type.from_arrays(arrays, attrs)
 
     def product_hash(self, block: str) -> str | None:
         key = f"products/{block}"
@@ -309,6 +308,16 @@ class RunStore:
             del self.group["checkpoint"][old]
 
 
+def port_type(name: str) -> type[PortValue]:
+    """The port type called ``name``, loading the registered blocks' vocabulary if needed."""
+    if name not in PORT_TYPES:
+        registry.load_entry_points()
+    try:
+        return PORT_TYPES[name]
+    except KeyError:
+        raise StoreError(f"the store holds values of port type '{name}', which no installed block defines") from None
+
+
 def _array_keys(group: zarr.Group, prefix: str = "") -> Iterator[str]:
     for name in group.array_keys():
         yield prefix + name
@@ -358,8 +367,7 @@ def _read_value(group: zarr.Group) -> Any:
     for key, sub in group.groups():
         out[key] = _read_value(sub)
     if "__port__" in group.attrs:
-        port_type = PORT_TYPES[group.attrs["__port__"]]
-        return port_type.from_arrays(out, _from_json(dict(group.attrs["__attrs__"])))
+        return port_type(group.attrs["__port__"]).from_arrays(out, _from_json(dict(group.attrs["__attrs__"])))
     if "__list__" in group.attrs:
         return [out[str(i)] for i in range(int(group.attrs["__list__"]))]
     return out

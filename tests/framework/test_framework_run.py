@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evsda.graph import RunInfo, StoreError, Window, block_rng
+from evsda.graph import RunInfo, SceneError, StoreError, Window, block_rng
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
 from evsda.graph.store import RunStore
@@ -195,3 +195,21 @@ def test_reuse_loads_upstream_products_and_matches_a_full_run(plugin, tmp_path):
     # a different upstream parameter must not be reused
     other = chain(tmp_path, seed=9, name="seed9.yaml")
     assert run_graph(load_graph(other), tmp_path / "x.zarr", reuse=[tmp_path / "first.zarr"]).reused == {}
+
+
+def test_a_scene_error_in_the_first_window_leaves_no_store(plugin, tmp_path):
+    path = chain(tmp_path)
+    path.write_text(path.read_text().replace("ramp: {type: test_ramp}", "ramp: {type: test_ramp, params: {fail_at_s: 0.0}}"))
+    with pytest.raises(SceneError, match="cannot continue"):
+        run_graph(load_graph(path), tmp_path / "run.zarr")
+    assert not (tmp_path / "run.zarr").exists()
+
+
+def test_an_error_mid_run_keeps_every_committed_window(plugin, tmp_path):
+    path = chain(tmp_path)
+    path.write_text(path.read_text().replace("ramp: {type: test_ramp}", "ramp: {type: test_ramp, params: {fail_at_s: 0.035}}"))
+    with pytest.raises(SceneError):
+        run_graph(load_graph(path), tmp_path / "run.zarr", checkpoint_every_s=0)
+    store = RunStore.open(tmp_path / "run.zarr")
+    assert store.committed_windows == 3
+    assert len(list(store.product_windows("ramp", "samples"))) == 3

@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field
 
 from evsda.blocks.ports import Events, FocalPlane, Metrics
-from evsda.graph import Block, BlockParams, Input, Output, PortValue, Window
+from evsda.graph import Block, BlockParams, Input, Output, PortValue, SceneError, Window
 
 GEOMETRY = FocalPlane(width_px=32, height_px=16, pixel_pitch_m=5e-6, focal_length_m=1.0)
 
@@ -38,10 +38,14 @@ class RampSource(Block):
         cadence_s: float = Field(1e-3, gt=0, description="Sampling interval [s]")
         slope_per_s: float = Field(100.0, description="Ramp slope [1/s]")
         noise: float = Field(0.1, ge=0, description="Standard deviation of the added noise [1]")
+        fail_at_s: float | None = Field(None, description="Raise a SceneError in the window holding this time [s]")
 
     outputs = {"samples": Output(Samples, "the ramp")}
 
     def step(self, window: Window) -> dict:
+        fail = self.params.fail_at_s
+        if fail is not None and window.start_ns <= fail * 1e9 < window.stop_ns:
+            raise SceneError(f"ramp '{self.name}' cannot continue past {fail} s")
         t = window.sample_times_ns(round(self.params.cadence_s * 1e9))
         value = self.params.slope_per_s * t * 1e-9 + self.params.noise * self.rng.standard_normal(t.size)
         return {"samples": Samples(t, value)}
