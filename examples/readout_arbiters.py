@@ -17,7 +17,7 @@ import numpy as np
 from evsda.blocks.ports import FocalPlane, PointSources, SourceKind, TriggeredEvents
 from evsda.blocks.readout import ColumnBurstArbiter, EventMetrics, IdealReadout, RowScanArbiter
 from evsda.blocks.readout.render import render_png
-from evsda.graph import RunInfo, Window
+from evsda.graph import RunInfo
 
 FP = FocalPlane(640, 480, 15e-6, 0.5)
 DURATION_NS, WINDOW_NS = 2_000_000_000, 100_000_000
