@@ -1,0 +1,140 @@
+"""Point-source field (paper Eq. 3), multi-plane angular-spectrum propagation (Eq. 4) and Schmidt's sampling rules."""
+
+import numpy as np
+import pytest
+
+from evsda.blocks.optics.fft_screens import fft_phase_screens
+from evsda.blocks.optics.propagation import (
+    grid_coordinates, plane_spacings, point_source_field, point_source_vacuum_field, propagate,
+    square_aperture_vacuum_field)
+from evsda.blocks.optics.sampling import (
+    PropagationGeometry, PropagationGrid, check_grid, choose_grid, planes_for, violations)
+from evsda.graph import ParameterError
+
+LAMBDA = 0.5e-6
+APERTURE = 0.3
+
+
+def _vacuum_error(geometry, grid):
+    source = point_source_field(grid.n, grid.delta1_m, LAMBDA, geometry.distance_m, geometry.roi_m, curvature=False)
+    field = propagate(source, LAMBDA, grid.delta1_m, grid.deltan_m, grid.planes_m,
+                      source_curvature=-geometry.distance_m)
+    x = grid_coordinates(grid.n, grid.deltan_m)
+    exact = point_source_vacuum_field(x[None, :], x[:, None], LAMBDA, geometry.distance_m, geometry.roi_m)
+    inside = np.abs(x) <= APERTURE / 2
+    amplitude = np.abs(field - exact)[np.ix_(inside, inside)].max() / np.abs(exact).max()
+    phase = np.abs(np.angle(field / exact)[np.ix_(inside, inside)]).max()
+    return amplitude, phase
+
+
+@pytest.mark.parametrize("distance", [400e3, 36_000e3])          # LEO and GEO
+def test_vacuum_point_source_matches_the_analytic_fresnel_field(distance):
+    geometry = PropagationGeometry(LAMBDA, distance, APERTURE)
+    grid = choose_grid(geometry, APERTURE / 48)
+    assert violations(geometry, grid) == []
+    amplitude, phase = _vacuum_error(geometry, grid)
+    # float64 quadratic phases: at GEO the source-plane chirp spans ~1e5 rad, yet the result keeps 1e-9 rad
+    assert amplitude < 1e-6
+    assert phase < 1e-8
+
+
+def test_collimation_removes_the_spherical_wave():
+    distance = 400e3
+    geometry = PropagationGeometry(LAMBDA, distance, APERTURE)
+    grid = choose_grid(geometry, APERTURE / 48)
+    source = point_source_field(grid.n, grid.delta1_m, LAMBDA, distance, geometry.roi_m)   # chirp included
+    field = propagate(source, LAMBDA, grid.delta1_m, grid.deltan_m, grid.planes_m, collimate=distance)
+    x = grid_coordinates(grid.n, grid.deltan_m)
+    exact = point_source_vacuum_field(x[None, :], x[:, None], LAMBDA, distance, geometry.roi_m, collimated=True)
+    inside = np.abs(x) <= APERTURE / 2
+    np.testing.assert_allclose(field[np.ix_(inside, inside)], exact[np.ix_(inside, inside)], rtol=1e-6, atol=0)
+
+
+def test_off_axis_source_arrives_tilted_with_its_footprint_on_axis():
+    distance = 400e3
+    geometry = PropagationGeometry(LAMBDA, distance, APERTURE)
+    grid = choose_grid(geometry, APERTURE / 48)
+    xc, yc = 3 * grid.delta1_m, -2 * grid.delta1_m
+    source = point_source_field(grid.n, grid.delta1_m, LAMBDA, distance, geometry.roi_m, centre=(xc, yc),
+                                curvature=False)
+    field = propagate(source, LAMBDA, grid.delta1_m, grid.deltan_m, grid.planes_m, source_curvature=-distance)
+    x = grid_coordinates(grid.n, grid.deltan_m)
+    on_axis = point_source_vacuum_field(x[None, :], x[:, None], LAMBDA, distance, geometry.roi_m)
+    tilt = np.exp(-2j * np.pi * (xc * x[None, :] + yc * x[:, None]) / (LAMBDA * distance))
+    inside = np.abs(x) <= APERTURE / 2
+    np.testing.assert_allclose(field[np.ix_(inside, inside)], (on_axis * tilt)[np.ix_(inside, inside)],
+                               rtol=0, atol=1e-5 * np.abs(on_axis).max())
+
+
+def test_square_aperture_matches_the_fresnel_integrals():
+    # Goodman 2005 Eq. 4-53 / Schmidt 2010 Eq. 1.60: Fresnel number (w/2)^2 / (lambda z) = 5
+    n, wavelength, width = 1024, 1e-6, 0.02
+    distance = (width / 2) ** 2 / (wavelength * 5)
+    delta = width / 128
+    x = grid_coordinates(n, delta)
+    edge = np.where(np.isclose(np.abs(x), width / 2), 0.5, (np.abs(x) < width / 2).astype(float))
+    field = propagate(np.outer(edge, edge).astype(complex), wavelength, delta, delta, [distance], absorber=False)
+    exact = square_aperture_vacuum_field(x[None, :], x[:, None], width, wavelength, distance)
+    inside = np.abs(x) < width
+    error = np.abs(field - exact)[np.ix_(inside, inside)]
+    assert np.sqrt(np.mean(error**2)) < 0.01 * np.abs(exact).max()
+
+
+def test_energy_is_conserved_through_every_step_and_screen():
+    # Parseval: a compact beam through three phase screens with scaling steps keeps sum |U|^2 delta^2
+    n, wavelength = 256, 1e-6
+    delta1, deltan = 2e-3, 3e-3
+    planes = [200.0, 500.0, 1000.0]
+    x = grid_coordinates(n, delta1)
+    beam = np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / (0.05) ** 2).astype(complex)
+    rng = np.random.default_rng(0)
+    spacing = plane_spacings(delta1, deltan, planes)
+    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] for i in (1, 2)}
+    energy_in = np.sum(np.abs(beam) ** 2) * delta1**2
+    for last in range(1, 4):
+        out = propagate(beam, wavelength, delta1, plane_spacings(delta1, deltan, planes)[last], planes[:last],
+                        {k: v for k, v in screens.items() if k < last}, absorber=False)
+        energy_out = np.sum(np.abs(out) ** 2) * spacing[last] ** 2
+        assert energy_out == pytest.approx(energy_in, rel=1e-10)
+
+
+def test_a_grid_at_the_aliasing_limit_is_accepted_and_accurate():
+    geometry = PropagationGeometry(LAMBDA, 400e3, APERTURE, r0_m=0.1, turbulence_length_m=20e3)
+    free = choose_grid(geometry, APERTURE / 48)
+    lz = LAMBDA * geometry.distance_m
+    d1p, d2p = geometry.widened
+    needed = d1p / (2 * free.delta1_m) + d2p / (2 * free.deltan_m) + lz / (2 * free.delta1_m * free.deltan_m)
+    n = int(np.ceil(needed))
+    at_limit = PropagationGrid(n, free.delta1_m, free.deltan_m, planes_for(geometry, n, free.delta1_m, free.deltan_m))
+    assert violations(geometry, at_limit) == []
+    check_grid(geometry, at_limit, "test")
+    assert _vacuum_error(geometry, at_limit)[0] < 1e-6
+    # constraint 1 exactly at its bound is valid too, a hair beyond it is not
+    limit = (lz - d2p * free.delta1_m) / d1p
+    edge = PropagationGrid(free.n, free.delta1_m, limit, free.planes_m)
+    assert not any("constraint 1" in v for v in violations(geometry, edge))
+    beyond = PropagationGrid(free.n, free.delta1_m, limit * 1.001, free.planes_m)
+    assert any("constraint 1" in v for v in violations(geometry, beyond))
+
+
+def test_an_aliasing_grid_is_one_clear_error_with_a_valid_suggestion():
+    geometry = PropagationGeometry(LAMBDA, 400e3, APERTURE, r0_m=0.1, turbulence_length_m=20e3)
+    free = choose_grid(geometry, APERTURE / 48)
+    small = PropagationGrid(free.n // 2, free.delta1_m, free.deltan_m, free.planes_m)
+    with pytest.raises(ParameterError) as info:
+        check_grid(geometry, small, "block 'optics' parameter 'grid_size'")
+    message = str(info.value)
+    assert "constraint 2" in message and f"a valid grid is N = {free.n}" in message
+    assert "\n" not in message
+    # the undersized grid really does alias: the vacuum field goes wrong
+    coarse = PropagationGrid(int(0.4 * free.n) // 2 * 2, free.delta1_m, free.deltan_m, free.planes_m)
+    assert _vacuum_error(geometry, coarse)[0] > 0.1
+
+
+def test_long_steps_get_vacuum_planes_for_constraint_four():
+    geometry = PropagationGeometry(LAMBDA, 400e3, APERTURE, r0_m=0.1, turbulence_length_m=20e3)
+    grid = choose_grid(geometry, APERTURE / 48, layer_planes_m=(400e3 - 20e3, 400e3 - 5e3))
+    spacing = grid.spacings_m
+    steps = np.diff(np.r_[0.0, grid.planes_m])
+    assert np.all(steps <= grid.n * spacing[:-1] * spacing[1:] / LAMBDA * (1 + 1e-9))
+    assert {380e3, 395e3, 400e3} <= set(grid.planes_m)

@@ -1,0 +1,175 @@
+"""Telescope PSFs: Airy pattern and encircled energy, OTF, long exposure, image motion, pixel integration."""
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+from scipy.special import j1
+
+from evsda.blocks.optics.fft_screens import fft_phase_screens
+from evsda.blocks.optics.kolmogorov import tilt_variance_one_axis
+from evsda.blocks.optics.psf import (
+    focal_field_mft, fwhm, long_exposure_encircled_energy, long_exposure_profile, psf_fft)
+from evsda.blocks.optics.render import PupilRenderer, RadialRenderer, StampSampler, stamp_placement
+from evsda.blocks.optics.telescope import Telescope, airy_encircled_energy, annular_otf
+
+LAMBDA, D = 0.5e-6, 1.0
+
+
+def _pupil_psf(telescope, theta_x, theta_y, n=256):
+    delta = telescope.diameter_m / (n - 8)
+    pupil = telescope.pupil(n, delta)
+    e = focal_field_mft(pupil.astype(complex), delta, LAMBDA, theta_x, theta_y)
+    return np.abs(e) ** 2 / telescope.collecting_area_m2          # [sr^-1] per unit collected power
+
+
+def test_first_dark_ring_of_the_airy_pattern_is_at_1_22_lambda_over_d():
+    # Born & Wolf 1999 Sec. 8.5.2: first zero of 2 J1(v)/v at v = 3.8317, theta = 1.2197 lambda / D
+    theta = np.linspace(1.0, 1.45, 451) * LAMBDA / D
+    profile = _pupil_psf(Telescope(D), theta, np.zeros(1))[0]
+    first_dark = theta[np.argmin(profile)] / (LAMBDA / D)
+    assert first_dark == pytest.approx(1.2197, abs=0.002)
+    analytic = Telescope(D).airy(theta, LAMBDA)
+    assert theta[np.argmin(analytic)] / (LAMBDA / D) == pytest.approx(brentq(j1, 3.5, 4.0) / np.pi, abs=1e-3)
+
+
+@pytest.mark.parametrize("eps", [0.0, 0.3, 0.5])
+def test_numerical_pupil_psf_matches_the_analytic_annular_airy_pattern(eps):
+    telescope = Telescope(D, eps)
+    theta = np.linspace(0, 6, 121) * LAMBDA / D
+    numeric = _pupil_psf(telescope, theta, np.zeros(1))[0]
+    analytic = telescope.airy(theta, LAMBDA)
+    assert analytic[0] == pytest.approx(telescope.collecting_area_m2 / LAMBDA**2)
+    np.testing.assert_allclose(numeric, analytic, atol=2e-3 * analytic[0])
+
+
+def test_encircled_energy_follows_born_and_wolf():
+    # 1 - J0^2 - J1^2: 83.8 %, 91.0 %, 93.8 % inside the first three dark rings (Born & Wolf 1999 Fig. 8.13)
+    telescope = Telescope(D)
+    rings = np.array([1.2197, 2.2331, 3.2383])
+    assert airy_encircled_energy(rings * LAMBDA / D, D, LAMBDA) == pytest.approx([0.838, 0.910, 0.938], abs=1e-3)
+    # numerically: integrate the sampled pupil PSF over disks
+    step = 0.05 * LAMBDA / D
+    theta = (np.arange(160) - 79.5) * step
+    image = _pupil_psf(telescope, theta, theta)
+    r = np.hypot(theta[None, :], theta[:, None])
+    for ring, expected in zip(rings, [0.838, 0.910, 0.938]):
+        inside = image[r <= ring * LAMBDA / D].sum() * step**2
+        assert inside == pytest.approx(expected, abs=0.01)
+
+
+def test_mft_equals_fft_on_fft_samples_and_conserves_energy():
+    telescope = Telescope(0.3, 0.25)
+    n, delta = 64, 0.3 / 56
+    rng = np.random.default_rng(1)
+    field = telescope.pupil(n, delta) * np.exp(1j * fft_phase_screens(rng, n, delta, 0.05)[0])
+    fft_psf, step = psf_fft(field, delta, LAMBDA, 256)
+    theta = (np.arange(256) - 128) * step
+    mft_psf = np.abs(focal_field_mft(field, delta, LAMBDA, theta, theta)) ** 2
+    np.testing.assert_allclose(mft_psf, fft_psf, rtol=1e-9, atol=1e-9 * fft_psf.max())
+    # Parseval: one period lambda/delta of the sampled pupil's far field holds all the power
+    assert fft_psf.sum() * step**2 == pytest.approx(np.sum(np.abs(field) ** 2) * delta**2, rel=1e-10)
+
+
+def test_annular_otf_is_the_pupil_autocorrelation():
+    telescope = Telescope(1.0, 0.4)
+    n, delta = 512, 1 / 200
+    pupil = telescope.pupil(n, delta)
+    spectrum = np.fft.fft2(pupil)
+    autocorrelation = np.fft.ifft2(np.abs(spectrum) ** 2).real
+    autocorrelation /= autocorrelation[0, 0]
+    shifts = np.array([10, 40, 60, 70, 100, 140, 180])
+    np.testing.assert_allclose(autocorrelation[0, shifts], annular_otf(shifts * delta, 0.4), atol=0.006)
+
+
+def test_long_exposure_fwhm_is_0_98_lambda_over_r0_for_large_telescopes():
+    # Dierickx 1992 (J. Mod. Opt. 39, 569): FWHM = 0.976 lambda / r0 for Kolmogorov turbulence, D >> r0
+    r0 = 0.02
+    theta = np.linspace(0, 3, 3001) * LAMBDA / r0
+    profile = long_exposure_profile(Telescope(D), LAMBDA, r0, np.inf, theta, 8192)
+    assert fwhm(theta, profile) / (LAMBDA / r0) == pytest.approx(0.976, rel=0.01)
+    # and the short exposures of turbulent pupils average to the long-exposure PSF: compare the energy
+    # within 0.5, 1 and 1.5 lambda/r0 (D/r0 = 12, Kolmogorov FFT screens)
+    telescope, n = Telescope(D), 64
+    delta = D / (n - 4)
+    r0 = D / 12
+    rng = np.random.default_rng(1)
+    step = 0.1 * LAMBDA / r0
+    axis = (np.arange(64) - 32) * step
+    pupil = telescope.pupil(n, delta)
+    fields = np.array([pupil * np.exp(1j * screen[:n, :n])
+                       for _ in range(150) for screen in fft_phase_screens(rng, 4 * n, delta, r0)])
+    average = (np.abs(focal_field_mft(fields, delta, LAMBDA, axis, axis)) ** 2).mean(axis=0)
+    average /= telescope.collecting_area_m2
+    r = np.hypot(axis[None, :], axis[:, None])
+    radii = np.array([0.5, 1.0, 1.5]) * LAMBDA / r0
+    measured = [average[r <= radius].sum() * step**2 for radius in radii]
+    expected = long_exposure_encircled_energy(telescope, LAMBDA, r0, np.inf, radii)
+    np.testing.assert_allclose(measured, expected, rtol=0.05)
+
+
+def test_image_motion_follows_the_tilt_variance():
+    # centroid of the short-exposure image = G-tilt; its variance per axis is 0.170 (lambda/D)^2 (D/r0)^(5/3)
+    # (Tyler 1994, JOSA A 11, 358), just under Noll's Z-tilt 0.182 (tilt_variance_one_axis)
+    telescope, n = Telescope(D), 48
+    delta = D / (n - 4)
+    r0 = D / 4
+    pupil = telescope.pupil(n, delta)
+    x = (np.arange(n) - n // 2) * delta
+    rng = np.random.default_rng(2)
+    centroids = []
+    for _ in range(600):
+        for screen in fft_phase_screens(rng, 4 * n, delta, r0):
+            phase = screen[:n, :n]
+            # centroid of |E|^2 = intensity-weighted mean phase gradient / k (Primot et al. 1990)
+            gy, gx = np.gradient(phase, delta)
+            centroids.append([np.sum(pupil * gx) / pupil.sum(), np.sum(pupil * gy) / pupil.sum()])
+    variance = np.var(np.array(centroids) / (2 * np.pi / LAMBDA), axis=0).mean()
+    g_tilt = 0.170 * (LAMBDA / D) ** 2 * (D / r0) ** (5 / 3)
+    assert variance == pytest.approx(g_tilt, rel=0.12)
+    assert tilt_variance_one_axis(LAMBDA, D, r0) == pytest.approx(0.182 * (LAMBDA / D) ** 2 * (D / r0) ** (5 / 3),
+                                                                   rel=0.01)
+
+
+def test_pixel_integration_conserves_flux_and_converges():
+    telescope = Telescope(0.3, 0.3)
+    pixel = 1.5 * LAMBDA / 0.3
+    theta = np.linspace(0, 60 * LAMBDA / 0.3, 30000)
+    profile = telescope.airy(theta, LAMBDA)
+    offsets = np.array([[0.0, 0.0], [0.31, -0.42]])
+    fine = RadialRenderer(StampSampler(41, pixel, 36), theta, profile).stamps(offsets)
+    for oversample, error in [(6, 0.01), (12, 0.003)]:
+        coarse = RadialRenderer(StampSampler(41, pixel, oversample), theta, profile).stamps(offsets)
+        assert np.abs(coarse - fine).sum(axis=(1, 2)).max() / 2 < error
+    # flux inside a 41-pixel stamp = the annular Airy energy within that square (vs radial integration)
+    inside = fine.sum(axis=(1, 2))
+    assert np.all((inside > 0.97) & (inside < 1.0))
+    # sub-pixel placement: a source at +0.5 px is the source at -0.5 px of the next pixel, and the
+    # centro-symmetric Airy pattern at (a, b) is the one at (-a, -b) turned by 180 degrees
+    halves = RadialRenderer(StampSampler(41, pixel, 12), theta, profile).stamps(np.array([[0.5, 0.2], [-0.5, 0.2]]))
+    np.testing.assert_allclose(halves[0][:, 1:], halves[1][:, :-1], atol=1e-12)
+    mirrored = RadialRenderer(StampSampler(41, pixel, 12), theta, profile).stamps(np.array([[0.31, -0.42],
+                                                                                            [-0.31, 0.42]]))
+    np.testing.assert_allclose(mirrored[0], mirrored[1][::-1, ::-1], atol=1e-12)
+
+
+def test_pupil_renderer_agrees_with_the_analytic_airy_stamps():
+    telescope = Telescope(0.3, 0.3)
+    sampler = StampSampler(21, 1.5 * LAMBDA / 0.3, 6)
+    n = 96
+    delta = 0.3 / (n - 2)
+    renderer = PupilRenderer(sampler, n, delta, LAMBDA, telescope.collecting_area_m2, dtype=np.complex128)
+    offsets = np.array([[0.0, 0.0], [0.4, 0.25], [-0.5, 0.5]])
+    numeric = renderer.stamps(telescope.pupil(n, delta), np.zeros((3, n, n)), offsets)
+    theta = np.linspace(0, 40 * LAMBDA / 0.3, 20000)
+    analytic = RadialRenderer(sampler, theta, telescope.airy(theta, LAMBDA)).stamps(offsets)
+    assert np.abs(numeric - analytic).sum(axis=(1, 2)).max() / 2 < 0.01
+    single = PupilRenderer(sampler, n, delta, LAMBDA, telescope.collecting_area_m2)      # complex64 fast path
+    fast = single.stamps(telescope.pupil(n, delta), np.zeros((3, n, n)), offsets)
+    np.testing.assert_allclose(fast, numeric, atol=1e-5 * numeric.max())
+
+
+def test_stamp_placement_rounds_to_the_nearest_pixel():
+    origin, offset = stamp_placement(np.array([10.4, 10.6, np.nan]), np.array([3.5, -0.2, 1.0]), 5)
+    np.testing.assert_array_equal(origin[:2], [[8, 2], [9, -2]])
+    np.testing.assert_allclose(offset[:2], [[0.4, -0.5], [-0.4, -0.2]])
+    np.testing.assert_array_equal(offset[2], [0.0, 0.0])
