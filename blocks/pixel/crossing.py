@@ -21,6 +21,7 @@ import numpy as np
 
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
 J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
+_NEWTON_STEPS = 12
 
 
 def comparator_input(j, c, d, log_a, delta):
@@ -28,40 +29,54 @@ def comparator_input(j, c, d, log_a, delta):
     return c + d * np.exp(j * log_a) + delta * j
 
 
-def _bisect(lo, hi, c, d, log_a, delta, level, upward: bool, from_left: bool = True):
+def _bisect(lo, hi, c, d, log_a, delta, level, upward: bool, x0=None):
     """Smallest ``j`` in ``(lo, hi]`` with ``g(j) >= level`` (``upward``) or ``<= level``.
 
-    Requires the test false at ``lo``, true at ``hi`` and monotone in between. A
-    safeguarded Newton iteration on the continuous ``g``, started from the side where it
-    converges monotonically (``from_left`` for a concave rise or a convex fall, from the
-    right for a convex rise): the integers around each estimate (the midpoint when it
-    leaves the bracket) are tested and the bracket shrinks around them, so it ends a few
-    steps after Newton converges and never takes more than a bisection would.
+    Requires the test false at ``lo``, true at ``hi`` and monotone in between. Newton's
+    iteration on the continuous ``g`` from ``x0`` (default ``lo``; ``g`` is convex or concave,
+    so from a good start it converges in a few steps) gives the root; the integer after it
+    is checked on ``g`` itself, and the rare item Newton leaves unsettled is finished by
+    bisection.
     """
-    lo, hi = lo.copy(), hi.copy()
-    x = (lo if from_left else hi).astype(float)
-    while True:
-        open_ = hi - lo > 1
-        if not open_.any():
-            return hi
+    lo_f, hi_f = lo.astype(float), hi.astype(float)
+    x = lo_f if x0 is None else np.minimum(np.maximum(np.where(np.isfinite(x0), x0, lo_f), lo_f), hi_f)
+    for _ in range(_NEWTON_STEPS):
         decay = np.exp(x * log_a)
-        slope = d * decay * log_a + delta
         with np.errstate(divide="ignore", invalid="ignore"):
-            x = x + (level - (c + d * decay + delta * x)) / slope
-        x = np.where(np.isfinite(x) & (x > lo) & (x < hi), x, (lo + hi) * 0.5)
-        m1 = np.minimum(np.maximum(np.floor(x).astype(np.int64), lo + 1), hi - 1)
-        m2 = np.minimum(m1 + 1, hi - 1)
-        for m in (m1, m2):
-            g = comparator_input(m, c, d, log_a, delta)
-            ok = (g >= level if upward else g <= level) & open_
-            hi = np.where(ok & (m < hi), m, hi)
-            lo = np.where(~ok & open_ & (m > lo), m, lo)
+            dx = (level - (c + d * decay + delta * x)) / (d * decay * log_a + delta)
+        dx = np.where(np.isfinite(dx), dx, 0.0)
+        x = np.minimum(np.maximum(x + dx, lo_f), hi_f)
+        if np.abs(dx).max() < 0.25:
+            break
+    j = np.minimum(np.maximum(np.ceil(x - 1e-6).astype(np.int64), lo + 1), hi)
+
+    def test(j):
+        g = comparator_input(j, c, d, log_a, delta)
+        return g >= level if upward else g <= level
+
+    settled = test(j) & ((j - 1 <= lo) | ~test(j - 1))
+    if settled.all():
+        return j
+    k = np.flatnonzero(~settled)
+    lo_k, hi_k = lo[k].copy(), hi[k].copy()
+    ck, dk, lk, deltak, levk = c[k], d[k], log_a[k], delta[k], level[k]
+    while True:
+        open_ = hi_k - lo_k > 1
+        if not open_.any():
+            break
+        mid = lo_k + (hi_k - lo_k) // 2
+        g = comparator_input(mid, ck, dk, lk, deltak)
+        ok = g >= levk if upward else g <= levk
+        hi_k = np.where(open_ & ok, mid, hi_k)
+        lo_k = np.where(open_ & ~ok, mid, lo_k)
+    j[k] = hi_k
+    return j
 
 
 def _ceil_steps(x):
     """``ceil(x)`` as steps, clipped to ``[0, J_LIMIT]`` (NaN -> limit)."""
     x = np.where(np.isfinite(x), x, float(J_LIMIT))
-    return np.clip(np.ceil(x), 0, float(J_LIMIT)).astype(np.int64)
+    return np.minimum(np.maximum(np.ceil(x), 0.0), float(J_LIMIT)).astype(np.int64)
 
 
 def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
@@ -110,7 +125,9 @@ def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
         ok = comparator_input(hi, ci, di, la, dl) >= th
         if ok.any():
             k = np.flatnonzero(ok)
-            j = _bisect(j0[idx[k]], hi[k], ci[k], di[k], la[k], dl[k], th[k], upward=True)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                start = np.log((th[k] - ci[k]) / di[k]) / la[k]   # root without drift: drift only brings it forward
+            j = _bisect(j0[idx[k]], hi[k], ci[k], di[k], la[k], dl[k], th[k], upward=True, x0=start)
             out[idx[k]], pol[idx[k]] = j, 1
 
     # -- falling (D > 0): g convex, decreasing until j*, increasing after
@@ -122,7 +139,7 @@ def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
             j_star = np.where(dl > 0, np.log(dl / (-di * la)) / la, np.inf)   # a^{j*} = delta / (-D ln a)
             tf = -theta_off[idx]
             hi_relax = _ceil_steps(np.log((tf - ci) / di) / la) + 1          # OFF without drift
-        j_min = np.clip(np.floor(np.where(np.isfinite(j_star), j_star, float(J_LIMIT))), 0, float(J_LIMIT))
+        j_min = np.minimum(np.maximum(np.floor(np.where(np.isfinite(j_star), j_star, float(J_LIMIT))), 0), float(J_LIMIT))
         j_min = np.minimum(np.maximum(j_min.astype(np.int64), jlo), hz)
         # OFF: on the decreasing stretch (j0, min(j_min + 1, horizon)]
         hi = np.where(dl > 0, j_min, np.where(ci < tf, hi_relax, J_LIMIT))
@@ -133,7 +150,9 @@ def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
         off = hi > 0
         if off.any():
             k = np.flatnonzero(off)
-            j = _bisect(jlo[k], hi[k], ci[k], di[k], la[k], dl[k], tf[k], upward=False)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                start = np.log((tf[k] - ci[k]) / di[k]) / la[k]   # root without drift: drift only delays it
+            j = _bisect(jlo[k], hi[k], ci[k], di[k], la[k], dl[k], tf[k], upward=False, x0=start)
             out[idx[k]], pol[idx[k]] = j, -1
         # ON: after the minimum, where g increases (g(j_min) <= g(j0) < theta_ON)
         on = ~off & (dl > 0) & (j_min < hz)
@@ -146,7 +165,7 @@ def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
             ok = comparator_input(hi, ci[k], di[k], la[k], dl[k]) >= th
             if ok.any():
                 k, lo, hi, th = k[ok], lo[ok], hi[ok], th[ok]
-                j = _bisect(lo, hi, ci[k], di[k], la[k], dl[k], th, upward=True, from_left=False)
+                j = _bisect(lo, hi, ci[k], di[k], la[k], dl[k], th, upward=True, x0=hi.astype(float))
                 out[idx[k]], pol[idx[k]] = j, 1
     return out, pol
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import counter_rng
 from .comparator import charge_cause
-from .crossing import NEVER, first_crossing, may_cross
+from .crossing import NEVER, comparator_input, first_crossing, may_cross
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
@@ -41,6 +41,7 @@ _STATE = {"flux": "flux", "step": "step", "filtered": "L", "memorised": "M", "re
           "theta_on": "th_on", "theta_off": "th_off", "shot_next": "shot_next", "shot_count": "shot_count",
           "cmp_next": "cmp_next", "event_count": "event_count"}
 _CACHE = ("y", "log_a", "para", "accept")     # derived from the input flux (Eqs. 14-16, 19-20)
+_LOOK_AHEAD = 32                              # input segments examined at once when skipping quiet ones
 
 
 class _Work:
@@ -136,11 +137,18 @@ class EventDrivenPixels:
             t_change[pending] = change_step[w.ptr[pending]]
             do_change = t_change <= t_event
             do_event = ~do_change & (t_event < n_end)
+            moved, horizon = [], []
             if do_change.any():
-                self._changes(w, np.flatnonzero(do_change), change_step, new_input)
+                i = np.flatnonzero(do_change)
+                moved.append(i)
+                horizon.append(self._changes(w, i, change_step, new_input))
             if do_event.any():
                 i = np.flatnonzero(do_event)
-                self._event(w, i, t_event[i], t_change[i], log)
+                self._event(w, i, t_event[i], np.minimum(t_change[i], n_end), log)
+                moved.append(i)
+                horizon.append(t_change[i])
+            if moved:                                   # one search for every item whose state moved
+                self._schedule(w, np.concatenate(moved), np.concatenate(horizon))
             done = (w.ptr >= w.end) & (np.minimum(w.cmp_next, w.shot_next) >= n_end)
             if done.any():
                 self._scatter(w.take(done))
@@ -181,8 +189,11 @@ class EventDrivenPixels:
         gap = np.floor(np.log(u) / self._log_1mq) + 1.0
         return np.minimum(gap, float(NEVER // 2)).astype(np.int64)
 
-    def _changes(self, w: _Work, i, change_step, new_input) -> None:
+    def _changes(self, w: _Work, i, change_step, new_input) -> np.ndarray:
         """Move items ``i`` through their input changes up to the first segment where something may happen.
+
+        Returns the step of each item's next input change (``NEVER`` if none): the
+        segment it is now in must be scheduled up to there.
 
         The state at the start of every remaining input segment follows in closed form:
         the low-pass output from the affine recursion ``L' = A L + (1 - A) Y``
@@ -191,17 +202,19 @@ class EventDrivenPixels:
         drift. A segment is skipped when :func:`.crossing.may_cross` proves, with a margin
         far above the rounding of this look-ahead, that the comparator cannot fire in it,
         and no shot-noise trial falls in it; the state jumps to the start of the first
-        segment that is not skipped (the window's last counts as such), which is then
-        scheduled exactly.
+        segment that is not skipped (the window's last counts as such). At most
+        ``_LOOK_AHEAD`` segments are examined at a time.
         """
         dt = self.model.dt_s
-        first, n_seg = w.ptr[i], w.end[i] - w.ptr[i]
+        first = w.ptr[i]
+        remaining = w.end[i] - first
+        n_seg = np.minimum(remaining, _LOOK_AHEAD)
         m = int(n_seg.max())
         col = np.arange(m)
         valid = col[None, :] < n_seg[:, None]
         k = np.where(valid, first[:, None] + col[None, :], first[:, None])
         start = change_step[k]                                            # [P, m] first step of each segment
-        last = col[None, :] + 1 >= n_seg[:, None]
+        last = col[None, :] + 1 >= remaining[:, None]                  # the pixel's last change in the window
         stop = np.where(last, NEVER, change_step[np.minimum(k + 1, change_step.size - 1)])
         flux, y, log_a, para, accept = (v[k] for v in new_input)
         length = np.where(last, 0, stop - start)
@@ -237,7 +250,7 @@ class EventDrivenPixels:
                          log_a.ravel(), (leak + parasitic).ravel(), np.repeat(th_on - margin, m),
                          np.repeat(w.th_off[i] - margin, m)).reshape(i.size, m)
         shot = w.shot_next[i][:, None]
-        busy |= ((shot >= start) & (shot < stop)) | last
+        busy |= ((shot >= start) & (shot < stop)) | last | (col[None, :] + 1 >= n_seg[:, None])
         target = np.argmax(busy & valid, axis=1)
         at = (np.arange(i.size), target)
         w.L[i], w.M[i] = l_start[at], m_start[at]
@@ -246,33 +259,64 @@ class EventDrivenPixels:
         w.step[i] = ref[at]
         w.flux[i], w.y[i], w.log_a[i], w.para[i], w.accept[i] = flux[at], y[at], log_a[at], para[at], accept[at]
         w.ptr[i] = first + target + 1
-        self._schedule(w, i, np.where(last[at], NEVER, stop[at]))
+        return np.where(last[at], NEVER, stop[at])
 
-    def _event(self, w: _Work, i, t, next_change, log: EventLog) -> None:
-        """Comparator events and shot-noise trials of items ``i`` at steps ``t`` (before ``next_change``)."""
+    def _event(self, w: _Work, i, t, limit, log: EventLog) -> None:
+        """Comparator events and shot-noise trials of items ``i`` at steps ``t`` (to be rescheduled after).
+
+        A comparator event that leaves a backlog (Eq. 17) is followed by the next one as
+        soon as the refractory period ends if the input is still beyond a threshold then:
+        those follow-ups are fired here, in a loop over the few items still firing, up to
+        each item's ``limit`` (its next input change or the window's end) and its next
+        shot-noise trial. They are exactly the events the main loop would find one round
+        at a time, with the same arithmetic.
+        """
+        self._advance(w, i, t)
+        fired = i[w.cmp_next[i] == t]
+        if fired.size:
+            self._fire(w, fired, log)
+        self._shot(w, i, t, log)
+        bound = limit[np.searchsorted(i, fired)] if fired.size else limit[:0]
+        while fired.size:
+            nxt = w.ready[fired]
+            keep = (nxt < bound) & (nxt < w.shot_next[fired])
+            fired, bound, nxt = fired[keep], bound[keep], nxt[keep]
+            if not fired.size:
+                break
+            y, th_on = w.y[fired], w.th_on[fired]
+            drift = (self._leak_dt + w.para[fired] * self.model.dt_s) * th_on
+            g = comparator_input(nxt - w.step[fired], y - w.M[fired], w.L[fired] - y, w.log_a[fired], drift)
+            keep = (g >= th_on) | (g <= -w.th_off[fired])
+            fired, bound, nxt = fired[keep], bound[keep], nxt[keep]
+            if fired.size:
+                self._advance(w, fired, nxt)
+                self._fire(w, fired, log)
+
+    def _fire(self, w: _Work, c, log: EventLog) -> None:
+        """Comparator events (Eq. 17) of items ``c``, whose state is at the event step."""
+        p = self.model.params
+        tt = w.step[c]
+        delta = w.L[c] - w.M[c]
+        sign = np.where(delta >= 0, 1, -1).astype(np.int8)
+        theta = np.where(sign > 0, w.th_on[c], w.th_off[c])
+        total = np.maximum(np.trunc(np.abs(delta) / theta), 1.0)
+        log.lose(np.sum(total - 1.0))
+        credit = np.vstack([w.c_leak[c], w.c_para[c], w.c_shot[c]])
+        cause = charge_cause(sign, delta - credit.sum(axis=0), credit)
+        moved = sign * theta
+        w.c_leak[c] -= np.where(cause == 1, moved, 0.0)
+        w.c_para[c] -= np.where(cause == 2, moved, 0.0)
+        w.c_shot[c] -= np.where(cause == 3, moved, 0.0)
+        w.M[c] += moved
+        w.ready[c] = tt + self.model.refractory_steps
+        log.add(tt, w.pix[c], sign, cause)
+        if p.threshold_redraw:
+            self._redraw(w, c, sign)
+
+    def _shot(self, w: _Work, i, t, log: EventLog) -> None:
+        """Shot-noise trials (Eq. 20) of items ``i`` arriving at steps ``t``."""
         p = self.model.params
         k_refr = self.model.refractory_steps
-        self._advance(w, i, t)
-        # comparator (Eq. 17)
-        c = i[w.cmp_next[i] == t]
-        if c.size:
-            tt = w.step[c]
-            delta = w.L[c] - w.M[c]
-            sign = np.where(delta >= 0, 1, -1).astype(np.int8)
-            theta = np.where(sign > 0, w.th_on[c], w.th_off[c])
-            total = np.maximum(np.trunc(np.abs(delta) / theta), 1.0)
-            log.lose(np.sum(total - 1.0))
-            credit = np.vstack([w.c_leak[c], w.c_para[c], w.c_shot[c]])
-            cause = charge_cause(sign, delta - credit.sum(axis=0), credit)
-            moved = sign * theta
-            w.c_leak[c] -= np.where(cause == 1, moved, 0.0)
-            w.c_para[c] -= np.where(cause == 2, moved, 0.0)
-            w.c_shot[c] -= np.where(cause == 3, moved, 0.0)
-            w.M[c] += moved
-            w.ready[c] = tt + k_refr
-            log.add(tt, w.pix[c], sign, cause)
-            if p.threshold_redraw:
-                self._redraw(w, c, sign)
         # shot noise (Eq. 20): trials arriving now
         a = i[w.shot_next[i] == t]
         if a.size:
@@ -294,7 +338,6 @@ class EventDrivenPixels:
                     self._redraw(w, e, sign)
             w.shot_count[a] += 1
             w.shot_next[a] = tt + self._shot_gap(w.pix[a], w.shot_count[a])
-        self._schedule(w, i, next_change)
 
     def _redraw(self, w: _Work, e, sign) -> None:
         """IEBCS: a new threshold of the polarity that fired, addressed by the pixel's event count."""
