@@ -81,6 +81,18 @@ class DvsPixel(Block):
             self.held_background = float(irradiance.background[samples[-1]])
         return {"events": log.to_port(fp, dt_ns)}
 
+    def pixel_field(self, name: str) -> np.ndarray:
+        """A copy of one per-pixel state field, as a flat array in row-major pixel order.
+
+        Names: ``flux`` [photon s^-1], ``filtered`` (L) and ``memorised`` (M) [1],
+        ``theta_on``, ``theta_off`` [1], ``ready`` (first step the pixel may fire again).
+        """
+        if self.pixels is None:
+            raise RuntimeError(f"block '{self.name}' has no pixel state before its first step")
+        if self.params.implementation == "reference":
+            return np.array(self.pixels[name], copy=True)
+        return EventDrivenPixels.field(self.pixels, name)
+
     # -- helpers -------------------------------------------------------------------------------
     def _model_for(self, irradiance: Irradiance) -> PixelModel:
         fp = irradiance.focal_plane
@@ -115,7 +127,7 @@ class DvsPixel(Block):
         if self._engine is None or self._engine.s is not self.pixels:
             self._engine = EventDrivenPixels(model, self.pixels)
         engine = self._engine
-        flux = self.pixels["flux"]
+        flux = EventDrivenPixels.field(self.pixels, "flux")
         background = np.asarray(irradiance.background, dtype=float)[samples]
         stamps = stamp_pixels(irradiance, samples)
         if np.all(background == self.held_background):

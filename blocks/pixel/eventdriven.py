@@ -36,11 +36,13 @@ from .model import PixelModel
 
 GAP, ACCEPT, THRESHOLD = 1, 2, 3          # counter-RNG streams
 
-# per-pixel arrays of the state dict, and the name of their copy in the working set
-_STATE = {"flux": "flux", "step": "step", "filtered": "L", "memorised": "M", "ready": "ready",
-          "theta_on": "th_on", "theta_off": "th_off", "shot_next": "shot_next", "shot_count": "shot_count",
-          "cmp_next": "cmp_next", "event_count": "event_count"}
-_CACHE = ("y", "log_a", "para", "accept")     # derived from the input flux (Eqs. 14-16, 19-20)
+# The per-pixel state is kept as two row-per-pixel tables, so that gathering the pixels of a
+# window and writing them back are one fancy-indexing operation each, not one per field.
+REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para", "c_shot",   # input, filter, memory, thresholds, causes
+        "y", "log_a", "para", "accept")                                        # derived from the input (Eqs. 14-16, 19-20)
+COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count")
+NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
+         "step": "step", "ready": "ready"}                                     # public names of some fields
 _LOOK_AHEAD = 32                              # input segments examined at once when skipping quiet ones
 
 
@@ -63,7 +65,6 @@ class EventDrivenPixels:
         self._leak_dt = model.params.leak_rate_hz * model.dt_s
         self._q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._log_1mq = np.log1p(-self._q) if self._q < 1 else -np.inf
-        self.cache = dict(zip(_CACHE, self._derive(state["flux"])))
 
     def _derive(self, flux):
         """Input-derived quantities: lin-log target, ln(1 - eps), parasitic rate, shot acceptance."""
@@ -71,48 +72,50 @@ class EventDrivenPixels:
         accept = drive.shot_p / self.model.shot_p_max if self.model.shot_p_max > 0 else np.zeros_like(drive.y)
         return drive.y, drive.log_a, drive.parasitic_hz, accept
 
+    @staticmethod
+    def field(state: dict, name: str) -> np.ndarray:
+        """A copy of one per-pixel field (``memorised``, ``theta_on``, ...) of a state dict."""
+        key = NAMES.get(name, name)
+        if key in REAL:
+            return state["real"][:, REAL.index(key)].copy()
+        return state["count"][:, COUNT.index(key)].copy()
+
     # -- construction ---------------------------------------------------------------------
     @staticmethod
     def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator, n_start: int) -> dict:
         """Fresh state looking at ``photon_flux``; the first step simulated is ``n_start``."""
         init = initial_pixels(model, photon_flux, rng)
         n = photon_flux.shape[0]
-        state = {"flux": photon_flux.astype(float).copy(), "step": np.full(n, n_start - 1, np.int64),
-                 "filtered": init.filtered, "memorised": init.memorised, "ready": np.full(n, n_start, np.int64),
-                 "theta_on": init.theta_on, "theta_off": init.theta_off, "credit": init.credit,
-                 "shot_next": np.zeros(n, np.int64), "shot_count": np.zeros(n, np.int64),
-                 "cmp_next": np.zeros(n, np.int64), "event_count": np.zeros(n, np.int64),
+        state = {"real": np.zeros((n, len(REAL))), "count": np.zeros((n, len(COUNT)), np.int64),
                  "key": int(rng.integers(0, 2**63 - 1))}
         pixels = EventDrivenPixels(model, state)
         w = pixels._gather(np.arange(n))
-        everyone = np.arange(n)
+        w.flux[:] = photon_flux
+        w.y[:], w.log_a[:], w.para[:], w.accept[:] = pixels._derive(photon_flux)
+        w.L[:], w.M[:], w.th_on[:], w.th_off[:] = init.filtered, init.memorised, init.theta_on, init.theta_off
+        w.c_leak[:], w.c_para[:], w.c_shot[:] = init.credit
+        w.step[:], w.ready[:] = n_start - 1, n_start
         w.shot_next[:] = pixels._shot_gap(w.pix, w.shot_count) + w.step
-        pixels._schedule(w, everyone, np.full(n, NEVER))
+        pixels._schedule(w, np.arange(n), np.full(n, NEVER))
         pixels._scatter(w)
         return state
 
     # -- working set --------------------------------------------------------------------------
     def _gather(self, pix: np.ndarray) -> _Work:
-        s, c = self.s, self.cache
-        arrays = {name: s[key][pix] for key, name in _STATE.items()}
-        arrays.update({name: c[name][pix] for name in _CACHE})
-        credit = s["credit"][:, pix]
-        return _Work(pix=pix, c_leak=credit[0], c_para=credit[1], c_shot=credit[2], **arrays)
+        real = np.ascontiguousarray(self.s["real"][pix].T)
+        count = np.ascontiguousarray(self.s["count"][pix].T)
+        return _Work(pix=pix, **dict(zip(REAL, real)), **dict(zip(COUNT, count)))
 
     def _scatter(self, w: _Work) -> None:
-        s, c = self.s, self.cache
-        for key, name in _STATE.items():
-            s[key][w.pix] = getattr(w, name)
-        for name in _CACHE:
-            c[name][w.pix] = getattr(w, name)
-        s["credit"][:, w.pix] = np.vstack([w.c_leak, w.c_para, w.c_shot])
+        self.s["real"][w.pix] = np.column_stack([getattr(w, name) for name in REAL])
+        self.s["count"][w.pix] = np.column_stack([getattr(w, name) for name in COUNT])
 
     # -- the main loop ------------------------------------------------------------------------
     def run(self, n_end: int, change_pixel: np.ndarray, change_step: np.ndarray, change_flux: np.ndarray,
             log: EventLog) -> None:
         """Process every event before step ``n_end`` and the input changes (sorted by pixel, then step)."""
-        s = self.s
-        due = np.flatnonzero(np.minimum(s["cmp_next"], s["shot_next"]) < n_end)
+        count = self.s["count"]
+        due = np.flatnonzero(np.minimum(count[:, COUNT.index("cmp_next")], count[:, COUNT.index("shot_next")]) < n_end)
         if change_pixel.size:
             changed, first, counts = np.unique(change_pixel, return_index=True, return_counts=True)
             active = np.union1d(due, changed)

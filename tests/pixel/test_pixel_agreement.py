@@ -119,7 +119,7 @@ def test_threshold_redraw_agrees(scenes):
             block, lambda a, b: scenes.uniform(fp, [a], 1e8), 1.0, 0.5))
     for cause in EventCause:
         assert _poisson_close(int(runs["reference"]["counts"][cause]), int(runs["fast"]["counts"][cause])), cause
-    theta = blocks["fast"].pixels["theta_on"]
+    theta = blocks["fast"].pixel_field("theta_on")
     assert 0.03 < theta.std() < 0.07 and abs(theta.mean() - 0.2) < 0.02
 
 

@@ -276,7 +276,7 @@ def test_zero_and_saturating_current(scenes, implementation):
     ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [0], 0.0), 0.5, 0.25))
     assert ev["counts"][EventCause.SIGNAL] == 0
     assert abs(ev["counts"][EventCause.LEAK] - 16 * 10 * 0.5) <= 8
-    assert np.all(np.isfinite(block.pixels["memorised"]))
+    assert np.all(np.isfinite(block.pixel_field("memorised")))
     block = DvsPixel(implementation=implementation, time_step_s=1e-4, cutoff_max_hz=0.0, **CLEAN)
     x = 50.0
     ev = scenes.concat(scenes.simulate(
