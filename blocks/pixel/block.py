@@ -120,40 +120,13 @@ class DvsPixel(Block):
         if self.params.implementation == "reference":
             self.pixels = reference.new_state(model, flux, self.rng)
         else:
-            self.pixels = EventDrivenPixels.new_state(model, flux, self.rng, n_start)
+            self.pixels = EventDrivenPixels.new_state(model, flux, self.rng, n_start,
+                                                      float(irradiance.background[first[0]]))
         self.held_background = float(irradiance.background[first[0]])
 
     def _run_fast(self, model, irradiance, samples, steps, n_end, log) -> None:
         if self._engine is None or self._engine.s is not self.pixels:
             self._engine = EventDrivenPixels(model, self.pixels)
-        engine = self._engine
-        flux = EventDrivenPixels.field(self.pixels, "flux")
         background = np.asarray(irradiance.background, dtype=float)[samples]
-        stamps = stamp_pixels(irradiance, samples)
-        if np.all(background == self.held_background):
-            pixel, step, new_flux = _stamp_changes(flux, self.held_background, background, steps, stamps)
-            engine.run(n_end, pixel, step, new_flux, log)
-            return
-        # the uniform background changes: every pixel sees a new input at those samples
-        bounds = np.r_[steps[1:], n_end]
-        empty = np.zeros(0, np.int64)
-        engine.run(int(steps[0]), empty, empty, np.zeros(0), log)
-        for k in range(samples.size):
-            frame = np.full(flux.shape[0], background[k])
-            mine = stamps.sample == k
-            np.add.at(frame, stamps.pixel[mine], stamps.flux[mine])
-            pixel = np.flatnonzero(frame != flux)
-            engine.run(int(bounds[k]), pixel, np.full(pixel.size, steps[k], np.int64), frame[pixel], log)
-
-
-def _stamp_changes(flux, held_background, background, steps, stamps):
-    """Input changes (pixel, step, new flux), sorted by pixel then step, when only stamps change."""
-    touched = np.union1d(np.flatnonzero(flux != held_background), stamps.pixel)
-    if touched.size == 0 or steps.size == 0:
-        empty = np.zeros(0, np.int64)
-        return empty, empty, np.zeros(0)
-    values = np.repeat(background[None, :], touched.size, axis=0)          # [pixel, sample]
-    np.add.at(values, (np.searchsorted(touched, stamps.pixel), stamps.sample), stamps.flux)
-    before = np.concatenate([flux[touched, None], values[:, :-1]], axis=1)
-    row, col = np.nonzero(values != before)
-    return touched[row], steps[col].astype(np.int64), values[row, col]
+        self._engine.run_window(self.held_background, background, steps, stamp_pixels(irradiance, samples),
+                                n_end, log)

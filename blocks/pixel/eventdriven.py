@@ -46,6 +46,10 @@ NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on",
 _LOOK_AHEAD = 32                              # input segments examined at once when skipping quiet ones
 
 
+def _no_changes():
+    return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+
+
 class _Work:
     """The pixels handled in one window, as compact arrays (a struct of arrays)."""
 
@@ -82,11 +86,14 @@ class EventDrivenPixels:
 
     # -- construction ---------------------------------------------------------------------
     @staticmethod
-    def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator, n_start: int) -> dict:
-        """Fresh state looking at ``photon_flux``; the first step simulated is ``n_start``."""
+    def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator, n_start: int,
+                  background: float) -> dict:
+        """Fresh state looking at ``photon_flux`` (``background`` plus stamps); the first step is ``n_start``."""
         init = initial_pixels(model, photon_flux, rng)
         n = photon_flux.shape[0]
         state = {"real": np.zeros((n, len(REAL))), "count": np.zeros((n, len(COUNT)), np.int64),
+                 "next": np.zeros(n, np.int64),                           # min(cmp_next, shot_next)
+                 "off_background": np.flatnonzero(photon_flux != background),   # pixels under stamps
                  "key": int(rng.integers(0, 2**63 - 1))}
         pixels = EventDrivenPixels(model, state)
         w = pixels._gather(np.arange(n))
@@ -109,13 +116,47 @@ class EventDrivenPixels:
     def _scatter(self, w: _Work) -> None:
         self.s["real"][w.pix] = np.column_stack([getattr(w, name) for name in REAL])
         self.s["count"][w.pix] = np.column_stack([getattr(w, name) for name in COUNT])
+        self.s["next"][w.pix] = np.minimum(w.cmp_next, w.shot_next)
+
+    # -- one window ---------------------------------------------------------------------------
+    def run_window(self, held_background: float, background: np.ndarray, steps: np.ndarray, stamps,
+                   n_end: int, log: EventLog) -> None:
+        """Process a window whose samples (uniform ``background[k]`` plus ``stamps``) hold from ``steps[k]``.
+
+        ``held_background`` is the uniform flux of the input held before the window. When
+        only stamps change, only the pixels under them (now or before) see new inputs;
+        a change of the background is a new input for every pixel.
+        """
+        s = self.s
+        if np.all(background == held_background):
+            touched = np.union1d(s["off_background"], stamps.pixel)
+            if touched.size == 0 or steps.size == 0:
+                self.run(n_end, *_no_changes(), log)
+                return
+            values = np.repeat(background[None, :], touched.size, axis=0)          # [pixel, sample]
+            np.add.at(values, (np.searchsorted(touched, stamps.pixel), stamps.sample), stamps.flux)
+            before = np.concatenate([s["real"][touched, REAL.index("flux"), None], values[:, :-1]], axis=1)
+            row, col = np.nonzero(values != before)
+            s["off_background"] = touched[values[:, -1] != background[-1]]
+            self.run(n_end, touched[row], steps[col].astype(np.int64), values[row, col], log)
+            return
+        flux = s["real"][:, REAL.index("flux")].copy()
+        bounds = np.r_[steps[1:], n_end]
+        self.run(int(steps[0]), *_no_changes(), log)
+        for k in range(steps.size):
+            frame = np.full(flux.shape[0], background[k])
+            mine = stamps.sample == k
+            np.add.at(frame, stamps.pixel[mine], stamps.flux[mine])
+            pixel = np.flatnonzero(frame != flux)
+            self.run(int(bounds[k]), pixel, np.full(pixel.size, steps[k], np.int64), frame[pixel], log)
+            flux = frame
+        s["off_background"] = np.flatnonzero(flux != background[-1])
 
     # -- the main loop ------------------------------------------------------------------------
     def run(self, n_end: int, change_pixel: np.ndarray, change_step: np.ndarray, change_flux: np.ndarray,
             log: EventLog) -> None:
         """Process every event before step ``n_end`` and the input changes (sorted by pixel, then step)."""
-        count = self.s["count"]
-        due = np.flatnonzero(np.minimum(count[:, COUNT.index("cmp_next")], count[:, COUNT.index("shot_next")]) < n_end)
+        due = np.flatnonzero(self.s["next"] < n_end)
         if change_pixel.size:
             changed, first, counts = np.unique(change_pixel, return_index=True, return_counts=True)
             active = np.union1d(due, changed)
@@ -134,28 +175,35 @@ class EventDrivenPixels:
             w.end[has] = w.ptr[has] + counts[where[has]]
             new_input = (change_flux, *self._derive(change_flux))
         while w.pix.size:
-            t_event = np.minimum(w.cmp_next, w.shot_next)
-            pending = w.ptr < w.end
-            t_change = np.full(w.pix.size, NEVER)
-            t_change[pending] = change_step[w.ptr[pending]]
-            do_change = t_change <= t_event
-            do_event = ~do_change & (t_event < n_end)
-            moved, horizon = [], []
+            # input changes due before the next event, then the events due before the next change
+            t_change = self._next_change(w, change_step)
+            do_change = t_change <= np.minimum(w.cmp_next, w.shot_next)
             if do_change.any():
                 i = np.flatnonzero(do_change)
-                moved.append(i)
-                horizon.append(self._changes(w, i, change_step, new_input))
+                self._schedule(w, i, self._changes(w, i, change_step, new_input))
+                t_change = self._next_change(w, change_step)
+            t_event = np.minimum(w.cmp_next, w.shot_next)
+            do_event = (t_event < t_change) & (t_event < n_end)
             if do_event.any():
                 i = np.flatnonzero(do_event)
                 self._event(w, i, t_event[i], np.minimum(t_change[i], n_end), log)
-                moved.append(i)
-                horizon.append(t_change[i])
-            if moved:                                   # one search for every item whose state moved
-                self._schedule(w, np.concatenate(moved), np.concatenate(horizon))
+                self._schedule(w, i, t_change[i])
             done = (w.ptr >= w.end) & (np.minimum(w.cmp_next, w.shot_next) >= n_end)
-            if done.any():
+            n_done = np.count_nonzero(done)
+            if n_done == w.pix.size:
+                self._scatter(w)
+                break
+            if n_done > w.pix.size // 4 or (n_done and w.pix.size < 4096):    # compact now and then
                 self._scatter(w.take(done))
                 w = w.take(~done)
+
+    @staticmethod
+    def _next_change(w: _Work, change_step) -> np.ndarray:
+        """Step of each item's next input change (``NEVER`` if none is left)."""
+        pending = w.ptr < w.end
+        t_change = np.full(w.pix.size, NEVER)
+        t_change[pending] = change_step[w.ptr[pending]]
+        return t_change
 
     # -- pieces (all act on items ``i`` of the working set) -----------------------------------
     def _advance(self, w: _Work, i, t) -> None:
