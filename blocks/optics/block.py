@@ -46,7 +46,7 @@ class PointSourceOptics(Block):
         render_rate_hz: float = Field(1000.0, gt=0, le=1e6, description="Rate of rendered PSF samples [Hz]")
         psf_path: Literal["auto", "airy", "long_exposure", "pupil_fft", "reference"] = Field(
             "auto", description="PSF path; 'auto' picks the cheapest whose error is within tolerance [-]")
-        tolerance: float = Field(0.05, gt=0, lt=1,
+        tolerance: float = Field(0.1, gt=0, lt=1,
                                  description="Largest fraction of a source's flux a fast path may misplace [1]")
         focus: Literal["source", "infinity"] = Field(
             "source", description="Focus on the source (paper Eq. 4 collimation) or at infinity [-]")

@@ -45,6 +45,9 @@ FAR_RANGE_M = 1e9
 #: zenith-angle bin of path decisions [rad] and range bin (ratio) [1]
 ZENITH_BIN_RAD = np.deg2rad(1.0)
 RANGE_BIN_RATIO = 1.05
+#: the pupil path's error against the reference is measured on coarser bins: 10 degrees, factors of 2 in range
+PUPIL_ERROR_ZENITH_BIN_RAD = np.deg2rad(10.0)
+REFERENCE_PROBE_FRAMES = 3
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,7 @@ class Imager:
     """Point-source imaging through turbulence with a choice of PSF paths (:mod:`.paths`)."""
 
     def __init__(self, telescope, focal_plane: FocalPlane, wavelength_m: float, atmosphere: Atmosphere | None,
-                 *, tolerance: float = 0.05, path: str = "auto", focus: str = "source",
+                 *, tolerance: float = 0.1, path: str = "auto", focus: str = "source",
                  screen_method: str = "fft", screen_update: str = "extend", n_zernike_modes: int = 66,
                  revisit_s: float | None = None, pupil_samples: int | None = None,
                  stamp_size_px: int | None = None, grid_size: int | None = None, seed: tuple = (0,),
@@ -80,6 +83,7 @@ class Imager:
         self.screens: dict[str, list[LayerScreen]] = {}
         self.reference_screens: dict[str, list[LayerScreen]] = {}
         self._choices: dict[tuple, PathChoice] = {}
+        self._pupil_errors: dict[tuple, float] = {}
         self._profiles: dict[tuple, RadialRenderer] = {}
         self._pupil_renderer: PupilRenderer | None = None
         self._amplitude: np.ndarray | None = None
@@ -109,7 +113,7 @@ class Imager:
             size = int(np.clip(2 * np.ceil(radius / p) + 1, 3, 129))
         # midpoint-rule error ~ 0.03 (sub-pixels per lambda/2D)^-2 (tests/optics), a quarter of the tolerance
         density = float(np.clip(np.sqrt(0.12 / tol), 1.0, 4.0))
-        oversample = oversampling_for(p / density, d, lam)
+        oversample = oversampling_for(p, d, lam, density)
         if self.pupil_samples is not None:
             n_pupil = int(self.pupil_samples)
             delta = d / (n_pupil - 2)
@@ -197,12 +201,7 @@ class Imager:
 
     def estimate_errors(self, zenith_rad: float, range_m: float) -> dict[str, float]:
         """Estimated error [1] of each path against the reference (:mod:`.paths`)."""
-        if self.turbulent(zenith_rad):
-            sigma2 = self.atmosphere.scintillation_index(self.telescope.diameter_m, self.wavelength, zenith_rad,
-                                                         range_m)
-        else:
-            sigma2 = 0.0
-        pupil_error = scintillation_error(sigma2)
+        pupil_error = self.pupil_error(zenith_rad, range_m)
         rng = np.random.Generator(np.random.PCG64(zlib.crc32(repr((zenith_rad, range_m, self.seed)).encode())))
         offsets = rng.uniform(-0.5, 0.5, (PROBE_FRAMES, 2))
         frames = PROBE_FRAMES if self.turbulent(zenith_rad) else 1
@@ -217,6 +216,38 @@ class Imager:
         if not self.turbulent(zenith_rad):
             estimates.pop("long_exposure")
         return estimates
+
+    def pupil_error(self, zenith_rad: float, range_m: float) -> float:
+        """Estimated error of ``pupil_fft`` against ``reference`` [1] (:mod:`.paths`), cached on coarse bins.
+
+        The larger of the scintillation term ``sigma_I / sqrt(2 pi)`` and the mean distance
+        between the two paths over ``REFERENCE_PROBE_FRAMES`` independent screens at the
+        bin's conditions (each path fed the same screens, :meth:`reference_pupil_phase`).
+        """
+        if not self.turbulent(zenith_rad):
+            return 0.0
+        z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
+        r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
+        key = (z_bin, r_bin)
+        if key not in self._pupil_errors:
+            zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
+            distance = FAR_RANGE_M if r_bin < 0 else 2.0 ** (r_bin + 0.5)
+            sigma2 = self.atmosphere.scintillation_index(self.telescope.diameter_m, self.wavelength, zenith, distance)
+            measured = []
+            offset = np.zeros((1, 2))
+            for k in range(REFERENCE_PROBE_FRAMES):
+                probe = f"__probe {key} {k}"
+                field = self.reference_field(probe, 0.0, *self.boresight, zenith, distance)
+                phase = self.reference_pupil_phase(probe, 0.0, *self.boresight, zenith, distance)
+                del self.reference_screens[probe]
+                reference = self.pupil_renderer.stamps_from_field(field[None], offset)
+                fast = self.pupil_renderer.stamps(self.pupil_amplitude, phase[None], offset)
+                measured.append(float(total_variation(fast, reference, reference.sum())[0]))
+            self._pupil_errors[key] = max(float(np.mean(measured)), scintillation_error(sigma2))
+            LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g "
+                     "(%d reference frames; scintillation index %.3g)", self.name, np.rad2deg(zenith), distance,
+                     self._pupil_errors[key], REFERENCE_PROBE_FRAMES, sigma2)
+        return self._pupil_errors[key]
 
     def _probe_phase(self, rng, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
         g = self.geometry
@@ -324,6 +355,7 @@ class Imager:
             if layer.cn2_dh <= 0:
                 continue
             centre, scale = self._footprints(layer, t_s, x_px, y_px, np.where(turbulent, zenith_rad, 0.0), range_m)
+            span = int(np.ceil((g.n_pupil - 1) * g.delta_m / screen.delta)) + 5     # the footprint's extent
             rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
             cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
             # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
@@ -337,8 +369,8 @@ class Imager:
                 ok = screen.usable(low[start:], high[start:]) & (epochs[start:] == screen.epoch)
                 stop = start + (int(np.argmin(ok)) if not ok.all() else len(ok))
                 if stop > start:
-                    phase[start:stop] += weight[start:stop, None, None] * screen.sample(rows[start:stop],
-                                                                                        cols[start:stop])
+                    phase[start:stop] += weight[start:stop, None, None] * screen.sample(
+                        rows[start:stop], cols[start:stop], span)
                 if stop < frames:
                     screen.cover(low[stop], high[stop], int(epochs[stop]))
                 start = stop if stop > start else start
@@ -409,13 +441,41 @@ class Imager:
         # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)
         return pupil * (1j * self.wavelength * distance / erf(2 * np.pi) ** 2) * self.pupil_amplitude
 
+    def reference_pupil_phase(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
+                              range_m: float) -> np.ndarray:
+        """The pupil path's phase (n, n) [rad] for the screens the reference path used at this instant.
+
+        Each layer's screen is read where the straight line from the source to each pupil
+        point crosses it (``(1 - L/R)`` of the pupil coordinate): the geometric-optics
+        projection that the pupil path makes, so that the two paths can be compared frame
+        by frame (:mod:`.paths`, benchmarks/optics_paths.py). Call after :meth:`reference_field`.
+        """
+        g = self.geometry
+        phase = self._defocus(np.array([range_m]))[0] * np.ones((g.n_pupil, g.n_pupil))
+        if not self.turbulent(zenith_rad):
+            return phase
+        geometry, grid, index = self.reference_grid(zenith_rad, range_m)
+        per_layer = self.reference_screens[source]
+        k2 = (2 * np.pi / self.wavelength) ** 2
+        xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
+        for i in index:
+            layer, screen = self.atmosphere.layers[i], per_layer[i]
+            centre, scale = self._footprints(layer, np.array([t_s]), np.array([x_px]), np.array([y_px]),
+                                             np.array([zenith_rad]), np.array([geometry.distance_m]))
+            rows = ((centre[0, 1] + scale[0] * xp) / screen.delta)[None]
+            cols = ((centre[0, 0] + scale[0] * xp) / screen.delta)[None]
+            weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
+            phase = phase + weight * screen.sample(rows, cols)[0]
+        return phase
+
     def _reference_screens(self, source: str, grid: PropagationGrid, index: dict) -> dict[int, LayerScreen]:
         spacing = grid.spacings_m
         screens = self.reference_screens.setdefault(source, {})
         for i, plane in index.items():
-            needed = grid.n * 1.0 + 2 * MARGIN + 4
+            step = screens[i].delta if i in screens else float(spacing[plane])
+            needed = grid.n * spacing[plane] / step + 2 * MARGIN + 4
             if i not in screens or screens[i].n < needed:
-                n = int(np.ceil(1.3 * needed))
+                n = int(np.ceil(1.3 * (grid.n + 2 * MARGIN + 4)))
                 n += n % 2
                 screens[i] = LayerScreen(n, float(spacing[plane]), (*self._source_seed(source, 1), i), L0=self._L0,
                                          method="fft", update="extend" if np.isfinite(self._L0) else "regenerate")
@@ -447,6 +507,7 @@ class Imager:
         self._pupil_renderer = None
         self._profiles.clear()
         self._choices.clear()
+        self._pupil_errors.clear()
         self.screens = {}
         for key, states in (state.get("screens") or {}).items():
             screens = self._layer_screens(key)

@@ -149,11 +149,13 @@ class LayerScreen:
         self._coefficients = None
 
     # -- sampling ---------------------------------------------------------------------------------
-    def sample(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    def sample(self, rows: np.ndarray, cols: np.ndarray, span: int | None = None) -> np.ndarray:
         """Phase [rad, for r0 = 1 m] on separable grids: ``rows`` (F, ny), ``cols`` (F, nx) absolute [delta].
 
         Returns ``(F, ny, nx)``. The points must lie in the usable part of the window and be
-        increasing along each axis.
+        increasing along each axis. ``span`` fixes the width [samples] of the coefficient patch
+        each frame reads (at least the grid's extent plus 4); with it, a frame's result does not
+        depend on the other frames of the batch (bit for bit).
         """
         if self._coefficients is None:
             self._coefficients = spline_filter(self.values, order=3, mode="mirror")
@@ -163,6 +165,10 @@ class LayerScreen:
         top, left = iy[:, 0, 0], ix[:, 0, 0]
         height = int((iy[:, -1, -1] - top).max()) + 1
         width = int((ix[:, -1, -1] - left).max()) + 1
+        if span is not None:
+            if span < max(height, width):
+                raise ValueError(f"sampling grids span {max(height, width)} samples, more than span={span}")
+            height = width = min(int(span), self.n)
         top = np.minimum(top, self.n - height)
         left = np.minimum(left, self.n - width)
         patches = sliding_window_view(self._coefficients, (height, width))[top, left]

@@ -13,15 +13,18 @@ The error of a path is the expected *fraction of the source's flux it puts in th
 pixels* relative to the reference, ``E[ sum |S_path - S_ref| ] / (2 F)`` (the total-variation
 distance between pixel-integrated stamps of total flux ``F``).
 
-* ``pupil_fft`` vs ``reference``: the pupil path keeps the phase of every layer but not the
-  amplitude fluctuations that diffraction between the layers and the aperture produces
-  (near-field / geometric-optics approximation; valid when the Fresnel scale
-  ``sqrt(lambda h)`` is small against the layers' r0, i.e. weak scintillation). Its
-  leading error is the flux fluctuation of scintillation, ``E|dF|/2F = sigma_I / sqrt(2 pi)``,
-  with the aperture-averaged ``sigma_I`` of :meth:`.Atmosphere.scintillation_index`. The
-  source's own Fresnel number ``N_F = D^2 / (lambda R)`` only sets the defocus of a
-  telescope focused at infinity, which the pupil path includes exactly (Fresnel
-  approximation). In vacuum the two paths are the same physics.
+* ``pupil_fft`` vs ``reference``: the pupil path keeps the phase of every layer along the
+  straight line of sight but drops what diffraction between the layers and the aperture
+  does (the near-field / geometric-optics approximation, good when the Fresnel scale
+  ``sqrt(lambda h)`` of each layer is small against the scales that matter): amplitude
+  fluctuations (scintillation) and the phase they exchange with. The flux fluctuation
+  alone misplaces ``E|dF|/2F = sigma_I / sqrt(2 pi)`` of the flux, with the
+  aperture-averaged ``sigma_I`` of :meth:`.Atmosphere.scintillation_index`; the block takes
+  the larger of that and the distance measured on a few reference propagations fed the
+  same screens (:meth:`.Imager.pupil_error`). The source's own Fresnel number
+  ``N_F = D^2 / (lambda R)`` only sets the defocus of a telescope focused at infinity,
+  which the pupil path includes exactly (Fresnel approximation); in vacuum the two paths
+  are the same physics.
 * ``airy`` and ``long_exposure`` vs ``pupil_fft``: measured by a probe, the mean distance
   over ``PROBE_FRAMES`` turbulent pupil-path stamps at random sub-pixel positions (a
   fixed-seed draw, so a choice is a pure function of the conditions); the error against

@@ -3,12 +3,16 @@
 A stamp is ``size x size`` pixels around a source at column ``x``, row ``y`` (pixel
 centres at integers, :mod:`evsda.blocks.ports.core`). Its first pixel is at
 ``(round(x) - size//2, round(y) - size//2)`` and the source sits at the sub-pixel offset
-``x - round(x)`` from the stamp's central pixel. Each pixel's energy is the PSF
-integrated over the pixel by the midpoint rule on ``oversample x oversample``
-sub-pixels. With sub-pixels no wider than ``lambda / 2D`` (the Nyquist interval of the
-band-limited intensity) the sum over all sub-pixels equals the PSF's integral exactly
-(Poisson summation), so flux is conserved; within a pixel the rule's error is tested
-against a much finer integration.
+``x - round(x)`` from the stamp's central pixel.
+
+* :class:`PupilRenderer` integrates the far field of a sampled pupil over each pixel
+  exactly (a finite Fourier series integrated term by term).
+* :class:`RadialRenderer` integrates a tabulated radial PSF (analytic Airy, long
+  exposure) by the midpoint rule on ``oversample x oversample`` sub-pixels. With
+  sub-pixels no wider than ``lambda / 2D`` (the Nyquist interval of the band-limited
+  intensity) the sum over all sub-pixels equals the PSF's integral (Poisson summation),
+  so flux is conserved; within a pixel the rule's error, about
+  ``0.03 (sub-pixels per lambda/2D)^-2`` of the flux, is tested against finer sampling.
 
 Values are fractions of the power incident on the collecting area [1]; multiply by the
 photon flux [photon s^-1 m^-2], the collecting area [m^2] and the throughput to get
@@ -21,8 +25,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-
-from .psf import mft_matrix
+import scipy.fft as sfft
 
 
 @dataclass(frozen=True)
@@ -48,9 +51,9 @@ class StampSampler:
         return summed * (self.pixel_scale_rad / q) ** 2
 
 
-def oversampling_for(pixel_scale_rad: float, diameter_m: float, wavelength_m: float) -> int:
-    """Sub-pixels per pixel so that they are at most ``lambda / 2D`` apart (Nyquist for the intensity)."""
-    return max(1, int(np.ceil(pixel_scale_rad / (wavelength_m / (2 * diameter_m)) - 1e-9)))
+def oversampling_for(pixel_scale_rad: float, diameter_m: float, wavelength_m: float, per_nyquist: float = 1.0) -> int:
+    """Sub-pixels per pixel so that ``per_nyquist`` of them fit in ``lambda / 2D`` (the intensity's Nyquist interval)."""
+    return max(1, int(np.ceil(per_nyquist * pixel_scale_rad / (wavelength_m / (2 * diameter_m)) - 1e-9)))
 
 
 def stamp_placement(x_px: np.ndarray, y_px: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -67,17 +70,34 @@ def stamp_placement(x_px: np.ndarray, y_px: np.ndarray, size: int) -> tuple[np.n
 
 
 class PupilRenderer:
-    """Stamps from pupil fields (far-field Fraunhofer pattern, :mod:`.psf`) by matrix Fourier transform.
+    """Stamps from pupil fields, integrated over the pixels exactly.
 
-    The source's sub-pixel offset becomes a tilt across the pupil, so the transform
-    matrices are fixed and frames are processed in batches.
+    The far field of a pupil sampled every ``delta`` is a finite Fourier series,
+    ``|E(theta)|^2 = (delta^4 / lambda^2) sum_k C_k exp(-2 pi i k delta . theta / lambda)``, whose
+    coefficients ``C_k = sum_m P_(m+k) P*_m`` are the pupil's autocorrelation (the OTF;
+    Goodman 2005 Sec. 6.3). Each term integrates over a pixel in closed form,
+    ``p^2 sinc(f_x p) sinc(f_y p) exp(-2 pi i f . theta_c)`` with ``f = k delta / lambda``, so the
+    stamps are exact pixel integrals with no sub-pixel sampling. ``C`` is the inverse DFT
+    of the PSF sampled by a zero-padded FFT (``L >= 2n - 1`` points, no aliasing), so the
+    two steps fold into fixed matrices ``B = A W / L`` applied to that PSF:
+    ``stamp = B_y PSF B_x^T``. The source's sub-pixel offset becomes a tilt across the pupil,
+    which keeps ``B`` fixed.
     """
 
     def __init__(self, sampler: StampSampler, n_pupil: int, delta_m: float, wavelength_m: float,
                  area_m2: float, dtype=np.complex64):
         self.sampler, self.n, self.delta, self.wavelength, self.area = sampler, n_pupil, delta_m, wavelength_m, area_m2
         self.x = (np.arange(n_pupil) - n_pupil // 2) * delta_m
-        self.w = mft_matrix(sampler.angles, self.x, wavelength_m, dtype)
+        size = sfft.next_fast_len(2 * n_pupil)
+        self.padded = size
+        lags = sfft.fftfreq(size) * size                                 # FFT order
+        f = lags * delta_m / wavelength_m                                # [cycles rad^-1]
+        p = sampler.pixel_scale_rad
+        centres = (np.arange(sampler.size) - sampler.size // 2) * p
+        a = p * np.sinc(f * p)[None, :] * np.exp(-2j * np.pi * np.outer(centres, f))
+        b = a @ np.exp(2j * np.pi * np.outer(lags, np.arange(size)) / size) / size
+        real = np.float32 if dtype == np.complex64 else np.float64
+        self.b_real, self.b_imag = b.real.astype(real), b.imag.astype(real)
         self.dtype = dtype
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -90,7 +110,7 @@ class PupilRenderer:
 
     def stamps(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from pupil ``amplitude`` (n, n) or (F, n, n) and ``phase`` (F, n, n)."""
-        real = np.float32 if self.dtype == np.complex64 else np.float64
+        real = self.b_real.dtype
         phase = phase.astype(real)
         field = np.empty(phase.shape, dtype=self.dtype)
         field.real = np.cos(phase)
@@ -102,17 +122,15 @@ class PupilRenderer:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
         ey, ex = self.tilt(offset_px)
         tilted = field.astype(self.dtype) * ey[:, :, None] * ex[:, None, :]
-        return self._stamps(tilted)
-
-    def _stamps(self, field: np.ndarray) -> np.ndarray:
-        frames, n, _ = field.shape
-        m = self.w.shape[0]
-        # two large products instead of 2 F small ones: (F n, n) @ (n, m), then (m, n) @ (n, F m)
-        along_x = (field.reshape(frames * n, n) @ self.w.T).reshape(frames, n, m)
-        stacked = np.ascontiguousarray(along_x.transpose(1, 0, 2)).reshape(n, frames * m)
-        e = (self.w @ stacked).reshape(m, frames, m).transpose(1, 0, 2)
-        intensity = (e.real**2 + e.imag**2) * (self.delta**2 / self.wavelength) ** 2
-        return self.sampler.bin(intensity).astype(float) / self.area
+        size = self.padded
+        spectrum = sfft.fft(sfft.fft(tilted, n=size, axis=-1, workers=1), n=size, axis=-2, workers=1)
+        psf = spectrum.real**2 + spectrum.imag**2                        # (F, L, L), up to delta^4/lambda^2
+        # stamp = Re(B_y PSF B_x^T), as real products frame by frame: every frame goes through the
+        # same fixed-size products whatever the batch, so results do not depend on how frames are grouped
+        along_x_re = np.matmul(psf, self.b_real.T)
+        along_x_im = np.matmul(psf, self.b_imag.T)
+        image = np.matmul(self.b_real, along_x_re) - np.matmul(self.b_imag, along_x_im)
+        return image.astype(float) * (self.delta**2 / self.wavelength) ** 2 / self.area
 
 
 class RadialRenderer:

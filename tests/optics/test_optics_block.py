@@ -1,0 +1,242 @@
+"""The optics block: irradiance stamps from point sources, path choice, windows, resume, hard cases."""
+
+import copy
+import logging
+import re
+
+import numpy as np
+import pytest
+
+from evsda.blocks.optics import PointSourceOptics
+from evsda.blocks.optics.imaging import Imager
+from evsda.blocks.optics.atmosphere import Atmosphere, Layer
+from evsda.blocks.optics.paths import total_variation
+from evsda.blocks.optics.telescope import Telescope
+from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground
+from evsda.graph import InputError, ParameterError, RunInfo, Window
+
+FOCAL_PLANE = FocalPlane(640, 480, 4.86e-6, 1.2)        # 4.05 urad pixels
+WAVELENGTH = 550e-9
+CADENCE_NS = 1_000_000
+
+
+def track(window, *, x0=300.0, vx=40.0, y0=200.0, vy=-15.0, flux=(2e4, 5e3), range_m=(6e5, np.inf),
+          zenith_deg=30.0, star_xy=(100.0, 400.0)):
+    """A satellite crossing the field and a fixed star, sampled every millisecond on the global grid."""
+    t_ns = window.sample_times_ns(CADENCE_NS)
+    t = t_ns * 1e-9
+    n = len(t)
+    x = np.c_[x0 + vx * t, np.full(n, star_xy[0])]
+    y = np.c_[y0 + vy * t, np.full(n, star_xy[1])]
+    return PointSources(FOCAL_PLANE, WAVELENGTH, t_ns, np.array(["25544", "HIP 1"]), np.array([0, 1], np.int8),
+                        x, y, np.tile(np.asarray(flux, dtype=float), (n, 1)), np.full((n, 2), 8.0),
+                        np.tile(np.asarray(range_m, dtype=float), (n, 1)), np.full(n, np.deg2rad(zenith_deg)))
+
+
+def run(block, windows, **track_kwargs):
+    block.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+    return [block.step(w, sources=[track(w, **track_kwargs)])["irradiance"] for w in windows]
+
+
+def windows_of(length_s, total_s):
+    n = int(round(total_s / length_s))
+    return [Window.from_seconds(i * length_s, (i + 1) * length_s, index=i) for i in range(n)]
+
+
+def concat(outputs):
+    return (np.concatenate([o.t_ns for o in outputs]), np.concatenate([o.stamp_origin for o in outputs]),
+            np.concatenate([o.stamp_flux for o in outputs]))
+
+
+def test_every_parameter_states_its_unit():
+    for name, field in PointSourceOptics.Params.model_fields.items():
+        assert re.search(r"\[[^\]]+\]$", field.description or ""), name
+
+
+def test_stamps_carry_the_collected_flux():
+    block = PointSourceOptics(aperture_m=0.3, obscuration=0.3, throughput=0.8, atmosphere="none", seed=1)
+    out = run(block, windows_of(0.02, 0.02))[0]
+    assert isinstance(out, Irradiance) and out.stamp_flux.shape[:2] == (20, 2)
+    collected = np.pi / 4 * 0.3**2 * (1 - 0.3**2) * 0.8
+    totals = out.stamp_flux.sum(axis=(2, 3))
+    # the diffraction-limited stamp keeps all but the far Airy wings (at most tolerance / 2)
+    expected = np.array([2e4, 5e3]) * collected
+    assert np.all((totals < expected) & (totals > expected * (1 - block.params.tolerance / 2)))
+    # the satellite's stamp follows it: the brightest pixel is where the source is
+    k = 10
+    peak = np.unravel_index(out.stamp_flux[k, 0].argmax(), out.stamp_flux.shape[2:])
+    x_sat = 300 + 40 * out.t_ns[k] * 1e-9
+    assert out.stamp_origin[k, 0, 0] + peak[1] == round(x_sat)
+
+
+def test_results_do_not_depend_on_how_the_run_is_cut_into_windows():
+    kwargs = dict(aperture_m=0.25, obscuration=0.2, seed=4, render_rate_hz=1000.0)
+    a = concat(run(PointSourceOptics(**kwargs), windows_of(0.1, 0.1)))
+    b = concat(run(PointSourceOptics(**kwargs), windows_of(0.02, 0.1)))
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+    c = concat(run(PointSourceOptics(**{**kwargs, "seed": 5}), windows_of(0.1, 0.1)))
+    assert not np.array_equal(a[2], c[2])                 # another seed, other screens
+
+
+def test_a_resumed_run_is_identical():
+    kwargs = dict(aperture_m=0.25, obscuration=0.2, seed=4)
+    windows = windows_of(0.02, 0.1)
+    whole = concat(run(PointSourceOptics(**kwargs), windows))
+    first = PointSourceOptics(**kwargs)
+    head = run(first, windows[:3])
+    state = copy.deepcopy(first.get_state())
+    resumed = PointSourceOptics(**kwargs)
+    resumed.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+    resumed.set_state(state)
+    tail = [resumed.step(w, sources=[track(w)])["irradiance"] for w in windows[3:]]
+    for u, v in zip(whole, concat(head + tail)):
+        np.testing.assert_array_equal(u, v)
+
+
+def test_unobservable_sources_and_zero_flux_get_no_stamp():
+    block = PointSourceOptics(aperture_m=0.3, seed=1)
+    w = Window.from_seconds(0, 0.01)
+    block.setup(RunInfo())
+    sources = track(w, flux=(0.0, 5e3))
+    x = sources.x_px.copy()
+    x[5:, 1] = np.nan                                      # the star leaves the field of view
+    sources = PointSources(**{**sources.__dict__, "x_px": x})
+    out = block.step(w, sources=[sources])["irradiance"]
+    assert np.all(out.stamp_flux[:, 0] == 0)              # zero flux
+    assert np.all(out.stamp_flux[5:, 1] == 0) and np.all(out.stamp_flux[:5, 1].sum(axis=(1, 2)) > 0)
+    assert np.isfinite(out.stamp_flux).all()
+
+
+def test_a_source_at_the_edge_of_the_field_puts_only_its_inside_part_on_the_sensor():
+    block = PointSourceOptics(aperture_m=0.3, atmosphere="none", seed=1)
+    out = run(block, windows_of(0.005, 0.005), x0=-0.5, vx=0.0, y0=479.5, vy=0.0)[0]      # on the corner
+    stamp, (x0, y0) = out.stamp_flux[0, 0], out.stamp_origin[0, 0]
+    cols = np.arange(stamp.shape[1]) + x0
+    rows = np.arange(stamp.shape[0]) + y0
+    inside = stamp[np.ix_((rows >= 0) & (rows < 480), (cols >= 0) & (cols < 640))].sum()
+    frame = out.frame(0)
+    star = out.stamp_flux[0, 1].sum()
+    assert frame.sum() == pytest.approx(inside + star)
+    assert 0.2 * stamp.sum() < inside < 0.3 * stamp.sum()   # about a quarter
+
+
+def test_sky_background_is_uniform_and_scaled_by_the_collecting_area():
+    block = PointSourceOptics(aperture_m=0.5, obscuration=0.4, throughput=0.7, atmosphere="none", seed=1)
+    w = Window.from_seconds(0, 0.004)
+    block.setup(RunInfo())
+    sky = SkyBackground(np.array([0], np.int64), np.array([100.0]))
+    out = block.step(w, sources=[track(w)], background=sky)["irradiance"]
+    np.testing.assert_allclose(out.background, 100.0 * np.pi / 4 * 0.25 * (1 - 0.16) * 0.7)
+    none = block.step(w, sources=[track(w)])["irradiance"]
+    assert np.all(none.background == 0)
+
+
+def test_several_inputs_are_merged_and_must_agree():
+    block = PointSourceOptics(aperture_m=0.3, atmosphere="none", seed=1)
+    w = Window.from_seconds(0, 0.003)
+    block.setup(RunInfo())
+    out = block.step(w, sources=[track(w), track(w, star_xy=(500.0, 50.0))])["irradiance"]
+    assert out.n_stamps == 4
+    other = PointSources(**{**track(w).__dict__, "wavelength_m": 700e-9})
+    with pytest.raises(InputError, match="wavelength"):
+        block.step(w, sources=[track(w), other])
+
+
+def _choice(caplog, **params):
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="evsda.blocks.optics"):
+        block = PointSourceOptics(**params, seed=2)
+        run(block, windows_of(0.003, 0.003))
+    return [r.getMessage() for r in caplog.records if "path '" in r.getMessage()]
+
+
+def test_path_choice_follows_the_physics_and_is_logged(caplog):
+    vacuum = _choice(caplog, aperture_m=0.3, atmosphere="none")
+    assert vacuum and all("path 'airy'" in m and "no atmosphere" in m for m in vacuum)
+    gentle = _choice(caplog, aperture_m=0.05, r0_500nm_m=2.0)        # D/r0 ~ 0.02
+    assert gentle and all("path 'airy'" in m and "D/r0 = 0.0" in m for m in gentle)
+    seeing = _choice(caplog, aperture_m=0.3, r0_500nm_m=0.1)         # D/r0 ~ 3
+    assert seeing and all("path 'pupil_fft'" in m for m in seeing)
+    forced = _choice(caplog, aperture_m=0.3, psf_path="long_exposure")
+    assert forced and all("forced by psf_path" in m for m in forced)
+
+
+def test_space_observer_sees_no_turbulence(caplog):
+    # a NaN zenith angle means an observer above the atmosphere: the diffraction-limited path, static PSF
+    block = PointSourceOptics(aperture_m=0.3, seed=2)
+    w = Window.from_seconds(0, 0.002)
+    block.setup(RunInfo())
+    with caplog.at_level(logging.INFO, logger="evsda.blocks.optics"):
+        out = block.step(w, sources=[track(w, zenith_deg=float("nan"), vx=0.0, vy=0.0)])["irradiance"]
+    assert any("path 'airy'" in r.getMessage() and "no atmosphere" in r.getMessage() for r in caplog.records)
+    np.testing.assert_array_equal(out.stamp_flux[0], out.stamp_flux[1])
+
+
+@pytest.mark.parametrize("path", ["airy", "long_exposure", "pupil_fft"])
+def test_forced_fast_paths_conserve_the_flux_in_their_stamps(path):
+    block = PointSourceOptics(aperture_m=0.3, obscuration=0.3, psf_path=path, seed=3)
+    out = run(block, windows_of(0.004, 0.004))[0]
+    collected = np.pi / 4 * 0.09 * 0.91
+    fraction = out.stamp_flux[:, 0].sum(axis=(1, 2)) / (2e4 * collected)
+    assert np.all((fraction > 0.95) & (fraction <= 1.0 + 1e-9))
+
+
+def test_strong_turbulence_spreads_the_image():
+    weak = run(PointSourceOptics(aperture_m=0.3, r0_500nm_m=0.5, psf_path="long_exposure", seed=1),
+               windows_of(0.002, 0.002))[0]
+    strong = run(PointSourceOptics(aperture_m=0.3, r0_500nm_m=0.01, psf_path="long_exposure", seed=1),
+                 windows_of(0.002, 0.002))[0]
+    peak = lambda out: out.stamp_flux[0, 0].max() / out.stamp_flux[0, 0].sum()
+    assert peak(strong) < 0.3 * peak(weak)
+    assert strong.stamp_flux.shape[2] > weak.stamp_flux.shape[2]    # D/r0 = 30 needs a wider stamp
+
+
+def test_zernike_screens_and_revisits_run_deterministically():
+    kwargs = dict(aperture_m=0.2, screen_method="zernike", screen_update="regenerate", n_zernike_modes=20,
+                  screen_revisit_s=0.005, psf_path="pupil_fft", seed=9)
+    a = concat(run(PointSourceOptics(**kwargs), windows_of(0.01, 0.01)))
+    b = concat(run(PointSourceOptics(**kwargs), windows_of(0.002, 0.01)))
+    np.testing.assert_array_equal(a[2], b[2])
+    with pytest.raises(ParameterError, match="regenerate"):
+        PointSourceOptics(screen_method="zernike", screen_update="extend")
+
+
+def test_reference_path_renders_and_checks_its_grid():
+    params = dict(aperture_m=0.1, r0_500nm_m=0.05, n_layers=2, psf_path="reference", seed=1, render_rate_hz=500.0)
+    out = run(PointSourceOptics(**params), windows_of(0.004, 0.004), range_m=(4e5, 4e5))[0]
+    collected = np.pi / 4 * 0.01
+    fraction = out.stamp_flux[:, 0].sum(axis=(1, 2)) / (2e4 * collected)
+    assert np.all((fraction > 0.7) & (fraction < 1.3))     # scintillation moves the collected flux a little
+    with pytest.raises(ParameterError, match="grid_size.*constraint"):
+        run(PointSourceOptics(**params, grid_size=32), windows_of(0.002, 0.002), range_m=(4e5, 4e5))
+
+
+def _paths_apart(atmosphere, diameter, frames=4):
+    """Distance between pupil_fft and reference stamps fed the same screens, and the block's estimate."""
+    imager = Imager(Telescope(diameter, 0.0), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(1,))
+    zenith, distance = np.deg2rad(20), 5e5
+    imager.ensure_geometry(zenith)
+    errors = []
+    for k in range(frames):
+        t = 0.05 * k
+        field = imager.reference_field("s", t, 320.0, 240.0, zenith, distance)
+        phase = imager.reference_pupil_phase("s", t, 320.0, 240.0, zenith, distance)
+        offset = np.array([[0.2, -0.1]])
+        reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
+        fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
+        errors.append(total_variation(fast, reference, reference.sum())[0])
+    return np.array(errors), imager.estimate_errors(zenith, distance)["pupil_fft"]
+
+
+def test_pupil_path_equals_the_reference_when_the_turbulence_is_near_the_aperture():
+    # a layer 30 m up: Fresnel scale sqrt(lambda z) = 4 mm << r0 = 5 cm, the near-field limit of the pupil path
+    near = Atmosphere((Layer(30.0, 1.0, 5.0, 0.0),)).scaled_to_r0(0.05)
+    errors, estimate = _paths_apart(near, 0.1, frames=2)
+    assert errors.max() < 0.01 and estimate < 0.01
+
+
+def test_pupil_path_error_estimate_matches_what_the_reference_shows():
+    # HV5/7-like layers up to 10 km on a 10 cm aperture: scintillation and diffraction between layers
+    errors, estimate = _paths_apart(Atmosphere.hufnagel_valley(2).scaled_to_r0(0.1), 0.1)
+    assert 0.5 * estimate < errors.mean() < 2 * estimate
