@@ -169,24 +169,3 @@ def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon=None):
                 out[idx[k]], pol[idx[k]] = j, 1
     return out, pol
 
-
-def may_cross(j0, horizon, c, d, log_a, delta, theta_on, theta_off):
-    """False where ``g`` provably stays inside ``(-theta_off, theta_on)`` for every ``j`` in ``[j0, horizon]``.
-
-    A cheap test (no search): ``g`` is monotone or convex, so its maximum over the
-    interval is at an end and its minimum at an end or at the interior minimum ``j*``.
-    """
-    j0 = j0.astype(np.int64)
-    h = np.maximum(horizon.astype(np.int64), j0)
-    g_start = comparator_input(j0, c, d, log_a, delta)
-    g_end = comparator_input(h, c, d, log_a, delta)
-    low = np.minimum(g_start, g_end)
-    convex = (d > 0) & (delta > 0) & (log_a < 0) & np.isfinite(log_a)
-    if convex.any():
-        k = np.flatnonzero(convex)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            j_star = np.log(delta[k] / (-d[k] * log_a[k])) / log_a[k]
-        j_star = np.clip(np.nan_to_num(j_star, nan=0.0, posinf=0.0, neginf=0.0), j0[k], h[k])
-        for m in (np.floor(j_star), np.ceil(j_star)):
-            low[k] = np.minimum(low[k], comparator_input(m, c[k], d[k], log_a[k], delta[k]))
-    return (horizon >= j0) & ((np.maximum(g_start, g_end) >= theta_on) | (low <= -theta_off))

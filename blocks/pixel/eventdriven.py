@@ -29,7 +29,7 @@ import numpy as np
 
 from . import counter_rng
 from .comparator import charge_cause
-from .crossing import NEVER, comparator_input, first_crossing, may_cross
+from .crossing import NEVER, comparator_input, first_crossing
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
@@ -96,7 +96,8 @@ class EventDrivenPixels:
                  "off_background": np.flatnonzero(photon_flux != background),   # pixels under stamps
                  "key": int(rng.integers(0, 2**63 - 1))}
         pixels = EventDrivenPixels(model, state)
-        w = pixels._gather(np.arange(n))
+        w = _Work(pix=np.arange(n), **{name: np.zeros(n) for name in REAL},
+                  **{name: np.zeros(n, np.int64) for name in COUNT})
         w.flux[:] = photon_flux
         w.y[:], w.log_a[:], w.para[:], w.accept[:] = pixels._derive(photon_flux)
         w.L[:], w.M[:], w.th_on[:], w.th_off[:] = init.filtered, init.memorised, init.theta_on, init.theta_off
@@ -180,7 +181,7 @@ class EventDrivenPixels:
             do_change = t_change <= np.minimum(w.cmp_next, w.shot_next)
             if do_change.any():
                 i = np.flatnonzero(do_change)
-                self._schedule(w, i, self._changes(w, i, change_step, new_input))
+                self._changes(w, i, change_step, new_input)
                 t_change = self._next_change(w, change_step)
             t_event = np.minimum(w.cmp_next, w.shot_next)
             do_event = (t_event < t_change) & (t_event < n_end)
@@ -240,21 +241,19 @@ class EventDrivenPixels:
         gap = np.floor(np.log(u) / self._log_1mq) + 1.0
         return np.minimum(gap, float(NEVER // 2)).astype(np.int64)
 
-    def _changes(self, w: _Work, i, change_step, new_input) -> np.ndarray:
-        """Move items ``i`` through their input changes up to the first segment where something may happen.
-
-        Returns the step of each item's next input change (``NEVER`` if none): the
-        segment it is now in must be scheduled up to there.
+    def _changes(self, w: _Work, i, change_step, new_input) -> None:
+        """Move items ``i`` through their input changes to the first segment where something happens, and schedule it.
 
         The state at the start of every remaining input segment follows in closed form:
         the low-pass output from the affine recursion ``L' = A L + (1 - A) Y``
         (``A = a^length``), evaluated for all segments at once by a parallel prefix scan
         (Hillis & Steele 1986), the memory and the leak contributions from the linear
-        drift. A segment is skipped when :func:`.crossing.may_cross` proves, with a margin
-        far above the rounding of this look-ahead, that the comparator cannot fire in it,
-        and no shot-noise trial falls in it; the state jumps to the start of the first
-        segment that is not skipped (the window's last counts as such). At most
-        ``_LOOK_AHEAD`` segments are examined at a time.
+        drift. The comparator's first crossing (:func:`.crossing.first_crossing`) is then
+        solved in every segment at once; the state jumps to the start of the first segment
+        with a crossing, a shot-noise trial, or the pixel's last change in the window, and
+        that segment's crossing becomes the item's next comparator event. At most
+        ``_LOOK_AHEAD`` segments are examined at a time (the last of them counts as
+        reached when none of them holds anything).
         """
         dt = self.model.dt_s
         first = w.ptr[i]
@@ -296,12 +295,14 @@ class EventDrivenPixels:
         m_start = w.M[i][:, None] - leak_start - para_start
         ref = start - 1
         j0 = np.maximum(w.ready[i][:, None] - ref, 1)
-        margin = 1e-9
-        busy = may_cross(j0.ravel(), (stop - 1 - ref).ravel(), (y - m_start).ravel(), (l_start - y).ravel(),
-                         log_a.ravel(), (leak + parasitic).ravel(), np.repeat(th_on - margin, m),
-                         np.repeat(w.th_off[i] - margin, m)).reshape(i.size, m)
+        horizon = np.where(last, NEVER, stop - 1 - ref)
+        j, _ = first_crossing(j0.ravel(), (y - m_start).ravel(), (l_start - y).ravel(), log_a.ravel(),
+                              (leak + parasitic).ravel(), np.repeat(th_on, m), np.repeat(w.th_off[i], m),
+                              horizon.ravel())
+        j = j.reshape(i.size, m)
+        cross = (j < NEVER) & (j <= horizon)              # a refractory pixel may report its first step after the segment
         shot = w.shot_next[i][:, None]
-        busy |= ((shot >= start) & (shot < stop)) | last | (col[None, :] + 1 >= n_seg[:, None])
+        busy = cross | ((shot >= start) & (shot < stop)) | last | (col[None, :] + 1 >= n_seg[:, None])
         target = np.argmax(busy & valid, axis=1)
         at = (np.arange(i.size), target)
         w.L[i], w.M[i] = l_start[at], m_start[at]
@@ -310,7 +311,7 @@ class EventDrivenPixels:
         w.step[i] = ref[at]
         w.flux[i], w.y[i], w.log_a[i], w.para[i], w.accept[i] = flux[at], y[at], log_a[at], para[at], accept[at]
         w.ptr[i] = first + target + 1
-        return np.where(last[at], NEVER, stop[at])
+        w.cmp_next[i] = np.where(cross[at], ref[at] + j[at], NEVER)
 
     def _event(self, w: _Work, i, t, limit, log: EventLog) -> None:
         """Comparator events and shot-noise trials of items ``i`` at steps ``t`` (to be rescheduled after).
