@@ -24,11 +24,19 @@ make, which the comparator later undoes with an opposite "rebound" event). An ev
 charged to the contribution pushing hardest in its direction, which then gives up one
 threshold. Over a long run each cause is charged its share of events: a static pixel
 gets ``R_leak : R_para`` leak to parasitic events, and rebounds go to SHOT.
+
+Rounding: a shot-noise event moves ``M`` by exactly one threshold, and the comparator
+must undo it at ``|dI| = theta``; whether ``L - M`` then lands on the threshold or one ulp
+short of it is an accident of floating point (v2e rounds its lin-log values to 1e-8 for
+the same reason). A change within ``TOLERANCE`` of a threshold therefore counts as
+reaching it, in both implementations.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+TOLERANCE = 1e-9        # a change this close to a threshold reaches it (ln of current) [1]
 
 
 def draw_thresholds(rng: np.random.Generator, size, mean: float, sigma: float, floor: float):
@@ -39,7 +47,12 @@ def draw_thresholds(rng: np.random.Generator, size, mean: float, sigma: float, f
 def events_possible(delta, theta_on, theta_off):
     """Paper Eq. 17: ``Ne_total``, the signed number of thresholds in ``delta`` (rounded towards 0)."""
     theta = np.where(delta >= 0, theta_on, theta_off)
-    return np.trunc(delta / theta)
+    return np.sign(delta) * np.trunc((np.abs(delta) + TOLERANCE) / theta)
+
+
+def reach(theta):
+    """The comparator input at which a threshold ``theta`` fires (``theta`` less the rounding tolerance)."""
+    return theta - TOLERANCE
 
 
 def charge_cause(polarity, signal, credits):

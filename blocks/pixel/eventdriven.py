@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import counter_rng
-from .comparator import charge_cause
+from .comparator import TOLERANCE, charge_cause, reach
 from .crossing import NEVER, comparator_input, first_crossing
 from .eventlog import EventLog
 from .initial import initial_pixels
@@ -228,7 +228,8 @@ class EventDrivenPixels:
         drift = (self._leak_dt + w.para[i] * self.model.dt_s) * th_on
         j0 = np.maximum(w.ready[i] - step, 1)
         horizon = np.where(next_change >= NEVER, NEVER, next_change - 1 - step)
-        j, _ = first_crossing(j0, y - w.M[i], w.L[i] - y, w.log_a[i], drift, th_on, w.th_off[i], horizon)
+        j, _ = first_crossing(j0, y - w.M[i], w.L[i] - y, w.log_a[i], drift, reach(th_on), reach(w.th_off[i]),
+                              horizon)
         w.cmp_next[i] = np.where(j >= NEVER, NEVER, step + j)
 
     def _shot_gap(self, pix, count) -> np.ndarray:
@@ -297,7 +298,7 @@ class EventDrivenPixels:
         j0 = np.maximum(w.ready[i][:, None] - ref, 1)
         horizon = np.where(last, NEVER, stop - 1 - ref)
         j, _ = first_crossing(j0.ravel(), (y - m_start).ravel(), (l_start - y).ravel(), log_a.ravel(),
-                              (leak + parasitic).ravel(), np.repeat(th_on, m), np.repeat(w.th_off[i], m),
+                              (leak + parasitic).ravel(), np.repeat(reach(th_on), m), np.repeat(reach(w.th_off[i]), m),
                               horizon.ravel())
         j = j.reshape(i.size, m)
         cross = (j < NEVER) & (j <= horizon)              # a refractory pixel may report its first step after the segment
@@ -338,7 +339,7 @@ class EventDrivenPixels:
             y, th_on = w.y[fired], w.th_on[fired]
             drift = (self._leak_dt + w.para[fired] * self.model.dt_s) * th_on
             g = comparator_input(nxt - w.step[fired], y - w.M[fired], w.L[fired] - y, w.log_a[fired], drift)
-            keep = (g >= th_on) | (g <= -w.th_off[fired])
+            keep = (g >= reach(th_on)) | (g <= -reach(w.th_off[fired]))
             fired, bound, nxt = fired[keep], bound[keep], nxt[keep]
             if fired.size:
                 self._advance(w, fired, nxt)
@@ -351,7 +352,7 @@ class EventDrivenPixels:
         delta = w.L[c] - w.M[c]
         sign = np.where(delta >= 0, 1, -1).astype(np.int8)
         theta = np.where(sign > 0, w.th_on[c], w.th_off[c])
-        total = np.maximum(np.trunc(np.abs(delta) / theta), 1.0)
+        total = np.maximum(np.trunc((np.abs(delta) + TOLERANCE) / theta), 1.0)
         log.lose(np.sum(total - 1.0))
         credit = np.vstack([w.c_leak[c], w.c_para[c], w.c_shot[c]])
         cause = charge_cause(sign, delta - credit.sum(axis=0), credit)

@@ -86,6 +86,15 @@ def test_statistics_agree(moving_runs):
     assert _poisson_close(ref["n_loss"], fast["n_loss"])
 
 
+def test_at_most_one_event_per_pixel_per_step(moving_runs):
+    # Eq. 17 and the shot noise of Eq. 20 share one output per pixel and step
+    fp, runs = moving_runs
+    for run in runs.values():
+        key = (run["t"] // 10_000) * (fp.width_px * fp.height_px) + run["y"].astype(np.int64) * fp.width_px + run["x"]
+        assert np.unique(key).size == key.size
+        assert run["n_loss"] > 0
+
+
 def test_timing_distributions_agree(moving_runs):
     _, runs = moving_runs
     for cause in (EventCause.SIGNAL, EventCause.SHOT, EventCause.LEAK):
@@ -107,6 +116,19 @@ def test_noise_rates_agree_including_extreme_threshold_mismatch(scenes, sigma):
     for cause in EventCause:
         assert _poisson_close(int(runs["reference"]["counts"][cause]), int(runs["fast"]["counts"][cause])), cause
     assert runs["fast"]["counts"][EventCause.SIGNAL] == 0
+
+
+@pytest.mark.parametrize("implementation", ["fast", "reference"])
+def test_thresholds_are_frozen_per_pixel_without_redraw(scenes, implementation):
+    fp = scenes.focal_plane(10, 10)
+    block = DvsPixel(implementation=implementation, time_step_s=1e-4, seed=2, **NOISY)
+    scenes.simulate(block, lambda a, b: scenes.uniform(fp, [a], 1e8), 0.1, 0.1)
+    before = block.pixel_field("theta_on"), block.pixel_field("theta_off")
+    later = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [a], 1e8), 0.5, 0.5))
+    assert later["t"].size > 100
+    np.testing.assert_array_equal(block.pixel_field("theta_on"), before[0])
+    np.testing.assert_array_equal(block.pixel_field("theta_off"), before[1])
+    assert 0.02 < before[0].std() < 0.04 and before[0].min() >= 0.01      # N(0.2, 0.03), floored
 
 
 def test_threshold_redraw_agrees(scenes):

@@ -213,6 +213,31 @@ def test_cooling_slows_a_dark_pixel_by_the_arrhenius_factor(scenes, implementati
 
 
 @pytest.mark.parametrize("implementation", BOTH)
+def test_cooling_raises_the_shot_noise_of_a_dark_pixel_per_eq_20(scenes, implementation):
+    # In the dark the only current is I_dark(T). Eq. 20 makes the shot-noise rate fall with
+    # the lin-log level I/I_max, so 10 K of cooling (I_dark times the Arrhenius factor 0.47 at
+    # E_a = 0.56 eV) lowers Y from 4 to 3.25 and raises the rate from 0.46 R_n to 0.56 R_n.
+    # Each shot event is undone one refractory period later (cycles of 1/q - 1 + 2k steps).
+    fp, ea, density, r_n, factor, dt, k, seconds = scenes.focal_plane(8, 8), 0.56, 4e-3, 50.0, 0.25, 1e-4, 1, 0.5
+    k_ev = constants.k / constants.e
+    i_ref = density * scenes.PITCH_M**2 / np.exp(4.0)              # x_dark(300 K) = e^4
+    counts = {}
+    for temperature in (300.0, 290.0):
+        block = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=k * dt, seed=3,
+                         temperature_K=temperature, dark_current_density_A_m2=density, dark_activation_energy_eV=ea,
+                         reference_current_A=i_ref, shot_noise_rate_hz=r_n, shot_noise_intensity_factor=factor,
+                         leak_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0)
+        ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [a], 0.0), seconds, 0.25))
+        assert np.all(ev["cause"] == EventCause.SHOT)
+        y = 4.0 + (-ea / k_ev * (1 / temperature - 1 / 300.0))       # ln x_dark(T)
+        q = 2 * ((factor - 1) * y / 5.54 + 1) * r_n * dt
+        expected = fp.width_px * fp.height_px * seconds * 2 / ((1 / q - 1 + 2 * k) * dt)
+        assert abs(ev["t"].size - expected) < 4 * np.sqrt(2 * expected), temperature
+        counts[temperature] = ev["t"].size
+    assert counts[290.0] > 1.1 * counts[300.0]
+
+
+@pytest.mark.parametrize("implementation", BOTH)
 def test_latency_converges_as_the_step_shrinks(scenes, implementation):
     # First event after a contrast step through the low-pass filter: continuous time gives
     # t* = -ln(1 - theta/C) / (2 pi f); the stepped model approaches it as dt -> 0.

@@ -140,3 +140,13 @@ def test_first_crossing_matches_stepping():
     polarity = np.where(g[np.arange(n), first - 1] >= th_on, 1, -1)
     np.testing.assert_array_equal(pol[found], polarity[found])
     assert np.all(j[~found] >= crossing.NEVER)
+
+
+def test_comparator_counts_thresholds_towards_zero_and_forgives_rounding():
+    # Eq. 17: Ne_total = dI / theta rounded towards zero; a shot-noise event shifts M by exactly
+    # theta, and the rebound must fire whether L - M lands on -theta or one ulp short of it
+    from evsda.blocks.pixel.comparator import events_possible
+    theta = 0.2
+    delta = np.array([0.0, 0.19, 0.2, 0.41, -0.39, -0.61, np.nextafter(-0.2, 0.0), np.nextafter(0.2, 0.0)])
+    np.testing.assert_array_equal(events_possible(delta, theta, theta), [0, 0, 1, 2, -1, -3, -1, 1])
+    assert events_possible(np.array([0.2 - 1e-6]), theta, theta)[0] == 0
