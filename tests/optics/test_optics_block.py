@@ -11,6 +11,7 @@ from evsda.blocks.optics import PointSourceOptics
 from evsda.blocks.optics.imaging import Imager
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics.paths import total_variation
+from evsda.blocks.optics.psf import long_exposure_encircled_energy
 from evsda.blocks.optics.telescope import Telescope
 from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground
 from evsda.graph import InputError, ParameterError, RunInfo, Window
@@ -192,6 +193,37 @@ def test_strong_turbulence_spreads_the_image():
     assert strong.stamp_flux.shape[2] > weak.stamp_flux.shape[2]    # D/r0 = 30 needs a wider stamp
 
 
+def test_strong_turbulence_short_exposures_resolve_r0_and_average_to_the_seeing_disc():
+    # D/r0 = 29 through the pupil path: the pupil grid resolves r0, the stamp holds the seeing halo without the
+    # sampled pupil's far field wrapping, and independent short exposures (a new screen every frame) spread
+    # their light like the long-exposure PSF (Fried 1966): half-light radius within 20 % of its own
+    atmosphere = Atmosphere.hufnagel_valley(1).scaled_to_r0(0.01)
+    imager = Imager(Telescope(0.3), FOCAL_PLANE, WAVELENGTH, atmosphere, path="pupil_fft", revisit_s=0.05,
+                    seed=(1,))
+    zenith = np.deg2rad(30)
+    g = imager.ensure_geometry(zenith)
+    r0 = imager.r0(zenith)
+    assert 0.3 / r0 > 25 and g.delta_m <= r0 / 4
+    assert g.stamp_size * imager.pixel_scale < WAVELENGTH / g.delta_m
+    frames = 4
+    _, stamps, paths = imager.render("s", 0.05 * np.arange(frames), np.full(frames, 320.3), np.full(frames, 240.1),
+                                     np.full(frames, zenith), np.full(frames, 6e5))
+    assert set(paths) == {"pupil_fft"}
+    fraction = stamps.sum(axis=(1, 2))
+    assert np.all((fraction > 1 - imager.tolerance / 2 - 0.01) & (fraction <= 1.0 + 1e-6))
+    assert np.all(stamps.max(axis=(1, 2)) < 0.05 * fraction)           # no diffraction-limited core
+    m = g.stamp_size
+    rows, cols = np.indices((m, m)) - m // 2
+    radius = np.hypot(cols - 0.3, rows - 0.1).ravel() * imager.pixel_scale
+    order = np.argsort(radius)
+    mean = stamps.mean(axis=0).ravel()[order]
+    half_light = radius[order][np.searchsorted(np.cumsum(mean) / mean.sum(), 0.5)]
+    theta = np.linspace(0, 10 * WAVELENGTH / r0, 2000)
+    seeing = theta[np.searchsorted(long_exposure_encircled_energy(imager.telescope, WAVELENGTH, r0, atmosphere.L0,
+                                                                  theta), 0.5)]
+    assert half_light == pytest.approx(seeing, rel=0.2)
+
+
 def test_zernike_screens_and_revisits_run_deterministically():
     kwargs = dict(aperture_m=0.2, screen_method="zernike", screen_update="regenerate", n_zernike_modes=20,
                   screen_revisit_s=0.005, psf_path="pupil_fft", seed=9)
@@ -212,10 +244,10 @@ def test_reference_path_renders_and_checks_its_grid():
         run(PointSourceOptics(**params, grid_size=32), windows_of(0.002, 0.002), range_m=(4e5, 4e5))
 
 
-def _paths_apart(atmosphere, diameter, frames=4):
+def _paths_apart(atmosphere, diameter, frames=4, distance=5e5):
     """Distance between pupil_fft and reference stamps fed the same screens, and the block's estimate."""
     imager = Imager(Telescope(diameter, 0.0), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(1,))
-    zenith, distance = np.deg2rad(20), 5e5
+    zenith = np.deg2rad(20)
     imager.ensure_geometry(zenith)
     errors = []
     for k in range(frames):
@@ -229,10 +261,12 @@ def _paths_apart(atmosphere, diameter, frames=4):
     return np.array(errors), imager.estimate_errors(zenith, distance)["pupil_fft"]
 
 
-def test_pupil_path_equals_the_reference_when_the_turbulence_is_near_the_aperture():
-    # a layer 30 m up: Fresnel scale sqrt(lambda z) = 4 mm << r0 = 5 cm, the near-field limit of the pupil path
+@pytest.mark.parametrize("distance", [4e5, 36_000e3])          # LEO and GEO
+def test_pupil_path_equals_the_reference_when_the_turbulence_is_near_the_aperture(distance):
+    # a layer 30 m up: Fresnel scale sqrt(lambda z) = 4 mm << r0 = 5 cm, the near-field limit of the pupil path;
+    # at GEO the reference's source-plane chirps span ~1e5 rad and must keep float64 precision through the screens
     near = Atmosphere((Layer(30.0, 1.0, 5.0, 0.0),)).scaled_to_r0(0.05)
-    errors, estimate = _paths_apart(near, 0.1, frames=2)
+    errors, estimate = _paths_apart(near, 0.1, frames=2, distance=distance)
     assert errors.max() < 0.01 and estimate < 0.01
 
 
