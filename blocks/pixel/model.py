@@ -71,9 +71,20 @@ class PixelModel:
         return current / self.params.reference_current_A
 
     def drive(self, photon_flux) -> Drive:
-        """Everything a constant ``photon_flux`` [photon s^-1 per pixel] sets in the circuit."""
-        p = self.params
+        """Everything a constant ``photon_flux`` [photon s^-1 per pixel] sets in the circuit.
+
+        A whole sensor under a uniform background holds few distinct values: those are
+        evaluated once each.
+        """
         flux = np.asarray(photon_flux, dtype=float)
+        if flux.ndim == 1 and flux.size > 65536:
+            values, inverse = np.unique(flux, return_inverse=True)
+            if values.size < flux.size // 16:
+                return Drive(*(v[inverse] for v in self._drive(values)))
+        return self._drive(flux)
+
+    def _drive(self, flux: np.ndarray) -> Drive:
+        p = self.params
         x = self.normalised_current(flux)
         y = photoreceptor.lin_log(x, p.linear_knee)
         if p.cutoff_max_hz > 0:
