@@ -33,29 +33,37 @@ def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float,
     """
     df = 1.0 / (n * delta)
     fx = sfft.fftfreq(n, delta)
-    f = np.hypot(fx[:, None], fx[None, :])
-    psd = phase_psd(f, r0, L0)
+    psd = phase_psd(np.hypot(fx[:, None], fx[None, :]), r0, L0)
     psd[0, 0] = 0.0                                             # no piston
-    coefficients = (rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))) * np.sqrt(psd) * df
-    screen = sfft.ifft2(coefficients, workers=-1) * (n * n)    # sum_k c_k exp(2 pi i f_k . x)
+    # coefficients c_k = (a + i b) sqrt(PSD) df, times n^2 to undo ifft2's 1/n^2: sum_k c_k exp(2 pi i f_k . x)
+    amplitude = np.sqrt(psd) * (df * n * n)
+    coefficients = np.empty((n, n), dtype=complex)
+    coefficients.real = rng.standard_normal((n, n)) * amplitude
+    coefficients.imag = rng.standard_normal((n, n)) * amplitude
+    screen = sfft.ifft2(coefficients, workers=-1, overwrite_x=True)
     if subharmonics:
-        screen = screen + _subharmonics(rng, n, delta, r0, L0)
+        screen += _subharmonics(rng, n, delta, r0, L0)
     return np.ascontiguousarray(screen.real), np.ascontiguousarray(screen.imag)
 
 
 def _subharmonics(rng: np.random.Generator, n: int, delta: float, r0: float, L0: float) -> np.ndarray:
     """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3)."""
     x = (np.arange(n) - n / 2) * delta
-    low = np.zeros((n, n), dtype=complex)
+    frequencies = []
+    c = np.zeros((9, 9), dtype=complex)                          # block-diagonal: one 3 x 3 block per level
     for p in (1, 2, 3):
         df = 1.0 / (3**p * n * delta)
         f1 = np.array([-1.0, 0.0, 1.0]) * df
         power = _cell_integrated_psd(f1, df, r0, L0)
-        c = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) * np.sqrt(power)
-        ey = np.exp(2j * np.pi * np.outer(x, f1))                # rows: y, columns: fy
-        ex = np.exp(2j * np.pi * np.outer(f1, x))                # rows: fx, columns: x
-        low += ey @ c @ ex                                       # c[iy, ix]
-    return low - low.mean()
+        c[3 * p - 3:3 * p, 3 * p - 3:3 * p] = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) \
+            * np.sqrt(power)                                     # c[iy, ix]
+        frequencies.append(f1)
+    f = np.concatenate(frequencies)
+    ey = np.exp(2j * np.pi * np.outer(x, f))                     # rows: y, columns: fy
+    ex = np.exp(2j * np.pi * np.outer(f, x))                     # rows: fx, columns: x
+    low = (ey @ c) @ ex                                          # the three levels in one product
+    low -= ey.mean(axis=0) @ c @ ex.mean(axis=1)                 # no piston
+    return low
 
 
 def _cell_integrated_psd(f1: np.ndarray, df: float, r0: float, L0: float, samples: int = 16) -> np.ndarray:
