@@ -16,8 +16,14 @@ fast cooling pays off: the dark current halves every
 the silicon band gap, the activation energy of depletion-region (generation) dark current
 that dominates silicon photodiodes near room temperature (Widenhorn et al. 2001,
 J. Appl. Phys. 89:8179; diffusion current, dominant when hot, has ``E_a ~ E_g = 1.12 eV``);
-it halves the dark current for ~10 K of cooling at 300 K. Fit ``E_a`` and ``J_dark`` to the
-sensor at hand (Nozaki & Delbruck's Arrhenius plots for the DAVIS) for quantitative work.
+it halves the dark current for ~10 K of cooling at 300 K. The paper takes ``E_a`` from Nozaki &
+Delbruck's measurements without quoting it (their figures could not be consulted for this
+code); fit ``E_a`` and ``J_dark`` to the sensor at hand for quantitative work.
+
+In the paper's model temperature acts only through ``I_dark``: it dilutes the contrast of a
+faint source (``ln(1 + I_s / I_dark)``), sets the shot-noise level of a dark pixel through
+``I/I_max`` in Eq. 20, and, with the proportional cutoff law, the dark bandwidth. The
+junction leak of Eq. 18 is temperature-independent (paper Sec. 2.4).
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para", "c_shot",   # i
 COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count")
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
-_LOOK_AHEAD = 32                              # input segments examined at once when skipping quiet ones
+_LOOK_AHEAD = 8                              # input segments examined at once when skipping quiet ones
 
 
 def _no_changes():
@@ -183,12 +183,16 @@ class EventDrivenPixels:
                 i = np.flatnonzero(do_change)
                 self._changes(w, i, change_step, new_input)
                 t_change = self._next_change(w, change_step)
+            # every event of a pixel before its next input change (pixels are independent: each
+            # one's events stay in order whatever the interleaving)
             t_event = np.minimum(w.cmp_next, w.shot_next)
-            do_event = (t_event < t_change) & (t_event < n_end)
-            if do_event.any():
-                i = np.flatnonzero(do_event)
-                self._event(w, i, t_event[i], np.minimum(t_change[i], n_end), log)
+            i = np.flatnonzero((t_event < t_change) & (t_event < n_end))
+            while i.size:
+                limit = np.minimum(t_change[i], n_end)
+                self._event(w, i, t_event[i], limit, log)
                 self._schedule(w, i, t_change[i])
+                t_event[i] = np.minimum(w.cmp_next[i], w.shot_next[i])
+                i = i[t_event[i] < limit]
             done = (w.ptr >= w.end) & (np.minimum(w.cmp_next, w.shot_next) >= n_end)
             n_done = np.count_nonzero(done)
             if n_done == w.pix.size:
