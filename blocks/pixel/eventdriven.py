@@ -110,13 +110,16 @@ class EventDrivenPixels:
 
     # -- working set --------------------------------------------------------------------------
     def _gather(self, pix: np.ndarray) -> _Work:
-        real = np.ascontiguousarray(self.s["real"][pix].T)
-        count = np.ascontiguousarray(self.s["count"][pix].T)
+        real = np.ascontiguousarray(self.s["real"].take(pix, axis=0).T)      # take: faster than fancy indexing
+        count = np.ascontiguousarray(self.s["count"].take(pix, axis=0).T)
         return _Work(pix=pix, **dict(zip(REAL, real)), **dict(zip(COUNT, count)))
 
     def _scatter(self, w: _Work) -> None:
-        self.s["real"][w.pix] = np.column_stack([getattr(w, name) for name in REAL])
-        self.s["count"][w.pix] = np.column_stack([getattr(w, name) for name in COUNT])
+        for table, names in ((self.s["real"], REAL), (self.s["count"], COUNT)):
+            rows = np.empty((w.pix.size, len(names)), table.dtype)
+            for k, name in enumerate(names):
+                rows[:, k] = getattr(w, name)
+            table[w.pix] = rows
         self.s["next"][w.pix] = np.minimum(w.cmp_next, w.shot_next)
 
     # -- one window ---------------------------------------------------------------------------
