@@ -1,42 +1,55 @@
-"""Bundled sensor presets: graph files with a ``pixel`` block that load, include and run."""
+"""Bundled sensor presets: graph files with a ``pixel`` block that load, include and run.
+
+A preset may carry a ``camera`` block whose focal length the including scene sets (the
+telescope's); the presets are therefore loaded the way a scene uses them, through an include.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 
 from evsda.blocks.pixel import DvsPixel
 from evsda.blocks.ports import FocalPlane
 from evsda.graph import Window
 from evsda.graph.graphfile import load_graph
+from evsda.library import resolve
 
 PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6)}
 
 
+def include_preset(tmp_path, name: str, **pixel_params):
+    """A scene graph that includes preset ``name`` as ``sensor`` (focal length set if it has a camera)."""
+    spec = yaml.safe_load(resolve(f"library:sensors/{name}.yaml").read_text())
+    sets = {f"pixel.{k}": v for k, v in pixel_params.items()}
+    if "camera" in spec.get("blocks", {}):
+        sets["camera.focal_length_m"] = 1.0
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(yaml.safe_dump({
+        "evsda": 1,
+        "include": [{"file": f"library:sensors/{name}.yaml", "as": "sensor", "set": sets}],
+        "expose": {"inputs": {"irradiance": "sensor.irradiance"}, "outputs": {"triggered": "sensor.triggered"}},
+    }))
+    return load_graph(scene)
+
+
 @pytest.mark.parametrize("name", sorted(PRESETS))
-def test_preset_is_a_sensor_subgraph(name):
-    graph = load_graph(f"library:sensors/{name}.yaml")
-    assert isinstance(graph.nodes["pixel"].block, DvsPixel)
-    assert graph.exposed_inputs == {"irradiance": ("pixel", "irradiance")}
-    assert graph.exposed_outputs["triggered"] == ("pixel", "events")
+def test_preset_is_a_sensor_subgraph(tmp_path, name):
+    graph = include_preset(tmp_path, name)
+    assert isinstance(graph.nodes["sensor/pixel"].block, DvsPixel)
+    assert graph.exposed_inputs == {"irradiance": ("sensor/pixel", "irradiance")}
+    assert graph.exposed_outputs["triggered"] == ("sensor/pixel", "events")
 
 
 def test_including_a_preset_overrides_its_temperature(tmp_path):
-    scene = tmp_path / "scene.yaml"
-    scene.write_text(
-        "evsda: 1\n"
-        "include:\n"
-        "  - {file: 'library:sensors/davis346.yaml', as: sensor, set: {pixel.temperature_K: 280}}\n"
-        "expose:\n"
-        "  inputs: {irradiance: sensor.irradiance}\n"
-        "  outputs: {events: sensor.triggered}\n")
-    graph = load_graph(scene)
+    graph = include_preset(tmp_path, "davis346", temperature_K=280)
     assert graph.nodes["sensor/pixel"].block.params.temperature_K == 280.0
 
 
-def test_davis346_preset_runs_on_its_focal_plane(scenes):
+def test_davis346_preset_runs_on_its_focal_plane(tmp_path, scenes):
     width, height, pitch = PRESETS["davis346"]
-    block = load_graph("library:sensors/davis346.yaml").nodes["pixel"].block
+    block = include_preset(tmp_path, "davis346").nodes["sensor/pixel"].block
     fp = FocalPlane(width, height, pitch, 0.5)
     out = block.step(Window.from_seconds(0, 0.05), irradiance=scenes.uniform(fp, [0], 1e4))["events"]
     # only noise: about (0.1 Hz leak + 2 x 0.1 Hz shot) x 90k pixels x 0.05 s
