@@ -178,24 +178,19 @@ class EventDrivenPixels:
             w.ptr[has] = first[where[has]]
             w.end[has] = w.ptr[has] + counts[where[has]]
             new_input = (change_flux, *self._derive(change_flux))
+        if change_pixel.size:                             # schedule again with the window's changes in view
+            self._search(w, np.flatnonzero(w.ptr < w.end), change_step, new_input)
         while w.pix.size:
-            # input changes due before the next event, then the events due before the next change
             t_change = self._next_change(w, change_step)
-            do_change = t_change <= np.minimum(w.cmp_next, w.shot_next)
-            if do_change.any():
-                i = np.flatnonzero(do_change)
-                self._changes(w, i, change_step, new_input)
-                t_change = self._next_change(w, change_step)
-            # every event of a pixel before its next input change (pixels are independent: each
-            # one's events stay in order whatever the interleaving)
             t_event = np.minimum(w.cmp_next, w.shot_next)
-            i = np.flatnonzero((t_event < t_change) & (t_event < n_end))
-            while i.size:
-                limit = np.minimum(t_change[i], n_end)
-                self._event(w, i, t_event[i], limit, log)
-                self._schedule(w, i, t_change[i])
-                t_event[i] = np.minimum(w.cmp_next[i], w.shot_next[i])
-                i = i[t_event[i] < limit]
+            fire = (t_event < t_change) & (t_event < n_end)
+            if fire.any():
+                i = np.flatnonzero(fire)
+                self._event(w, i, t_event[i], np.minimum(t_change[i], n_end), log)
+            # after an event, or where the look-ahead reached a change with nothing before it
+            again = fire | ((t_change <= t_event) & (w.ptr < w.end))
+            if again.any():
+                self._search(w, np.flatnonzero(again), change_step, new_input)
             done = (w.ptr >= w.end) & (np.minimum(w.cmp_next, w.shot_next) >= n_end)
             n_done = np.count_nonzero(done)
             if n_done == w.pix.size:
@@ -249,43 +244,48 @@ class EventDrivenPixels:
         gap = np.floor(np.log(u) / self._log_1mq) + 1.0
         return np.minimum(gap, float(NEVER // 2)).astype(np.int64)
 
-    def _changes(self, w: _Work, i, change_step, new_input) -> None:
-        """Move items ``i`` through their input changes to the first segment where something happens, and schedule it.
+    def _search(self, w: _Work, i, change_step, new_input) -> None:
+        """Schedule items ``i`` from their present state, through their next input changes.
 
-        The state at the start of every remaining input segment follows in closed form:
-        the low-pass output from the affine recursion ``L' = A L + (1 - A) Y``
-        (``A = a^length``), evaluated for all segments at once by a parallel prefix scan
-        (Hillis & Steele 1986), the memory and the leak contributions from the linear
-        drift. The comparator's first crossing (:func:`.crossing.first_crossing`) is then
-        solved in every segment at once; the state jumps to the start of the first segment
-        with a crossing, a shot-noise trial, or the pixel's last change in the window, and
-        that segment's crossing becomes the item's next comparator event. At most
-        ``_LOOK_AHEAD`` segments are examined at a time (the last of them counts as
-        reached when none of them holds anything).
+        The state at the start of the present input segment and of up to
+        ``_LOOK_AHEAD`` following ones follows in closed form: the low-pass output from the
+        affine recursion ``L' = A L + (1 - A) Y`` (``A = a^length``), evaluated for all
+        segments at once by a parallel prefix scan (Hillis & Steele 1986), the memory and
+        the leak contributions from the linear drift. The comparator's first crossing
+        (:func:`.crossing.first_crossing`) is solved in every segment at once; the state
+        jumps to the start of the first segment with a crossing, a shot-noise trial, or the
+        pixel's last change in the window, and that segment's crossing becomes the item's
+        next comparator event. When none of the segments examined holds anything, the
+        state stops at the start of the last of them.
         """
+        if change_step.size == 0:
+            self._schedule(w, i, np.full(i.size, NEVER))
+            return
         dt = self.model.dt_s
         first = w.ptr[i]
         remaining = w.end[i] - first
-        n_seg = np.minimum(remaining, _LOOK_AHEAD)
-        m = int(n_seg.max())
+        n_new = np.minimum(remaining, _LOOK_AHEAD)          # new segments examined; column 0 is the present one
+        m = int(n_new.max()) + 1
         col = np.arange(m)
-        valid = col[None, :] < n_seg[:, None]
-        k = np.where(valid, first[:, None] + col[None, :], first[:, None])
-        start = change_step[k]                                            # [P, m] first step of each segment
-        last = col[None, :] + 1 >= remaining[:, None]                  # the pixel's last change in the window
-        stop = np.where(last, NEVER, change_step[np.minimum(k + 1, change_step.size - 1)])
-        flux, y, log_a, para, accept = (v[k] for v in new_input)
+        valid = col[None, :] <= n_new[:, None]
+        top = change_step.size - 1
+        k = np.clip(first[:, None] + col[None, 1:] - 1, 0, top)                  # change index of columns 1..
+        last = col[None, :] >= remaining[:, None]                                   # the pixel's last segment
+        start = np.concatenate([w.step[i][:, None] + 1, change_step[k]], axis=1)   # first step of each segment
+        after = np.concatenate([change_step[np.minimum(first, top)][:, None], change_step[np.minimum(k + 1, top)]],
+                               axis=1)
+        stop = np.where(last, NEVER, after)
+        ref = start - 1                                      # the step whose state each segment starts from
+        flux, y, log_a, para, accept = (np.concatenate([now[i][:, None], new[k]], axis=1) for now, new in
+                                        zip((w.flux, w.y, w.log_a, w.para, w.accept), new_input))
         length = np.where(last, 0, stop - start)
+        length[:, 0] = np.where(last[:, 0], 0, stop[:, 0] - 1 - ref[:, 0])
         th_on = w.th_on[i]
-        leak = np.full((i.size, 1), self._leak_dt) * th_on[:, None]     # per step, per segment
-        parasitic = para * dt * th_on[:, None]
-        # state just before the first new segment, from the current one
-        lead = start[:, 0] - 1 - w.step[i]
-        y_now = w.y[i]
+        drift = (self._leak_dt + para * dt) * th_on[:, None]                       # per step, per segment
+        leak = self._leak_dt * th_on[:, None] * length
+        parasitic = para * dt * th_on[:, None] * length
         with np.errstate(invalid="ignore"):                 # 0 * ln(0) where the filter is off
-            l0 = y_now + (w.L[i] - y_now) * np.where(lead > 0, np.exp(lead * w.log_a[i]), 1.0)
             a = np.where(length > 0, np.exp(length * log_a), 1.0)
-        leak0, para0 = self._leak_dt * th_on * lead, w.para[i] * dt * th_on * lead
         # affine prefix scan of x -> A x + B over the segments
         b = y * (1.0 - a)
         shift = 1
@@ -294,23 +294,21 @@ class EventDrivenPixels:
             b[:, shift:] = a[:, shift:] * b_prev + b[:, shift:]
             a[:, shift:] = a[:, shift:] * a_prev
             shift *= 2
+        l_now = w.L[i]
         l_start = np.empty_like(a)
-        l_start[:, 0] = l0
-        l_start[:, 1:] = a[:, :-1] * l0[:, None] + b[:, :-1]
-        zero = np.zeros((i.size, 1))
-        leak_start = leak0[:, None] + np.concatenate([zero, np.cumsum(leak * length, axis=1)[:, :-1]], axis=1)
-        para_start = para0[:, None] + np.concatenate([zero, np.cumsum(parasitic * length, axis=1)[:, :-1]], axis=1)
+        l_start[:, 0] = l_now
+        l_start[:, 1:] = a[:, :-1] * l_now[:, None] + b[:, :-1]
+        leak_start, para_start = (np.concatenate([np.zeros((i.size, 1)), np.cumsum(v, axis=1)[:, :-1]], axis=1)
+                                  for v in (leak, parasitic))
         m_start = w.M[i][:, None] - leak_start - para_start
-        ref = start - 1
         j0 = np.maximum(w.ready[i][:, None] - ref, 1)
         horizon = np.where(last, NEVER, stop - 1 - ref)
-        j, _ = first_crossing(j0.ravel(), (y - m_start).ravel(), (l_start - y).ravel(), log_a.ravel(),
-                              (leak + parasitic).ravel(), np.repeat(reach(th_on), m), np.repeat(reach(w.th_off[i]), m),
-                              horizon.ravel())
+        j, _ = first_crossing(j0.ravel(), (y - m_start).ravel(), (l_start - y).ravel(), log_a.ravel(), drift.ravel(),
+                              np.repeat(reach(th_on), m), np.repeat(reach(w.th_off[i]), m), horizon.ravel())
         j = j.reshape(i.size, m)
         cross = (j < NEVER) & (j <= horizon)              # a refractory pixel may report its first step after the segment
         shot = w.shot_next[i][:, None]
-        busy = cross | ((shot >= start) & (shot < stop)) | last | (col[None, :] + 1 >= n_seg[:, None])
+        busy = cross | ((shot >= start) & (shot < stop)) | last | (col[None, :] == n_new[:, None])
         target = np.argmax(busy & valid, axis=1)
         at = (np.arange(i.size), target)
         w.L[i], w.M[i] = l_start[at], m_start[at]
@@ -318,7 +316,7 @@ class EventDrivenPixels:
         w.c_para[i] += para_start[at]
         w.step[i] = ref[at]
         w.flux[i], w.y[i], w.log_a[i], w.para[i], w.accept[i] = flux[at], y[at], log_a[at], para[at], accept[at]
-        w.ptr[i] = first + target + 1
+        w.ptr[i] = first + target
         w.cmp_next[i] = np.where(cross[at], ref[at] + j[at], NEVER)
 
     def _event(self, w: _Work, i, t, limit, log: EventLog) -> None:
