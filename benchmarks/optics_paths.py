@@ -1,7 +1,8 @@
 """Optics PSF paths: time per PSF, error of each fast path against the reference, and a rendered pass.
 
-    python benchmarks/optics_paths.py            # about three minutes on 2 cores
+    python benchmarks/optics_paths.py            # about four minutes on 2 cores
     python benchmarks/optics_paths.py --quick    # smaller grids and fewer frames
+    OPENBLAS_NUM_THREADS=1 python benchmarks/optics_paths.py   # on a machine shared with other jobs
 
 1. Time per PSF of each path and grid size: the reference (paper Eq. 3-4, a point source
    propagated through the layers on N x N grids, N = 256 .. 4096), the pupil FFT (a turbulent
@@ -221,7 +222,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="smaller grids and fewer frames")
     args = parser.parse_args()
-    print(f"{os.cpu_count()} CPUs; numpy {np.__version__}")
+    # OpenBLAS threads spin against other jobs on a shared machine: compare OPENBLAS_NUM_THREADS=1
+    print(f"{os.cpu_count()} CPUs; numpy {np.__version__}; "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
     sizes = (256, 512, 1024) if args.quick else (256, 512, 1024, 2048, 4096)
     reference_speed(sizes)
     pupil_fft_speed(sizes)
