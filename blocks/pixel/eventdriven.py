@@ -258,28 +258,29 @@ class EventDrivenPixels:
         next comparator event. When none of the segments examined holds anything, the
         state stops at the start of the last of them.
         """
-        if change_step.size == 0:
-            self._schedule(w, i, np.full(i.size, NEVER))
-            return
+        remaining = w.end[i] - w.ptr[i]
+        if change_step.size == 0 or not np.all(remaining > 0):    # no change left: to the end, in one batch
+            self._schedule(w, i[remaining == 0], np.full(np.count_nonzero(remaining == 0), NEVER))
+            i, remaining = i[remaining > 0], remaining[remaining > 0]
+            if not i.size:
+                return
         dt = self.model.dt_s
         first = w.ptr[i]
-        remaining = w.end[i] - first
         n_new = np.minimum(remaining, _LOOK_AHEAD)          # new segments examined; column 0 is the present one
         m = int(n_new.max()) + 1
         col = np.arange(m)
         valid = col[None, :] <= n_new[:, None]
         top = change_step.size - 1
-        k = np.clip(first[:, None] + col[None, 1:] - 1, 0, top)                  # change index of columns 1..
+        k = np.minimum(first[:, None] + col[None, 1:] - 1, top)                  # change index of columns 1..
         last = col[None, :] >= remaining[:, None]                                   # the pixel's last segment
         start = np.concatenate([w.step[i][:, None] + 1, change_step[k]], axis=1)   # first step of each segment
-        after = np.concatenate([change_step[np.minimum(first, top)][:, None], change_step[np.minimum(k + 1, top)]],
-                               axis=1)
+        after = np.concatenate([change_step[first][:, None], change_step[np.minimum(k + 1, top)]], axis=1)
         stop = np.where(last, NEVER, after)
         ref = start - 1                                      # the step whose state each segment starts from
         flux, y, log_a, para, accept = (np.concatenate([now[i][:, None], new[k]], axis=1) for now, new in
                                         zip((w.flux, w.y, w.log_a, w.para, w.accept), new_input))
         length = np.where(last, 0, stop - start)
-        length[:, 0] = np.where(last[:, 0], 0, stop[:, 0] - 1 - ref[:, 0])
+        length[:, 0] = stop[:, 0] - 1 - ref[:, 0]
         th_on = w.th_on[i]
         drift = (self._leak_dt + para * dt) * th_on[:, None]                       # per step, per segment
         leak = self._leak_dt * th_on[:, None] * length
