@@ -138,3 +138,28 @@ def test_long_steps_get_vacuum_planes_for_constraint_four():
     steps = np.diff(np.r_[0.0, grid.planes_m])
     assert np.all(steps <= grid.n * spacing[:-1] * spacing[1:] / LAMBDA * (1 + 1e-9))
     assert {380e3, 395e3, 400e3} <= set(grid.planes_m)
+
+
+@pytest.mark.parametrize("r0_500nm, distance", [(0.1, 400e3), (0.05, 400e3), (0.1, 36_000e3)])
+def test_reference_scintillation_matches_the_weak_fluctuation_rytov_variance(r0_500nm, distance):
+    # a point source through HV5/7-shaped layers: in weak fluctuations the intensity variance on the aperture
+    # plane is the spherical-wave Rytov variance 2.25 k^(7/6) sum_i Cn2dh_i [z_i (1 - z_i/R)]^(5/6) (Tatarskii
+    # 1971; for a homogeneous path it integrates to Andrews & Phillips 2005's 0.5 Cn2 k^(7/6) L^(11/6), and for
+    # R -> inf it is their plane-wave Eq. 12.38): the reference path's scintillation, from its own diffraction
+    from evsda.blocks.optics.plots import propagation_demo
+    wavelength = 550e-9
+    k = 2 * np.pi / wavelength
+    measured = []
+    for seed in range(3):
+        demo = propagation_demo(aperture_m=0.3, distance_m=distance, wavelength_m=wavelength, r0_500nm_m=r0_500nm,
+                                n_layers=3, seed=seed, pupil_samples=48)
+        x = grid_coordinates(demo.grid.n, demo.grid.deltan_m)
+        inside = np.abs(x) <= 0.3                            # well inside the illuminated 1.2 m region
+        intensity = demo.observed_power[np.ix_(inside, inside)]
+        measured.append(intensity.var() / intensity.mean() ** 2)
+    from evsda.blocks.optics.atmosphere import Atmosphere
+    layers = Atmosphere.hufnagel_valley(3).scaled_to_r0(r0_500nm).layers
+    rytov = 2.25 * k ** (7 / 6) * sum(layer.cn2_dh * (layer.altitude_m * (1 - layer.altitude_m / distance)) ** (5 / 6)
+                                      for layer in layers)
+    assert rytov < 0.3
+    assert np.mean(measured) == pytest.approx(rytov, rel=0.15)
