@@ -6,8 +6,8 @@
 
 1. Time per PSF of each path and grid size: the reference (paper Eq. 3-4, a point source
    propagated through the layers on N x N grids, N = 256 .. 4096), the pupil FFT (a turbulent
-   pupil zero-padded to N x N), the block's pixel-integrated pupil stamps, and the analytic
-   Airy and long-exposure stamps.
+   pupil zero-padded to N x N), the analytic Airy and long-exposure PSFs on N x N sub-pixel
+   grids, and the stamps as the block renders them.
 2. Error of each fast path against the reference: total-variation distance
    (:func:`evsda.blocks.optics.paths.total_variation`, the fraction of the flux in the wrong
    pixels) between stamps rendered from the same screens at the same sub-pixel positions,
@@ -32,8 +32,8 @@ from evsda.blocks.optics.fft_screens import fft_phase_screens
 from evsda.blocks.optics.imaging import Imager
 from evsda.blocks.optics.paths import LOG, total_variation
 from evsda.blocks.optics.propagation import plane_spacings, point_source_field, propagate
-from evsda.blocks.optics.psf import psf_fft
-from evsda.blocks.optics.render import PupilRenderer, StampSampler
+from evsda.blocks.optics.psf import long_exposure_profile, psf_fft
+from evsda.blocks.optics.render import PupilRenderer, RadialRenderer, StampSampler
 from evsda.blocks.optics.sampling import PropagationGrid, planes_for, violations
 from evsda.blocks.optics.telescope import Telescope
 from evsda.blocks.ports import FocalPlane, PointSources
@@ -102,6 +102,23 @@ def pupil_fft_speed(sizes) -> None:
         seconds, _ = best_of(1 if n >= 4096 else 3, lambda: psf_fft(amplitude * np.exp(1j * phase), delta,
                                                                    WAVELENGTH, n))
         print(f"  N = {n:5d}  {ms(seconds)} per PSF")
+
+
+def analytic_speed(sizes) -> None:
+    """Analytic PSFs (``airy``, ``long_exposure``) evaluated and binned on N x N sub-pixel grids (8 per pixel)."""
+    telescope = Telescope(0.35, 0.3)
+    r0 = 0.35 / 7
+    theta = np.linspace(0.0, 400 * FOCAL_PLANE.pixel_scale_rad, 4096)
+    t_profile, seeing = best_of(1, lambda: long_exposure_profile(telescope, WAVELENGTH, r0, 25.0, theta, 2048))
+    profiles = {"airy": telescope.airy(theta, WAVELENGTH), "long_exposure": seeing}
+    print(f"analytic PSFs on N x N sub-pixel grids (D = 0.35 m; the long-exposure profile, tabulated once per "
+          f"r0: {ms(t_profile)}):")
+    offset = np.array([[0.2, -0.3]])
+    for n in sizes:
+        sampler = StampSampler(n // 8, FOCAL_PLANE.pixel_scale_rad, 8)
+        times = {name: best_of(3, lambda: RadialRenderer(sampler, theta, profile).stamps(offset))[0]
+                 for name, profile in profiles.items()}
+        print(f"  N = {n:5d}  " + "  ".join(f"{name} {ms(t)}" for name, t in times.items()) + " per PSF")
 
 
 def stamp_speed(frames: int) -> None:
@@ -228,6 +245,7 @@ def main() -> None:
     sizes = (256, 512, 1024) if args.quick else (256, 512, 1024, 2048, 4096)
     reference_speed(sizes)
     pupil_fft_speed(sizes)
+    analytic_speed(sizes)
     stamp_speed(64 if args.quick else 256)
     pupil_fft_256(64 if args.quick else 256)
     path_errors(4 if args.quick else 16)
