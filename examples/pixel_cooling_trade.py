@@ -40,7 +40,8 @@ def faint_satellite(fp: FocalPlane, start_ns: int, stop_ns: int, peak=2e4, sky=5
 
 
 def main() -> None:
-    preset = load_graph("library:sensors/davis346.yaml").nodes["pixel"].block.params
+    sensor = load_graph("library:sensors/davis346.yaml", overrides={"camera.focal_length_m": 0.5})
+    preset = sensor.nodes["pixel"].block.params
     fp = FocalPlane(WIDTH, HEIGHT, PITCH_M, 0.5)
     print(f"{'T [K]':>6} {'I_dark [fA]':>12} {'signal':>7} {'leak':>6} {'shot':>6} {'ON':>6} {'OFF':>6}")
     for temperature in (320.0, 300.0, 290.0, 280.0, 260.0):

@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
+
+from threadpoolctl import threadpool_limits
 
 from . import __version__, registry
 from . import schema as schema_module
@@ -102,7 +105,7 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
     p.add_argument("--reuse", action="append", default=[], metavar="STORE",
                    help="reuse matching upstream outputs from an earlier run store (repeatable)")
-    p.add_argument("--checkpoint-every", type=float, default=5.0, metavar="SECONDS",
+    p.add_argument("--checkpoint-every", type=float, default=30.0, metavar="SECONDS",
                    help="wall-clock seconds between checkpoints (0: after every window)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
@@ -149,7 +152,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="evsda: %(name)s: %(message)s")
     try:
-        return int(args.func(args) or 0)
+        # the blocks' linear algebra is many small products: one BLAS thread per process is
+        # faster than several (which spin and contend), and leaves the cores to --jobs
+        with threadpool_limits(limits=int(os.environ.get("EVSDA_BLAS_THREADS", "1")), user_api="blas"):
+            return int(args.func(args) or 0)
     except UserError as exc:
         for line in str(exc).splitlines():
             print(f"evsda: error: {line}", file=sys.stderr)

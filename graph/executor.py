@@ -47,13 +47,17 @@ class RunResult:
 
 
 def requested_outputs(graph: Graph) -> list[tuple[str, str]]:
-    """The graph's requested outputs, or every output of every sink block, or of every leaf."""
+    """The graph's requested outputs; by default every output of every sink block (or of every
+    leaf) plus the event streams (``Events`` outputs) upstream of them, which the store records."""
     if graph.outputs:
         return list(graph.outputs)
     sinks = [n for n, node in graph.nodes.items() if type(node.block).is_sink]
     if not sinks:
         sinks = [n for n in graph.nodes if graph.digraph.out_degree(n) == 0]
-    return [(n, port) for n in sinks for port in type(graph.nodes[n].block).outputs]
+    upstream = set().union(*(nx.ancestors(graph.digraph, n) for n in sinks)) - set(sinks)
+    streams = [(n, port) for n in nx.topological_sort(graph.digraph) if n in upstream
+               for port, spec in type(graph.nodes[n].block).outputs.items() if spec.type.type_name() == EVENTS_TYPE]
+    return [(n, port) for n in sinks for port in type(graph.nodes[n].block).outputs] + streams
 
 
 def upstream_hashes(graph: Graph, run: RunInfo) -> dict[str, str]:
@@ -81,7 +85,7 @@ class Executor:
 
     def __init__(self, graph: Graph, out: str | Path | None = None, *, resume: bool = False,
                  overwrite: bool = False, reuse: list[str | Path] = (), progress: bool | None = None,
-                 checkpoint_every_s: float = 5.0, keep_outputs: bool | None = None,
+                 checkpoint_every_s: float = 30.0, keep_outputs: bool | None = None,
                  max_windows: int | None = None):
         self.graph = graph
         self.run = graph.run_info()

@@ -89,6 +89,9 @@ class IncludeEntry(_Strict):
     file: str = Field(description="Sub-graph file: a path relative to this file, or library:... [-]")
     as_: str = Field(alias="as", pattern=rf"^{NAME}$", description="Name prefix of the included blocks [-]")
     set: dict[str, Any] = Field(default_factory=dict, description="Parameter overrides, block.param: value [-]")
+    swap: dict[str, str] = Field(default_factory=dict,
+                                 description="Replace the type of included blocks, block: type; the block starts "
+                                             "from the new type's defaults, then set applies [-]")
 
 
 class ExposeSection(_Strict):
@@ -102,7 +105,7 @@ class GraphFile(_Strict):
     evsda: Literal[1] = Field(1, description="Graph file format version [-]")
     name: str | None = Field(None, description="Name of the graph [-]")
     description: str | None = Field(None, description="What the graph simulates [-]")
-    run: RunSection | None = None
+    run: RunSection | None = Field(None, description="Time range and seed; default: the first include's [-]")
     include: list[IncludeEntry] = Field(default_factory=list)
     blocks: dict[str, BlockEntry] = Field(default_factory=dict)
     connections: list[ConnectionEntry] = Field(default_factory=list)
@@ -226,6 +229,7 @@ class _Flat:
     exposed_inputs: dict[str, tuple[str, str]] = field(default_factory=dict)
     exposed_outputs: dict[str, tuple[str, str]] = field(default_factory=dict)
     requested: list[tuple[str, str] | None] = field(default_factory=list)
+    run: RunSection | None = None          # this file's run section, else its first include's
 
 
 def _split_endpoint(text: str) -> tuple[str, str] | None:
@@ -284,7 +288,7 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
     def qualified(name: str) -> str:
         return f"{prefix}{SEPARATOR}{name}" if prefix else name
 
-    flat = _Flat()
+    flat = _Flat(run=spec.run)
     for name, entry in spec.blocks.items():
         if not NAME_RE.match(name):
             problems.append(Problem(file, f"block '{name}'", "block names are letters, digits and _, not starting with a digit"))
@@ -302,6 +306,15 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
             problems.append(Problem(file, f"include '{include.as_}'", f"file {include.file} not found"))
             continue
         sub, _ = _load_flat(sub_path, qualified(include.as_), problems, (*stack, path.resolve()))
+        flat.run = flat.run or sub.run
+        for block, block_type in include.swap.items():
+            node = sub.blocks.get(f"{qualified(include.as_)}{SEPARATOR}{block}")
+            if node is None:
+                problems.append(Problem(file, f"include '{include.as_}' swap '{block}'",
+                                        f"no block named '{block}' in {include.file}"
+                                        f"{_suggest(block, [n.rpartition(SEPARATOR)[2] for n in sub.blocks])}"))
+                continue
+            node.type, node.params, node.file = block_type, {}, file
         _apply_overrides(sub, {f"{qualified(include.as_)}{SEPARATOR}{k}": v for k, v in include.set.items()},
                          file, f"include '{include.as_}' set", problems)
         aliases[include.as_] = sub
@@ -354,6 +367,8 @@ def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
     problems: list[Problem] = []
     flat, spec = _load_flat(path, "", problems, ())
     file = str(path)
+    if spec is not None and spec.run is None and flat.run is not None:
+        spec = spec.model_copy(update={"run": flat.run})
     if isinstance(overrides, dict):
         override_items = dict(overrides)
     else:
@@ -364,6 +379,9 @@ def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
                 problems.append(Problem(file, f"--set '{text}'", "expected block.param=value"))
                 continue
             override_items[key.strip()] = parse_value(value.strip())
+    if spec is not None and spec.run is not None and "run" not in flat.blocks:
+        spec = _override_run(spec, {k: override_items.pop(k) for k in list(override_items) if k.startswith("run.")},
+                             file, problems)
     _apply_overrides(flat, override_items, file, "--set", problems)
     if spec is None:
         raise GraphError(problems)
@@ -371,6 +389,20 @@ def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
     if problems:
         raise GraphError(problems)
     return graph
+
+
+def _override_run(spec: GraphFile, overrides: dict[str, Any], file: str, problems: list[Problem]) -> GraphFile:
+    """``--set run.duration_s=2``: the run section's fields can be overridden like parameters."""
+    if not overrides:
+        return spec
+    data = spec.run.model_dump()
+    data.update({key.removeprefix("run."): value for key, value in overrides.items()})
+    try:
+        run = RunSection.model_validate(data)
+    except ValidationError as exc:
+        problems.extend(Problem(file, f"--set 'run.{loc}'", message) for loc, message in describe_validation_error(exc))
+        return spec
+    return spec.model_copy(update={"run": run})
 
 
 def graph_from_dict(data: dict[str, Any], file: str = "<graph>") -> Graph:

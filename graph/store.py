@@ -23,6 +23,7 @@ window.
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -163,7 +164,7 @@ class RunStore:
                 array.resize((committed, *array.shape[1:]))
         name = self._committed().get("checkpoint")
         if "checkpoint" in self.group:
-            for stale in list(self.group["checkpoint"].group_keys()):
+            for stale in list(self.group["checkpoint"].array_keys()):
                 if stale != name:
                     del self.group["checkpoint"][stale]
 
@@ -278,11 +279,23 @@ class RunStore:
 
     # -- checkpoints and commits ---------------------------------------------------------------
     def write_checkpoint(self, window_index: int, states: dict[str, dict[str, Any]]) -> str:
-        """Write every block's state after ``window_index``; returns the checkpoint's name."""
+        """Write every block's state after ``window_index``; returns the checkpoint's name.
+
+        All states go into one array (an uncompressed ``.npz`` archive, read back without
+        pickle) with the non-array entries as JSON in its attributes: one Zarr array per
+        checkpoint instead of one per state entry keeps frequent checkpoints cheap.
+        """
         name = f"w{window_index}"
-        group = self.group.require_group("checkpoint").require_group(name)
-        for block, state in states.items():
-            _write_value(group.require_group(block.replace("/", "__")), state)
+        arrays: dict[str, np.ndarray] = {}
+        skeleton = {block: _encode_state(state, arrays) for block, state in states.items()}
+        buffer = io.BytesIO()
+        np.savez(buffer, **arrays)
+        packed = np.frombuffer(buffer.getbuffer(), dtype=np.uint8)
+        group = self.group.require_group("checkpoint")
+        array = group.create_array(name, shape=packed.shape, dtype=np.uint8, chunks=(max(1, min(packed.size, 1 << 24)),),
+                                   compressors=BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), overwrite=True)
+        array[...] = packed
+        array.attrs["states"] = skeleton
         return name
 
     def read_checkpoint(self) -> dict[str, dict[str, Any]]:
@@ -290,8 +303,10 @@ class RunStore:
         name = self._committed().get("checkpoint")
         if not name:
             return {}
-        group = self.group["checkpoint"][name]
-        return {block.replace("__", "/"): _read_value(group[block]) for block in group.group_keys()}
+        array = self.group["checkpoint"][name]
+        with np.load(io.BytesIO(array[...].tobytes()), allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+        return {block: _decode_state(entry, arrays) for block, entry in dict(array.attrs["states"]).items()}
 
     def commit(self, windows: int | None = None, checkpoint: str | None = None) -> None:
         """Make everything appended so far durable: write the commit record, then drop old checkpoints."""
@@ -326,51 +341,36 @@ def _array_keys(group: zarr.Group, prefix: str = "") -> Iterator[str]:
 
 
 # -- state (de)serialisation --------------------------------------------------------------------
-def _contains_array(value) -> bool:
-    if isinstance(value, (np.ndarray, PortValue)):
-        return True
+def _encode_state(value: Any, arrays: dict[str, np.ndarray]) -> Any:
+    """JSON skeleton of a state value; its arrays go into ``arrays`` under fresh keys."""
+    if isinstance(value, np.ndarray) and value.dtype.kind != "O":
+        key = f"a{len(arrays)}"
+        arrays[key] = np.ascontiguousarray(value)
+        return {"__array__": key}
+    if isinstance(value, PortValue):
+        fields, attrs = value.to_arrays()
+        return {"__port__": type(value).type_name(), "__attrs__": _jsonable(attrs),
+                "__fields__": {k: _encode_state(v, arrays) for k, v in fields.items()}}
     if isinstance(value, dict):
-        return any(_contains_array(v) for v in value.values())
+        return {"__dict__": {str(k): _encode_state(v, arrays) for k, v in value.items()}}
     if isinstance(value, (list, tuple)):
-        return any(_contains_array(v) for v in value)
-    return False
+        return {"__list__": [_encode_state(v, arrays) for v in value]}
+    return _jsonable(value)
 
 
-def _write_value(group: zarr.Group, value: dict[str, Any]) -> None:
-    """Write a dict of state entries: arrays as arrays, containers of arrays as groups, the rest as JSON."""
-    json_entries = {}
-    for key, item in value.items():
-        if isinstance(item, np.ndarray) and item.dtype.kind not in "USO":
-            group.create_array(key, data=np.ascontiguousarray(item), overwrite=True)
-        elif isinstance(item, PortValue):
-            arrays, attrs = item.to_arrays()
-            sub = group.require_group(key)
-            sub.attrs["__port__"] = type(item).type_name()
-            sub.attrs["__attrs__"] = _jsonable(attrs)
-            _write_value(sub, arrays)
-        elif isinstance(item, (dict, list, tuple)) and _contains_array(item):
-            sub = group.require_group(key)
-            if isinstance(item, dict):
-                _write_value(sub, item)
-            else:
-                sub.attrs["__list__"] = len(item)
-                _write_value(sub, {str(i): v for i, v in enumerate(item)})
-        else:
-            json_entries[key] = _jsonable(item)
-    group.attrs["__json__"] = json_entries
-
-
-def _read_value(group: zarr.Group) -> Any:
-    out: dict[str, Any] = _from_json(dict(group.attrs.get("__json__", {})))
-    for key in group.array_keys():
-        out[key] = group[key][...]
-    for key, sub in group.groups():
-        out[key] = _read_value(sub)
-    if "__port__" in group.attrs:
-        return port_type(group.attrs["__port__"]).from_arrays(out, _from_json(dict(group.attrs["__attrs__"])))
-    if "__list__" in group.attrs:
-        return [out[str(i)] for i in range(int(group.attrs["__list__"]))]
-    return out
+def _decode_state(entry: Any, arrays: dict[str, np.ndarray]) -> Any:
+    """Inverse of :func:`_encode_state`."""
+    if isinstance(entry, dict):
+        if "__array__" in entry:
+            return arrays[entry["__array__"]]
+        if "__port__" in entry:
+            fields = {k: _decode_state(v, arrays) for k, v in entry["__fields__"].items()}
+            return port_type(entry["__port__"]).from_arrays(fields, _from_json(entry["__attrs__"]))
+        if "__dict__" in entry:
+            return {k: _decode_state(v, arrays) for k, v in entry["__dict__"].items()}
+        if "__list__" in entry:
+            return [_decode_state(v, arrays) for v in entry["__list__"]]
+    return _from_json(entry)
 
 
 def _jsonable(value):

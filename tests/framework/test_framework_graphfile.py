@@ -198,3 +198,50 @@ def test_self_include_is_an_error(plugin, tmp_path):
 def test_missing_file_is_one_clear_error(plugin, tmp_path):
     (line,) = problems_of(tmp_path / "nothing.yaml")
     assert "cannot read the file" in line
+
+
+def test_include_swap_replaces_a_block_type(plugin, tmp_path):
+    write(tmp_path / "chain.yaml", """\
+        evsda: 1
+        blocks:
+          stage: {type: test_scale, params: {gain: 3.0}}
+        expose:
+          inputs: {signal: stage.samples}
+          outputs: {samples: stage.samples}
+        """)
+    main = write(tmp_path / "main.yaml", f"""\
+        evsda: 1
+        {RUN}
+        include:
+          - {{file: chain.yaml, as: a, swap: {{stage: test_scale}}}}
+          - {{file: chain.yaml, as: b, swap: {{stage: test_scale}}, set: {{stage.gain: 5.0}}}}
+        blocks:
+          ramp: {{type: test_ramp}}
+        connections:
+          - {{from: ramp.samples, to: a.signal}}
+          - {{from: ramp.samples, to: b.signal}}
+        """)
+    # the swapped block starts from its new type's defaults, then `set` applies
+    graph = load_graph(main)
+    assert graph.nodes["a/stage"].block.params.gain == 2.0
+    assert graph.nodes["b/stage"].block.params.gain == 5.0
+    bad = write(tmp_path / "bad.yaml", main.read_text().replace("as: a, swap: {stage:", "as: a, swap: {stge:"))
+    assert any("swap 'stge'" in p and "did you mean 'stage'" in p for p in problems_of(bad))
+
+
+def test_set_overrides_the_run_section(plugin, tmp_path):
+    graph = load_graph(good_graph(tmp_path), ["run.duration_s=0.02", "run.seed=3"])
+    assert graph.run_info().n_windows == 2 and graph.run_info().seed == 3
+    assert any("run.duration_s" in p for p in problems_of(good_graph(tmp_path), ["run.duration_s=-1"]))
+
+
+def test_a_graph_without_run_section_takes_its_first_includes(plugin, tmp_path):
+    good_graph(tmp_path)
+    variant = write(tmp_path / "variant.yaml", """\
+        evsda: 1
+        include:
+          - {file: good.yaml, as: scene, set: {ramp.slope_per_s: 7}}
+        """)
+    graph = load_graph(variant, ["run.seed=9"])
+    assert graph.run_info().n_windows == 5 and graph.run_info().seed == 9
+    assert graph.nodes["scene/ramp"].block.params.slope_per_s == 7
