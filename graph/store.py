@@ -26,6 +26,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -135,22 +136,35 @@ class RunStore:
         self._lengths[key] = self._lengths.get(key, 0) + data.shape[0]
         self._pending_bytes += data.nbytes
         if self._pending_bytes > FLUSH_BYTES:
-            self.flush()
+            self.flush(whole_chunks_only=True)
 
-    def flush(self) -> None:
-        """Write every queued append to disk (durable only after :meth:`commit`)."""
+    def flush(self, whole_chunks_only: bool = False) -> None:
+        """Write queued appends to disk (durable only after :meth:`commit`).
+
+        With ``whole_chunks_only`` (appends past :data:`FLUSH_BYTES`) each array writes up to its
+        last chunk boundary and keeps the rest queued, so no chunk is compressed twice; the
+        arrays are written concurrently (Zarr's codecs release the GIL).
+        """
+        jobs = []
         for key, parts in self._pending.items():
             array = self._arrays[key]
             start = self._written.get(key, 0)
             data = parts[0] if len(parts) == 1 else np.concatenate(parts)
             stop = start + data.shape[0]
-            if array.shape[0] != stop:
-                array.resize((stop, *array.shape[1:]))
-            if data.shape[0]:
-                array[start:stop] = data.astype(array.dtype, copy=False)
-            self._written[key] = stop
-        self._pending.clear()
-        self._pending_bytes = 0
+            if whole_chunks_only:
+                stop = max(start, stop - stop % array.chunks[0])
+            self._pending[key] = [data[stop - start:]] if stop - start < data.shape[0] else []
+            if stop > start:
+                jobs.append((array, start, stop, data[: stop - start]))
+                self._written[key] = stop
+        self._pending = {key: parts for key, parts in self._pending.items() if parts}
+        self._pending_bytes = sum(part.nbytes for parts in self._pending.values() for part in parts)
+        if len(jobs) > 1:
+            with ThreadPoolExecutor(len(jobs)) as pool:
+                list(pool.map(_write_slice, jobs))
+        else:
+            for job in jobs:
+                _write_slice(job)
 
     def _truncate_to_commit(self) -> None:
         """Cut every appendable array back to its committed length (see the module docstring)."""
@@ -321,6 +335,13 @@ class RunStore:
         self.group.attrs["committed"] = record
         if checkpoint is not None and old and old != checkpoint and old in self.group["checkpoint"]:
             del self.group["checkpoint"][old]
+
+
+def _write_slice(job: tuple[zarr.Array, int, int, np.ndarray]) -> None:
+    array, start, stop, data = job
+    if array.shape[0] != stop:
+        array.resize((stop, *array.shape[1:]))
+    array[start:stop] = data.astype(array.dtype, copy=False)
 
 
 def port_type(name: str) -> type[PortValue]:
