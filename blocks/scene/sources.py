@@ -173,8 +173,8 @@ class Camera(Block):
         @model_validator(mode="after")
         def _one_scale(self):
             if (self.focal_length_m is None) == (self.fov_x_deg is None):
-                raise ValueError("give exactly one of focal_length_m (the telescope's; scenes set it on a sensor "
-                                 "preset's camera: set: {camera.focal_length_m: ...}) and fov_x_deg")
+                raise ValueError("give exactly one of focal_length_m and fov_x_deg (the telescope's focal length: "
+                                 "scenes set it on a sensor preset's camera, set: {camera.focal_length_m: ...})")
             return self
 
     outputs = {"focal_plane": Output(FocalPlane, "the detector geometry")}
