@@ -230,6 +230,7 @@ class _Flat:
     exposed_outputs: dict[str, tuple[str, str]] = field(default_factory=dict)
     requested: list[tuple[str, str] | None] = field(default_factory=list)
     run: RunSection | None = None          # this file's run section, else its first include's
+    exposures: list[tuple[str, str, str, str, str]] = field(default_factory=list)  # file, kind, name, block, port
 
 
 def _split_endpoint(text: str) -> tuple[str, str] | None:
@@ -307,6 +308,7 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
             continue
         sub, _ = _load_flat(sub_path, qualified(include.as_), problems, (*stack, path.resolve()))
         flat.run = flat.run or sub.run
+        flat.exposures.extend(sub.exposures)
         for block, block_type in include.swap.items():
             node = sub.blocks.get(f"{qualified(include.as_)}{SEPARATOR}{block}")
             if node is None:
@@ -352,10 +354,12 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
             resolved = endpoint(target, "to", f"expose input '{name}'")
             if resolved:
                 flat.exposed_inputs[name] = resolved
+                flat.exposures.append((file, "input", name, *resolved))
         for name, target in spec.expose.outputs.items():
             resolved = endpoint(target, "from", f"expose output '{name}'")
             if resolved:
                 flat.exposed_outputs[name] = resolved
+                flat.exposures.append((file, "output", name, *resolved))
     _apply_overrides(flat, {qualified(k): v for k, v in spec.set.items()}, file, "set", problems)
     flat.requested = [endpoint(o, "from", f"output '{o}'") for o in (spec.outputs or [])]
     return flat, spec
@@ -494,6 +498,13 @@ def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[P
             if in_spec.required and (name, port) not in fan_in and (name, port) not in flat.exposed_inputs.values():
                 problems.append(Problem(node.file, f"block '{name}' input '{port}'",
                                         f"required input ({port_type_label(in_spec.type)}) is not connected"))
+
+    for exposing_file, kind, exposed, name, port in flat.exposures:
+        node = flat.blocks.get(name)
+        ports = None if node is None or node.cls is None else (node.cls.inputs if kind == "input" else node.cls.outputs)
+        if ports is not None and port not in ports:
+            problems.append(Problem(exposing_file, f"expose {kind} '{exposed}'",
+                                    f"block '{name}' ({node.type}) has no {kind} '{port}'; it has {sorted(ports) or 'none'}"))
 
     try:
         cycle = nx.find_cycle(digraph)

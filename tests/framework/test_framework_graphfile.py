@@ -245,3 +245,26 @@ def test_a_graph_without_run_section_takes_its_first_includes(plugin, tmp_path):
     graph = load_graph(variant, ["run.seed=9"])
     assert graph.run_info().n_windows == 5 and graph.run_info().seed == 9
     assert graph.nodes["scene/ramp"].block.params.slope_per_s == 7
+
+
+def test_an_exposed_port_must_exist_even_if_nothing_uses_it(plugin, tmp_path):
+    write(tmp_path / "chain.yaml", """\
+        evsda: 1
+        blocks:
+          stage: {type: test_scale}
+        expose:
+          inputs: {signal: stage.samples}
+          outputs: {events: stage.events}
+        """)
+    main = write(tmp_path / "main.yaml", f"""\
+        evsda: 1
+        {RUN}
+        include:
+          - {{file: chain.yaml, as: a}}
+        blocks:
+          ramp: {{type: test_ramp}}
+        connections:
+          - {{from: ramp.samples, to: a.signal}}
+        """)
+    assert any("expose output 'events'" in p and "has no output 'events'" in p and "samples" in p
+               for p in problems_of(main))
