@@ -145,7 +145,7 @@ class RunStore:
         last chunk boundary and keeps the rest queued, so no chunk is compressed twice; the
         arrays are written concurrently (Zarr's codecs release the GIL).
         """
-        jobs = []
+        jobs, remaining = [], {}
         for key, parts in self._pending.items():
             array = self._arrays[key]
             start = self._written.get(key, 0)
@@ -153,18 +153,15 @@ class RunStore:
             stop = start + data.shape[0]
             if whole_chunks_only:
                 stop = max(start, stop - stop % array.chunks[0])
-            self._pending[key] = [data[stop - start:]] if stop - start < data.shape[0] else []
+            if stop - start < data.shape[0]:
+                remaining[key] = [data[stop - start:]]
             if stop > start:
                 jobs.append((array, start, stop, data[: stop - start]))
                 self._written[key] = stop
-        self._pending = {key: parts for key, parts in self._pending.items() if parts}
-        self._pending_bytes = sum(part.nbytes for parts in self._pending.values() for part in parts)
-        if len(jobs) > 1:
-            with ThreadPoolExecutor(len(jobs)) as pool:
-                list(pool.map(_write_slice, jobs))
-        else:
-            for job in jobs:
-                _write_slice(job)
+        self._pending = remaining
+        self._pending_bytes = sum(parts[0].nbytes for parts in remaining.values())
+        with ThreadPoolExecutor(max(1, len(jobs))) as pool:
+            list(pool.map(_write_slice, jobs))
 
     def _truncate_to_commit(self) -> None:
         """Cut every appendable array back to its committed length (see the module docstring)."""
