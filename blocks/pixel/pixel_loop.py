@@ -1,0 +1,211 @@
+"""The compiled per-pixel loop of the event-driven implementation (see :mod:`.eventdriven`).
+
+Each pixel is taken on its own, from its last update through its input changes and its
+events up to the end of the window; between them its state follows in closed form:
+
+* low-pass filter at constant input (Eq. 16): ``L_j = Y + (L_0 - Y) a^j``, ``a = 1 - eps``;
+* memory drift by junction leak and parasitic photocurrent (Eqs. 18, 19): ``M`` falls by
+  ``(R_leak + R_para) theta_ON dt`` per step;
+* comparator (Eq. 17): the first step the input leaves its band (:mod:`.crossing`), not
+  before the refractory period ends (Eq. 21); at most one event per step, the rest of
+  ``Ne_total`` counted as lost;
+* shot noise (Eq. 20): trials arrive with the geometric waiting time of success
+  probability ``q = 2 p_max`` per step (``p_max`` the largest probability per polarity over
+  all inputs) and are accepted with ``p / p_max`` of the input at that step, the polarity
+  from a fair coin (discrete-time thinning, Lewis & Shedler 1979): the reference's law.
+
+Within a step the comparator acts before the shot-noise trial, as in the reference. The
+per-pixel state lives in two tables (see :data:`REAL`, :data:`COUNT`); random numbers are
+counter-addressed per pixel (:mod:`.counter_rng`), so a pixel's events do not depend on
+which other pixels are processed or on how the run is cut into windows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from .comparator import TOLERANCE
+from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
+from .crossing import NEVER, first_crossing_one, power
+
+# state table columns (keep in step with REAL and COUNT)
+REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para", "c_shot",   # input, filter, memory, thresholds, causes
+        "y", "log_a", "para", "accept")                                        # derived from the input (Eqs. 14-16, 19-20)
+COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count")
+(FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, C_SHOT, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
+(STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT) = range(len(COUNT))
+GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
+SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
+
+jit = numba.njit(cache=True, error_model="numpy")
+
+
+@jit
+def shot_gap(key, pixel, count, q, log_1mq):
+    """Steps to the next shot-noise trial: geometric with success probability ``q`` per step."""
+    if q <= 0.0:
+        return NEVER
+    if q >= 1.0:
+        return np.int64(1)
+    u = uniform_open_one(key, GAP, pixel, count)
+    return np.int64(min(math.floor(math.log(u) / log_1mq) + 1.0, float(NEVER // 2)))
+
+
+@jit
+def start_pixels(real, count, next_step, leak_hz, dt, key, q, log_1mq):
+    """Schedule every pixel's first shot-noise trial and comparator event after its present step."""
+    for pixel in range(count.shape[0]):
+        c = count[pixel]
+        c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
+        c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
+        next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT])
+
+
+@jit
+def _schedule(r, c, t_change, leak_dt, dt):
+    """Next comparator event of a pixel before its next input change ``t_change`` (``NEVER``: none)."""
+    step = c[STEP]
+    y, th_on = r[Y], r[TH_ON]
+    drift = (leak_dt + r[PARA] * dt) * th_on
+    j0 = max(c[READY] - step, np.int64(1))
+    horizon = NEVER if t_change >= NEVER else t_change - 1 - step
+    j, _ = first_crossing_one(j0, y - r[M_], r[L_] - y, r[LOG_A], drift, th_on - TOLERANCE,
+                              r[TH_OFF] - TOLERANCE, horizon)
+    return NEVER if j >= NEVER else step + j
+
+
+@jit
+def _advance(r, c, t, leak_hz, dt):
+    """Move a pixel from its last step to step ``t`` at constant input (Eqs. 16, 18, 19)."""
+    j = t - c[STEP]
+    if j > 0:
+        y = r[Y]
+        r[L_] = y + (r[L_] - y) * power(r[LOG_A], j)
+        scale = r[TH_ON] * j * dt
+        leak = leak_hz * scale
+        para = r[PARA] * scale
+        r[M_] -= leak + para
+        r[C_LEAK] += leak
+        r[C_PARA] += para
+    c[STEP] = t
+
+
+@jit
+def _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor):
+    """IEBCS: a new threshold of the polarity that fired, addressed by the pixel's event count."""
+    z = normal_one(key, THRESHOLD, pixel, c[EVENT_COUNT])
+    if sign > 0:
+        r[TH_ON] = max(th_mean_on + th_sigma * z, th_floor)
+    else:
+        r[TH_OFF] = max(th_mean_off + th_sigma * z, th_floor)
+    c[EVENT_COUNT] += 1
+
+
+@jit
+def _fire(r, c):
+    """Comparator event (Eq. 17) of a pixel whose state is at the event step.
+
+    Returns ``(polarity, cause, lost)``: the cause is the contribution to ``L - M``
+    pushing hardest in the event's direction (see :mod:`.comparator`), which gives up one
+    threshold; ``lost`` the thresholds beyond the first (``|N_loss|``).
+    """
+    delta = r[L_] - r[M_]
+    sign = 1 if delta >= 0.0 else -1
+    theta = r[TH_ON] if sign > 0 else r[TH_OFF]
+    total = max(math.trunc((abs(delta) + TOLERANCE) / theta), 1.0)
+    signal = delta - (r[C_LEAK] + r[C_PARA] + r[C_SHOT])
+    cause, best = SIGNAL, sign * signal
+    for k, column in ((LEAK, C_LEAK), (PARASITIC, C_PARA), (SHOT, C_SHOT)):
+        if sign * r[column] > best:
+            cause, best = k, sign * r[column]
+    moved = sign * theta
+    if cause != SIGNAL:
+        r[C_LEAK + cause - 1] -= moved
+    r[M_] += moved
+    return sign, cause, total - 1.0
+
+
+@jit
+def run_pixels(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
+               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor):
+    """Process every event of ``pixels`` before step ``n_end`` and their input changes.
+
+    Pixel ``pixels[i]`` has the changes ``change_lo[i]:change_hi[i]`` (sorted by step):
+    from ``change_step[k]`` on its input is row ``k`` of ``change_input`` (columns ``FLUX``
+    and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many pixels). Updates the
+    state tables and ``next_step`` (each pixel's next event) in place; returns the events
+    as ``(step, pixel, polarity, cause)`` arrays and the number lost in the pixels.
+    """
+    capacity = max(1024, 2 * pixels.size)
+    ev_step = np.empty(capacity, np.int64)
+    ev_pixel = np.empty(capacity, np.int64)
+    ev_pol = np.empty(capacity, np.int8)
+    ev_cause = np.empty(capacity, np.uint8)
+    n_events = 0
+    lost = 0.0
+    leak_dt = leak_hz * dt
+    for i in range(pixels.size):
+        pixel = pixels[i]
+        r, c = real[pixel], count[pixel]
+        ptr, end = change_lo[i], change_hi[i]
+        t_change = change_step[ptr] if ptr < end else NEVER
+        cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
+        while True:
+            t_event = min(cmp_next, c[SHOT_NEXT])
+            if t_event < t_change and t_event < n_end:
+                if n_events + 2 > capacity:
+                    capacity *= 2
+                    ev_step, ev_pixel = _grow(ev_step, capacity), _grow(ev_pixel, capacity)
+                    ev_pol, ev_cause = _grow(ev_pol, capacity), _grow(ev_cause, capacity)
+                _advance(r, c, t_event, leak_hz, dt)
+                awake = c[READY] <= t_event
+                if cmp_next == t_event:
+                    sign, cause, backlog = _fire(r, c)
+                    lost += backlog
+                    c[READY] = t_event + k_refr
+                    ev_step[n_events], ev_pixel[n_events] = t_event, pixel
+                    ev_pol[n_events], ev_cause[n_events] = sign, cause
+                    n_events += 1
+                    if redraw:
+                        _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
+                    awake = False
+                if c[SHOT_NEXT] == t_event:                       # shot noise (Eq. 20)
+                    bits = hash64_one(key, ACCEPT_STREAM, pixel, c[SHOT_COUNT])
+                    if unit_interval(bits) < r[ACCEPT]:
+                        if awake:
+                            sign = 1 if (bits & np.uint64(1)) == 1 else -1
+                            moved = sign * (r[TH_ON] if sign > 0 else r[TH_OFF])
+                            r[M_] += moved
+                            r[C_SHOT] -= moved
+                            c[READY] = t_event + k_refr
+                            ev_step[n_events], ev_pixel[n_events] = t_event, pixel
+                            ev_pol[n_events], ev_cause[n_events] = sign, SHOT
+                            n_events += 1
+                            if redraw:
+                                _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
+                        else:
+                            lost += 1.0
+                    c[SHOT_COUNT] += 1
+                    c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
+            elif ptr < end:                                       # the next input takes over
+                _advance(r, c, t_change - 1, leak_hz, dt)
+                row = change_input[ptr]
+                r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
+                ptr += 1
+                t_change = change_step[ptr] if ptr < end else NEVER
+            else:
+                break
+            cmp_next = _schedule(r, c, t_change, leak_dt, dt)
+        c[CMP_NEXT] = cmp_next
+        next_step[pixel] = min(cmp_next, c[SHOT_NEXT])
+    return ev_step[:n_events], ev_pixel[:n_events], ev_pol[:n_events], ev_cause[:n_events], lost
+
+
+@jit
+def _grow(values, capacity):
+    out = np.empty(capacity, values.dtype)
+    out[:values.size] = values
+    return out
