@@ -26,9 +26,15 @@ SIGMA_PX = 1.3                       # PSF width [pixel]
 
 
 def moving_source(fp: FocalPlane, start_ns: int, stop_ns: int, *, background: float, peak: float,
-                  start_xy: tuple[float, float], velocity_px_s: tuple[float, float]) -> Irradiance:
-    """Irradiance of a uniform background plus one Gaussian spot moving in a straight line."""
+                  start_xy: tuple[float, float], velocity_px_s: tuple[float, float],
+                  sky_step_s: float = 0.0) -> Irradiance:
+    """Irradiance of a uniform background plus one Gaussian spot moving in a straight line.
+
+    With ``sky_step_s`` the background brightens by 0.1% every ``sky_step_s`` seconds (a
+    sky sampled at that cadence while the field sinks), a new input for every pixel.
+    """
     t = np.arange(-(-start_ns // CADENCE_NS) * CADENCE_NS, stop_ns, CADENCE_NS, dtype=np.int64)
+    sky = background * (1.0 + 1e-3 * np.floor(t * 1e-9 / sky_step_s)) if sky_step_s else np.full(t.size, background)
     xc = start_xy[0] + velocity_px_s[0] * t * 1e-9
     yc = start_xy[1] + velocity_px_s[1] * t * 1e-9
     x0 = np.floor(xc).astype(np.int64) - STAMP // 2
@@ -38,7 +44,7 @@ def moving_source(fp: FocalPlane, start_ns: int, stop_ns: int, *, background: fl
     dy = gy[None] + y0[:, None, None] - yc[:, None, None]
     stamp = peak * np.exp(-(dx**2 + dy**2) / (2 * SIGMA_PX**2))
     origin = np.stack([x0, y0], axis=-1)[:, None, :].astype(np.int32)
-    return Irradiance(fp, WAVELENGTH_M, t, np.full(t.size, background), origin, stamp[:, None])
+    return Irradiance(fp, WAVELENGTH_M, t, sky, origin, stamp[:, None])
 
 
 def simulate(implementation: str, fp: FocalPlane, seconds: float, window_s: float, source: dict, **params):
@@ -75,12 +81,20 @@ def main() -> None:
     parser.add_argument("--no-reference", action="store_true", help="skip the crop comparison with the reference")
     args = parser.parse_args()
 
+    tic = time.perf_counter()
+    tiny = FocalPlane(4, 4, 4.86e-6, 1.0)
+    simulate("fast", tiny, 0.01, 0.01, dict(background=2e3, peak=1e4, start_xy=(2.0, 2.0), velocity_px_s=(1.0, 0.0)))
+    print(f"compiled pixel loop ready in {time.perf_counter() - tic:.2f} s (Numba: compiled on the first run, "
+          f"then loaded from its cache)")
     noise = dict(leak_rate_hz=0.1, shot_noise_rate_hz=0.1)
     full = FocalPlane(1280, 720, 4.86e-6, 1.0)
     print(f"full sensor {full.width_px}x{full.height_px}, {args.seconds:g} s simulated, dt = 1 us, windows of 0.1 s,")
     print("default noise (leak 0.1 Hz, shot noise 0.1 Hz per polarity), one spot moving at 100 px/s:")
-    for label, peak in (("faint source, peak 5e4 photon/s", 5e4), ("bright source, peak 3e5 photon/s", 3e5)):
-        source = dict(background=2e3, peak=peak, start_xy=(100.0, 360.0), velocity_px_s=(100.0, 10.0))
+    for label, peak, sky_step_s in (("faint source, peak 5e4 photon/s", 5e4, 0.0),
+                                    ("bright source, peak 3e5 photon/s", 3e5, 0.0),
+                                    ("bright source, sky brightening every 0.1 s", 3e5, 0.1)):
+        source = dict(background=2e3, peak=peak, start_xy=(100.0, 360.0), velocity_px_s=(100.0, 10.0),
+                      sky_step_s=sky_step_s)
         cpu = time.process_time()
         outs, wall, first = simulate("fast", full, args.seconds, 0.1, source, **noise)
         cpu = time.process_time() - cpu

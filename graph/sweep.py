@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -85,6 +86,13 @@ def _run_point(graph_path: str, overrides: list[str], point: SweepPoint, reuse: 
     return {"metrics": result.metrics, "reused": result.reused, "skipped": False}
 
 
+def _share_cores(threads: int) -> None:
+    """Let each of ``--jobs`` worker processes run compiled loops on its share of the cores only."""
+    import numba
+
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 def run_sweep(graph_path: str, grid: dict[str, list[Any]], out_dir: str | Path, overrides: list[str] = (),
               jobs: int = 1, overwrite: bool = False, report=print) -> list[dict]:
     """Run every point; returns one row (parameters + metrics) per point and writes ``sweep.csv``."""
@@ -96,7 +104,8 @@ def run_sweep(graph_path: str, grid: dict[str, list[Any]], out_dir: str | Path, 
     first, rest = points[0], points[1:]
     outcomes[first.index] = _run_point(graph_path, list(overrides), first, [], overwrite)
     if jobs > 1 and rest:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+        with ProcessPoolExecutor(max_workers=jobs, initializer=_share_cores, initargs=(threads,)) as pool:
             futures = {p.index: pool.submit(_run_point, graph_path, list(overrides), p, [first.store], overwrite)
                        for p in rest}
             outcomes.update({i: f.result() for i, f in futures.items()})

@@ -23,6 +23,7 @@ background is one input change shared by every pixel away from the stamps.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .eventlog import EventLog
@@ -33,7 +34,7 @@ from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, C_SHOT, COUNT, FLUX, L_, LOG_A,
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
-_INPUT = (FLUX, Y, LOG_A, PARA, ACCEPT)                                        # the columns an input sets
+_CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
 
 
 class EventDrivenPixels:
@@ -125,11 +126,23 @@ class EventDrivenPixels:
         self._run(pixels, lo, hi, change_step, change_input, n_end, log)
 
     def _run(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
-        """The compiled loop over ``pixels`` (see :func:`.pixel_loop.run_pixels`)."""
-        if pixels.size == 0:
-            return
-        step, pixel, polarity, cause, lost = run_pixels(
-            self.s["real"], self.s["count"], self.s["next"], pixels, lo, hi, change_step, change_input,
-            np.int64(n_end), *self._constants)
-        log.add(step, pixel, polarity, cause)
-        log.lose(lost)
+        """The compiled loop over ``pixels`` (see :func:`.pixel_loop.run_pixels`), in chunks on every core.
+
+        Chunks that run out of room for events leave their remaining pixels untouched;
+        those run again with twice the room until every pixel is done.
+        """
+        capacity = 1024
+        while pixels.size:
+            n_chunks = min(_CHUNKS_PER_THREAD * numba.get_num_threads(), pixels.size)
+            bounds = np.linspace(0, pixels.size, n_chunks + 1).astype(np.int64)
+            capacity = max(capacity, 2 * int(bounds[1] - bounds[0]))
+            step, pixel, polarity, cause, n_events, n_done, lost = run_pixels(
+                self.s["real"], self.s["count"], self.s["next"], pixels, lo, hi, change_step, change_input,
+                np.int64(n_end), *self._constants, bounds, capacity)
+            for k in range(n_chunks):
+                log.add(step[k, :n_events[k]], pixel[k, :n_events[k]], polarity[k, :n_events[k]],
+                        cause[k, :n_events[k]])
+            log.lose(lost.sum())
+            left = np.concatenate([np.arange(a + done, b) for a, b, done in zip(bounds[:-1], bounds[1:], n_done)])
+            pixels, lo, hi = pixels[left], lo[left], hi[left]
+            capacity *= 2

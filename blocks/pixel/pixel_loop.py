@@ -41,6 +41,7 @@ GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
 jit = numba.njit(cache=True, error_model="numpy")
+pjit = numba.njit(cache=True, error_model="numpy", parallel=True)     # chunks of pixels on every core
 
 
 @jit
@@ -54,10 +55,10 @@ def shot_gap(key, pixel, count, q, log_1mq):
     return np.int64(min(math.floor(math.log(u) / log_1mq) + 1.0, float(NEVER // 2)))
 
 
-@jit
+@pjit
 def start_pixels(real, count, next_step, leak_hz, dt, key, q, log_1mq):
     """Schedule every pixel's first shot-noise trial and comparator event after its present step."""
-    for pixel in range(count.shape[0]):
+    for pixel in numba.prange(count.shape[0]):
         c = count[pixel]
         c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
         c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
@@ -129,37 +130,34 @@ def _fire(r, c):
 
 
 @jit
-def run_pixels(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
-               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor):
-    """Process every event of ``pixels`` before step ``n_end`` and their input changes.
+def _run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
+               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+               ev_step, ev_pixel, ev_pol, ev_cause):
+    """Process ``pixels`` one after the other, writing their events into the ``ev_*`` buffers.
 
-    Pixel ``pixels[i]`` has the changes ``change_lo[i]:change_hi[i]`` (sorted by step):
-    from ``change_step[k]`` on its input is row ``k`` of ``change_input`` (columns ``FLUX``
-    and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many pixels). Updates the
-    state tables and ``next_step`` (each pixel's next event) in place; returns the events
-    as ``(step, pixel, polarity, cause)`` arrays and the number lost in the pixels.
+    Returns ``(events written, pixels done, events lost in the pixels)``. A pixel whose
+    events would overflow the buffers is put back as it was and the chunk stops before it.
     """
-    capacity = max(1024, 2 * pixels.size)
-    ev_step = np.empty(capacity, np.int64)
-    ev_pixel = np.empty(capacity, np.int64)
-    ev_pol = np.empty(capacity, np.int8)
-    ev_cause = np.empty(capacity, np.uint8)
+    capacity = ev_step.size
     n_events = 0
     lost = 0.0
     leak_dt = leak_hz * dt
+    saved_r = np.empty(real.shape[1])
+    saved_c = np.empty(count.shape[1], np.int64)
     for i in range(pixels.size):
         pixel = pixels[i]
         r, c = real[pixel], count[pixel]
+        saved_r[:], saved_c[:] = r, c
+        first_event, lost_before = n_events, lost
         ptr, end = change_lo[i], change_hi[i]
         t_change = change_step[ptr] if ptr < end else NEVER
         cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
         while True:
             t_event = min(cmp_next, c[SHOT_NEXT])
             if t_event < t_change and t_event < n_end:
-                if n_events + 2 > capacity:
-                    capacity *= 2
-                    ev_step, ev_pixel = _grow(ev_step, capacity), _grow(ev_pixel, capacity)
-                    ev_pol, ev_cause = _grow(ev_pol, capacity), _grow(ev_cause, capacity)
+                if n_events + 2 > capacity:                       # no room: undo this pixel, stop here
+                    r[:], c[:] = saved_r, saved_c
+                    return first_event, i, lost_before
                 _advance(r, c, t_event, leak_hz, dt)
                 awake = c[READY] <= t_event
                 if cmp_next == t_event:
@@ -201,11 +199,38 @@ def run_pixels(real, count, next_step, pixels, change_lo, change_hi, change_step
             cmp_next = _schedule(r, c, t_change, leak_dt, dt)
         c[CMP_NEXT] = cmp_next
         next_step[pixel] = min(cmp_next, c[SHOT_NEXT])
-    return ev_step[:n_events], ev_pixel[:n_events], ev_pol[:n_events], ev_cause[:n_events], lost
+    return n_events, pixels.size, lost
 
 
-@jit
-def _grow(values, capacity):
-    out = np.empty(capacity, values.dtype)
-    out[:values.size] = values
-    return out
+@pjit
+def run_pixels(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
+               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+               bounds, capacity):
+    """Process every event of ``pixels`` before step ``n_end`` and their input changes, in parallel chunks.
+
+    Pixel ``pixels[i]`` has the changes ``change_lo[i]:change_hi[i]`` (sorted by step):
+    from ``change_step[k]`` on its input is row ``k`` of ``change_input`` (columns ``FLUX``
+    and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many pixels). Chunk
+    ``k`` is ``pixels[bounds[k]:bounds[k + 1]]``, with room for ``capacity`` events.
+    Updates the state tables and ``next_step`` (each pixel's next event) in place and
+    returns the event buffers ``[chunk, capacity]`` (step, pixel, polarity, cause), the
+    events and pixels done in each chunk and the events lost in the pixels per chunk;
+    the pixels a chunk had no room for are left untouched, to be run again.
+    """
+    n_chunks = bounds.size - 1
+    ev_step = np.empty((n_chunks, capacity), np.int64)
+    ev_pixel = np.empty((n_chunks, capacity), np.int64)
+    ev_pol = np.empty((n_chunks, capacity), np.int8)
+    ev_cause = np.empty((n_chunks, capacity), np.uint8)
+    n_events = np.zeros(n_chunks, np.int64)
+    n_done = np.zeros(n_chunks, np.int64)
+    lost = np.zeros(n_chunks)
+    for k in numba.prange(n_chunks):
+        a, b = bounds[k], bounds[k + 1]
+        n_events[k], n_done[k], lost[k] = _run_chunk(
+            real, count, next_step, pixels[a:b], change_lo[a:b], change_hi[a:b], change_step, change_input, n_end,
+            leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+            ev_step[k], ev_pixel[k], ev_pol[k], ev_cause[k])
+    return ev_step, ev_pixel, ev_pol, ev_cause, n_events, n_done, lost
+
+
