@@ -23,6 +23,8 @@ background is one input change shared by every pixel away from the stamps.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numba
 import numpy as np
 
@@ -30,7 +32,7 @@ from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, C_SHOT, COUNT, FLUX, L_, LOG_A, M_, PARA, READY, REAL, STEP,
-                         TH_OFF, TH_ON, Y, run_pixels, start_pixels)
+                         TH_OFF, TH_ON, Y, run_chunk, start_pixels)
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
@@ -126,23 +128,35 @@ class EventDrivenPixels:
         self._run(pixels, lo, hi, change_step, change_input, n_end, log)
 
     def _run(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
-        """The compiled loop over ``pixels`` (see :func:`.pixel_loop.run_pixels`), in chunks on every core.
+        """The compiled loop (:func:`.pixel_loop.run_chunk`) over chunks of ``pixels``, in threads.
 
-        Chunks that run out of room for events leave their remaining pixels untouched;
-        those run again with twice the room until every pixel is done.
+        Pixels are independent, so chunks run concurrently (one thread per core that Numba
+        is allowed, ``NUMBA_NUM_THREADS``). A chunk that runs out of room for events
+        leaves its remaining pixels untouched; those run again with twice the room.
         """
         capacity = 1024
+        threads = numba.get_num_threads()
         while pixels.size:
-            n_chunks = min(_CHUNKS_PER_THREAD * numba.get_num_threads(), pixels.size)
+            n_chunks = min(_CHUNKS_PER_THREAD * threads, pixels.size)
             bounds = np.linspace(0, pixels.size, n_chunks + 1).astype(np.int64)
             capacity = max(capacity, 2 * int(bounds[1] - bounds[0]))
-            step, pixel, polarity, cause, n_events, n_done, lost = run_pixels(
-                self.s["real"], self.s["count"], self.s["next"], pixels, lo, hi, change_step, change_input,
-                np.int64(n_end), *self._constants, bounds, capacity)
-            for k in range(n_chunks):
-                log.add(step[k, :n_events[k]], pixel[k, :n_events[k]], polarity[k, :n_events[k]],
-                        cause[k, :n_events[k]])
-            log.lose(lost.sum())
-            left = np.concatenate([np.arange(a + done, b) for a, b, done in zip(bounds[:-1], bounds[1:], n_done)])
+
+            def chunk(a, b):
+                buffers = (np.empty(capacity, np.int64), np.empty(capacity, np.int64), np.empty(capacity, np.int8),
+                           np.empty(capacity, np.uint8))
+                n_events, n_done, lost = run_chunk(self.s["real"], self.s["count"], self.s["next"], pixels[a:b],
+                                                   lo[a:b], hi[a:b], change_step, change_input, np.int64(n_end),
+                                                   *self._constants, *buffers)
+                return [v[:n_events] for v in buffers], a + n_done, b, lost
+
+            if threads > 1 and n_chunks > 1:
+                with ThreadPoolExecutor(threads) as pool:
+                    done = list(pool.map(chunk, bounds[:-1], bounds[1:]))
+            else:
+                done = [chunk(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+            for events, *_ in done:
+                log.add(*events)
+            log.lose(sum(lost for *_, lost in done))
+            left = np.concatenate([np.arange(a, b) for _, a, b, _ in done])
             pixels, lo, hi = pixels[left], lo[left], hi[left]
             capacity *= 2

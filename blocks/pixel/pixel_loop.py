@@ -41,7 +41,6 @@ GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
 jit = numba.njit(cache=True, error_model="numpy")
-pjit = numba.njit(cache=True, error_model="numpy", parallel=True)     # chunks of pixels on every core
 
 
 @jit
@@ -55,10 +54,10 @@ def shot_gap(key, pixel, count, q, log_1mq):
     return np.int64(min(math.floor(math.log(u) / log_1mq) + 1.0, float(NEVER // 2)))
 
 
-@pjit
+@jit
 def start_pixels(real, count, next_step, leak_hz, dt, key, q, log_1mq):
     """Schedule every pixel's first shot-noise trial and comparator event after its present step."""
-    for pixel in numba.prange(count.shape[0]):
+    for pixel in range(count.shape[0]):
         c = count[pixel]
         c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
         c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
@@ -129,14 +128,19 @@ def _fire(r, c):
     return sign, cause, total - 1.0
 
 
-@jit
-def _run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
-               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
-               ev_step, ev_pixel, ev_pol, ev_cause):
-    """Process ``pixels`` one after the other, writing their events into the ``ev_*`` buffers.
+@numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
+def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
+              leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+              ev_step, ev_pixel, ev_pol, ev_cause):
+    """Process every event of ``pixels`` before step ``n_end`` and their input changes, one pixel after the other.
 
-    Returns ``(events written, pixels done, events lost in the pixels)``. A pixel whose
-    events would overflow the buffers is put back as it was and the chunk stops before it.
+    Pixel ``pixels[i]`` has the changes ``change_lo[i]:change_hi[i]`` (sorted by step):
+    from ``change_step[k]`` on its input is row ``k`` of ``change_input`` (columns ``FLUX``
+    and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many pixels). Updates
+    the state tables and ``next_step`` (each pixel's next event) in place and writes the
+    events (step, pixel, polarity, cause) into the ``ev_*`` buffers. Returns ``(events
+    written, pixels done, events lost in the pixels)``: a pixel whose events would overflow
+    the buffers is put back as it was and the chunk stops before it.
     """
     capacity = ev_step.size
     n_events = 0
@@ -200,37 +204,3 @@ def _run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step
         c[CMP_NEXT] = cmp_next
         next_step[pixel] = min(cmp_next, c[SHOT_NEXT])
     return n_events, pixels.size, lost
-
-
-@pjit
-def run_pixels(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
-               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
-               bounds, capacity):
-    """Process every event of ``pixels`` before step ``n_end`` and their input changes, in parallel chunks.
-
-    Pixel ``pixels[i]`` has the changes ``change_lo[i]:change_hi[i]`` (sorted by step):
-    from ``change_step[k]`` on its input is row ``k`` of ``change_input`` (columns ``FLUX``
-    and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many pixels). Chunk
-    ``k`` is ``pixels[bounds[k]:bounds[k + 1]]``, with room for ``capacity`` events.
-    Updates the state tables and ``next_step`` (each pixel's next event) in place and
-    returns the event buffers ``[chunk, capacity]`` (step, pixel, polarity, cause), the
-    events and pixels done in each chunk and the events lost in the pixels per chunk;
-    the pixels a chunk had no room for are left untouched, to be run again.
-    """
-    n_chunks = bounds.size - 1
-    ev_step = np.empty((n_chunks, capacity), np.int64)
-    ev_pixel = np.empty((n_chunks, capacity), np.int64)
-    ev_pol = np.empty((n_chunks, capacity), np.int8)
-    ev_cause = np.empty((n_chunks, capacity), np.uint8)
-    n_events = np.zeros(n_chunks, np.int64)
-    n_done = np.zeros(n_chunks, np.int64)
-    lost = np.zeros(n_chunks)
-    for k in numba.prange(n_chunks):
-        a, b = bounds[k], bounds[k + 1]
-        n_events[k], n_done[k], lost[k] = _run_chunk(
-            real, count, next_step, pixels[a:b], change_lo[a:b], change_hi[a:b], change_step, change_input, n_end,
-            leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
-            ev_step[k], ev_pixel[k], ev_pol[k], ev_cause[k])
-    return ev_step, ev_pixel, ev_pol, ev_cause, n_events, n_done, lost
-
-
