@@ -114,8 +114,14 @@ class EventDrivenPixels:
                 row, col = np.nonzero(values != before)                            # sorted by pixel, then step
                 own_pixel, own_step, own_flux = touched[row], steps[col].astype(np.int64), values[row, col]
                 s["off_background"] = touched[values[:, -1] != background[-1]]
-        changed, first, counts = np.unique(own_pixel, return_index=True, return_counts=True)
-        pixels = np.arange(n) if shared.size else np.union1d(np.flatnonzero(s["next"] < n_end), changed)
+        first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
+        changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
+        if shared.size:
+            pixels = np.arange(n)
+        else:
+            busy = s["next"] < n_end
+            busy[changed] = True
+            pixels = np.flatnonzero(busy)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
         if shared.size:                                   # pixels away from stamps take the background's changes
             lo[:], hi[:] = own_pixel.size, own_pixel.size + shared.size
