@@ -37,6 +37,7 @@ from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, C_SHOT, COUNT, FLUX, L_, LOG_A,
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
 _CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
+_FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
 
 
 class EventDrivenPixels:
@@ -140,7 +141,7 @@ class EventDrivenPixels:
         is allowed, ``NUMBA_NUM_THREADS``). A chunk that runs out of room for events
         leaves its remaining pixels untouched; those run again with twice the room.
         """
-        capacity = 1024
+        capacity = _FIRST_CAPACITY
         threads = numba.get_num_threads()
         while pixels.size:
             n_chunks = min(_CHUNKS_PER_THREAD * threads, pixels.size)
