@@ -87,10 +87,8 @@ def _run_point(graph_path: str, overrides: list[str], point: SweepPoint, reuse: 
 
 
 def _share_cores(threads: int) -> None:
-    """Let each of ``--jobs`` worker processes run compiled loops on its share of the cores only."""
-    import numba
-
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    """Let each of ``--jobs`` worker processes run its blocks' threads on its share of the cores only."""
+    os.environ.setdefault("EVSDA_THREADS", str(threads))
 
 
 def run_sweep(graph_path: str, grid: dict[str, list[Any]], out_dir: str | Path, overrides: list[str] = (),

@@ -23,9 +23,9 @@ background is one input change shared by every pixel away from the stamps.
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
 
 from .eventlog import EventLog
@@ -38,6 +38,19 @@ NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on",
          "step": "step", "ready": "ready"}                                     # public names of some fields
 _CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
 _FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
+
+
+def worker_threads() -> int:
+    """Threads for the compiled loop: ``EVSDA_THREADS`` if set, else every core this process may use."""
+    value = os.environ.get("EVSDA_THREADS", "").strip()
+    if value:
+        if not value.isdigit():
+            raise ValueError(f"EVSDA_THREADS must be a whole number of threads, got {value!r}")
+        return max(1, int(value))
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                 # no affinity masks (macOS, Windows)
+        return os.cpu_count() or 1
 
 
 class EventDrivenPixels:
@@ -137,12 +150,12 @@ class EventDrivenPixels:
     def _run(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
         """The compiled loop (:func:`.pixel_loop.run_chunk`) over chunks of ``pixels``, in threads.
 
-        Pixels are independent, so chunks run concurrently (one thread per core that Numba
-        is allowed, ``NUMBA_NUM_THREADS``). A chunk that runs out of room for events
-        leaves its remaining pixels untouched; those run again with twice the room.
+        Pixels are independent, so chunks run concurrently (:func:`worker_threads` of them). A
+        chunk that runs out of room for events leaves its remaining pixels untouched; those
+        run again with twice the room.
         """
         capacity = _FIRST_CAPACITY
-        threads = numba.get_num_threads()
+        threads = worker_threads()
         while pixels.size:
             n_chunks = min(_CHUNKS_PER_THREAD * threads, pixels.size)
             bounds = np.linspace(0, pixels.size, n_chunks + 1).astype(np.int64)

@@ -164,23 +164,16 @@ def test_events_do_not_depend_on_threads_or_chunk_room(scenes, monkeypatch):
     # The fast path runs chunks of pixels in threads and reruns the pixels of a chunk that ran
     # out of room for events; neither may change an event. Starting with room for only two
     # events per pixel of a chunk forces reruns along a bright spot's track.
-    import numba
-
     from evsda.blocks.pixel import eventdriven
 
     fp = scenes.focal_plane(24, 10)
     irradiance = _moving(scenes, fp, start=(0.0, 5.0), velocity=(100.0, 0.0), peak=3e6)
     runs = []
-    threads_before = numba.get_num_threads()
-    try:
-        for threads, room in ((1, 1024), (min(2, numba.config.NUMBA_NUM_THREADS), 1024),
-                              (numba.config.NUMBA_NUM_THREADS, 0)):
-            numba.set_num_threads(threads)
-            monkeypatch.setattr(eventdriven, "_FIRST_CAPACITY", room)
-            block = DvsPixel(time_step_s=1e-5, seed=5, **NOISY)
-            runs.append(scenes.concat(scenes.simulate(block, irradiance, 0.2, 0.1)))
-    finally:
-        numba.set_num_threads(threads_before)
+    for threads, room in ((1, 1024), (3, 1024), (2, 0)):
+        monkeypatch.setenv("EVSDA_THREADS", str(threads))
+        monkeypatch.setattr(eventdriven, "_FIRST_CAPACITY", room)
+        block = DvsPixel(time_step_s=1e-5, seed=5, **NOISY)
+        runs.append(scenes.concat(scenes.simulate(block, irradiance, 0.2, 0.1)))
     assert runs[0]["counts"][EventCause.SIGNAL] > 200
     for run in runs[1:]:
         for key in ("t", "x", "y", "p", "cause"):
