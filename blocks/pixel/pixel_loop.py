@@ -128,6 +128,20 @@ def _fire(r, c):
     return sign, cause, total - 1.0
 
 
+@jit
+def _record(r, c, pixel, t, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_cause, n_events,
+            redraw, key, th_mean_on, th_mean_off, th_sigma, th_floor):
+    """Write an event of ``pixel`` at step ``t``, start its refractory period (Eq. 21), redraw (IEBCS).
+
+    Returns the number of events written.
+    """
+    c[READY] = t + k_refr
+    ev_step[n_events], ev_pixel[n_events], ev_pol[n_events], ev_cause[n_events] = t, pixel, sign, cause
+    if redraw:
+        _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
+    return n_events + 1
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
               leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
@@ -167,12 +181,8 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
                 if cmp_next == t_event:
                     sign, cause, backlog = _fire(r, c)
                     lost += backlog
-                    c[READY] = t_event + k_refr
-                    ev_step[n_events], ev_pixel[n_events] = t_event, pixel
-                    ev_pol[n_events], ev_cause[n_events] = sign, cause
-                    n_events += 1
-                    if redraw:
-                        _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
+                    n_events = _record(r, c, pixel, t_event, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_cause,
+                                       n_events, redraw, key, th_mean_on, th_mean_off, th_sigma, th_floor)
                     awake = False
                 if c[SHOT_NEXT] == t_event:                       # shot noise (Eq. 20)
                     bits = hash64_one(key, ACCEPT_STREAM, pixel, c[SHOT_COUNT])
@@ -182,12 +192,9 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
                             moved = sign * (r[TH_ON] if sign > 0 else r[TH_OFF])
                             r[M_] += moved
                             r[C_SHOT] -= moved
-                            c[READY] = t_event + k_refr
-                            ev_step[n_events], ev_pixel[n_events] = t_event, pixel
-                            ev_pol[n_events], ev_cause[n_events] = sign, SHOT
-                            n_events += 1
-                            if redraw:
-                                _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
+                            n_events = _record(r, c, pixel, t_event, sign, SHOT, k_refr, ev_step, ev_pixel, ev_pol,
+                                               ev_cause, n_events, redraw, key, th_mean_on, th_mean_off, th_sigma,
+                                               th_floor)
                         else:
                             lost += 1.0
                     c[SHOT_COUNT] += 1
