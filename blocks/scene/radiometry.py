@@ -6,10 +6,15 @@ The band
     = 3.631e-11 W m^-2 nm^-1 (Bessell, Castelli & Plez 1998, A&A 333, 231, Table A2),
     taken as flat across the band.
 The Sun
-    A 5772 K blackbody (IAU 2015 Resolution B3 nominal effective temperature) of
-    nominal radius 6.957e8 m seen from 1 au: its integral is the nominal total solar
-    irradiance 1361 W m^-2. Integrated over V it gives V_sun = -26.7 (the measured
-    value is -26.74, Allen's Astrophysical Quantities; tested in tests/scene).
+    Its photon flux in a band is the measured one: V_sun = -26.76 at 1 au (Willmer 2018,
+    ApJS 236, 47: M_V = 4.81 in the Vega system, less the distance modulus 31.57 of 1 au),
+    on the same Vega-based system as the zero point below. The spectral *shape* across
+    the band (which only sets the photon-weighted wavelength) is a 5772 K blackbody (IAU
+    2015 Resolution B3 nominal effective temperature) of nominal radius 6.957e8 m seen
+    from 1 au, whose integral is the nominal total solar irradiance 1361 W m^-2. That
+    blackbody alone would give V_sun = -26.69: 6 % too few V photons, because the real
+    Sun is brighter than a 5772 K blackbody in the visible and fainter in the
+    ultraviolet, so it is not used for the flux.
 Reflection (paper Eq. 1-2)
     A surface of diffuse reflectivity rho lit by solar irradiance E has radiance
     ``L = rho E / pi`` (Eq. 2) and sends ``Phi = pi L A`` into its hemisphere (Eq. 1). The
@@ -40,6 +45,10 @@ BESSELL_V_RESPONSE = np.array([0.000, 0.030, 0.163, 0.458, 0.780, 0.967, 1.000, 
                                0.461, 0.359, 0.270, 0.197, 0.135, 0.081, 0.045, 0.025, 0.017, 0.013, 0.009, 0.000])
 #: V = 0 flux density (Bessell, Castelli & Plez 1998, Table A2) [W m^-2 nm^-1]
 V_ZERO_POINT_W_M2_NM = 3.631e-11
+PARSEC_AU = 648_000.0 / np.pi       # parsec in astronomical units (IAU 2015 Resolution B2) [au]
+#: The Sun's apparent V magnitude at 1 au, Vega system: M_V = 4.81 (Willmer 2018, ApJS 236, 47, Table 3)
+#: minus the distance modulus of 1 au, 5 log10(10 pc / 1 au) = 31.572: -26.762 [mag]
+SUN_V_MAG = 4.81 - 5.0 * np.log10(10.0 * PARSEC_AU)
 
 
 def planck_w_m2_nm_sr(wavelength_nm, temperature_k: float) -> np.ndarray:
@@ -49,8 +58,12 @@ def planck_w_m2_nm_sr(wavelength_nm, temperature_k: float) -> np.ndarray:
     return 2.0 * H_J_S * C_M_PER_S**2 / lam**5 / np.expm1(x) * 1e-9
 
 
-def solar_irradiance_w_m2_nm(wavelength_nm) -> np.ndarray:
-    """Solar spectral irradiance at 1 au [W m^-2 nm^-1]: a blackbody disc of solid angle pi (R/au)^2."""
+def blackbody_sun_irradiance_w_m2_nm(wavelength_nm) -> np.ndarray:
+    """The Sun as a 5772 K blackbody disc of solid angle pi (R/au)^2 at 1 au [W m^-2 nm^-1].
+
+    Its shape weights wavelengths inside a band; its level is not used for fluxes (see
+    :attr:`Band.sun_photon_flux`).
+    """
     return planck_w_m2_nm_sr(wavelength_nm, SUN_TEFF_K) * np.pi * (SUN_RADIUS_M / AU_M) ** 2
 
 
@@ -62,6 +75,7 @@ class Band:
     wavelength_nm: np.ndarray
     response: np.ndarray
     zero_point_w_m2_nm: float
+    sun_magnitude: float             # measured apparent magnitude of the Sun at 1 au in this band [mag]
 
     def photon_flux(self, spectral_irradiance_w_m2_nm) -> float:
         """Photon flux [photon s^-1 m^-2] of a spectrum (callable of wavelength in nm) in the band."""
@@ -77,23 +91,23 @@ class Band:
 
     @functools.cached_property
     def sun_photon_flux(self) -> float:
-        """The Sun's photon flux at 1 au in the band [photon s^-1 m^-2]."""
-        return self.photon_flux(solar_irradiance_w_m2_nm)
+        """The Sun's photon flux at 1 au in the band [photon s^-1 m^-2], from its measured magnitude."""
+        return float(photon_flux_of_magnitude(self.sun_magnitude, self))
 
     @functools.cached_property
-    def sun_magnitude(self) -> float:
-        """The Sun's apparent magnitude at 1 au in the band [mag]."""
-        return magnitude(self.sun_photon_flux, self)
+    def blackbody_sun_magnitude(self) -> float:
+        """The magnitude the 5772 K blackbody Sun would have at 1 au in the band [mag] (not used for fluxes)."""
+        return float(magnitude(self.photon_flux(blackbody_sun_irradiance_w_m2_nm), self))
 
     @functools.cached_property
     def effective_wavelength_m(self) -> float:
-        """Photon-weighted mean wavelength of sunlight in the band [m]."""
+        """Photon-weighted mean wavelength of sunlight in the band [m] (blackbody shape)."""
         lam = np.linspace(self.wavelength_nm[0], self.wavelength_nm[-1], 2001)
-        weight = np.interp(lam, self.wavelength_nm, self.response) * solar_irradiance_w_m2_nm(lam) * lam
+        weight = np.interp(lam, self.wavelength_nm, self.response) * blackbody_sun_irradiance_w_m2_nm(lam) * lam
         return float(np.trapezoid(weight * lam, lam) / np.trapezoid(weight, lam)) * 1e-9
 
 
-V_BAND = Band("V", BESSELL_V_NM, BESSELL_V_RESPONSE, V_ZERO_POINT_W_M2_NM)
+V_BAND = Band("V", BESSELL_V_NM, BESSELL_V_RESPONSE, V_ZERO_POINT_W_M2_NM, SUN_V_MAG)
 BANDS = {"V": V_BAND}
 
 

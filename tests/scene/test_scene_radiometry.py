@@ -8,20 +8,29 @@ from scipy import integrate
 from evsda.blocks.scene import radiometry
 from evsda.blocks.scene.radiometry import V_BAND
 
-SUN_V_MAG = -26.74          # Allen's Astrophysical Quantities (Cox 2000), Sec. 14.1 (Willmer 2018: -26.76)
+SUN_V_MAG_ALLEN = -26.74    # Allen's Astrophysical Quantities (Cox 2000), Sec. 14.1
+SUN_V_MAG_WILLMER = 4.81 - 5 * np.log10(10 * 648_000 / np.pi)   # Willmer 2018 Table 3: M_V = 4.81 (Vega) at 1 au
 TSI_W_M2 = 1361.0           # IAU 2015 Resolution B3 nominal total solar irradiance
 
 
 def test_solar_spectrum_integrates_to_the_nominal_tsi():
     lam = np.geomspace(50, 1e6, 400_000)
-    assert np.trapezoid(radiometry.solar_irradiance_w_m2_nm(lam), lam) == pytest.approx(TSI_W_M2, rel=2e-3)
+    assert np.trapezoid(radiometry.blackbody_sun_irradiance_w_m2_nm(lam), lam) == pytest.approx(TSI_W_M2, rel=2e-3)
 
 
-def test_sun_v_magnitude_and_zero_point_are_self_consistent():
-    # the stated spectrum (5772 K blackbody) through Bessell's V against the V = 0 flux density
-    assert V_BAND.sun_magnitude == pytest.approx(SUN_V_MAG, abs=0.1)
-    # a -26.74 mag source through the zero point carries the Sun's in-band photon flux
-    assert radiometry.photon_flux_of_magnitude(SUN_V_MAG, V_BAND) == pytest.approx(V_BAND.sun_photon_flux, rel=0.1)
+def test_sun_puts_the_measured_v_band_photons_on_a_satellite():
+    """Issue 11.6: a 5772 K blackbody gave V_sun = -26.69, 6 % too few photons. The Sun's
+    photon flux is normalised to Willmer (2018) and agrees with Allen's -26.74 (a second,
+    older measurement) within 0.03 mag."""
+    sun_mag = radiometry.magnitude(V_BAND.sun_photon_flux, V_BAND)
+    assert SUN_V_MAG_WILLMER == pytest.approx(-26.76, abs=0.005)
+    assert sun_mag == pytest.approx(SUN_V_MAG_WILLMER, abs=1e-9)
+    assert sun_mag == pytest.approx(SUN_V_MAG_ALLEN, abs=0.03)
+    # the blackbody the flux no longer comes from is 0.07 mag (6 %) short of it
+    assert V_BAND.blackbody_sun_magnitude - sun_mag == pytest.approx(0.067, abs=0.01)
+
+
+def test_v_zero_point_and_effective_wavelength():
     # the classic "V = 0 is ~1000 photons cm^-2 s^-1 A^-1" over the band's ~89 nm equivalent width
     width_nm = np.trapezoid(V_BAND.response, V_BAND.wavelength_nm)
     assert V_BAND.zero_point_photon_flux / (width_nm * 10) / 1e4 == pytest.approx(1000, rel=0.03)
