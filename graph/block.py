@@ -35,7 +35,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import ValidationError
 
-from .errors import InputError, ParameterError
+from .errors import InputError, ParameterError, excerpt
 from .params import BlockParams, describe_validation_error
 from .ports import Input, Output, PortValue, port_type_label
 
@@ -72,9 +72,19 @@ class Window:
     stop_ns: int
     epoch: datetime = DEFAULT_EPOCH
 
+    def __post_init__(self):
+        for name in ("index", "start_ns", "stop_ns"):
+            if not isinstance(getattr(self, name), (int, np.integer)) or isinstance(getattr(self, name), bool):
+                raise InputError(f"Window {name} must be an integer, got {excerpt(getattr(self, name))}")
+        if self.stop_ns < self.start_ns:
+            raise InputError(f"Window stops ({self.stop_ns} ns) before it starts ({self.start_ns} ns)")
+
     @classmethod
     def from_seconds(cls, start_s: float, stop_s: float, index: int = 0, epoch: datetime | str = DEFAULT_EPOCH):
         """A window from times in seconds since ``epoch``."""
+        for name, value in (("start_s", start_s), ("stop_s", stop_s)):
+            if not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value):
+                raise InputError(f"Window {name} must be a finite number of seconds, got {excerpt(value)}")
         return cls(index, round(start_s * NS_PER_S), round(stop_s * NS_PER_S), parse_epoch(epoch))
 
     @property
@@ -112,15 +122,26 @@ class RunInfo:
     seed: int = 0
     metadata: dict[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self):
+        if self.duration_ns <= 0 or self.window_ns <= 0:
+            raise ParameterError(f"a run needs a positive duration and window, got {self.duration_ns} ns and "
+                                 f"{self.window_ns} ns")
+        if self.seed < 0:
+            raise ParameterError(f"the seed must be a non-negative integer, got {self.seed}")
+
     @property
     def n_windows(self) -> int:
         return -(-self.duration_ns // self.window_ns)
 
-    def windows(self):
-        """The run's windows in order."""
-        for index in range(self.n_windows):
-            start = index * self.window_ns
-            yield Window(index, start, min(start + self.window_ns, self.duration_ns), self.epoch)
+    def window(self, index: int) -> Window:
+        """Window ``index`` of the run."""
+        start = index * self.window_ns
+        return Window(index, start, min(start + self.window_ns, self.duration_ns), self.epoch)
+
+    def windows(self, start: int = 0):
+        """The run's windows in order (generated one at a time), from window ``start``."""
+        for index in range(start, self.n_windows):
+            yield self.window(index)
 
 
 def block_rng(seed: int, name: str) -> np.random.Generator:
@@ -161,6 +182,9 @@ class Block:
                 raise ParameterError("; ".join(lines)) from None
         self.params = params
         self.name = name or self.type_name
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ParameterError(f"block '{name or self.type_name}': the seed must be a non-negative integer, "
+                                 f"got {excerpt(seed)}")
         self.seed = int(seed)
         self.rng = block_rng(self.seed, self.name)
         self._run: RunInfo | None = None

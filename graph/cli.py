@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from threadpoolctl import threadpool_limits
@@ -17,7 +19,8 @@ from threadpoolctl import threadpool_limits
 from . import __version__, registry
 from . import schema as schema_module
 from .commands import Command, contributed_commands
-from .errors import UserError
+from .errors import Interrupted, UserError
+from .files import describe_os_error
 from .executor import run_graph
 from .graphfile import Graph, graph_from_dict, load_graph
 from .report import describe_block, list_blocks, run_summary
@@ -38,9 +41,11 @@ def _load(args) -> Graph:
 def cmd_run(args) -> int:
     graph = _load(args)
     out = Path(args.output) if args.output else Path(f"{graph.name}.zarr")
+    if not args.checkpoint_every >= 0 or args.checkpoint_every == float("inf"):
+        raise UserError(f"--checkpoint-every must be a finite number of seconds >= 0, got {args.checkpoint_every}")
     result = run_graph(graph, out, resume=args.resume, overwrite=args.overwrite, reuse=args.reuse,
                        progress=None if args.progress is None else args.progress,
-                       checkpoint_every_s=args.checkpoint_every)
+                       checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint)
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
     return 0
@@ -101,8 +106,11 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="run a graph file")
     graph_args(p)
     p.add_argument("-o", "--output", help="run store to write (default: NAME.zarr)")
-    p.add_argument("--resume", action="store_true", help="continue the run in OUTPUT from its last checkpoint")
-    p.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in OUTPUT from its last checkpoint (from the start if nothing was committed)")
+    p.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it is a run store")
+    p.add_argument("--keep-checkpoint", action="store_true",
+                   help="keep the blocks' state at the end of the run in the store (dropped by default)")
     p.add_argument("--reuse", action="append", default=[], metavar="STORE",
                    help="reuse matching upstream outputs from an earlier run store (repeatable)")
     p.add_argument("--checkpoint-every", type=float, default=30.0, metavar="SECONDS",
@@ -151,6 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="evsda: %(name)s: %(message)s")
+    previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
         # the blocks' linear algebra is many small products: one BLAS thread per process is
         # faster than several (which spin and contend), and leaves the cores to --jobs
@@ -160,9 +169,23 @@ def main(argv: list[str] | None = None) -> int:
         for line in str(exc).splitlines():
             print(f"evsda: error: {line}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("evsda: interrupted; committed windows are kept, continue with --resume", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        name = getattr(exc, "signal_name", "SIGINT")
+        print(f"evsda: {exc if isinstance(exc, Interrupted) else 'interrupted'}", file=sys.stderr)
+        return 128 + getattr(signal, name, signal.SIGINT)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        print(f"evsda: error: {describe_os_error(exc)}", file=sys.stderr)
+        return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate(signum, frame) -> None:
+    """SIGTERM ends a run like Ctrl-C: what is committed is kept, one line says so."""
+    raise Interrupted("SIGTERM")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,23 @@ and exits with status 2. Anything else is a bug in evsda and exits with 1.
 
 from __future__ import annotations
 
+import reprlib
 from dataclasses import dataclass
+from typing import Any
+
+_REPR = reprlib.Repr()
+for _name, _limit in (("maxlevel", 2), ("maxtuple", 4), ("maxlist", 4), ("maxarray", 4), ("maxdict", 3),
+                      ("maxset", 4), ("maxfrozenset", 4), ("maxdeque", 4), ("maxstring", 40), ("maxlong", 40),
+                      ("maxother", 40)):
+    setattr(_REPR, _name, _limit)
+
+
+def excerpt(value: Any, limit: int = 60) -> str:
+    """A short, printable repr of ``value`` for error messages: bounded however large or nested the
+    value is (``reprlib`` stops early), control characters escaped, cut to ``limit`` characters."""
+    text = _REPR.repr(value)
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 class UserError(Exception):
@@ -28,6 +44,18 @@ class InputError(UserError):
 
 class StoreError(UserError):
     """A run store cannot be created, resumed or read as asked."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT (Ctrl-C) or SIGTERM; what it committed is kept and ``--resume`` continues it."""
+
+    def __init__(self, signal_name: str = "SIGINT", detail: str = ""):
+        super().__init__(signal_name, detail)
+        self.signal_name = signal_name
+        self.detail = detail
+
+    def __str__(self) -> str:
+        return self.detail or "interrupted"
 
 
 @dataclass(frozen=True)

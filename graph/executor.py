@@ -13,8 +13,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
+import shutil
 import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,14 +26,17 @@ import networkx as nx
 
 from . import __version__
 from .block import Block, RunInfo, Window
-from .errors import StoreError
+from . import store as store_module
+from .errors import Interrupted, StoreError
 from .graphfile import Graph
+from .lock import StoreLock
 from .ports import PortValue
 from .progress import progress_bar
-from .store import RunStore
+from .store import RunStore, check_replaceable, is_run_store
 
 EVENTS_TYPE = "Events"      # outputs of this port type are recorded under events/
 METRICS_TYPE = "Metrics"    # outputs of this port type are recorded under metrics/
+log = logging.getLogger("evsda.executor")
 
 
 @dataclass
@@ -86,7 +92,7 @@ class Executor:
     def __init__(self, graph: Graph, out: str | Path | None = None, *, resume: bool = False,
                  overwrite: bool = False, reuse: list[str | Path] = (), progress: bool | None = None,
                  checkpoint_every_s: float = 30.0, keep_outputs: bool | None = None,
-                 max_windows: int | None = None):
+                 max_windows: int | None = None, keep_checkpoint: bool = False):
         self.graph = graph
         self.run = graph.run_info()
         self.requested = requested_outputs(graph)
@@ -95,6 +101,8 @@ class Executor:
         self.checkpoint_every_s = checkpoint_every_s
         self.keep_outputs = out is None if keep_outputs is None else keep_outputs
         self.max_windows = max_windows
+        self.keep_checkpoint = keep_checkpoint
+        self.lock: StoreLock | None = None
         self.reuse_stores = [RunStore.open(p) for p in reuse]
         self.loaded: dict[str, RunStore] = {}
         self.order = self._plan()
@@ -142,26 +150,52 @@ class Executor:
     # -- the store ---------------------------------------------------------------------------------
     def _check_output(self) -> None:
         """Refuse a bad output before any work."""
-        if self.out is None:
+        out = self.out
+        if out is None:
             return
-        if self.resume and not self.out.exists():
-            raise StoreError(f"cannot resume: {self.out} does not exist")
-        if not self.resume and self.out.exists() and not self.overwrite:
-            raise StoreError(f"{self.out} already exists; choose another output, pass --overwrite to replace it, "
-                             f"or --resume to continue the run it holds")
+        if out.exists() or out.is_symlink():
+            if not out.is_dir() or out.is_symlink():
+                raise StoreError(f"{out} exists and is not an evsda run store (a run store is a folder); "
+                                 f"choose another output")
+            if self.resume:
+                if is_run_store(out) or store_module._is_empty(out):
+                    return
+                raise StoreError(f"cannot resume {out}: it is not an evsda run store")
+            if not self.overwrite:
+                raise StoreError(f"{out} already exists; choose another output, pass --overwrite to replace it, "
+                                 f"or --resume to continue the run it holds")
+            check_replaceable(out)
+        elif not out.parent.exists():
+            pass  # created with the store, like `mkdir -p`
+        elif not out.parent.is_dir():
+            raise StoreError(f"cannot create run store {out}: {out.parent} is not a folder")
 
-    def _open_store(self) -> RunStore:
-        out, digest = self.out, self.graph.digest()
-        if self.resume:
-            store = RunStore.open(out, mode="r+")
-            if store.attrs.get("graph_hash") != digest:
-                raise StoreError(f"cannot resume {out}: it was made by a different graph or parameters; "
-                                 f"run with the same graph file and --set values, or start a new store")
-            return store
-        return RunStore.create(out, overwrite=self.overwrite, attrs={
+    def _take_store_folder(self) -> bool:
+        """Create the output folder if needed and lock it; returns whether this run created it."""
+        created = not self.out.exists()
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"cannot create run store {self.out}: {exc.strerror or exc}") from None
+        self.lock = StoreLock(self.out).acquire()
+        return created
+
+    def _open_for_resume(self) -> RunStore | None:
+        """The store to continue, or None when there is nothing to continue (start over)."""
+        if not is_run_store(self.out):
+            log.info("%s: no run was committed yet; starting it from the beginning", self.out)
+            return None
+        store = RunStore.open(self.out, mode="r+")
+        if store.attrs.get("graph_hash") != self.graph.digest():
+            raise StoreError(f"cannot resume {self.out}: it was made by a different graph or parameters; "
+                             f"run with the same graph file and --set values, or start a new store")
+        return store
+
+    def _create_store(self) -> RunStore:
+        return RunStore.create(self.out, overwrite=True, attrs={
             "evsda_version": __version__,
             "graph": self.graph.to_dict(),
-            "graph_hash": digest,
+            "graph_hash": self.graph.digest(),
             "seed": self.run.seed,
             "start_epoch": self.run.epoch.isoformat().replace("+00:00", "Z"),
             "duration_ns": self.run.duration_ns,
@@ -171,6 +205,42 @@ class Executor:
 
     # -- running -----------------------------------------------------------------------------------
     def execute(self) -> RunResult:
+        if self.out is None:
+            return self._execute()
+        created = self._take_store_folder()
+        try:
+            return self._execute()
+        except BaseException as exc:
+            if self.store is None and created:
+                shutil.rmtree(self.out, ignore_errors=True)   # nothing was computed: leave nothing behind
+            if isinstance(exc, KeyboardInterrupt):
+                raise Interrupted(getattr(exc, "signal_name", "SIGINT"), self._interrupted_note()) from None
+            raise
+        finally:
+            self.lock.release()
+
+    @contextmanager
+    def _writing(self):
+        """Store writes: a full disk or a lost folder is one line saying what is kept."""
+        try:
+            yield
+        except OSError as exc:
+            raise StoreError(f"writing run store {self.out} failed: {exc.strerror or exc}; "
+                             f"{self._committed_note()}") from None
+
+    def _committed_note(self) -> str:
+        windows = self.store.committed_windows if self.store is not None else 0
+        if windows == 0:
+            return "nothing was committed yet: run it again (--resume starts it over)"
+        return (f"{windows} of {self.run.n_windows} windows are committed in {self.out}; "
+                f"continue with --resume")
+
+    def _interrupted_note(self) -> str:
+        if self.store is None:
+            return "interrupted before the first window was stored; nothing to keep (--resume starts it over)"
+        return f"interrupted; {self._committed_note()}"
+
+    def _execute(self) -> RunResult:
         blocks: dict[str, Block] = {n: self.graph.nodes[n].block for n in self.order}
         running = [n for n in self.order if n not in self.loaded]
         timing = {n: 0.0 for n in running}
@@ -180,12 +250,23 @@ class Executor:
         for name in running:
             blocks[name].setup(self.run)
         result = RunResult(store=None, reused={n: str(s.path) for n, s in self.loaded.items()})
-        if self.resume:
-            self._ensure_store(result, running)
-            start_window = self.store.committed_windows
-            states = self.store.read_checkpoint()
-            for name in running:
-                blocks[name].set_state(states.get(name, {}))
+        if self.resume and self.out is not None:
+            store = self._open_for_resume()
+            if store is not None:
+                self._use_store(store, result, running)
+                if store.complete:
+                    log.info("%s: the run is already complete; nothing to resume", self.out)
+                    result.metrics, result.metric_units = store.metrics, store.metric_units
+                    result.timing_s = dict(store.attrs.get("timing", {}))
+                    return result
+                start_window = store.committed_windows
+                states = store.read_checkpoint()
+                if states:
+                    for name in running:
+                        blocks[name].set_state(states.get(name, {}))
+                elif start_window:
+                    raise StoreError(f"cannot resume {self.out}: it has {start_window} committed windows but no "
+                                     f"checkpoint to continue from; start again with --overwrite")
 
         readers = {
             (name, port): self.loaded[name].product_windows(name, port, start=start_window)
@@ -193,14 +274,16 @@ class Executor:
         }
         inputs_of = {n: [(src, sport, dport) for src, sport, dst, dport in self.graph.connections if dst == n]
                      for n in running}
-        windows = list(self.run.windows())[start_window:]
+        stop_window = self.run.n_windows
         if self.max_windows is not None:
-            windows = windows[: self.max_windows]
+            stop_window = min(stop_window, start_window + self.max_windows)
         last_commit = time.perf_counter()
         bar = progress_bar(total=self.run.n_windows, initial=start_window, enabled=self.progress,
                            desc=self.graph.name)
         try:
-            for window in windows:
+            for window in self.run.windows(start_window):
+                if window.index >= stop_window:
+                    break
                 values: dict[tuple[str, str], Any] = {}
                 for key, reader in readers.items():
                     values[key] = next(reader)
@@ -218,44 +301,57 @@ class Executor:
                 # The store is created once the first window has been computed in full: a scene that
                 # cannot be simulated (say, a satellite that never enters the field) leaves nothing behind.
                 t0 = time.perf_counter()
-                if self.out is not None and self.store is None:
-                    self._ensure_store(result, running)
-                for name, outputs in produced:
-                    self._record(name, outputs, window, result)
+                with self._writing():
+                    if self.out is not None and self.store is None:
+                        self._use_store(self._create_store(), result, running)
+                    for name, outputs in produced:
+                        self._record(name, outputs, window, result)
                 timing["(store)"] += time.perf_counter() - t0
                 result.windows_run += 1
                 if self.store is not None:
                     now = time.perf_counter()
                     last = window.index == self.run.n_windows - 1
-                    if last or now - last_commit >= self.checkpoint_every_s:
+                    # the run's last window is committed with the final outputs below (no checkpoint is
+                    # written only to be dropped), unless the checkpoint is kept
+                    due = now - last_commit >= self.checkpoint_every_s or window.index == stop_window - 1
+                    if (due and not last) or (last and self.keep_checkpoint):
                         t0 = time.perf_counter()
-                        self._commit(window, {n: blocks[n] for n in running})
+                        with self._writing():
+                            self._commit(window, {n: blocks[n] for n in running})
                         timing["(store)"] += time.perf_counter() - t0
                         last_commit = time.perf_counter()
                 bar.update(1)
         finally:
             bar.close()
 
-        finished = result.windows_run == len(list(self.run.windows())[start_window:])
+        finished = start_window + result.windows_run == self.run.n_windows
+        finals = {}
         if finished:
             for name in running:
                 t0 = time.perf_counter()
-                outputs = blocks[name].finish() or {}
+                finals[name] = blocks[name].finish() or {}
                 timing[name] += time.perf_counter() - t0
-                self._record(name, outputs, None, result)
         result.timing_s = timing
+        with self._writing():
+            for name, outputs in finals.items():
+                self._record(name, outputs, None, result)
+            self._finish_store(result, running, timing, finished)
+        return result
+
+    def _finish_store(self, result: RunResult, running: list[str], timing: dict[str, float], finished: bool) -> None:
         if self.out is not None and self.store is None:
-            self._ensure_store(result, running)
+            self._use_store(self._create_store(), result, running)
         if self.store is not None:
             previous = self.store.attrs.get("timing", {})
             self.store.set_attrs(timing={k: v + previous.get(k, 0.0) for k, v in timing.items()},
                                  reused=result.reused)
-            self.store.commit()
+            if finished:
+                self.store.commit(windows=self.run.n_windows, complete=True,
+                                  drop_checkpoint=not self.keep_checkpoint)
             result.metrics, result.metric_units = self.store.metrics, self.store.metric_units
-        return result
 
-    def _ensure_store(self, result: RunResult, running: list[str]) -> None:
-        self.store = result.store = self._open_store()
+    def _use_store(self, store: RunStore, result: RunResult, running: list[str]) -> None:
+        self.store = result.store = store
         for name in running:
             if self._stores_products(name):
                 self.store.set_product_hash(name, self.hashes[name])
@@ -321,6 +417,7 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``reuse`` (stores whose matching upstream products are loaded instead of recomputed),
     ``progress`` (show a progress bar; default: when stderr is a terminal),
     ``checkpoint_every_s`` (wall-clock seconds between commits; 0 commits every window),
-    ``keep_outputs`` (keep requested outputs in memory), ``max_windows`` (stop early).
+    ``keep_outputs`` (keep requested outputs in memory), ``max_windows`` (stop early),
+    ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
     """
     return Executor(graph, out, **options).execute()

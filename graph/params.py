@@ -14,7 +14,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from .errors import Problem
+from .errors import Problem, excerpt
 
 
 class _FileMarker:
@@ -62,7 +62,7 @@ def describe_validation_error(error: ValidationError) -> list[tuple[str, str]]:
         else:
             message = item["msg"]
             if "input" in item and kind not in ("missing",):
-                message += f" (got {item['input']!r})"
+                message += f" (got {excerpt(item['input'])})"
         out.append((loc, message))
     return out
 

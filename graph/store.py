@@ -9,7 +9,8 @@ Layout::
     products/<block>/<port>/<field>.shape   [n_windows, ndim] shape of each window's value
     products/<block>/<port>/_attrs          one JSON document per window (scalars, strings)
     metrics/        attrs: values, units
-    checkpoint/w<k>/<block>/                block state and RNG state after window k
+    checkpoint/w<k>                         every block's state and RNG state after window k
+    .evsda-lock     while a run writes: its pid and host (see :mod:`evsda.graph.lock`)
 
 Crash safety: zarr >= 3.1.3 writes every chunk and metadata document atomically
 (temporary file + rename), but ``append`` resizes an array before its data lands.
@@ -18,24 +19,36 @@ So appended arrays are never trusted beyond the lengths recorded in
 a window. On resume every array is truncated back to its committed length and the
 checkpoint named in the commit record is loaded; anything written after it is
 discarded. A run killed at any instruction therefore resumes from its last complete
-window.
+window (or starts over when nothing was committed). A finished run's record says
+``complete: true``; its last checkpoint is dropped unless asked to keep it.
+
+Damage: every chunk carries a CRC-32C (Zarr 3's ``crc32c`` codec) and every chunk below
+the committed length is written (``write_empty_chunks``), so a changed byte, a truncated
+chunk or a deleted chunk is a :class:`StoreError` naming the array, never zeros or wrong
+data; an array shorter than its committed length is refused rather than padded.
 """
 
 from __future__ import annotations
 
 import io
 import json
+import os
+import re
+import shutil
+import warnings
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
 from . import registry
 from .errors import StoreError
+from .lock import LOCK_NAME, describe_holder, read_holder
 from .ports import PORT_TYPES, PortValue
 
 EVENT_FIELDS: dict[str, np.dtype] = {
@@ -53,7 +66,43 @@ EVENT_CHUNK = 1 << 20           # default number of events per chunk yielded by 
 FLUSH_BYTES = 64 << 20
 #: fast, multithreaded compression: bit-shuffled LZ4 suits sorted timestamps and small integers
 COMPRESSOR = BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")
+#: codecs of numeric arrays, of string arrays and of checkpoints; the CRC-32C comes last, over the stored bytes
+NUMERIC_CODECS = (COMPRESSOR, Crc32cCodec())
+STRING_CODECS = (ZstdCodec(level=3), Crc32cCodec())
+CHECKPOINT_CODECS = (BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc32cCodec())
+#: every chunk is written, even one of zeros, so that a missing chunk file means damage
+ARRAY_CONFIG = {"write_empty_chunks": True}
 FORMAT = "evsda-run/1"
+
+
+@dataclass
+class StoreStatus:
+    """Where a run store stands: complete, resumable, being written, or damaged."""
+
+    path: Path
+    windows: int                    # committed windows
+    n_windows: int | None           # windows of the whole run (None: not recorded)
+    complete: bool                  # the run finished (every window and the blocks' final outputs)
+    has_checkpoint: bool
+    writer: str | None = None       # the live run writing it now, if any
+    problems: list[str] = field(default_factory=list)   # damage found (nothing here: none found)
+
+    @property
+    def resumable(self) -> bool:
+        """``--resume`` would continue it: unfinished, undamaged, and a checkpoint or nothing to restore."""
+        return not self.complete and not self.problems and (self.has_checkpoint or self.windows == 0)
+
+    def describe(self) -> str:
+        """One line, e.g. ``incomplete: 12 of 40 windows committed; resumable with --resume``."""
+        if self.problems:
+            return f"damaged: {self.problems[0]}" + (f" (and {len(self.problems) - 1} more)" if len(self.problems) > 1 else "")
+        total = f" of {self.n_windows}" if self.n_windows is not None else ""
+        if self.complete:
+            return f"complete: {self.windows}{total} windows"
+        state = f"incomplete: {self.windows}{total} windows committed"
+        if self.writer:
+            return f"{state}; being written by {self.writer}"
+        return f"{state}; " + ("continue it with --resume" if self.resumable else "not resumable (no checkpoint)")
 
 
 class RunStore:
@@ -68,20 +117,24 @@ class RunStore:
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
         self._arrays: dict[str, zarr.Array] = {}
+        self._checked = False       # a read-only store's structure has been checked
 
     # -- opening ----------------------------------------------------------------------
     @classmethod
     def create(cls, path: str | Path, attrs: dict[str, Any] | None = None, overwrite: bool = False) -> "RunStore":
         """A new, empty store at ``path``; refuses to replace an existing one unless ``overwrite``."""
         path = Path(path)
-        if path.exists() and not overwrite:
-            raise StoreError(f"{path} already exists; choose another output, pass --overwrite to replace it, "
-                             f"or --resume to continue the run it holds")
+        if path.exists() and not (overwrite and _is_empty(path)):
+            if not overwrite:
+                raise StoreError(f"{path} already exists; choose another output, pass --overwrite to replace it, "
+                                 f"or --resume to continue the run it holds")
+            check_replaceable(path)
+            _clear(path)
         try:
-            group = zarr.open_group(str(path), mode="w", zarr_format=3)
+            group = zarr.create_group(str(path), zarr_format=3, attributes={
+                "format": FORMAT, **(attrs or {}), "committed": {"windows": 0, "lengths": {}}})
         except OSError as exc:
-            raise StoreError(f"cannot create run store {path}: {exc}") from None
-        group.attrs.update({"format": FORMAT, **(attrs or {}), "committed": {"windows": 0, "lengths": {}}})
+            raise StoreError(f"cannot create run store {path}: {exc.strerror or exc}") from None
         return cls(group, path, writable=True)
 
     @classmethod
@@ -90,12 +143,14 @@ class RunStore:
         path = Path(path)
         if not path.exists():
             raise StoreError(f"{path} does not exist")
+        if not is_run_store(path):
+            raise StoreError(f"{path} is not an evsda run store (no zarr.json with format '{FORMAT}')")
         try:
             group = zarr.open_group(str(path), mode=mode, zarr_format=3)
-        except Exception as exc:  # zarr raises several kinds for a non-store path
-            raise StoreError(f"{path} is not an evsda run store ({exc})") from None
-        if group.attrs.get("format") != FORMAT:
-            raise StoreError(f"{path} is not an evsda run store (no '{FORMAT}' format attribute)")
+        except OSError as exc:
+            raise StoreError(f"cannot open run store {path}: {exc.strerror or exc}") from None
+        except Exception as exc:  # zarr raises several kinds for a damaged store
+            raise StoreError(f"{path} is not a readable evsda run store ({type(exc).__name__})") from None
         store = cls(group, path, writable=mode != "r")
         if store.writable:
             store._truncate_to_commit()
@@ -116,16 +171,92 @@ class RunStore:
     def committed_windows(self) -> int:
         return int(self._committed().get("windows", 0))
 
+    @property
+    def complete(self) -> bool:
+        """The run finished: every window and the blocks' final outputs are committed."""
+        record = self._committed()
+        if "complete" in record:
+            return bool(record["complete"])
+        n_windows = self.group.attrs.get("n_windows")       # stores written before the flag existed
+        return n_windows is None or self.committed_windows >= int(n_windows)
+
+    def status(self) -> StoreStatus:
+        """Complete or not, resumable or not, who writes it now, and any damage found without reading
+        the data (arrays shorter than committed, missing chunks); :meth:`verify` also reads every chunk."""
+        n_windows = self.group.attrs.get("n_windows")
+        holder = read_holder(self.path)
+        return StoreStatus(self.path, self.committed_windows, None if n_windows is None else int(n_windows),
+                           self.complete, bool(self._committed().get("checkpoint")),
+                           describe_holder(holder) if holder else None, self._structure_problems())
+
+    def verify(self) -> list[str]:
+        """Every problem found reading every committed chunk (checksums), plus :meth:`status`'s."""
+        problems = self._structure_problems()
+        if problems:
+            return problems
+        for key, length in self._lengths.items():
+            array = self.group[key]
+            step = array.chunks[0]
+            for lo in range(0, length, step):
+                try:
+                    self._read(array, key, lo, min(lo + step, length))
+                except StoreError as exc:
+                    problems.append(str(exc).removeprefix(f"{self.path}: "))
+        return problems
+
+    def _structure_problems(self) -> list[str]:
+        """Committed arrays that are missing, shorter than committed, or miss a chunk file."""
+        problems = []
+        files = _files_under(self.path)
+        for key, length in sorted(self._lengths.items()):
+            if key not in self.group:
+                problems.append(f"array {key} is missing ({length} entries committed)")
+                continue
+            array = self.group[key]
+            if array.shape[0] < length:
+                problems.append(f"array {key} holds {array.shape[0]} of its {length} committed entries")
+                continue
+            chunk, rest = array.chunks[0], (0,) * (array.ndim - 1)
+            missing = [i for i in range(-(-length // chunk))
+                       if f"{key}/{array.metadata.encode_chunk_key((i, *rest))}" not in files]
+            if missing:
+                problems.append(f"array {key} has lost chunk {missing[0]}"
+                                + (f" and {len(missing) - 1} more" if len(missing) > 1 else "")
+                                + f" (entries {missing[0] * chunk}-{min((missing[0] + 1) * chunk, length) - 1})")
+        return problems
+
+    def check_readable(self) -> None:
+        """Raise :class:`StoreError` if the committed data is damaged (cheap checks, no chunk read)."""
+        if self._checked and not self.writable:
+            return
+        problems = self._structure_problems()
+        if problems:
+            raise StoreError(f"{self.path} is damaged: {problems[0]}"
+                             + (f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""))
+        self._checked = True
+
+    def _read(self, array: zarr.Array, key: str, lo: int, hi: int) -> np.ndarray:
+        """``array[lo:hi]``, with a damaged chunk (checksum, truncation) reported as a StoreError."""
+        try:
+            return array[lo:hi]
+        except OSError as exc:
+            raise StoreError(f"{self.path}: cannot read array {key}: {exc.strerror or exc}") from None
+        except Exception as exc:  # the codecs raise several kinds for damaged bytes
+            chunk = array.chunks[0]
+            where = f"chunk {lo // chunk}" if hi - lo <= chunk else f"chunks {lo // chunk}-{(hi - 1) // chunk}"
+            raise StoreError(f"{self.path}: array {key} is damaged in {where} "
+                             f"({_short(str(exc)) or type(exc).__name__})") from None
+
     # -- appendable arrays -----------------------------------------------------------------
     def _array(self, key: str, dtype: np.dtype, chunk: int, trailing: tuple[int, ...] = ()) -> zarr.Array:
         array = self._arrays.get(key)
         if array is None:
             if key in self.group:
-                array = self.group[key]
+                array = self.group[key].with_config(ARRAY_CONFIG)
             else:
-                compressors = [COMPRESSOR] if dtype.kind in "biuf" else "auto"
+                codecs = NUMERIC_CODECS if dtype.kind in "biuf" else STRING_CODECS
                 array = self.group.create_array(key, shape=(0, *trailing), chunks=(chunk, *trailing), dtype=dtype,
-                                                compressors=compressors)
+                                                compressors=list(codecs), config=ARRAY_CONFIG)
             self._arrays[key] = array
         return array
 
@@ -165,6 +296,8 @@ class RunStore:
 
     def _truncate_to_commit(self) -> None:
         """Cut every appendable array back to its committed length (see the module docstring)."""
+        self.check_readable()           # never extend an array past its data, never resume over lost chunks
+        _remove_partial_writes(self.path)
         lengths = self._lengths
         for key in _array_keys(self.group):
             if key.startswith("checkpoint/"):
@@ -207,10 +340,12 @@ class RunStore:
         if self.writable:
             self.flush()
         stop = self.n_events if stop is None else min(stop, self.n_events)
+        if stop > start:
+            self.check_readable()
         arrays = {name: self.group[f"events/{name}"] for name in EVENT_FIELDS} if stop > start else {}
         for lo in range(start, stop, chunk_size):
             hi = min(lo + chunk_size, stop)
-            yield {name: array[lo:hi] for name, array in arrays.items()}
+            yield {name: self._read(array, f"events/{name}", lo, hi) for name, array in arrays.items()}
 
     def read_events(self) -> dict[str, np.ndarray]:
         """All committed events at once (for small runs; prefer :meth:`iter_events`)."""
@@ -247,18 +382,19 @@ class RunStore:
             self.flush()
         if not self.has_product(block, port):
             raise StoreError(f"{self.path} holds no products of {block}.{port}")
+        self.check_readable()
         value_type = port_type(self.group[base].attrs["type"])
         documents = self.group[f"{base}/_attrs"]
         n = min(self._lengths.get(f"{base}/_attrs", 0), documents.shape[0])
         stop = n if stop is None else min(stop, n)
         fields = sorted(k for k in self.group[base].array_keys() if not k.endswith(".shape") and k != "_attrs")
-        shapes = {f: self.group[f"{base}/{f}.shape"][:stop] for f in fields}
+        shapes = {f: self._read(self.group[f"{base}/{f}.shape"], f"{base}/{f}.shape", 0, stop) for f in fields}
         offsets = {f: np.concatenate([[0], np.cumsum(np.prod(shapes[f], axis=1))]).astype(np.int64) for f in fields}
         for w in range(start, stop):
-            attrs = json.loads(str(documents[w]))
+            attrs = json.loads(str(self._read(documents, f"{base}/_attrs", w, w + 1)[0]))
             arrays = {}
             for f in fields:
-                flat = self.group[f"{base}/{f}"][offsets[f][w]:offsets[f][w + 1]]
+                flat = self._read(self.group[f"{base}/{f}"], f"{base}/{f}", offsets[f][w], offsets[f][w + 1])
                 arrays[f] = flat.reshape(tuple(shapes[f][w]))
             for key in [k for k, v in attrs.items() if isinstance(v, dict) and "__strings__" in v]:
                 doc = attrs.pop(key)
@@ -270,6 +406,8 @@ class RunStore:
         return self.group[key].attrs.get("upstream_hash") if key in self.group else None
 
     def set_product_hash(self, block: str, digest: str) -> None:
+        if self.product_hash(block) == digest:
+            return
         group = self.group.require_group(f"products/{block}")
         group.attrs["upstream_hash"] = digest
 
@@ -304,23 +442,40 @@ class RunStore:
         packed = np.frombuffer(buffer.getbuffer(), dtype=np.uint8)
         group = self.group.require_group("checkpoint")
         array = group.create_array(name, shape=packed.shape, dtype=np.uint8, chunks=(max(1, min(packed.size, 1 << 24)),),
-                                   compressors=BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), overwrite=True)
+                                   compressors=list(CHECKPOINT_CODECS), overwrite=True, config=ARRAY_CONFIG)
         array[...] = packed
-        array.attrs["states"] = skeleton
+        array.attrs.update({"states": skeleton, "bytes": int(packed.size)})
         return name
 
     def read_checkpoint(self) -> dict[str, dict[str, Any]]:
-        """The block states of the last committed checkpoint (block name -> state)."""
+        """The block states of the last committed checkpoint (block name -> state); {} when there is none."""
         name = self._committed().get("checkpoint")
         if not name:
             return {}
-        array = self.group["checkpoint"][name]
-        with np.load(io.BytesIO(array[...].tobytes()), allow_pickle=False) as archive:
-            arrays = {key: archive[key] for key in archive.files}
+        key = f"checkpoint/{name}"
+        if key not in self.group:
+            raise StoreError(f"{self.path} is damaged: its committed checkpoint {name} is missing")
+        array = self.group[key]
+        files = _files_under(self.path / "checkpoint" / name, prefix=f"{key}/")
+        chunk = array.chunks[0]
+        expected = int(array.attrs.get("bytes", array.shape[0]))
+        if array.shape[0] != expected or any(f"{key}/{array.metadata.encode_chunk_key((i,))}" not in files
+                                             for i in range(-(-expected // chunk))):
+            raise StoreError(f"{self.path} is damaged: its checkpoint {name} has lost data")
+        packed = self._read(array, key, 0, expected)
+        try:
+            with np.load(io.BytesIO(packed.tobytes()), allow_pickle=False) as archive:
+                arrays = {k: archive[k] for k in archive.files}
+        except (ValueError, OSError, KeyError) as exc:
+            raise StoreError(f"{self.path} is damaged: its checkpoint {name} cannot be read ({_short(str(exc))})") from None
         return {block: _decode_state(entry, arrays) for block, entry in dict(array.attrs["states"]).items()}
 
-    def commit(self, windows: int | None = None, checkpoint: str | None = None) -> None:
-        """Make everything appended so far durable: write the commit record, then drop old checkpoints."""
+    def commit(self, windows: int | None = None, checkpoint: str | None = None, complete: bool = False,
+               drop_checkpoint: bool = False) -> None:
+        """Make everything appended so far durable: write the commit record, then drop old checkpoints.
+
+        ``complete`` marks the run finished; ``drop_checkpoint`` then removes its last checkpoint.
+        """
         self.flush()
         record = self._committed()
         record["lengths"] = dict(self._lengths)
@@ -329,8 +484,11 @@ class RunStore:
         old = record.get("checkpoint")
         if checkpoint is not None:
             record["checkpoint"] = checkpoint
+        if drop_checkpoint:
+            record["checkpoint"] = None
+        record["complete"] = bool(complete)
         self.group.attrs["committed"] = record
-        if checkpoint is not None and old and old != checkpoint and old in self.group["checkpoint"]:
+        if old and old != record["checkpoint"] and "checkpoint" in self.group and old in self.group["checkpoint"]:
             del self.group["checkpoint"][old]
 
 
@@ -339,6 +497,76 @@ def _write_slice(job: tuple[zarr.Array, int, int, np.ndarray]) -> None:
     if array.shape[0] != stop:
         array.resize((stop, *array.shape[1:]))
     array[start:stop] = data.astype(array.dtype, copy=False)
+
+
+def is_run_store(path: str | Path) -> bool:
+    """Whether ``path`` is an evsda run store (a folder whose zarr.json has the evsda format attribute)."""
+    meta = Path(path) / "zarr.json"
+    try:
+        if not meta.is_file() or meta.stat().st_size > (16 << 20):
+            return False
+        document = json.loads(meta.read_bytes())
+    except (OSError, ValueError):
+        return False
+    return isinstance(document, dict) and (document.get("attributes") or {}).get("format") == FORMAT
+
+
+def _is_empty(path: Path) -> bool:
+    """A folder holding nothing but, at most, a run's lock file (a run stopped before its first window)."""
+    try:
+        return path.is_dir() and all(entry.name == LOCK_NAME for entry in os.scandir(path))
+    except OSError:
+        return False
+
+
+def check_replaceable(path: str | Path) -> None:
+    """Refuse to replace ``path`` unless it is an evsda run store (or an empty folder)."""
+    path = Path(path)
+    if path.is_symlink() or not path.is_dir():
+        raise StoreError(f"{path} is not an evsda run store; --overwrite replaces only run stores, "
+                         f"so choose another output")
+    if not (_is_empty(path) or is_run_store(path)):
+        raise StoreError(f"{path} is a folder that is not an evsda run store; --overwrite replaces only run "
+                         f"stores, so choose another output")
+
+
+def _clear(path: Path) -> None:
+    """Remove everything in the run store ``path`` but its lock file."""
+    for entry in os.scandir(path):
+        if entry.name == LOCK_NAME:
+            continue
+        target = Path(entry.path)
+        if entry.is_dir(follow_symlinks=False):
+            shutil.rmtree(target)
+        else:
+            target.unlink()
+
+
+_PARTIAL_WRITE = re.compile(r"\.[0-9a-f]{32}\.partial$")
+
+
+def _remove_partial_writes(root: Path) -> None:
+    """Remove the temporary files of writes a killed run left unfinished (Zarr writes ``name.<uuid>.partial``
+    then renames it)."""
+    for folder, _, names in os.walk(root):
+        for name in names:
+            if _PARTIAL_WRITE.search(name):
+                Path(folder, name).unlink(missing_ok=True)
+
+
+def _files_under(root: Path, prefix: str = "") -> set[str]:
+    """Paths of the files under ``root``, relative to it with ``/`` separators, each after ``prefix``."""
+    found = set()
+    for folder, _, names in os.walk(root):
+        rel = os.path.relpath(folder, root)
+        base = prefix if rel == "." else f"{prefix}{rel.replace(os.sep, '/')}/"
+        found.update(base + name for name in names)
+    return found
+
+
+def _short(text: str, limit: int = 80) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def port_type(name: str) -> type[PortValue]:
@@ -352,9 +580,13 @@ def port_type(name: str) -> type[PortValue]:
 
 
 def _array_keys(group: zarr.Group, prefix: str = "") -> Iterator[str]:
-    for name in group.array_keys():
+    with warnings.catch_warnings():     # zarr notes the lock file, which is no array or group
+        warnings.filterwarnings("ignore", message="Object at .* is not recognized", category=UserWarning)
+        names = list(group.array_keys())
+        subgroups = list(group.groups())
+    for name in names:
         yield prefix + name
-    for name, sub in group.groups():
+    for name, sub in subgroups:
         yield from _array_keys(sub, f"{prefix}{name}/")
 
 

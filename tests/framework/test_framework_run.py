@@ -213,3 +213,55 @@ def test_an_error_mid_run_keeps_every_committed_window(plugin, tmp_path):
     store = RunStore.open(tmp_path / "run.zarr")
     assert store.committed_windows == 3
     assert len(list(store.product_windows("ramp", "samples"))) == 3
+
+
+def test_a_finished_run_drops_its_checkpoint_unless_asked_to_keep_it(plugin, tmp_path):
+    run_graph(load_graph(chain(tmp_path)), tmp_path / "dropped.zarr", checkpoint_every_s=0)
+    dropped = RunStore.open(tmp_path / "dropped.zarr")
+    assert dropped.complete and dropped.status().describe() == "complete: 5 of 5 windows"
+    assert dropped.read_checkpoint() == {} and not list((tmp_path / "dropped.zarr").glob("checkpoint/w*"))
+    run_graph(load_graph(chain(tmp_path)), tmp_path / "kept.zarr", keep_checkpoint=True)
+    kept = RunStore.open(tmp_path / "kept.zarr").read_checkpoint()
+    assert kept["spikes"]["emitted"] > 0 and "__rng__" in kept["spikes"]
+    for key, values in RunStore.open(tmp_path / "kept.zarr").read_events().items():
+        assert values.tobytes() == dropped.read_events()[key].tobytes()
+
+
+def test_resume_of_a_complete_run_changes_nothing_and_of_a_missing_store_starts_it(plugin, tmp_path):
+    first = run_graph(load_graph(chain(tmp_path)), tmp_path / "run.zarr")
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "run.zarr").rglob("*") if p.is_file()}
+    again = run_graph(load_graph(chain(tmp_path)), tmp_path / "run.zarr", resume=True)
+    assert again.windows_run == 0 and again.metrics == first.metrics
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "run.zarr").rglob("*") if p.is_file()} == before
+    fresh = run_graph(load_graph(chain(tmp_path)), tmp_path / "new.zarr", resume=True)
+    assert fresh.windows_run == 5 and events_of(fresh)["x"].tobytes() == events_of(first)["x"].tobytes()
+
+
+def test_overwrite_replaces_only_run_stores(plugin, tmp_path):
+    graph = load_graph(chain(tmp_path))
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    (folder / "holiday.jpg").write_bytes(b"\xff\xd8")
+    (tmp_path / "notes.txt").write_text("mine")
+    for target in (folder, tmp_path / "notes.txt"):
+        with pytest.raises(StoreError, match="not an evsda run store"):
+            run_graph(graph, target, overwrite=True)
+    assert (folder / "holiday.jpg").read_bytes() == b"\xff\xd8" and (tmp_path / "notes.txt").read_text() == "mine"
+    with pytest.raises(StoreError, match="not an evsda run store"):
+        run_graph(graph, folder, resume=True)
+    run_graph(graph, tmp_path / "run.zarr")
+    run_graph(load_graph(chain(tmp_path, seed=8)), tmp_path / "run.zarr", overwrite=True)
+    assert RunStore.open(tmp_path / "run.zarr").attrs["seed"] == 8
+
+
+def test_windows_and_seeds_are_checked_in_the_python_api():
+    from evsda.graph import InputError, ParameterError
+
+    with pytest.raises(InputError, match="stops .* before it starts"):
+        Window(0, 10, 5)
+    with pytest.raises(InputError, match="finite"):
+        Window.from_seconds(0.0, float("inf"))
+    with pytest.raises(ParameterError, match="non-negative"):
+        RunInfo(seed=-1)
+    windows = RunInfo(duration_ns=10**18, window_ns=1).windows(start=5)   # 10^18 windows, made one at a time
+    assert [next(windows).index for _ in range(3)] == [5, 6, 7]

@@ -1,0 +1,112 @@
+"""Kills, signals and two writers: every run store ends byte-identical to an uninterrupted run after
+``--resume``, or the command is refused with one line and the store is untouched."""
+
+from __future__ import annotations
+
+import random
+import signal
+import time
+
+import pytest
+from faultkit import assert_identical, committed, graph_file, one_line_error
+
+ROOT = r"run\.zarr/zarr\.json$"      # the root document: store creation, commit records, attributes
+
+KILLS = [
+    (ROOT, 1, "kill-before"),                              # creating the store: nothing committed
+    (r"events/x/c/0$", 1, "kill-partial"),                 # first event data, before any commit
+    (r"events/t_readout_ns/c/0$", 5, "kill-partial"),      # rewriting a chunk that holds committed events
+    (r"events/cause/zarr\.json$", 4, "kill-after"),        # an array resized, its data not yet written
+    (r"products/ramp/samples/_attrs/c/0$", 3, "kill-partial"),
+    (r"checkpoint/w\d+/c/0$", 4, "kill-partial"),          # in the middle of writing a checkpoint
+    (r"checkpoint/w\d+/zarr\.json$", 7, "kill-after"),     # a checkpoint written, not yet committed
+    (ROOT, 6, "kill-partial"),                             # in the middle of a commit record
+    (ROOT, 7, "kill-after"),                               # committed, the old checkpoint not yet dropped
+    (ROOT, 15, "kill-before"),                             # the record that marks the run complete
+]
+
+
+@pytest.mark.parametrize("pattern,nth,mode", KILLS, ids=[f"{m}:{p}#{n}" for p, n, m in KILLS])
+def test_kill_in_any_write_then_resume_is_byte_identical(evsda, reference, tmp_path, pattern, nth, mode):
+    graph, store = graph_file(tmp_path), tmp_path / "run.zarr"
+    killed = evsda.fault(pattern, nth, mode, "run", graph, "-o", store, "-q", "--checkpoint-every", "0")
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert not committed(store).get("complete")
+    resumed = evsda("run", graph, "-o", store, "--resume", "-q")
+    assert resumed.returncode == 0, resumed.stderr
+    assert_identical(store, reference)
+    assert not list(store.rglob("*.partial")) and not (store / ".evsda-lock").exists()
+
+
+def test_kills_at_random_moments_then_resume_is_byte_identical(evsda, reference, tmp_path):
+    """SIGKILL anywhere (while importing, computing the first window, writing, committing), resume each time."""
+    graph, store = graph_file(tmp_path, sleep_s=0.02), tmp_path / "run.zarr"
+    rng = random.Random(12)
+    args = ["run", graph, "-o", store, "-q", "--checkpoint-every", "0"]
+    for attempt in range(5):
+        proc = evsda.start(*args)
+        args = ["run", graph, "-o", store, "-q", "--checkpoint-every", "0", "--resume"]
+        time.sleep(rng.uniform(0.3, 2.2) if attempt < 4 else 0)
+        if attempt < 4 and proc.poll() is None:
+            proc.kill()
+        proc.wait()
+    assert proc.returncode == 0, proc.stderr.read()
+    assert_identical(store, reference)
+
+
+@pytest.mark.parametrize("sig,status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_sigterm_and_sigint_stop_with_one_line_and_resume(evsda, reference, tmp_path, sig, status):
+    graph, store = graph_file(tmp_path, sleep_s=0.05), tmp_path / "run.zarr"
+    proc = evsda.start("run", graph, "-o", store, "-q", "--checkpoint-every", "0")
+    deadline = time.monotonic() + 30
+    while committed(store).get("windows", 0) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    proc.send_signal(sig)
+    proc.wait(timeout=30)
+    stderr = proc.stderr.read()
+    lines = stderr.strip().splitlines()
+    assert proc.returncode == status and len(lines) == 1, stderr
+    assert "windows are committed" in lines[0] and "--resume" in lines[0]
+    assert not (store / ".evsda-lock").exists()
+    assert evsda("run", graph, "-o", store, "--resume", "-q").returncode == 0
+    assert_identical(store, reference)
+
+
+def test_interrupted_in_the_first_window_leaves_nothing_and_resume_starts_over(evsda, reference, tmp_path):
+    graph, store = graph_file(tmp_path, sleep_s=0.2), tmp_path / "run.zarr"
+    proc = evsda.start("run", graph, "-o", store, "-q")
+    while not store.exists() and proc.poll() is None:   # the folder and its lock exist before the first window
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=30)
+    proc.stderr = proc.stderr.read()
+    one_line_error(proc, "interrupted before the first window was stored", "--resume starts it over", status=130)
+    assert not store.exists()
+    assert evsda("run", graph, "-o", store, "--resume", "-q").returncode == 0
+    assert_identical(store, reference)
+
+
+def test_a_second_writer_is_refused_with_the_holder_named(evsda, reference, tmp_path):
+    graph, store = graph_file(tmp_path, sleep_s=0.3), tmp_path / "run.zarr"
+    first = evsda.start("run", graph, "-o", store, "-q", "--checkpoint-every", "0")
+    deadline = time.monotonic() + 30
+    while committed(store).get("windows", 0) < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    others = [evsda.start("run", graph, "-o", store, flag, "-q") for flag in ("--resume", "--overwrite")]
+    for other in others:
+        other.wait(timeout=60)
+        other.stderr = other.stderr.read()
+        one_line_error(other, "being written by another evsda run", f"pid {first.pid}")
+    assert first.poll() is None                 # the refused writers ended first
+    first.wait(timeout=60)
+    assert first.returncode == 0, first.stderr.read()
+    assert_identical(store, reference)
+
+
+def test_a_stale_lock_left_by_a_killed_run_is_taken_over(evsda, reference, tmp_path):
+    graph, store = graph_file(tmp_path), tmp_path / "run.zarr"
+    killed = evsda.fault(ROOT, 5, "kill-after", "run", graph, "-o", store, "-q", "--checkpoint-every", "0")
+    assert killed.returncode == -signal.SIGKILL and (store / ".evsda-lock").exists()
+    resumed = evsda("run", graph, "-o", store, "--resume", "-q")
+    assert resumed.returncode == 0, resumed.stderr
+    assert_identical(store, reference)
