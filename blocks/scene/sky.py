@@ -1,17 +1,23 @@
-"""Diffuse sky brightness collected by each pixel."""
+"""Diffuse sky brightness collected by each pixel: night sky, scattered moonlight, twilight."""
 
 from __future__ import annotations
+
+from datetime import timedelta
 
 import numpy as np
 from pydantic import Field
 
 from evsda.blocks.ports import FocalPlane, SkyBackground
 from evsda.blocks.ports.scene import Observer, Pointing
-from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, SceneError, Window
 
 from . import radiometry
 from .geometry import ObserverModel
+from .moon import MOON_MEAN_DISTANCE_M, MOON_RADIUS_M, MoonModel, MoonSamples, require_ephemeris
+from .moonlight import magnitude_of_nanolamberts, moonlight_nanolamberts
+from .passes import iso
 from .pointing import PointingModel
+from .twilight import MIN_SUN_DEPRESSION_DEG, twilight_flux_relative
 
 ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
 
@@ -37,12 +43,30 @@ def sky_brightness_at_zenith_angle(zenith_mag_arcsec2: float, zenith_angle_rad, 
     return zenith_mag_arcsec2 - 2.5 * np.log10(x) + extinction_mag_per_airmass * (x - 1.0)
 
 
+def add_surface_brightness(*mag_arcsec2) -> np.ndarray:
+    """Surface brightness [mag/arcsec^2] of sky components added as fluxes."""
+    with np.errstate(divide="ignore"):
+        return -2.5 * np.log10(sum(10.0 ** (-0.4 * np.asarray(m, dtype=np.float64)) for m in mag_arcsec2))
+
+
+def _utc(window: Window, t_ns) -> str:
+    """ISO UTC time of ``t_ns`` after the run's epoch."""
+    return iso(window.epoch + timedelta(microseconds=int(t_ns) // 1000))
+
+
 class SkyBackgroundBlock(Block):
     """Sky background photon flux per pixel from a surface brightness in V mag/arcsec^2.
 
     From the ground the brightness is given at the zenith and follows the boresight's
     zenith angle (Krisciunas & Schaefer 1991, Eq. 2) with the site's extinction; from
-    space it is used as given (zodiacal light and unresolved Galaxy).
+    space it is used as given (zodiacal light and unresolved Galaxy). From the ground
+    it can add scattered moonlight (Krisciunas & Schaefer 1991, :mod:`.moonlight`) and
+    twilight (Patat et al. 2006, :mod:`.twilight`), with the Moon and the Sun from JPL
+    DE421. The sky is one value for the whole field: the boresight's.
+
+    ``moon_exclusion_deg`` refuses the run, before any work, if the boresight comes
+    closer than that to the Moon while the Moon is up (or not behind the Earth, from
+    space) at any of the block's samples over the run.
     """
 
     type_name = "sky_background"
@@ -55,6 +79,12 @@ class SkyBackgroundBlock(Block):
                                           "(ground observers) [-]")
         cadence_s: float = Field(0.1, gt=0, le=3600, description="Sample spacing (the sky changes slowly; "
                                  "values hold until the next sample) [s]")
+        moonlight: bool = Field(False, description="Add moonlight scattered by the atmosphere (Krisciunas & "
+                                "Schaefer 1991; ground observers) [-]")
+        twilight: bool = Field(False, description="Add twilight (Patat et al. 2006, valid with the Sun 5 deg or "
+                               "more below the horizon; ground observers) [-]")
+        moon_exclusion_deg: float = Field(0.0, ge=0, le=180, description="Refuse the run if the boresight comes "
+                                          "closer than this to the Moon while it is up (0: no limit) [deg]")
 
     inputs = {
         "observer": Input(Observer, "where the sensor is"),
@@ -65,14 +95,23 @@ class SkyBackgroundBlock(Block):
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
-        self._model_key, self._model = None, None
+        self._model_key, self._model, self._moon = None, None, None
+        self._run_checked = False
+
+    @property
+    def _uses_moon(self) -> bool:
+        p = self.params
+        return p.moonlight or p.twilight or p.moon_exclusion_deg > 0
 
     def _pointing_model(self, window: Window, observer: Observer, pointing: Pointing) -> PointingModel:
         key = (window.epoch, repr(observer.to_arrays()), repr(pointing.to_arrays()))
         if key != self._model_key:
             knot_ns = 10 * NS_PER_S
-            self._model = PointingModel(pointing, ObserverModel(observer, window.epoch, knot_ns), window.epoch, knot_ns)
+            observer_model = ObserverModel(observer, window.epoch, knot_ns)
+            self._model = PointingModel(pointing, observer_model, window.epoch, knot_ns)
+            self._moon = MoonModel(observer_model, window.epoch, knot_ns) if self._uses_moon else None
             self._model_key = key
+            self._run_checked = False
         return self._model
 
     def step(self, window: Window, observer: Observer, pointing: Pointing, focal_plane: FocalPlane) -> dict:
@@ -85,11 +124,70 @@ class SkyBackgroundBlock(Block):
             evaluated = np.concatenate([[window.start_ns // cadence * cadence], stamps]).astype(np.int64)
             stamps = np.concatenate([[window.start_ns], stamps]).astype(np.int64)
         mu = np.full(len(stamps), p.surface_brightness_mag_arcsec2)
-        if observer.is_ground and p.follow_zenith_angle:
+        if self._uses_moon:
+            model = self._pointing_model(window, observer, pointing)
+            if not self._run_checked:
+                self._check_run(window, observer, cadence)
+                self._run_checked = True
+        if observer.is_ground and (p.follow_zenith_angle or p.moonlight or p.twilight):
             model = self._pointing_model(window, observer, pointing)
             b, _, _ = model.frame(evaluated)
             zenith = np.minimum(model.zenith_angle(evaluated, b), np.radians(89.0))
-            mu = sky_brightness_at_zenith_angle(p.surface_brightness_mag_arcsec2, zenith,
-                                                observer.extinction_mag_per_airmass)
+            if p.follow_zenith_angle:
+                mu = sky_brightness_at_zenith_angle(p.surface_brightness_mag_arcsec2, zenith,
+                                                    observer.extinction_mag_per_airmass)
+            if p.moonlight or p.twilight:
+                mu = self._add_moon_and_twilight(mu, self._moon.sample(evaluated), b, zenith, observer)
         return {"background": SkyBackground(t_ns=stamps,
                                             photon_flux_per_pixel=sky_photon_flux_per_pixel(mu, focal_plane))}
+
+    def _add_moon_and_twilight(self, mu, moon: MoonSamples, boresight, zenith, observer: Observer) -> np.ndarray:
+        """The night sky ``mu`` plus scattered moonlight and twilight [mag/arcsec^2]."""
+        parts = [mu]
+        if self.params.moonlight:
+            nanolamberts = moonlight_nanolamberts(
+                np.degrees(moon.phase_angle_rad), np.degrees(moon.separation_rad(boresight)),
+                np.pi / 2 - moon.elevation_rad, zenith, observer.extinction_mag_per_airmass,
+                distance_ratio=moon.distance_m / MOON_MEAN_DISTANCE_M)
+            parts.append(magnitude_of_nanolamberts(nanolamberts))
+        if self.params.twilight:
+            with np.errstate(divide="ignore"):
+                parts.append(-2.5 * np.log10(twilight_flux_relative(-np.degrees(moon.sun_elevation_rad))))
+        return add_surface_brightness(*parts)
+
+    def _check_run(self, window: Window, observer: Observer, cadence_ns: int) -> None:
+        """Refuse, before any work, a run the Moon and twilight models cannot describe."""
+        p = self.params
+        who = f"{self.type_name} '{self.name}'"
+        if (p.moonlight or p.twilight) and not observer.is_ground:
+            raise ParameterError(f"{who}: moonlight and twilight are light scattered by the atmosphere, which a "
+                                 f"space observer ({observer.name}) does not look through; set moonlight and "
+                                 f"twilight to false (moon_exclusion_deg still applies)")
+        start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+        require_ephemeris(window.epoch, start, stop, who)
+        t_ns = np.arange(start // cadence_ns * cadence_ns, max(stop, start + 1), cadence_ns, dtype=np.int64)
+        for chunk in np.array_split(t_ns, max(1, len(t_ns) // 20_000)):
+            moon = self._moon.sample(chunk)
+            b, _, _ = self._model.frame(chunk)
+            separation = np.degrees(moon.separation_rad(b))
+            moon_radius = np.degrees(np.arcsin(MOON_RADIUS_M / moon.distance_m))
+            limit = np.maximum(p.moon_exclusion_deg, moon_radius if p.moonlight else np.zeros(len(chunk)))
+            inside = moon.up & (separation < limit)
+            if inside.any():
+                i = int(np.argmax(inside))
+                where = (f"up at {np.degrees(moon.elevation_rad[i]):.1f} deg elevation" if observer.is_ground
+                         else "not behind the Earth")
+                raise SceneError(f"{who}: the boresight comes within {separation[i]:.2f} deg of the Moon ({where}, "
+                                 f"{100 * moon.illuminated_fraction[i]:.0f} % lit) at {_utc(window, chunk[i])}, "
+                                 f"inside the exclusion angle of {limit[i]:.2f} deg; point elsewhere, choose "
+                                 f"another time or lower moon_exclusion_deg")
+            if p.twilight:
+                depression = -np.degrees(moon.sun_elevation_rad)
+                bright = depression < MIN_SUN_DEPRESSION_DEG
+                if bright.any():
+                    i = int(np.argmax(bright))
+                    sun = (f"{-depression[i]:.2f} deg above" if depression[i] < 0
+                           else f"only {depression[i]:.2f} deg below")
+                    raise SceneError(f"{who}: the Sun is {sun} the horizon at {_utc(window, chunk[i])}; the "
+                                     f"twilight model (Patat et al. 2006) covers the Sun {MIN_SUN_DEPRESSION_DEG:g} "
+                                     f"deg or more below the horizon. Start the run later in the evening (or earlier in the morning)")
