@@ -28,6 +28,7 @@ from . import __version__
 from .block import Block, RunInfo, Window
 from . import store as store_module
 from .errors import Interrupted, StoreError
+from .files import os_reason
 from .graphfile import Graph
 from .lock import StoreLock
 from .ports import PortValue
@@ -176,7 +177,7 @@ class Executor:
         try:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise StoreError(f"cannot create run store {self.out}: {exc.strerror or exc}") from None
+            raise StoreError(f"cannot create run store {self.out}: {os_reason(exc)}") from None
         self.lock = StoreLock(self.out).acquire()
         return created
 
@@ -225,7 +226,7 @@ class Executor:
         try:
             yield
         except OSError as exc:
-            raise StoreError(f"writing run store {self.out} failed: {exc.strerror or exc}; "
+            raise StoreError(f"writing run store {self.out} failed: {os_reason(exc)}; "
                              f"{self._committed_note()}") from None
 
     def _committed_note(self) -> str:
@@ -407,7 +408,7 @@ class Executor:
 
     def _commit(self, window: Window, blocks: dict[str, Block]) -> None:
         name = self.store.write_checkpoint(window.index, {n: b.get_state() for n, b in blocks.items()})
-        self.store.commit(windows=window.index + 1, checkpoint=name)
+        self.store.commit(windows=window.index + 1, checkpoint=name, complete=False)
 
 
 def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResult:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -99,6 +100,19 @@ def read_text(path: str | Path, what: str = "file", max_bytes: int = MAX_TEXT_BY
         raise UserError(f"{path}: line {line}: the {what} is not UTF-8 text") from None
 
 
+def check_free_space(path: str | Path, needed_bytes: int, what: str = "output file") -> None:
+    """Refuse to start writing ``needed_bytes`` (an upper estimate) where the disk has less free space:
+    some writers (HDF5) cannot fail cleanly when the disk fills up mid-file."""
+    folder = Path(path).parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if needed_bytes > free:
+        raise UserError(f"{path}: the {what} needs up to {needed_bytes / 1e6:.1f} MB but the disk of {folder} "
+                        f"has {free / 1e6:.1f} MB free; free some space or write elsewhere")
+
+
 def check_output_path(path: str | Path, overwrite: bool, what: str = "output file") -> Path:
     """Refuse an output path that cannot be written, before any work: a missing or read-only folder,
     a folder or special file in the way, or an existing file without ``overwrite``."""
@@ -119,11 +133,16 @@ def check_output_path(path: str | Path, overwrite: bool, what: str = "output fil
 
 
 @contextmanager
-def atomic_output(path: str | Path, overwrite: bool = False, what: str = "output file") -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same extension) to write; rename it to ``path`` when
-    the block completes, remove it if it fails. Checks the path first (:func:`check_output_path`)."""
+def atomic_output(path: str | Path, overwrite: bool = False, what: str = "output file",
+                  suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` to write; rename it to ``path`` when the block
+    completes, remove it if it fails. Checks the path first (:func:`check_output_path`).
+
+    The temporary name ends with ``suffix`` (default: ``path``'s extension), for writers that
+    choose a format by the extension.
+    """
     path = check_output_path(path, overwrite, what)
-    temporary = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix}")
+    temporary = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix if suffix is None else suffix}")
     try:
         yield temporary
         if not temporary.exists():

@@ -48,6 +48,7 @@ from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
 from . import registry
 from .errors import StoreError
+from .files import os_reason
 from .lock import LOCK_NAME, describe_holder, read_holder
 from .ports import PORT_TYPES, PortValue
 
@@ -134,7 +135,7 @@ class RunStore:
             group = zarr.create_group(str(path), zarr_format=3, attributes={
                 "format": FORMAT, **(attrs or {}), "committed": {"windows": 0, "lengths": {}}})
         except OSError as exc:
-            raise StoreError(f"cannot create run store {path}: {exc.strerror or exc}") from None
+            raise StoreError(f"cannot create run store {path}: {os_reason(exc)}") from None
         return cls(group, path, writable=True)
 
     @classmethod
@@ -148,7 +149,7 @@ class RunStore:
         try:
             group = zarr.open_group(str(path), mode=mode, zarr_format=3)
         except OSError as exc:
-            raise StoreError(f"cannot open run store {path}: {exc.strerror or exc}") from None
+            raise StoreError(f"cannot open run store {path}: {os_reason(exc)}") from None
         except Exception as exc:  # zarr raises several kinds for a damaged store
             raise StoreError(f"{path} is not a readable evsda run store ({type(exc).__name__})") from None
         store = cls(group, path, writable=mode != "r")
@@ -240,7 +241,7 @@ class RunStore:
         try:
             return array[lo:hi]
         except OSError as exc:
-            raise StoreError(f"{self.path}: cannot read array {key}: {exc.strerror or exc}") from None
+            raise StoreError(f"{self.path}: cannot read array {key}: {os_reason(exc)}") from None
         except Exception as exc:  # the codecs raise several kinds for damaged bytes
             chunk = array.chunks[0]
             where = f"chunk {lo // chunk}" if hi - lo <= chunk else f"chunks {lo // chunk}-{(hi - 1) // chunk}"
@@ -470,11 +471,13 @@ class RunStore:
             raise StoreError(f"{self.path} is damaged: its checkpoint {name} cannot be read ({_short(str(exc))})") from None
         return {block: _decode_state(entry, arrays) for block, entry in dict(array.attrs["states"]).items()}
 
-    def commit(self, windows: int | None = None, checkpoint: str | None = None, complete: bool = False,
+    def commit(self, windows: int | None = None, checkpoint: str | None = None, complete: bool | None = None,
                drop_checkpoint: bool = False) -> None:
         """Make everything appended so far durable: write the commit record, then drop old checkpoints.
 
-        ``complete`` marks the run finished; ``drop_checkpoint`` then removes its last checkpoint.
+        ``complete`` marks the run finished or not (None: unchanged; a store whose record has no flag
+        is complete once ``windows`` reaches its ``n_windows`` attribute, or always if it has none);
+        ``drop_checkpoint`` removes the last checkpoint.
         """
         self.flush()
         record = self._committed()
@@ -486,7 +489,8 @@ class RunStore:
             record["checkpoint"] = checkpoint
         if drop_checkpoint:
             record["checkpoint"] = None
-        record["complete"] = bool(complete)
+        if complete is not None:
+            record["complete"] = bool(complete)
         self.group.attrs["committed"] = record
         if old and old != record["checkpoint"] and "checkpoint" in self.group and old in self.group["checkpoint"]:
             del self.group["checkpoint"][old]

@@ -1,20 +1,24 @@
 """Command-line sub-commands contributed by the readout stage (see evsda.graph.commands):
 
-* ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger]``
-* ``evsda render STORE [--png F] [--gif F] [--start-s S] [--stop-s S] [--frames N] [--fps F]``
+* ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger] [--overwrite] [--partial]``
+* ``evsda render STORE [--png F] [--gif F] [--start-s S] [--stop-s S] [--frames N] [--fps F] [--overwrite]``
 
-Both read the recorded events of a run store in chunks, so memory stays flat.
+Both read the recorded events of a run store in chunks, so memory stays flat. Outputs are checked
+before any work (folder exists and is writable, no existing file unless ``--overwrite``), written
+under a temporary name and renamed when complete. An unfinished run is exported only with
+``--partial``; ``render`` draws it with a note.
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+import sys
 
 from evsda.graph import UserError
 from evsda.graph.commands import Command
+from evsda.graph.files import atomic_output, check_free_space, check_output_path
 
-from .exporters import WRITERS, export_events
+from .exporters import BYTES_PER_EVENT, WRITERS, export_events
 from .render import render_gif, render_png
 
 NS_PER_S = 1_000_000_000
@@ -29,6 +33,13 @@ def _open(path: str):
         raise UserError(f"{path} holds no recorded events (no focal-plane geometry); run a graph whose "
                         f"outputs include an arbiter's events")
     return store, fp
+
+
+def _incomplete(store) -> str | None:
+    """Why the store is not a finished run (its status line), or None if it is."""
+    status = store.status()
+    store.check_readable()
+    return None if status.complete else status.describe()
 
 
 def _progress(chunks, total: int, what: str):
@@ -53,16 +64,27 @@ class ExportCommand(Command):
         parser.add_argument("--time", choices=("readout", "trigger"), default="readout",
                             help="which time of the Eq. 22 record to write (trigger: hdf5 and npy only)")
         parser.add_argument("--chunk-size", type=int, default=1 << 20, help="events read at a time")
+        parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+        parser.add_argument("--partial", action="store_true",
+                            help="export the committed part of an unfinished run (refused otherwise)")
 
     def run(self, args: argparse.Namespace) -> int:
-        store, fp = _open(args.store)
         if args.chunk_size < 1:
             raise UserError(f"--chunk-size must be at least 1, got {args.chunk_size}")
+        output = check_output_path(args.output, args.overwrite, "export")
+        store, fp = _open(args.store)
+        unfinished = _incomplete(store)
+        if unfinished and not args.partial:
+            raise UserError(f"{args.store} is not a finished run ({unfinished}); pass --partial to export "
+                            f"the events it has committed")
+        check_free_space(output, store.n_events * BYTES_PER_EVENT.get(args.format, 64) + (1 << 20), "export")
         epoch = store.attrs.get("start_epoch")
         chunks = _progress(store.iter_events(args.chunk_size), store.n_events, "export")
-        n = export_events(chunks, Path(args.output), args.format, fp.width_px, fp.height_px,
-                          time=args.time, epoch=epoch)
-        print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since {epoch or 'the run start'})")
+        with atomic_output(output, args.overwrite, "export") as temporary:
+            n = export_events(chunks, temporary, args.format, fp.width_px, fp.height_px, time=args.time, epoch=epoch)
+        note = f"; partial run: {unfinished}" if unfinished else ""
+        print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since "
+              f"{epoch or 'the run start'}{note})")
         return 0
 
 
@@ -79,27 +101,42 @@ class RenderCommand(Command):
         parser.add_argument("--frames", type=int, default=100, help="frames of the animation")
         parser.add_argument("--fps", type=float, default=10.0, help="frames per second of the animation")
         parser.add_argument("--chunk-size", type=int, default=1 << 20, help="events read at a time")
+        parser.add_argument("--overwrite", action="store_true", help="replace the image files if they exist")
 
     def run(self, args: argparse.Namespace) -> int:
         if not args.png and not args.gif:
             raise UserError("evsda render needs --png FILE and/or --gif FILE")
-        if args.frames < 1 or args.fps <= 0:
+        if args.frames < 1 or not 0 < args.fps < float("inf"):
             raise UserError(f"--frames must be at least 1 and --fps positive, got {args.frames} and {args.fps}")
+        if args.chunk_size < 1:
+            raise UserError(f"--chunk-size must be at least 1, got {args.chunk_size}")
+        for name, value in (("--start-s", args.start_s), ("--stop-s", args.stop_s)):
+            if value is not None and not abs(value) < 1e9:
+                raise UserError(f"{name} must be a finite time in seconds, got {value}")
+        for output in filter(None, (args.png, args.gif)):
+            check_output_path(output, args.overwrite, "image")
         store, fp = _open(args.store)
+        unfinished = _incomplete(store)
+        if unfinished:
+            print(f"evsda: note: {args.store} is not a finished run ({unfinished}); drawing the events it has "
+                  f"committed", file=sys.stderr)
         start = None if args.start_s is None else round(args.start_s * NS_PER_S)
         stop = None if args.stop_s is None else round(args.stop_s * NS_PER_S)
         if start is not None and stop is not None and stop <= start:
             raise UserError(f"--stop-s ({args.stop_s}) must be after --start-s ({args.start_s})")
         if args.png:
-            on, off = render_png(store.iter_events(args.chunk_size), args.png, fp.width_px, fp.height_px, start, stop)
+            with atomic_output(args.png, args.overwrite, "image", suffix=".png") as temporary:
+                on, off = render_png(store.iter_events(args.chunk_size), temporary, fp.width_px, fp.height_px,
+                                     start, stop)
             print(f"wrote {args.png}: {on} ON and {off} OFF events")
         if args.gif:
             lo = 0 if start is None else start
             hi = stop if stop is not None else _end_ns(store)
             if hi <= lo:
                 raise UserError(f"{args.store} has no events after {lo / NS_PER_S} s to animate; pass --stop-s")
-            n = render_gif(store.iter_events(args.chunk_size), args.gif, fp.width_px, fp.height_px, lo, hi,
-                           n_frames=args.frames, fps=args.fps)
+            with atomic_output(args.gif, args.overwrite, "animation", suffix=".gif") as temporary:
+                n = render_gif(store.iter_events(args.chunk_size), temporary, fp.width_px, fp.height_px, lo, hi,
+                               n_frames=args.frames, fps=args.fps)
             print(f"wrote {args.gif}: {n} frames from {lo / NS_PER_S} s to {hi / NS_PER_S} s")
         return 0
 

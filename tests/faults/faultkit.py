@@ -66,3 +66,27 @@ def one_line_error(proc, *fragments: str, status: int = 2) -> str:
         assert fragment in lines[0], lines[0]
     return lines[0]
 
+
+
+def cli(capsys, *args) -> tuple[int, list[str]]:
+    """Run ``evsda`` in this process; returns its exit status and its non-empty stderr lines."""
+    from evsda.graph.cli import main
+
+    capsys.readouterr()
+    status = main([str(a) for a in args])
+    return status, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
+def run_in_process(folder: Path, name: str = "run.zarr", **options) -> Path:
+    """A finished (or, with ``max_windows``, unfinished) run of the fault graph in ``folder``."""
+    from evsda.graph.executor import run_graph
+    from evsda.graph.graphfile import load_graph
+
+    store = folder / name
+    run_graph(load_graph(graph_file(folder)), store, progress=False, **options)
+    return store
+
+
+def chunk_file(store: Path, array: str, index: int = 0) -> Path:
+    """The file of chunk ``index`` of a 1-D array of a run store."""
+    return store / array / "c" / str(index)
