@@ -62,6 +62,12 @@ class Observer(PortValue):
 STARE = "stare"
 SIDEREAL = "sidereal"
 TRACK = "track"
+SCAN = "scan"
+RASTER = "raster"
+SLEW = "slew"
+MOVING_MODES = (SCAN, RASTER, SLEW)
+AZEL = "azel"
+RADEC = "radec"
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,7 +76,16 @@ class Pointing(PortValue):
 
     * ``stare``: fixed azimuth/elevation in the observer's local horizon frame (stars drift);
     * ``sidereal``: fixed ICRS right ascension/declination (stars stay put, satellites streak);
-    * ``track``: the boresight follows the apparent direction of the target TLE.
+    * ``track``: the boresight follows the apparent direction of the target TLE;
+    * ``scan``: constant rates in azimuth/elevation or RA/Dec (``coordinates``) from the
+      start pointing (``azimuth_deg``/``elevation_deg`` or ``ra_deg``/``dec_deg``);
+    * ``raster``: a serpentine raster around the start pointing, rows along azimuth or RA,
+      with rate- and acceleration-limited turnarounds (:class:`~evsda.blocks.scene.scanning.Raster`);
+    * ``slew``: a rate- and acceleration-limited great-circle slew from the start pointing
+      to ``to_lon_deg``/``to_lat_deg`` at ``slew_start_s``.
+
+    Times of the moving laws count from the run's start. Azimuth and RA rates are rates of
+    the coordinate: the sky moves ``cos(elevation)`` (or ``cos(Dec)``) times as fast.
 
     ``roll_deg`` turns the sensor about the boresight: 0 puts the image's up axis (-y, row
     0 at the top) towards the zenith (stare, track from the ground) or towards celestial
@@ -88,3 +103,20 @@ class Pointing(PortValue):
     target_name: str = ""                    # track: the target's name
     target_line1: str = ""                   # track: the target's TLE line 1
     target_line2: str = ""                   # track: the target's TLE line 2
+    coordinates: str = AZEL                  # scan, raster, slew: AZEL (horizon) or RADEC (ICRS)
+    lon_rate_deg_s: float = 0.0              # scan: azimuth or RA coordinate rate [deg/s]
+    lat_rate_deg_s: float = 0.0              # scan: elevation or Dec rate [deg/s]
+    raster_width_deg: float = 0.0            # raster: row length in azimuth or RA [deg]
+    raster_rows: int = 1                     # raster: number of rows [1]
+    raster_row_step_deg: float = 0.0         # raster: elevation or Dec step between rows [deg]
+    scan_rate_deg_s: float = 0.0             # raster: rate limit along the rows [deg/s]
+    to_lon_deg: float = 0.0                  # slew: final azimuth or RA [deg]
+    to_lat_deg: float = 0.0                  # slew: final elevation or Dec [deg]
+    slew_start_s: float = 0.0                # slew: start time after the run's start [s]
+    max_rate_deg_s: float = 0.0              # raster row steps, slew: rate limit [deg/s]
+    max_acceleration_deg_s2: float = 0.0     # raster, slew: acceleration limit [deg/s^2]
+
+    @property
+    def is_moving(self) -> bool:
+        """A scan, raster or slew: the boresight moves across the sky at commanded rates."""
+        return self.mode in MOVING_MODES

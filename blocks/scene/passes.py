@@ -108,7 +108,7 @@ def _angular_speed(view: SatelliteView, t_ns: np.ndarray) -> np.ndarray:
     dist = np.linalg.norm(rel, axis=-1)
     transverse = np.linalg.norm(np.cross(rel, vel), axis=-1) / dist**2
     frame = 7.3e-5 if view.observer.is_ground else 2 * np.linalg.norm(v_obs, axis=-1) / np.linalg.norm(r_obs, axis=-1)
-    return transverse + frame
+    return transverse + np.maximum(frame, view.pointing_model.moving_rate_bound_rad_s())
 
 
 def _refine(view: SatelliteView, predicate, t_false: int, t_true: int, resolution_ns: int) -> int:

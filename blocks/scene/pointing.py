@@ -7,7 +7,13 @@ on the left). Reference up directions:
 * ``stare`` and ``track`` from the ground: ``u = d b / d elevation``, the direction of
   increasing elevation at the boresight's azimuth, which stays defined at the zenith;
 * ``sidereal`` and ``track`` from space: ``u = d b / d declination`` (towards celestial
-  north), defined at the celestial poles too.
+  north), defined at the celestial poles too;
+* ``scan``, ``raster`` and ``slew``: the same as ``stare`` in azimuth/elevation
+  coordinates, as ``sidereal`` in RA/Dec, at the boresight's current position
+  (:mod:`evsda.blocks.scene.scanning` gives the coordinates versus time). RA/Dec
+  positions are made apparent with the observer's aberration (Kaplan et al. 1989), as
+  Skyfield's ``apparent()`` does for a star, without the Sun's light deflection
+  (< 0.02 arcsec more than 20 deg from the Sun).
 
 ``roll`` then turns ``u`` towards ``r`` by the roll angle.
 """
@@ -19,10 +25,19 @@ from datetime import datetime
 import numpy as np
 from skyfield.api import Star
 
-from evsda.blocks.ports.scene import SIDEREAL, STARE, TRACK, Pointing
+from evsda.blocks.ports import FocalPlane
+from evsda.blocks.ports.scene import AZEL, RADEC, RASTER, SCAN, SIDEREAL, SLEW, STARE, TRACK, Pointing
 from evsda.graph import ParameterError
 
-from .geometry import NS_PER_S, KnotGrid, ObserverModel, apparent_position, satellite_track, unit
+from . import projection
+from .geometry import (NS_PER_S, OMEGA_EARTH_RAD_S, KnotGrid, ObserverModel, aberrate, apparent_position,
+                       satellite_track, unit)
+from .scanning import Raster, Scan, Slew, unit_from_lonlat
+
+#: the scene blocks refuse a moving pointing law that moves the sky by more than this between samples [pixel]
+MAX_STEP_PX = 1.0
+#: a slew must keep this far from the zenith or celestial pole, where the image's up direction turns fast [deg]
+POLE_CLEARANCE_DEG = 1.0
 
 
 def direction_from_azel(azimuth_rad, elevation_rad) -> tuple[np.ndarray, np.ndarray]:
@@ -70,8 +85,11 @@ class PointingModel:
             sky_observer = observer.skyfield_observer()
             self.field = KnotGrid(epoch, knot_step_ns,
                                   lambda t: (unit(sky_observer.at(t).observe(star).apparent().xyz.m.T),))
+        elif pointing.is_moving:
+            self.law = moving_law(pointing)
         elif pointing.mode != STARE:
-            raise ParameterError(f"pointing: unknown mode {pointing.mode!r}; expected stare, sidereal or track")
+            raise ParameterError(f"pointing: unknown mode {pointing.mode!r}; expected stare, sidereal, track, "
+                                 f"scan, raster or slew")
 
     def frame(self, t_ns) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Boresight, right and up unit vectors at ``t_ns``, each ``[n, 3]`` (GCRS)."""
@@ -83,6 +101,8 @@ class PointingModel:
         elif p.mode == SIDEREAL:
             b = self._sidereal_boresight(t_ns)
             u = north_of(b)
+        elif p.is_moving:
+            b, u = self._moving(t_ns)
         else:
             b = unit(apparent_position(self.target, self.observer, t_ns))
             if self.observer.observer.is_ground:
@@ -100,6 +120,59 @@ class PointingModel:
         b = b_enu[0] * east + b_enu[1] * north + b_enu[2] * up
         u = u_enu[0] * east + u_enu[1] * north + u_enu[2] * up
         return b, u
+
+    def _moving(self, t_ns) -> tuple[np.ndarray, np.ndarray]:
+        """Boresight and up of a scan, raster or slew at ``t_ns`` (GCRS)."""
+        lon, lat = self.law.coordinates(t_ns / NS_PER_S)
+        if self.pointing.coordinates == AZEL:
+            b_enu, u_enu = direction_from_azel(np.radians(lon), np.radians(lat))
+            east, north, up = self.observer.enu(t_ns)
+            b = b_enu[:, :1] * east + b_enu[:, 1:2] * north + b_enu[:, 2:] * up
+            u = u_enu[:, :1] * east + u_enu[:, 1:2] * north + u_enu[:, 2:] * up
+            return b, u
+        _, v_observer = self.observer.state(t_ns)
+        _, v_earth = self.observer.earth.state(t_ns)
+        b = unit(aberrate(unit_from_lonlat(lon, lat), v_earth + v_observer))
+        return b, north_of(b)
+
+    def moving_rate_bound_rad_s(self) -> float:
+        """Upper bound of the sensor frame's angular speed in the GCRS for a moving law [rad/s]; 0 otherwise.
+
+        The frame turns with the coordinate rates (azimuth about the vertical, elevation
+        about a horizontal axis, or RA and Dec likewise) plus the horizon frame's own
+        rotation: the Earth's (ground) or the orbital rate (space); the magnitude of a sum
+        of rotations is at most the sum of their rates.
+        """
+        if not self.pointing.is_moving:
+            return 0.0
+        lon_rate, lat_rate = self.law.max_coordinate_rates()
+        rate = np.radians(lon_rate + lat_rate)
+        if self.pointing.coordinates == AZEL:
+            rate += OMEGA_EARTH_RAD_S if self.observer.observer.is_ground else self._orbital_rate()
+        return float(rate)
+
+    def _orbital_rate(self) -> float:
+        r, v = self.observer.state(np.array([0.0]))
+        return float(2.0 * np.linalg.norm(v) / np.linalg.norm(r))
+
+    def sky_step_px(self, focal_plane: FocalPlane, cadence_ns: int, start_ns: int, stop_ns: int) -> float:
+        """Largest distance a fixed sky direction moves on the detector between two samples ``cadence_ns`` apart.
+
+        Measured at the boresight and the four detector corners over ``[start_ns, stop_ns]``
+        (up to 4000 sample pairs, at least one every 10 ms for runs up to 40 s) [pixel].
+        """
+        n = int(min(4000, max(2, (stop_ns - start_ns) // 10_000_000 + 1)))
+        t0 = np.linspace(start_ns, max(start_ns, stop_ns - cadence_ns), n)
+        frames0 = self.frame(t0)
+        frames1 = self.frame(t0 + cadence_ns)
+        w, h = focal_plane.width_px, focal_plane.height_px
+        points = [((w - 1) / 2, (h - 1) / 2), (-0.5, -0.5), (w - 0.5, -0.5), (-0.5, h - 0.5), (w - 0.5, h - 0.5)]
+        step = 0.0
+        for x, y in points:
+            direction = projection.deproject(np.full(n, x), np.full(n, y), *frames0, focal_plane)
+            x1, y1 = projection.project(direction, *frames1, focal_plane)
+            step = max(step, float(np.nanmax(np.hypot(x1 - x, y1 - y))))
+        return step
 
     def _sidereal_boresight(self, t_ns):
         """The apparent place of the field centre, linearly interpolated between knots.
@@ -120,6 +193,55 @@ class PointingModel:
             return np.full(len(b), np.nan)
         _, _, up = self.observer.enu(t_ns)
         return np.arccos(np.clip(np.einsum("ij,ij->i", b, up), -1.0, 1.0))
+
+
+def moving_law(pointing: Pointing):
+    """The :mod:`~evsda.blocks.scene.scanning` law of a scan, raster or slew, checked."""
+    p = pointing
+    if p.coordinates not in (AZEL, RADEC):
+        raise ParameterError(f"pointing: unknown coordinates {p.coordinates!r}; expected azel or radec")
+    lon0, lat0 = (p.azimuth_deg, p.elevation_deg) if p.coordinates == AZEL else (p.ra_deg, p.dec_deg)
+    if p.mode == SCAN:
+        return Scan(lon0, lat0, p.lon_rate_deg_s, p.lat_rate_deg_s)
+    if p.mode == RASTER:
+        return Raster(lon0, lat0, p.raster_width_deg, p.raster_rows, p.raster_row_step_deg, p.scan_rate_deg_s,
+                      p.max_rate_deg_s, p.max_acceleration_deg_s2)
+    slew = Slew(lon0, lat0, p.to_lon_deg, p.to_lat_deg, p.slew_start_s, p.max_rate_deg_s, p.max_acceleration_deg_s2)
+    clearance = slew.path_closest_to_pole_deg()
+    if clearance < POLE_CLEARANCE_DEG:
+        pole = "the zenith or nadir" if p.coordinates == AZEL else "a celestial pole"
+        raise ParameterError(f"pointing: the slew passes {clearance:.2f} deg from {pole}, where the image's up "
+                             f"direction is undefined; keep it {POLE_CLEARANCE_DEG:g} deg away (split it in two)")
+    return slew
+
+
+def check_sampling(model: PointingModel, focal_plane: FocalPlane, cadence_ns: int, start_ns: int, stop_ns: int,
+                   who: str) -> None:
+    """Refuse a scan, raster or slew that moves the sky by more than :data:`MAX_STEP_PX` between samples.
+
+    A source sampled every ``cadence_ns`` and held in between jumps by that step; beyond
+    one pixel its image hops instead of sweeping over the pixels. The error gives the
+    largest usable rates (the commanded ones scaled to one pixel per sample) and the
+    largest usable cadence.
+    """
+    p = model.pointing
+    if not p.is_moving:
+        return
+    step = model.sky_step_px(focal_plane, cadence_ns, start_ns, stop_ns)
+    if step <= MAX_STEP_PX:
+        return
+    scale = MAX_STEP_PX / step
+    rates = {SCAN: [("azimuth" if p.coordinates == AZEL else "ra") + "_rate_deg_s", p.lon_rate_deg_s,
+                    ("elevation" if p.coordinates == AZEL else "dec") + "_rate_deg_s", p.lat_rate_deg_s],
+             RASTER: ["scan_rate_deg_s", p.scan_rate_deg_s, "max_rate_deg_s", p.max_rate_deg_s],
+             SLEW: ["max_rate_deg_s", p.max_rate_deg_s]}[p.mode]
+    usable = ", ".join(f"{name} = {abs(value) * scale:.4g}" for name, value in zip(rates[::2], rates[1::2]) if value)
+    arcsec = focal_plane.pixel_scale_rad * 180 / np.pi * 3600
+    raise ParameterError(
+        f"{who}: the {p.mode} moves the sky by up to {step:.3g} pixels between samples {cadence_ns / NS_PER_S:g} s "
+        f"apart ({arcsec:.3g} arcsec per pixel), more than the {MAX_STEP_PX:g} pixel a sampled source may jump; the "
+        f"largest usable rates at this cadence are about {usable} deg/s (or sample every "
+        f"{cadence_ns * scale / NS_PER_S:.3g} s or faster: cadence_s here, and the optics' render_rate_hz)")
 
 
 def seconds(t_ns) -> np.ndarray:

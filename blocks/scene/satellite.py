@@ -14,6 +14,7 @@ from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
 
 from . import radiometry
 from .passes import PassReport, find_passes, require_pass
+from .pointing import check_sampling
 from .view import Reflector, SatelliteView
 
 log = logging.getLogger(__name__)
@@ -97,8 +98,10 @@ class Satellite(Block):
              focal_plane: FocalPlane) -> dict:
         view = self.view(window, orbit, observer, pointing, focal_plane)
         if self.passes is None:
-            self.passes = self.find_passes(view, window)
             who = f"{self.type_name} '{self.name}'"
+            start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+            check_sampling(view.pointing_model, focal_plane, self.cadence_ns, start, stop, who)
+            self.passes = self.find_passes(view, window)
             if self.params.require_pass:
                 require_pass(self.passes, who, f"{orbit.name} ({orbit.catalog_number})")
             for item in self.passes.passes:

@@ -11,14 +11,16 @@ import math
 import warnings
 from typing import Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
 from evsda import library
 from evsda.blocks.ports import FocalPlane
-from evsda.blocks.ports.scene import GROUND, SIDEREAL, SPACE, STARE, TRACK, Observer, Orbit, Pointing
+from evsda.blocks.ports.scene import AZEL, GROUND, RADEC, SPACE, TRACK, Observer, Orbit, Pointing
 from evsda.graph import Block, BlockParams, Input, Output, ParameterError, RunInfo, Window
 from evsda.graph.params import DataFile
 
+from .pointing import moving_law
 from .tle import check_propagation, epoch_age_days, parse_tles
 
 log = logging.getLogger(__name__)
@@ -192,33 +194,131 @@ class Camera(Block):
 
 
 class PointingLaw(Block):
-    """Where the sensor looks: stare at azimuth/elevation, track sidereally at RA/Dec, or track a satellite.
+    """Where the sensor looks: stare, track sidereally or a satellite, scan, raster, or slew.
 
     See :class:`~evsda.blocks.ports.scene.Pointing` for the frame and roll conventions.
-    ``track`` needs the target's orbit on the ``target`` input.
+    ``track`` needs the target's orbit on the ``target`` input. ``scan``, ``raster`` and
+    ``slew`` start from ``azimuth_deg``/``elevation_deg`` (``coordinates: azel``) or
+    ``ra_deg``/``dec_deg`` (``coordinates: radec``) at the run's start:
+
+    * ``scan``: constant coordinate rates (``azimuth_rate_deg_s``, ``elevation_rate_deg_s``
+      or ``ra_rate_deg_s``, ``dec_rate_deg_s``); an azimuth or RA rate moves the sky
+      ``cos(elevation)`` or ``cos(Dec)`` times as fast;
+    * ``raster``: ``raster_rows`` rows ``raster_width_deg`` long in azimuth or RA, centred on
+      the start pointing and ``raster_row_step_deg`` apart, swept at ``scan_rate_deg_s``
+      back and forth (serpentine), row steps at up to ``max_rate_deg_s``, every move
+      limited to ``max_acceleration_deg_s2`` (:class:`~evsda.blocks.scene.scanning.Raster`);
+    * ``slew``: at ``slew_start_s``, along the great circle to ``to_azimuth_deg``/
+      ``to_elevation_deg`` (or ``to_ra_deg``/``to_dec_deg``) at up to ``max_rate_deg_s``
+      and ``max_acceleration_deg_s2``, holding the pointing before and after.
     """
 
     type_name = "pointing"
 
     class Params(BlockParams):
-        mode: Literal["stare", "sidereal", "track"] = Field("stare", description="Pointing law [-]")
-        azimuth_deg: float = Field(0.0, ge=0, le=360, description="Stare azimuth, from north through east [deg]")
-        elevation_deg: float = Field(90.0, ge=-90, le=90, description="Stare elevation [deg]")
-        ra_deg: float = Field(0.0, ge=0, lt=360, description="Sidereal: ICRS right ascension of the field [deg]")
-        dec_deg: float = Field(0.0, ge=-90, le=90, description="Sidereal: ICRS declination of the field [deg]")
+        mode: Literal["stare", "sidereal", "track", "scan", "raster", "slew"] = Field(
+            "stare", description="Pointing law [-]")
+        azimuth_deg: float = Field(0.0, ge=0, le=360, description="Stare azimuth, from north through east (the "
+                                   "start of a scan, raster centre or slew start in azel) [deg]")
+        elevation_deg: float = Field(90.0, ge=-90, le=90, description="Stare elevation (or start, in azel) [deg]")
+        ra_deg: float = Field(0.0, ge=0, lt=360, description="Sidereal: ICRS right ascension of the field (or "
+                              "start, in radec) [deg]")
+        dec_deg: float = Field(0.0, ge=-90, le=90, description="Sidereal: ICRS declination of the field (or start, "
+                               "in radec) [deg]")
         roll_deg: float = Field(0.0, ge=-360, le=360, description="Rotation of the sensor about the boresight, "
                                 "image up turning towards image right [deg]")
+        coordinates: Literal["azel", "radec"] = Field("azel", description="Coordinates of a scan, raster or slew: "
+                                                      "azimuth/elevation (horizon) or RA/Dec (ICRS) [-]")
+        azimuth_rate_deg_s: float = Field(0.0, ge=-360, le=360, description="Scan: azimuth rate (coordinates "
+                                          "azel) [deg/s]")
+        elevation_rate_deg_s: float = Field(0.0, ge=-90, le=90, description="Scan: elevation rate (azel) [deg/s]")
+        ra_rate_deg_s: float = Field(0.0, ge=-360, le=360, description="Scan: right ascension rate (radec) [deg/s]")
+        dec_rate_deg_s: float = Field(0.0, ge=-90, le=90, description="Scan: declination rate (radec) [deg/s]")
+        raster_width_deg: float = Field(0.0, ge=0, le=360, description="Raster: row length in azimuth or RA [deg]")
+        raster_rows: int = Field(1, ge=1, le=10000, description="Raster: number of rows [1]")
+        raster_row_step_deg: float = Field(0.0, ge=-90, le=90, description="Raster: elevation or Dec step from "
+                                           "one row to the next (positive: upwards/north) [deg]")
+        scan_rate_deg_s: float | None = Field(None, gt=0, le=360, description="Raster: rate along the rows "
+                                              "(azimuth or RA coordinate rate) [deg/s]")
+        to_azimuth_deg: float | None = Field(None, ge=0, le=360, description="Slew: final azimuth (azel) [deg]")
+        to_elevation_deg: float | None = Field(None, ge=-90, le=90, description="Slew: final elevation (azel) [deg]")
+        to_ra_deg: float | None = Field(None, ge=0, lt=360, description="Slew: final right ascension (radec) [deg]")
+        to_dec_deg: float | None = Field(None, ge=-90, le=90, description="Slew: final declination (radec) [deg]")
+        slew_start_s: float = Field(0.0, ge=0, description="Slew: start time after the run's start [s]")
+        max_rate_deg_s: float | None = Field(None, gt=0, le=360, description="Raster row steps and slews: the "
+                                             "mount's rate limit [deg/s]")
+        max_acceleration_deg_s2: float | None = Field(None, gt=0, le=1e4, description="Raster and slew: the "
+                                                      "mount's acceleration limit [deg/s^2]")
+
+        @model_validator(mode="after")
+        def _law_complete(self):
+            other = ("ra_rate_deg_s", "dec_rate_deg_s") if self.coordinates == "azel" else \
+                ("azimuth_rate_deg_s", "elevation_rate_deg_s")
+            if self.mode == "scan" and any(getattr(self, name) for name in other):
+                raise ValueError(f"a scan in coordinates {self.coordinates} takes "
+                                 f"{' and '.join(n for n in self._rates() if n not in other)}, not "
+                                 f"{' or '.join(other)}")
+            needed = {"raster": ("scan_rate_deg_s", "max_rate_deg_s", "max_acceleration_deg_s2"),
+                      "slew": (("to_azimuth_deg", "to_elevation_deg") if self.coordinates == "azel" else
+                               ("to_ra_deg", "to_dec_deg")) + ("max_rate_deg_s", "max_acceleration_deg_s2")}
+            missing = [name for name in needed.get(self.mode, ()) if getattr(self, name) is None]
+            if missing:
+                raise ValueError(f"mode {self.mode} (coordinates {self.coordinates}) needs {', '.join(missing)}")
+            if self.mode == "raster" and self.raster_width_deg <= 0:
+                raise ValueError("mode raster needs raster_width_deg > 0")
+            if self.mode == "raster" and self.raster_rows > 1 and self.raster_row_step_deg == 0:
+                raise ValueError("a raster of several rows needs raster_row_step_deg (not 0)")
+            return self
+
+        @staticmethod
+        def _rates() -> tuple[str, ...]:
+            return ("azimuth_rate_deg_s", "elevation_rate_deg_s", "ra_rate_deg_s", "dec_rate_deg_s")
 
     inputs = {"target": Input(Orbit, "orbit to rate-track (mode 'track' only)", required=False)}
     outputs = {"pointing": Output(Pointing, "the pointing law")}
 
-    def step(self, window: Window, target: Orbit | None = None) -> dict:
+    def pointing(self, target: Orbit | None = None) -> Pointing:
+        """The :class:`Pointing` these parameters describe."""
         p = self.params
-        if p.mode == TRACK and target is None:
-            raise ParameterError(f"{self.type_name} '{self.name}': mode 'track' needs a tle_source connected "
-                                 f"to its 'target' input")
-        return {"pointing": Pointing(
-            mode={"stare": STARE, "sidereal": SIDEREAL, "track": TRACK}[p.mode], azimuth_deg=p.azimuth_deg,
+        azel = p.coordinates == "azel"
+        to_lon, to_lat = (p.to_azimuth_deg, p.to_elevation_deg) if azel else (p.to_ra_deg, p.to_dec_deg)
+        return Pointing(
+            mode=p.mode, azimuth_deg=p.azimuth_deg,
             elevation_deg=p.elevation_deg, ra_deg=p.ra_deg, dec_deg=p.dec_deg, roll_deg=p.roll_deg,
             target_name=target.name if target else "", target_line1=target.line1 if target else "",
-            target_line2=target.line2 if target else "")}
+            target_line2=target.line2 if target else "",
+            coordinates=AZEL if azel else RADEC,
+            lon_rate_deg_s=p.azimuth_rate_deg_s if azel else p.ra_rate_deg_s,
+            lat_rate_deg_s=p.elevation_rate_deg_s if azel else p.dec_rate_deg_s,
+            raster_width_deg=p.raster_width_deg, raster_rows=p.raster_rows,
+            raster_row_step_deg=p.raster_row_step_deg, scan_rate_deg_s=p.scan_rate_deg_s or 0.0,
+            to_lon_deg=to_lon or 0.0, to_lat_deg=to_lat or 0.0, slew_start_s=p.slew_start_s,
+            max_rate_deg_s=p.max_rate_deg_s or 0.0, max_acceleration_deg_s2=p.max_acceleration_deg_s2 or 0.0)
+
+    def setup(self, run: RunInfo) -> None:
+        super().setup(run)
+        pointing = self.pointing()
+        if pointing.is_moving:
+            self._check_range(pointing, run.duration_ns / 1e9)
+
+    def _check_range(self, pointing: Pointing, duration_s: float) -> None:
+        """A moving law must keep its latitude coordinate (elevation or Dec) in [-90, 90] deg over the run."""
+        try:
+            law = moving_law(pointing)
+        except ParameterError as exc:
+            raise ParameterError(f"{self.type_name} '{self.name}': {str(exc).removeprefix('pointing: ')}") from None
+        t = np.linspace(0.0, duration_s, max(2, int(duration_s / 0.01) + 1))
+        _, lat = law.coordinates(t)
+        outside = np.flatnonzero(np.abs(lat) > 90.0)
+        if outside.size:
+            name = "elevation" if pointing.coordinates == AZEL else "declination"
+            i = outside[0]
+            raise ParameterError(f"{self.type_name} '{self.name}': the {pointing.mode} reaches {name} "
+                                 f"{lat[i]:.3f} deg at t = {t[i]:.3f} s, beyond the pole; change the start, the "
+                                 f"rates or the run's duration")
+
+    def step(self, window: Window, target: Orbit | None = None) -> dict:
+        if self.params.mode == TRACK and target is None:
+            raise ParameterError(f"{self.type_name} '{self.name}': mode 'track' needs a tle_source connected "
+                                 f"to its 'target' input")
+        return {"pointing": self.pointing(target)}

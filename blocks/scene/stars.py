@@ -19,7 +19,7 @@ from . import projection, radiometry
 from .catalog import StarCatalog, load_hipparcos
 from .ephemeris import timescale
 from .geometry import KnotGrid, ObserverModel, unit
-from .pointing import PointingModel
+from .pointing import PointingModel, check_sampling
 from .starcounts import draw_magnitudes, integrated_counts_per_deg2
 from .visibility import EARTH_RADIUS_M
 
@@ -98,6 +98,7 @@ class StarField(Block):
         self._pointing = PointingModel(pointing, self._observer, window.epoch, knot_ns)
         self._focal_plane = focal_plane
         start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+        check_sampling(self._pointing, focal_plane, self.cadence_ns, start, stop, f"{self.type_name} '{self.name}'")
         boresights, reach = self._swept(start, stop, focal_plane)
         catalog = load_hipparcos(str(library.resolve(self.params.catalog)))
         bright = catalog.select(catalog.vmag <= self.params.catalog_limit_mag)
@@ -119,13 +120,20 @@ class StarField(Block):
                  len(self._stars), int(np.sum(near[: len(bright)])))
 
     def _swept(self, start_ns: int, stop_ns: int, focal_plane: FocalPlane):
-        """Boresights sampled over the run and the angular reach around them that the field covers."""
+        """Boresights sampled over the run and the angular reach around them that the field covers.
+
+        Between two samples ``dt`` apart the boresight stays within half the gap of one of
+        them, or, for a scan, raster or slew (whose path may turn), within half of
+        ``dt`` times the frame's largest angular rate.
+        """
         n = max(2, int((stop_ns - start_ns) // NS_PER_S) + 2)
         t = np.linspace(start_ns, stop_ns, n)
         boresights, _, _ = self._pointing.frame(t)
         gaps = np.arccos(np.clip(np.sum(boresights[1:] * boresights[:-1], axis=-1), -1, 1))
+        turning = self._pointing.moving_rate_bound_rad_s() * (t[1] - t[0]) / NS_PER_S
         margin = self.params.margin_px * focal_plane.pixel_scale_rad
-        reach = projection.radius_rad(focal_plane) + margin + ABERRATION_MARGIN_RAD + float(gaps.max(initial=0)) / 2
+        reach = (projection.radius_rad(focal_plane) + margin + ABERRATION_MARGIN_RAD
+                 + max(float(gaps.max(initial=0)), turning) / 2)
         return boresights, reach
 
     def _draw_faint(self, boresights: np.ndarray, reach: float) -> dict:
@@ -238,8 +246,10 @@ class StarField(Block):
         axes are too: two matrix products per knot interval. Samples go in chunks of
         ``CHUNK`` (1 s at 1 ms); a star is projected at every sample of a chunk only if,
         at the chunk's first, middle or last sample, it lies within the detector plus
-        ``margin_px`` plus twice the field's drift over the chunk, so stars that stay
-        far from the detector cost three samples, not a thousand.
+        ``margin_px`` plus twice the field's drift over the chunk (for a scan, raster or
+        slew at least the frame's largest angular rate times the chunk's duration, as the
+        path may turn inside the chunk), so stars that stay far from the detector cost
+        three samples, not a thousand.
         """
         t = np.asarray(t_ns, dtype=np.float64)
         n_t, n_s = len(t), len(self._stars)
@@ -249,6 +259,7 @@ class StarField(Block):
         fp = self._focal_plane
         half_w, half_h = projection.half_extent_rad(fp)
         margin = (self.params.margin_px + 1.0) * fp.pixel_scale_rad
+        turning_rate = self._pointing.moving_rate_bound_rad_s()
         for k0 in np.unique(k):
             in_interval = np.flatnonzero(k == k0)
             s0 = self._places.values(np.array([k0]))[0][0]
@@ -259,6 +270,7 @@ class StarField(Block):
                 xi, eta = self._tangent(axes[:, probe], w[probe], s0, ds)
                 with np.errstate(invalid="ignore"):
                     drift = np.nanmax(np.hypot(xi[-1] - xi[0], eta[-1] - eta[0]), initial=0.0)
+                    drift = max(drift, turning_rate * (t[rows[-1]] - t[rows[0]]) / NS_PER_S)
                     near = ((np.abs(xi) <= half_w + margin + 2 * drift)
                             & (np.abs(eta) <= half_h + margin + 2 * drift)).any(axis=0)
                 cols = np.flatnonzero(near)
