@@ -167,3 +167,13 @@ def reflected_photon_flux(band: Band, albedo: float, area_m2: float, phase_funct
     """
     sun = band.sun_photon_flux * (AU_M / np.asarray(sun_distance_m)) ** 2
     return sun * albedo * area_m2 * np.asarray(phase_function_sr) / np.asarray(range_m) ** 2
+
+
+def photon_flux_of_reflectance(band: Band, reflectance_m2_sr, range_m, sun_distance_m=AU_M) -> np.ndarray:
+    """Photon flux [photon s^-1 m^-2] at the observer (above the atmosphere) from a body of reflectance ``R``.
+
+    ``N = N_sun(d) R / range^2`` with ``R = sum A f (n.s)(n.o)`` [m^2 sr^-1] of a facet
+    model (:mod:`.facets`), the generalisation of ``rho A F`` above.
+    """
+    sun = band.sun_photon_flux * (AU_M / np.asarray(sun_distance_m)) ** 2
+    return sun * np.asarray(reflectance_m2_sr) / np.asarray(range_m) ** 2

@@ -6,15 +6,19 @@ import logging
 from typing import Literal
 
 import numpy as np
-from pydantic import Field
+import yaml
+from pydantic import Field, ValidationError, model_validator
 
+from evsda import library
 from evsda.blocks.ports import FocalPlane, PointSources, SourceKind
 from evsda.blocks.ports.scene import Observer, Orbit, Pointing
-from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, Window
+from evsda.graph.params import DataFile, describe_validation_error
 
-from . import radiometry
+from . import facets, radiometry
 from .passes import PassReport, find_passes, require_pass
 from .pointing import check_sampling
+from .reflectors import FacetReflector, attitude_law
 from .view import Reflector, SatelliteView
 
 log = logging.getLogger(__name__)
@@ -36,6 +40,13 @@ class Satellite(Block):
     fraction nu of the solar disc (penumbra). Flux and magnitude are given at every
     sample, observable or not.
 
+    Shape ``facets`` replaces ``rho A F`` by a facet model's ``sum A f (n.s)(n.o)``
+    (:mod:`.facets`: a cylinder or box plus plates, each with a diffuse and a specular
+    BRDF), turned by the ``attitude`` law at the light's emission time: ``fixed``
+    (nadir-pointing), ``spin`` (uniform rotation about a body axis fixed in inertial
+    space) or ``tumble`` (torque-free rigid body). A ``plate`` that spins or tumbles is
+    a one-facet model with its normal along body +z.
+
     At the first window the pass finder scans the whole run; a satellite that is never
     observable in the field is one :class:`~evsda.graph.SceneError` with its closest
     approach (set ``require_pass: false`` to allow it).
@@ -47,15 +58,60 @@ class Satellite(Block):
         cadence_s: float = Field(1e-3, gt=0, le=10, description="Sample spacing of the positions and fluxes [s]")
         knot_step_s: float = Field(10.0, gt=0, le=600, description="Spacing of the Skyfield evaluations that "
                                    "are interpolated to the cadence [s]")
-        shape: Literal["sphere", "plate"] = Field("sphere", description="Reflector model: Lambertian sphere "
-                                                  "or diffuse flat plate [-]")
+        shape: Literal["sphere", "plate", "facets"] = Field("sphere", description="Reflector model: Lambertian "
+                                                            "sphere, diffuse flat plate, or a facet model [-]")
         area_m2: float = Field(10.0, gt=0, description="Cross-section of the sphere or area of the plate [m^2]")
         albedo: float = Field(0.2, gt=0, le=1, description="Diffuse reflectivity rho of the surface (Eq. 2) [1]")
         plate_normal: Literal["nadir", "sun", "observer", "bisector"] = Field(
-            "nadir", description="Orientation of the plate's normal (shape 'plate') [-]")
+            "nadir", description="Orientation of the plate's normal (shape 'plate', attitude 'fixed') [-]")
+        facet_model: facets.FacetModelSpec | None = Field(None, description="Shape 'facets': the body and plates, "
+                                                          "inline [-]")
+        facet_model_file: DataFile | None = Field(None, description="Shape 'facets': a YAML file holding the "
+                                                  "facet model (path or library:shapes/NAME.yaml) [-]")
+        attitude: Literal["fixed", "spin", "tumble"] = Field(
+            "fixed", description="Attitude law: fixed (plate: plate_normal; facets: body +z to nadir, +x along "
+            "the velocity), spin at a constant rate, or tumble (torque-free rigid body) [-]")
+        spin_axis_ra_deg: float = Field(0.0, ge=0, lt=360, description="Spin: GCRS right ascension of the spin "
+                                        "axis; tumble: of the angular momentum [deg]")
+        spin_axis_dec_deg: float = Field(90.0, ge=-90, le=90, description="Spin: GCRS declination of the spin "
+                                         "axis; tumble: of the angular momentum [deg]")
+        spin_axis_body: tuple[float, float, float] = Field((1.0, 0.0, 0.0), description="Spin: the body axis "
+                                                           "that spins (any length, not zero) [1]")
+        spin_rate_deg_s: float = Field(0.0, ge=-36000, le=36000, description="Spin: rotation rate about the "
+                                       "axis, right-handed (period 360/rate s) [deg/s]")
+        spin_phase_deg: float = Field(0.0, ge=-360, le=360, description="Spin and tumble: rotation about the "
+                                      "axis at t = 0 [deg]")
+        inertia_kg_m2: tuple[float, float, float] | None = Field(None, description="Tumble: principal moments "
+                                                                 "of inertia about body x, y, z [kg m^2]")
+        angular_velocity_deg_s: tuple[float, float, float] | None = Field(
+            None, description="Tumble: body-frame angular velocity at t = 0 [deg/s]")
         band: Literal["V"] = Field("V", description="Photometric band of fluxes and magnitudes [-]")
         require_pass: bool = Field(True, description="Fail before any work if the satellite is never observable "
                                                      "in the field during the run [-]")
+
+        @model_validator(mode="after")
+        def _consistent_shape_and_attitude(self):
+            inline, file = self.facet_model is not None, self.facet_model_file is not None
+            if self.shape == "facets" and inline == file:
+                raise ValueError("shape 'facets' needs exactly one of facet_model (inline) and facet_model_file")
+            if self.shape != "facets" and (inline or file):
+                raise ValueError(f"facet_model and facet_model_file need shape 'facets' (shape is {self.shape!r})")
+            if self.shape == "sphere" and self.attitude != "fixed":
+                raise ValueError("a Lambertian sphere looks the same in every attitude; spin or tumble a 'plate' or "
+                                 "a 'facets' shape")
+            if self.shape == "plate" and self.attitude != "fixed" and "plate_normal" in self.model_fields_set:
+                raise ValueError("plate_normal is the law of a fixed plate; a spinning or tumbling plate's normal is "
+                                 "body +z")
+            if not any(self.spin_axis_body) or not all(np.isfinite(self.spin_axis_body)):
+                raise ValueError(f"spin_axis_body must be a non-zero direction (got {list(self.spin_axis_body)})")
+            if self.attitude == "tumble":
+                if self.inertia_kg_m2 is None or self.angular_velocity_deg_s is None:
+                    raise ValueError("attitude 'tumble' needs inertia_kg_m2 and angular_velocity_deg_s")
+                i1, i2, i3 = self.inertia_kg_m2
+                if min(i1, i2, i3) <= 0 or max(i1, i2, i3) > 0.5 * (i1 + i2 + i3) * (1 + 1e-9):
+                    raise ValueError(f"inertia_kg_m2 {list(self.inertia_kg_m2)} is not a rigid body's: principal "
+                                     f"moments must be positive and each at most the sum of the other two")
+            return self
 
     inputs = {
         "orbit": Input(Orbit, "the satellite's element set"),
@@ -70,6 +126,34 @@ class Satellite(Block):
         self._view: SatelliteView | None = None
         self._view_key = None
         self.passes: PassReport | None = None
+        self.reflector = self._reflector()
+
+    def _reflector(self) -> Reflector | FacetReflector:
+        """The sphere or fixed plate of Eq. 1-2, or a facet model turned by the attitude law."""
+        p = self.params
+        if p.shape == "sphere" or (p.shape == "plate" and p.attitude == "fixed"):
+            return Reflector(p.shape, p.area_m2, p.albedo, p.plate_normal)
+        model = facets.lambertian_plate(p.area_m2, p.albedo) if p.shape == "plate" else facets.build(self._facet_spec())
+        law = attitude_law(p.attitude, p.spin_axis_ra_deg, p.spin_axis_dec_deg, p.spin_axis_body, p.spin_rate_deg_s,
+                           p.spin_phase_deg, p.inertia_kg_m2, p.angular_velocity_deg_s)
+        return FacetReflector(model, law)
+
+    def _facet_spec(self) -> facets.FacetModelSpec:
+        p = self.params
+        if p.facet_model is not None:
+            return p.facet_model
+        who = f"{self.type_name} '{self.name}' parameter 'facet_model_file'"
+        try:
+            data = yaml.safe_load(library.resolve(p.facet_model_file).read_text())
+        except OSError as exc:
+            raise ParameterError(f"{who}: cannot read {p.facet_model_file!r} ({exc.strerror or exc})") from None
+        except yaml.YAMLError as exc:
+            raise ParameterError(f"{who}: {p.facet_model_file} is not valid YAML ({exc})") from None
+        try:
+            return facets.FacetModelSpec.model_validate(data)
+        except ValidationError as exc:
+            problems = "; ".join(f"{where}: {message}" for where, message in describe_validation_error(exc))
+            raise ParameterError(f"{who}: {p.facet_model_file}: {problems}") from None
 
     @property
     def cadence_ns(self) -> int:
@@ -83,7 +167,7 @@ class Satellite(Block):
             p = self.params
             self._view = SatelliteView(orbit, observer, pointing, focal_plane, window.epoch,
                                        knot_step_ns=round(p.knot_step_s * NS_PER_S),
-                                       reflector=Reflector(p.shape, p.area_m2, p.albedo, p.plate_normal),
+                                       reflector=self.reflector,
                                        band=radiometry.BANDS[p.band])
             self._view_key = key
             self.passes = None

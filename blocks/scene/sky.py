@@ -190,4 +190,5 @@ class SkyBackgroundBlock(Block):
                            else f"only {depression[i]:.2f} deg below")
                     raise SceneError(f"{who}: the Sun is {sun} the horizon at {_utc(window, chunk[i])}; the "
                                      f"twilight model (Patat et al. 2006) covers the Sun {MIN_SUN_DEPRESSION_DEG:g} "
-                                     f"deg or more below the horizon. Start the run later in the evening (or earlier in the morning)")
+                                     f"deg or more below the horizon. Start the run later in the evening (or earlier "
+                                     f"in the morning)")

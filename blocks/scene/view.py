@@ -19,8 +19,9 @@ from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import Observer, Orbit, Pointing
 
 from . import projection, radiometry
-from .geometry import ObserverModel, apparent_position, satellite_track, sun_track, unit
+from .geometry import C_M_PER_S, NS_PER_S, ObserverModel, apparent_position, satellite_track, sun_track, unit
 from .pointing import PointingModel, azel_from_enu
+from .reflectors import FacetReflector
 from .visibility import EARTH_RADIUS_M, lit_fraction, segment_hits_sphere
 
 PLATE_NORMALS = ("nadir", "sun", "observer", "bisector")
@@ -76,7 +77,7 @@ class SatelliteView:
     """Geometry, visibility and brightness of ``orbit`` seen from ``observer`` with ``pointing``."""
 
     def __init__(self, orbit: Orbit, observer: Observer, pointing: Pointing, focal_plane: FocalPlane,
-                 epoch: datetime, knot_step_ns: int = 10 * 10**9, reflector: Reflector = Reflector(),
+                 epoch: datetime, knot_step_ns: int = 10 * 10**9, reflector: Reflector | FacetReflector = Reflector(),
                  band: radiometry.Band = radiometry.V_BAND):
         self.orbit, self.observer, self.focal_plane = orbit, observer, focal_plane
         self.epoch = epoch
@@ -99,7 +100,7 @@ class SatelliteView:
         x, y = projection.to_pixels(xi, eta, self.focal_plane)
         in_fov = projection.inside(x, y, self.focal_plane)
 
-        r_sat, _ = self.track.state(t)
+        r_sat, v_sat = self.track.state(t)
         r_obs, _ = self.observer_model.state(t)
         r_sun, _ = self.sun.state(t)
         fraction = lit_fraction(r_sat, r_sun)
@@ -120,7 +121,13 @@ class SatelliteView:
         to_observer = unit(r_obs - r_sat)
         phase = np.arccos(np.clip(np.einsum("ij,ij->i", to_sun, to_observer), -1.0, 1.0))
         zenith_boresight = self.pointing_model.zenith_angle(t, b)
-        flux = self._photon_flux(phase, to_sun, to_observer, r_sat, r_sun, range_m, fraction, elevation)
+        if isinstance(self.reflector, FacetReflector):
+            # the attitude at the emission time: light leaves the body range/c before it arrives
+            reflectance = self.reflector.reflectance_m2_sr(t - range_m / C_M_PER_S * NS_PER_S, r_sat, v_sat, to_sun,
+                                                           to_observer)
+            flux = self._facet_photon_flux(reflectance, r_sat, r_sun, range_m, fraction, elevation)
+        else:
+            flux = self._photon_flux(phase, to_sun, to_observer, r_sat, r_sun, range_m, fraction, elevation)
         return ViewSamples(
             t_ns=t_ns, x_px=x, y_px=y, in_fov=in_fov, lit_fraction=fraction, above_horizon=above,
             observer_dark=dark, azimuth_rad=azimuth, elevation_rad=elevation, sun_elevation_rad=sun_elevation,
@@ -139,6 +146,14 @@ class SatelliteView:
             phase_function = radiometry.flat_plate_phase(normal, to_sun, to_observer)
         flux = radiometry.reflected_photon_flux(self.band, ref.albedo, ref.area_m2, phase_function, range_m,
                                                 sun_distance_m=np.linalg.norm(r_sun - r_sat, axis=-1))
+        if self.observer.is_ground:
+            flux = flux * radiometry.transmission(self.observer.extinction_mag_per_airmass, np.pi / 2 - elevation)
+        return np.nan_to_num(flux * fraction, nan=0.0)
+
+    def _facet_photon_flux(self, reflectance, r_sat, r_sun, range_m, fraction, elevation):
+        """A facet model's reflectance to flux, with the penumbra and the atmosphere."""
+        flux = radiometry.photon_flux_of_reflectance(self.band, reflectance, range_m,
+                                                     sun_distance_m=np.linalg.norm(r_sun - r_sat, axis=-1))
         if self.observer.is_ground:
             flux = flux * radiometry.transmission(self.observer.extinction_mag_per_airmass, np.pi / 2 - elevation)
         return np.nan_to_num(flux * fraction, nan=0.0)
