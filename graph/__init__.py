@@ -7,6 +7,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from .block import NS_PER_S, Block, RunInfo, Window, block_rng, parse_epoch
 from .errors import GraphError, InputError, ParameterError, Problem, SceneError, StoreError, UserError
+from .limits import Footprint, Limits
 from .params import BlockParams
 from .ports import Input, Output, PortValue
 from .registry import register
@@ -17,7 +18,7 @@ except PackageNotFoundError:  # running from a source tree that was never instal
     __version__ = "0+unknown"
 
 __all__ = [
-    "NS_PER_S", "Block", "BlockParams", "GraphError", "Input", "InputError", "Output", "ParameterError",
+    "NS_PER_S", "Block", "BlockParams", "Footprint", "GraphError", "Limits", "Input", "InputError", "Output", "ParameterError",
     "PortValue", "Problem", "RunInfo", "SceneError", "StoreError", "UserError", "Window", "block_rng",
     "parse_epoch", "register", "__version__",
 ]

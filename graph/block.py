@@ -27,7 +27,9 @@ unrelated block to a graph changes nothing else.
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import inspect
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 from typing import Any, ClassVar
@@ -36,6 +38,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from .errors import InputError, ParameterError, excerpt
+from .limits import Footprint
 from .params import BlockParams, describe_validation_error
 from .ports import Input, Output, PortValue, port_type_label
 
@@ -166,6 +169,13 @@ class Block:
     #: the block writes user-facing results (a sink); requested by default in a run
     is_sink: ClassVar[bool] = False
 
+    def __init_subclass__(cls, **kwargs):
+        """Every block's ``step`` checks its arguments (a block used from Python is as strict as in a graph)."""
+        super().__init_subclass__(**kwargs)
+        step = cls.__dict__.get("step")
+        if step is not None and not getattr(step, "_checks_inputs", False):
+            cls.step = _checked_step(step)
+
     def __init__(self, params: BlockParams | dict | None = None, /, *, name: str | None = None,
                  seed: int = 0, **param_values):
         if isinstance(params, BlockParams):
@@ -208,6 +218,10 @@ class Block:
         """Called after the last window; may return final outputs."""
         return {}
 
+    def footprint(self, run: RunInfo) -> Footprint:
+        """What the block will allocate, from its parameters (checked against :class:`Limits` before a run)."""
+        return Footprint()
+
     # -- state ------------------------------------------------------------------------
     def get_state(self) -> dict[str, Any]:
         """The block's state and RNG state, serialisable by the checkpoint store."""
@@ -238,3 +252,37 @@ class Block:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(name={self.name!r}, {self.params!r})"
+
+
+def _checked_step(step):
+    """``step`` with its window and inputs checked first: a missing required input, an unknown one, a
+    value of the wrong port type, or a window that is not a :class:`Window` is an :class:`InputError`."""
+    names = None
+
+    @functools.wraps(step)
+    def checked(self, window=None, *args, **inputs):
+        nonlocal names
+        if args:      # inputs given by position, in the order of step's parameters
+            if names is None:
+                names = [n for n in inspect.signature(step).parameters][2:]
+            if len(args) > len(names):
+                raise InputError(f"block '{self.name}' step() takes {len(names)} inputs, got {len(args)}")
+            for name, value in zip(names, args):
+                if name in inputs:
+                    raise InputError(f"block '{self.name}' input '{name}' is given twice")
+                inputs[name] = value
+        if not isinstance(window, Window):
+            raise InputError(f"block '{self.name}' step() needs a Window first, got {excerpt(window)}")
+        for port, spec in type(self).inputs.items():
+            value = inputs.get(port)
+            if spec.required and (value is None or (spec.multi and not value)):
+                raise InputError(f"block '{self.name}' is missing its required input '{port}' "
+                                 f"({port_type_label(spec.type)})")
+            if spec.multi and value is not None and not isinstance(value, (list, tuple)):
+                raise InputError(f"block '{self.name}' input '{port}' takes a list of "
+                                 f"{port_type_label(spec.type)} values, got {type(value).__name__}")
+        self.check_inputs(inputs)
+        return step(self, window, **inputs)
+
+    checked._checks_inputs = True
+    return checked

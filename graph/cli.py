@@ -23,19 +23,21 @@ from .errors import Interrupted, UserError
 from .files import describe_os_error
 from .executor import run_graph
 from .graphfile import Graph, graph_from_dict, load_graph
+from .limits import Limits
 from .report import describe_block, list_blocks, run_summary
 from .store import RunStore
 from .sweep import read_grid, run_sweep
 
 
 def _load(args) -> Graph:
+    limits = Limits.parse(getattr(args, "limit", ()))
     target = Path(args.graph)
     if target.is_dir() and (target / "zarr.json").exists():  # a run store: re-run its resolved graph
         graph_dict = RunStore.open(target).attrs["graph"]
         if args.set:
             raise UserError("--set cannot be combined with a run store as the graph; export its graph first")
-        return graph_from_dict(graph_dict, file=str(target))
-    return load_graph(args.graph, args.set)
+        return graph_from_dict(graph_dict, file=str(target), limits=limits)
+    return load_graph(args.graph, args.set, limits=limits)
 
 
 def cmd_run(args) -> int:
@@ -103,8 +105,16 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
         p.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
                        help="override a parameter (repeatable); included blocks are named include/block")
 
+    def limit_arg(p):
+        defaults = Limits()
+        p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
+                       help=f"raise a size limit checked before any work (repeatable): windows "
+                            f"({defaults.windows:.0e}), pixels ({defaults.pixels:.3g}), window_bytes "
+                            f"({defaults.window_bytes:.3g} bytes held per window)")
+
     p = sub.add_parser("run", help="run a graph file")
     graph_args(p)
+    limit_arg(p)
     p.add_argument("-o", "--output", help="run store to write (default: NAME.zarr)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in OUTPUT from its last checkpoint (from the start if nothing was committed)")
@@ -132,6 +142,7 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="check a graph file without running it")
     graph_args(p)
+    limit_arg(p)
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("blocks", help="list block types, or describe one")

@@ -18,12 +18,16 @@ for _name, _limit in (("maxlevel", 2), ("maxtuple", 4), ("maxlist", 4), ("maxarr
     setattr(_REPR, _name, _limit)
 
 
+def clip(text: str, limit: int = 80) -> str:
+    """``text`` on one line, control characters escaped, cut to ``limit`` characters."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in " ".join(str(text).split()))
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 def excerpt(value: Any, limit: int = 60) -> str:
     """A short, printable repr of ``value`` for error messages: bounded however large or nested the
     value is (``reprlib`` stops early), control characters escaped, cut to ``limit`` characters."""
-    text = _REPR.repr(value)
-    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
-    return text if len(text) <= limit else text[: limit - 1] + "…"
+    return clip(_REPR.repr(value), limit)
 
 
 class UserError(Exception):

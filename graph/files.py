@@ -21,8 +21,16 @@ from pathlib import Path
 
 from .errors import UserError
 
-#: the largest text input read (graph files, TLE files, tables) [bytes]
+#: the largest text input read (TLE files, tables) [bytes]
 MAX_TEXT_BYTES = 16 << 20
+
+
+class FileProblem(UserError):
+    """An input file that cannot be read as asked: its path and the reason (never its contents)."""
+
+    def __init__(self, path: str | Path, reason: str):
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = str(path), reason
 
 _WHAT = {
     errno.ENOSPC: "no space left on the device",
@@ -67,15 +75,19 @@ def check_regular_file(path: str | Path, what: str = "file", max_bytes: int | No
     try:
         info = path.stat()
     except FileNotFoundError:
-        raise UserError(f"{path}: {what} not found") from None
+        raise FileProblem(path, f"{what} not found") from None
     except OSError as exc:
-        raise UserError(f"{path}: cannot read the {what} ({os_reason(exc)})") from None
+        raise FileProblem(path, f"cannot read the {what} ({os_reason(exc)})") from None
     if not stat.S_ISREG(info.st_mode):
-        raise UserError(f"{path}: expected a {what}, found {file_kind(info.st_mode)}")
+        raise FileProblem(path, f"expected a {what}, found {file_kind(info.st_mode)}")
     if max_bytes is not None and info.st_size > max_bytes:
-        raise UserError(f"{path}: the {what} is {info.st_size / 2**20:.1f} MiB, more than the "
-                        f"{max_bytes / 2**20:.0f} MiB a {what} may have")
+        raise FileProblem(path, f"the {what} is {_size(info.st_size)}, more than the {_size(max_bytes)} a {what} "
+                                f"may have")
     return path
+
+
+def _size(nbytes: int) -> str:
+    return f"{nbytes / 2**20:.1f} MiB" if nbytes >= 2**20 else f"{nbytes / 1024:.0f} kiB"
 
 
 def read_text(path: str | Path, what: str = "file", max_bytes: int = MAX_TEXT_BYTES) -> str:
@@ -85,19 +97,19 @@ def read_text(path: str | Path, what: str = "file", max_bytes: int = MAX_TEXT_BY
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
         with os.fdopen(fd, "rb") as handle:
             if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):   # swapped since the check
-                raise UserError(f"{path}: expected a {what}, found something else")
+                raise FileProblem(path, f"expected a {what}, found something else")
             data = handle.read(max_bytes + 1)
     except OSError as exc:
-        raise UserError(f"{path}: cannot read the {what} ({os_reason(exc)})") from None
+        raise FileProblem(path, f"cannot read the {what} ({os_reason(exc)})") from None
     if len(data) > max_bytes:
-        raise UserError(f"{path}: the {what} is larger than {max_bytes / 2**20:.0f} MiB")
+        raise FileProblem(path, f"the {what} is larger than {_size(max_bytes)}")
     if b"\0" in data:
-        raise UserError(f"{path}: the {what} is binary, not text")
+        raise FileProblem(path, f"the {what} is binary, not text")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
-        raise UserError(f"{path}: line {line}: the {what} is not UTF-8 text") from None
+        raise FileProblem(path, f"line {line}: the {what} is not UTF-8 text") from None
 
 
 def check_free_space(path: str | Path, needed_bytes: int, what: str = "output file") -> None:

@@ -36,9 +36,12 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from evsda import library
 
+from . import limits as limits_module
 from . import registry
 from .block import NS_PER_S, Block, RunInfo, parse_epoch
-from .errors import GraphError, ParameterError, Problem, UserError
+from .errors import GraphError, ParameterError, Problem, UserError, clip
+from .files import FileProblem, check_regular_file, read_text
+from .limits import Limits
 from .params import describe_validation_error, params_problems, path_fields
 from .ports import port_type_label
 
@@ -50,7 +53,7 @@ SEPARATOR = "/"
 
 # -- the file format (pydantic models double as the JSON Schema) ----------------------------------
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
 
 
 class RunSection(_Strict):
@@ -114,6 +117,10 @@ class GraphFile(_Strict):
     set: dict[str, Any] = Field(default_factory=dict, description="Parameter overrides, block.param: value [-]")
 
 
+#: the top-level keys of a graph file (a YAML mapping with none of them is not a graph file)
+GRAPH_KEYS = {"evsda", "name", "description", "run", "include", "blocks", "connections", "expose", "outputs", "set"}
+
+
 # -- safe YAML with duplicate-key detection ------------------------------------------------------
 class _DuplicateKey(yaml.YAMLError):
     pass
@@ -132,21 +139,92 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def read_yaml(path: Path) -> Any:
-    """Parse a YAML file safely; a syntax error or duplicate key is a GraphError."""
+#: a YAML document (graph file, sweep grid) is at most this large [bytes]
+MAX_YAML_BYTES = 1 << 20
+#: at most this many aliases (``*name``) in one document
+MAX_YAML_ALIASES = 1000
+#: at most this many values once aliases are expanded (a "billion laughs" document is refused)
+MAX_YAML_VALUES = 100_000
+
+
+class _BoundedLoader(_UniqueKeyLoader):
+    """Counts aliases while composing, so an alias bomb stops before it is built."""
+
+    def __init__(self, stream, what: str):
+        super().__init__(stream)
+        self.aliases, self.what = 0, what
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            self.aliases += 1
+            if self.aliases > MAX_YAML_ALIASES:
+                mark = self.peek_event().start_mark
+                raise _Limit(f"line {mark.line + 1}: more than {MAX_YAML_ALIASES} aliases; a {self.what} may "
+                             f"not have that many")
+        return super().compose_node(parent, index)
+
+
+class _Limit(yaml.YAMLError):
+    pass
+
+
+def _expanded_size(root: yaml.Node) -> int:
+    """How many values ``root`` holds once its aliases are expanded (each shared node counted every time
+    it is used), computed without expanding; refuses a node that contains itself."""
+    sizes: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    open_nodes: set[int] = set()
+    while stack:
+        node, children_done = stack.pop()
+        key = id(node)
+        if key in sizes:
+            continue
+        if isinstance(node, yaml.ScalarNode):
+            sizes[key] = 1
+            continue
+        children = [c for pair in node.value for c in pair] if isinstance(node, yaml.MappingNode) else node.value
+        if children_done:
+            open_nodes.discard(key)
+            sizes[key] = min(1 + sum(sizes[id(c)] for c in children), MAX_YAML_VALUES + 1)
+            continue
+        if key in open_nodes:
+            raise _Limit(f"line {node.start_mark.line + 1}: an alias refers to the value that contains it")
+        open_nodes.add(key)
+        stack.append((node, True))
+        for child in children:
+            if id(child) in open_nodes:
+                raise _Limit(f"line {child.start_mark.line + 1}: an alias refers to the value that contains it")
+            if id(child) not in sizes:
+                stack.append((child, False))
+    return sizes[id(root)]
+
+
+def read_yaml(path: Path, what: str = "graph file") -> Any:
+    """Parse a YAML file safely; a missing, special, oversized, non-UTF-8 or invalid file, a duplicate
+    key, or an alias bomb is a GraphError naming the file and the line, never quoting the file."""
     try:
-        text = path.read_text()
-    except OSError as exc:
-        raise GraphError([Problem(str(path), "", f"cannot read the file ({exc.strerror})")]) from None
+        text = read_text(path, what, MAX_YAML_BYTES)
+    except FileProblem as exc:
+        raise GraphError([Problem(str(path), "", exc.reason)]) from None
+    loader = _BoundedLoader(text, what)
     try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)
+        node = loader.get_single_node()
+        if node is not None and _expanded_size(node) > MAX_YAML_VALUES:
+            raise _Limit(f"its aliases expand to more than {MAX_YAML_VALUES} values; a {what} may not be that large")
+        return None if node is None else loader.construct_document(node)
     except _DuplicateKey as exc:
         raise GraphError([Problem(str(path), "", f"{exc}; names must be unique")]) from None
+    except _Limit as exc:
+        raise GraphError([Problem(str(path), "", str(exc))]) from None
+    except RecursionError:
+        raise GraphError([Problem(str(path), "", "values are nested too deeply")]) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise GraphError([Problem(str(path), where, f"not valid YAML: {problem}")]) from None
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise GraphError([Problem(str(path), where, f"not valid YAML: {clip(problem)}")]) from None
+    finally:
+        loader.dispose()
 
 
 def parse_value(text: str) -> Any:
@@ -275,9 +353,15 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
         chain = " -> ".join(str(p) for p in (*stack, path))
         problems.append(Problem(file, "include", f"includes itself ({chain})"))
         return _Flat(), None
-    data = read_yaml(path)
-    if not isinstance(data, dict):
-        problems.append(Problem(file, "", "expected a mapping with 'evsda', 'blocks', 'connections', ..."))
+    try:
+        data = read_yaml(path)
+    except GraphError as exc:
+        problems.extend(exc.problems)
+        return _Flat(), None
+    if not isinstance(data, dict) or not (set(map(str, data)) & GRAPH_KEYS):
+        # say nothing of what the file holds: it may be any file its user can read
+        problems.append(Problem(file, "", f"not an evsda graph file: expected a mapping with some of the keys "
+                                          f"{', '.join(sorted(GRAPH_KEYS))}"))
         return _Flat(), None
     try:
         spec = GraphFile.model_validate(data)
@@ -302,9 +386,13 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
         if include.as_ in spec.blocks or include.as_ in aliases:
             problems.append(Problem(file, f"include '{include.as_}'", "name already used by a block or another include"))
             continue
-        sub_path = library.resolve(include.file, path.parent)
+        try:
+            sub_path = library.resolve(include.file, path.parent)
+        except UserError as exc:
+            problems.append(Problem(file, f"include '{include.as_}'", str(exc)))
+            continue
         if not sub_path.exists():
-            problems.append(Problem(file, f"include '{include.as_}'", f"file {include.file} not found"))
+            problems.append(Problem(file, f"include '{include.as_}'", f"file {clip(include.file)} not found"))
             continue
         sub, _ = _load_flat(sub_path, qualified(include.as_), problems, (*stack, path.resolve()))
         flat.run = flat.run or sub.run
@@ -365,8 +453,12 @@ def _load_flat(path: Path, prefix: str, problems: list[Problem], stack: tuple[Pa
     return flat, spec
 
 
-def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = None) -> Graph:
-    """Load, flatten and check a graph file; raise GraphError listing every problem."""
+def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = None,
+               limits: Limits | None = None) -> Graph:
+    """Load, flatten and check a graph file; raise GraphError listing every problem.
+
+    ``limits`` (default :class:`Limits`) bounds the window count, sensor pixels and memory per window.
+    """
     path = library.resolve(str(path))
     problems: list[Problem] = []
     flat, spec = _load_flat(path, "", problems, ())
@@ -389,7 +481,7 @@ def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
     _apply_overrides(flat, override_items, file, "--set", problems)
     if spec is None:
         raise GraphError(problems)
-    graph = _check(file, spec, flat, path.parent, problems)
+    graph = _check(file, spec, flat, path.parent, problems, limits)
     if problems:
         raise GraphError(problems)
     return graph
@@ -409,7 +501,7 @@ def _override_run(spec: GraphFile, overrides: dict[str, Any], file: str, problem
     return spec.model_copy(update={"run": run})
 
 
-def graph_from_dict(data: dict[str, Any], file: str = "<graph>") -> Graph:
+def graph_from_dict(data: dict[str, Any], file: str = "<graph>", limits: Limits | None = None) -> Graph:
     """Check a resolved graph given as a dict (e.g. one stored with a run)."""
     problems: list[Problem] = []
     try:
@@ -426,13 +518,14 @@ def graph_from_dict(data: dict[str, Any], file: str = "<graph>") -> Graph:
             continue
         flat.connections.append((*src, *dst, file))
     flat.requested = [_split_endpoint(o) for o in (spec.outputs or [])]
-    graph = _check(file, spec, flat, Path.cwd(), problems)
+    graph = _check(file, spec, flat, Path.cwd(), problems, limits)
     if problems:
         raise GraphError(problems)
     return graph
 
 
-def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[Problem]) -> Graph:
+def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[Problem],
+           limits: Limits | None = None) -> Graph:
     seed = spec.run.seed if spec.run else 0
     available = registry.available()
     for name, node in flat.blocks.items():
@@ -444,9 +537,16 @@ def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[P
             continue
         node.cls = cls
         params = dict(node.params)
+        unreadable = False
         for key in path_fields(cls.Params):
             if isinstance(params.get(key), str):
-                params[key] = _resolve_path(params[key], Path(node.file).parent)
+                try:
+                    params[key] = _resolve_path(params[key], Path(node.file).parent)
+                except UserError as exc:
+                    problems.append(Problem(node.file, f"{where} ({node.type}) parameter '{key}'", str(exc)))
+                    unreadable = True
+        if unreadable:
+            continue
         try:
             node.block = cls(cls.Params.model_validate(params), name=name, seed=seed)
         except ValidationError as exc:
@@ -528,13 +628,30 @@ def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[P
         else:
             requested.append((block, port))
 
+    run = None
+    if spec.run is not None:
+        try:
+            run = RunInfo(epoch=parse_epoch(spec.run.start), duration_ns=round(spec.run.duration_s * NS_PER_S),
+                          window_ns=round(spec.run.window_s * NS_PER_S), seed=spec.run.seed)
+        except ParameterError:
+            problems.append(Problem(file, "run", "duration_s and window_s must each be at least 1 ns"))
+    if run is not None:
+        footprints = {name: node.block.footprint(run) for name, node in flat.blocks.items() if node.block is not None}
+        problems.extend(Problem(file, where, message)
+                        for where, message in limits_module.check(run.n_windows, footprints, limits or Limits()))
+
     return Graph(file=file, name=spec.name or Path(file).stem, run=spec.run, nodes=flat.blocks,
                  connections=connections, outputs=requested, exposed_inputs=flat.exposed_inputs,
                  exposed_outputs=flat.exposed_outputs, digraph=digraph)
 
 
 def _resolve_path(value: str, base: Path) -> str:
-    """A file parameter relative to its graph file becomes absolute; ``library:`` stays as is."""
-    if value.startswith(library.PREFIX) or "\n" in value:
+    """A file parameter relative to its graph file becomes absolute; ``library:`` stays as is. The file
+    must be a regular file (a FIFO or a device would block the block that reads it): checked here,
+    by its metadata only, so that ``validate`` reports it."""
+    if "\n" in value:
         return value
-    return str(library.resolve(value, base))
+    path = library.resolve(value, base)
+    if path.exists() or path.is_symlink():
+        check_regular_file(path, "data file", max_bytes=None)
+    return value if value.startswith(library.PREFIX) else str(path)

@@ -44,9 +44,10 @@ def path_fields(params_class: type[BaseModel]) -> list[str]:
 
 
 class BlockParams(BaseModel):
-    """Base of every block's ``Params``: frozen, unknown keys rejected."""
+    """Base of every block's ``Params``: frozen, unknown keys rejected, and no infinite or NaN number
+    (every physical quantity is finite; "no limit" is spelled ``None`` where a block allows it)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True)
+    model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True, allow_inf_nan=False)
 
 
 def describe_validation_error(error: ValidationError) -> list[tuple[str, str]]:

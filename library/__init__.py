@@ -14,9 +14,19 @@ def path(relative: str) -> Path:
 
 
 def resolve(reference: str, base: Path | None = None) -> Path:
-    """Resolve ``library:tle/iss.tle`` to the bundled file, or a plain path against ``base``."""
+    """Resolve ``library:tle/iss.tle`` to the bundled file, or a plain path against ``base``.
+
+    A ``library:`` reference cannot leave the bundled library (``library:../x`` is refused).
+    """
     if reference.startswith(PREFIX):
-        return path(reference[len(PREFIX):])
+        relative = reference[len(PREFIX):]
+        root = Path(str(files(__name__))).resolve()
+        target = path(relative)
+        if Path(relative).is_absolute() or not target.resolve().is_relative_to(root):
+            from evsda.graph.errors import UserError
+
+            raise UserError(f"{reference[:80]}: a library: path must name a file inside the bundled library")
+        return target
     candidate = Path(reference).expanduser()
     if not candidate.is_absolute() and base is not None:
         candidate = base / candidate

@@ -36,6 +36,8 @@ import numpy as np
 from scipy.integrate import quad
 from scipy.special import j1
 
+from evsda.graph.files import read_text
+
 #: Kolmogorov refractive-index spectrum coefficient, Phi_n = 0.033 Cn^2 kappa^(-11/3) (Tatarskii 1971) [1]
 PHI_N_COEFFICIENT = 0.033
 
@@ -173,19 +175,27 @@ def read_profile_table(path: str | Path) -> tuple[Layer, ...]:
     direction is measured from the focal plane's +x axis toward +y [deg].
     """
     path = Path(path)
-    with path.open(newline="") as handle:
-        rows = [line for line in handle if line.strip() and not line.lstrip().startswith("#")]
-    reader = csv.DictReader(rows)
+    text = read_text(path, "Cn2 profile table")        # a regular UTF-8 file (a FIFO would block)
+    rows = [(number, line) for number, line in enumerate(text.splitlines(keepends=True), start=1)
+            if line.strip() and not line.lstrip().startswith("#")]
+    reader = csv.DictReader([line for _, line in rows])
     expected = {"altitude_m", "cn2_dh_m13", "wind_speed_m_s", "wind_direction_deg"}
-    if reader.fieldnames is None or not expected <= {name.strip() for name in reader.fieldnames}:
-        raise ValueError(f"{path}: expected the columns {sorted(expected)}, found {reader.fieldnames}")
+    if reader.fieldnames is None or not expected <= {str(name).strip() for name in reader.fieldnames}:
+        # the header is not quoted back: the file may be anything its user can read
+        raise ValueError(f"{path}: expected the columns {sorted(expected)} on the first line that is not a comment")
     layers = []
-    for row in reader:
-        row = {key.strip(): value for key, value in row.items()}
-        layer = Layer(float(row["altitude_m"]), float(row["cn2_dh_m13"]), float(row["wind_speed_m_s"]),
-                      np.deg2rad(float(row["wind_direction_deg"])))
+    for (number, _), row in zip(rows[1:], reader):
+        try:
+            row = {str(key).strip(): value for key, value in row.items()}
+            layer = Layer(float(row["altitude_m"]), float(row["cn2_dh_m13"]), float(row["wind_speed_m_s"]),
+                          np.deg2rad(float(row["wind_direction_deg"])))
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: line {number}: expected four numbers") from None
+        values = (layer.altitude_m, layer.cn2_dh, layer.wind_speed_m_s, layer.wind_direction_rad)
+        if not all(np.isfinite(v) for v in values):
+            raise ValueError(f"{path}: line {number}: the values must be finite")
         if layer.altitude_m < 0 or layer.cn2_dh < 0 or layer.wind_speed_m_s < 0:
-            raise ValueError(f"{path}: negative altitude, Cn2 dh or wind speed in {row}")
+            raise ValueError(f"{path}: line {number}: negative altitude, Cn2 dh or wind speed")
         layers.append(layer)
     if not layers:
         raise ValueError(f"{path}: no layers")

@@ -8,7 +8,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground
-from evsda.graph import Block, BlockParams, Input, InputError, Output, ParameterError, RunInfo, Window
+from evsda.graph import Block, BlockParams, Input, InputError, Output, ParameterError, RunInfo, UserError, Window
 from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
@@ -121,7 +121,7 @@ class PointSourceOptics(Block):
             path = resolve(p.profile_file)
             try:
                 atmosphere = Atmosphere.from_table(path, p.outer_scale_m)
-            except (OSError, ValueError) as exc:
+            except (OSError, ValueError, UserError) as exc:
                 raise ParameterError(f"block '{self.name}' parameter 'profile_file': {exc}") from None
         if atmosphere.total_cn2_dh <= 0:
             return None

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evsda.graph import ParameterError
+from evsda.graph import ParameterError, UserError
+from evsda.graph.files import check_regular_file
 
 HIPPARCOS_EPOCH_JYEAR = 1991.25       # catalogue epoch of positions (Julian year, TT)
 
@@ -51,14 +52,18 @@ def load_hipparcos(path: str) -> StarCatalog:
     opener = gzip.open if Path(path).suffix == ".gz" else open
     rows = []
     try:
+        check_regular_file(path, "star catalogue", max_bytes=None)      # a FIFO would block the reader
+    except UserError as exc:
+        raise ParameterError(str(exc)) from None
+    try:
         with opener(path, "rt", encoding="ascii", errors="replace") as f:
             for line in f:
                 fields = line.split("|")
                 if len(fields) < 14 or not fields[8].strip() or not fields[5].strip():
                     continue
                 rows.append((fields[1].strip(), fields[5], fields[8], fields[9], fields[12], fields[13], fields[11]))
-    except OSError as exc:
-        raise ParameterError(f"star catalogue {path!r} cannot be read ({exc.strerror or exc})") from None
+    except (OSError, EOFError) as exc:      # gzip raises BadGzipFile (an OSError) or EOFError for a damaged file
+        raise ParameterError(f"star catalogue {path} cannot be read ({exc.strerror or type(exc).__name__})") from None
     if not rows:
         raise ParameterError(f"star catalogue {path!r} holds no Hipparcos records")
     hip, *columns = zip(*rows)

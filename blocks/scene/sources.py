@@ -17,7 +17,8 @@ from pydantic import Field, model_validator
 from evsda import library
 from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import AZEL, GROUND, RADEC, SPACE, TRACK, Observer, Orbit, Pointing
-from evsda.graph import Block, BlockParams, Input, Output, ParameterError, RunInfo, Window
+from evsda.graph import Block, BlockParams, Footprint, Input, Output, ParameterError, RunInfo, UserError, Window
+from evsda.graph.files import read_text
 from evsda.graph.params import DataFile
 
 from .pointing import moving_law
@@ -67,12 +68,10 @@ class TleSource(Block):
     def _load(self) -> Orbit:
         p = self.params
         if p.tle_file is not None:
-            path = library.resolve(p.tle_file)
             try:
-                text = path.read_text()
-            except OSError as exc:
-                raise ParameterError(f"{self.type_name} '{self.name}' parameter 'tle_file': cannot read "
-                                     f"{p.tle_file!r} ({exc.strerror or exc})") from None
+                text = read_text(library.resolve(p.tle_file), "TLE file")   # regular UTF-8 file, bounded
+            except UserError as exc:
+                raise ParameterError(f"{self.type_name} '{self.name}' parameter 'tle_file': {exc}") from None
             source = f"{self.type_name} '{self.name}' tle_file {p.tle_file}"
         else:
             text, source = p.tle_text, f"{self.type_name} '{self.name}' tle_text"
@@ -180,6 +179,10 @@ class Camera(Block):
             return self
 
     outputs = {"focal_plane": Output(FocalPlane, "the detector geometry")}
+
+    def footprint(self, run: RunInfo) -> Footprint:
+        """The sensor this camera defines (its pixel count is checked against the limits before a run)."""
+        return Footprint(pixels=self.params.width_px * self.params.height_px)
 
     @property
     def focal_plane(self) -> FocalPlane:

@@ -17,6 +17,7 @@ from skyfield.api import EarthSatellite
 
 from evsda.blocks.ports.scene import Orbit
 from evsda.graph import ParameterError, SceneError
+from evsda.graph.errors import excerpt
 
 from .ephemeris import NS_PER_DAY, timescale
 
@@ -42,6 +43,9 @@ def parse_tles(text: str, source: str = "TLE text") -> list[Orbit]:
     a wrong checksum, or lines 1 and 2 of different satellites.
     """
     lines = [(number, raw.rstrip()) for number, raw in enumerate(text.splitlines(), start=1) if raw.strip()]
+    if not any(line.startswith(("1 ", "2 ")) for _, line in lines):
+        # not a TLE file at all: quote nothing from it (it may be any file its user can read)
+        raise ParameterError(f"{source}: no two-line element set found (no line starts with '1 ' or '2 ')")
     orbits: list[Orbit] = []
     i = 0
     while i < len(lines):
@@ -51,7 +55,8 @@ def parse_tles(text: str, source: str = "TLE text") -> list[Orbit]:
             name = line[2:].strip() if line.startswith("0 ") else line.strip()
             i += 1
             if i >= len(lines):
-                raise ParameterError(f"{source}: line {number} ('{name}') is not followed by a two-line element set")
+                raise ParameterError(f"{source}: line {number} ({excerpt(name, 30)}) is not followed by a two-line "
+                                     f"element set")
         if i + 1 >= len(lines):
             raise ParameterError(f"{source}: line {lines[i][0]} has no line 2 after it")
         (n1, line1), (n2, line2) = lines[i], lines[i + 1]
@@ -70,11 +75,11 @@ def parse_tles(text: str, source: str = "TLE text") -> list[Orbit]:
 def _check_line(line: str, kind: str, number: int, source: str) -> None:
     if not line.startswith(kind + " "):
         raise ParameterError(f"{source}: line {number} should be TLE line {kind} (starting '{kind} '), "
-                             f"got {line[:20]!r}")
+                             f"got {excerpt(line[:20])}")
     if len(line) != LINE_LENGTH:
         raise ParameterError(f"{source}: line {number} has {len(line)} characters, a TLE line has {LINE_LENGTH}")
     if not line[-1].isdigit():
-        raise ParameterError(f"{source}: line {number} ends with {line[-1]!r} where its checksum digit should be")
+        raise ParameterError(f"{source}: line {number} ends with {excerpt(line[-1])} where its checksum digit should be")
     expected = tle_checksum(line)
     if int(line[-1]) != expected:
         raise ParameterError(f"{source}: line {number} fails its checksum (column 69 says {line[-1]}, "
