@@ -171,15 +171,14 @@ class Executor:
         elif not out.parent.is_dir():
             raise StoreError(f"cannot create run store {out}: {out.parent} is not a folder")
 
-    def _take_store_folder(self) -> bool:
-        """Create the output folder if needed and lock it; returns whether this run created it."""
-        created = not self.out.exists()
+    def _take_store_folder(self) -> None:
+        """Create the output folder if needed (noting that this run created it) and lock it."""
+        self._created = not self.out.exists()
         try:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise StoreError(f"cannot create run store {self.out}: {os_reason(exc)}") from None
         self.lock = StoreLock(self.out).acquire()
-        return created
 
     def _open_for_resume(self) -> RunStore | None:
         """The store to continue, or None when there is nothing to continue (start over)."""
@@ -208,17 +207,19 @@ class Executor:
     def execute(self) -> RunResult:
         if self.out is None:
             return self._execute()
-        created = self._take_store_folder()
+        self._created = False
         try:
+            self._take_store_folder()
             return self._execute()
         except BaseException as exc:
-            if self.store is None and created:
+            if self.store is None and self._created:
                 shutil.rmtree(self.out, ignore_errors=True)   # nothing was computed: leave nothing behind
             if isinstance(exc, KeyboardInterrupt):
                 raise Interrupted(getattr(exc, "signal_name", "SIGINT"), self._interrupted_note()) from None
             raise
         finally:
-            self.lock.release()
+            if self.lock is not None:
+                self.lock.release()
 
     @contextmanager
     def _writing(self):
