@@ -31,11 +31,11 @@ def light_curve(graph, step_ns: int = 1_000_000) -> dict[str, np.ndarray]:
     """The rocket's time, V magnitude and focal-plane position from the scene's satellite block."""
     run = graph.run_info()
     blocks = graph.blocks
-    orbit = blocks["rocket"].step(None)["orbit"]
-    view = blocks["sat"].view(Window(0, 0, run.duration_ns, run.epoch), orbit,
-                              blocks["site/site"].step(None)["observer"],
-                              blocks["pointing"].step(None, target=orbit)["pointing"],
-                              blocks["sensor/camera"].step(None)["focal_plane"])
+    whole = Window(0, 0, run.duration_ns, run.epoch)
+    orbit = blocks["rocket"].step(whole)["orbit"]
+    view = blocks["sat"].view(whole, orbit, blocks["site/site"].step(whole)["observer"],
+                              blocks["pointing"].step(whole, target=orbit)["pointing"],
+                              blocks["sensor/camera"].step(whole)["focal_plane"])
     t_ns = np.arange(0, run.duration_ns, step_ns)
     s = view.sample(t_ns)
     return {"t_ns": t_ns, "magnitude": s.magnitude, "x_px": s.x_px, "y_px": s.y_px}
