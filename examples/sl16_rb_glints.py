@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evsda.blocks.scene.sky import sky_photon_flux_per_pixel
 from evsda.graph import Window
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
@@ -39,6 +40,22 @@ def light_curve(graph, step_ns: int = 1_000_000) -> dict[str, np.ndarray]:
     t_ns = np.arange(0, run.duration_ns, step_ns)
     s = view.sample(t_ns)
     return {"t_ns": t_ns, "magnitude": s.magnitude, "x_px": s.x_px, "y_px": s.y_px}
+
+
+def sky_brightness(graph) -> np.ndarray:
+    """The sky block's V surface brightness at the boresight at the run's start and end [mag/arcsec^2]."""
+    run = graph.run_info()
+    blocks = graph.blocks
+    whole = Window(0, 0, run.duration_ns, run.epoch)
+    sky = blocks["site/sky"]
+    sky.setup(run)
+    orbit = blocks["rocket"].step(whole)["orbit"]
+    focal_plane = blocks["sensor/camera"].step(whole)["focal_plane"]
+    inputs = {"observer": blocks["site/site"].step(whole)["observer"],
+              "pointing": blocks["pointing"].step(whole, target=orbit)["pointing"], "focal_plane": focal_plane}
+    ends = [sky.step(Window(0, t, t + 1, run.epoch), **inputs)["background"].photon_flux_per_pixel[0]
+            for t in (0, run.duration_ns - 1)]
+    return -2.5 * np.log10(np.array(ends) / sky_photon_flux_per_pixel(0.0, focal_plane))
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -139,6 +156,8 @@ def main() -> None:
             run_graph(graph, path, progress=False)
         curve, found, counts, seen = report(graph, RunStore.open(path), args.glint_mag, args.radius,
                                             args.burst_factor)
+    start, end = sky_brightness(graph)
+    print(f"sky at the rocket: V {start:.2f} mag/arcsec^2 at the start, {end:.2f} at the end")
     m = curve["magnitude"]
     print(f"light curve: V {np.median(m):.2f} median, {m.max():.2f} faintest, {m.min():.2f} brightest")
     print(f"events within {args.radius:g} px of the rocket: median {np.median(counts['on']):.0f} ON and "
