@@ -20,8 +20,8 @@ from . import __version__, registry
 from . import schema as schema_module
 from .commands import Command, contributed_commands
 from .errors import Interrupted, UserError
-from .files import describe_os_error
 from .executor import run_graph
+from .files import describe_os_error
 from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
 from .report import describe_block, list_blocks, run_summary

@@ -25,8 +25,8 @@ from typing import Any
 import networkx as nx
 
 from . import __version__
-from .block import Block, RunInfo, Window
 from . import store as store_module
+from .block import Block, RunInfo, Window
 from .errors import Interrupted, StoreError
 from .files import os_reason
 from .graphfile import Graph

@@ -32,9 +32,8 @@ from typing import Any, Literal
 
 import networkx as nx
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
-
 from evsda import library
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from . import limits as limits_module
 from . import registry

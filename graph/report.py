@@ -89,8 +89,10 @@ def run_summary(graph, result) -> str:
     lines = []
     store = result.store
     if store is not None:
+        size = store.disk_bytes()
+        per_event = f", {size / store.n_events:.1f} bytes per event" if store.n_events else ""
         lines.append(f"{store.path}: {store.committed_windows} of {graph.run_info().n_windows} windows, "
-                     f"{store.n_events} events recorded")
+                     f"{store.n_events} events recorded; {size / 1e6:.1f} MB on disk{per_event}")
     for block, source in result.reused.items():
         lines.append(f"reused {block} from {source}")
     if result.metrics:

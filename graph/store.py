@@ -190,6 +190,17 @@ class RunStore:
                            self.complete, bool(self._committed().get("checkpoint")),
                            describe_holder(holder) if holder else None, self._structure_problems())
 
+    def disk_bytes(self) -> int:
+        """The size of the store's files [byte]."""
+        total = 0
+        for folder, _, names in os.walk(self.path):
+            for name in names:
+                try:
+                    total += os.lstat(os.path.join(folder, name)).st_size
+                except OSError:
+                    pass
+        return total
+
     def verify(self) -> list[str]:
         """Every problem found reading every committed chunk (checksums), plus :meth:`status`'s."""
         problems = self._structure_problems()

@@ -10,6 +10,7 @@ import argparse
 
 from evsda.graph import UserError
 from evsda.graph.commands import Command
+from evsda.graph.files import atomic_output, check_output_path
 
 from .zernike import noll_to_nm
 
@@ -54,8 +55,10 @@ class PlotScreen(Command):
 
         if args.modes > 1000:
             raise UserError(f"plot-screen: --modes {args.modes} is more than the 1000 modes supported")
+        check_output_path(args.output, overwrite=True, what="figure")
         result = zernike_screen(args.aperture, args.r0, args.modes, args.show, args.samples, args.seed)
-        plot_zernike_screen(result, args.output)
+        with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
+            plot_zernike_screen(result, temporary)
         shown = ", ".join(f"j={j} (n={noll_to_nm(j)[0]}, m={noll_to_nm(j)[1]})" for j in args.show)
         print(f"{args.output}: modes {shown}; screen of {args.modes} modes, D/r0 = {result.d_over_r0:.3g}")
         return 0
@@ -85,6 +88,7 @@ class PlotPropagation(Command):
 
         if not 0 <= args.zenith < 90:
             raise UserError(f"plot-propagation: --zenith must be in [0, 90) degrees, got {args.zenith}")
+        check_output_path(args.output, overwrite=True, what="figure")
         if args.layers > 32:
             raise UserError(f"plot-propagation: --layers {args.layers} is more than the 32 supported")
         try:
@@ -93,7 +97,8 @@ class PlotPropagation(Command):
         except ValueError as exc:
             raise UserError(f"plot-propagation: no valid propagation grid for this geometry: {exc}; "
                             f"try fewer --pupil-samples or a shorter --distance") from None
-        plot_propagation(demo, args.output)
+        with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
+            plot_propagation(demo, temporary)
         print(f"{args.output}: grid {demo.grid.describe()}; {demo.aperture_power_w:.3g} W of {args.power:g} W "
               f"in the aperture; r0 = {demo.r0_m:.3g} m at {args.wavelength * 1e9:.0f} nm")
         return 0

@@ -35,7 +35,6 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
-
 from evsda.graph import UserError
 
 Chunk = dict[str, np.ndarray]

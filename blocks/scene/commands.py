@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from evsda.graph import NS_PER_S, UserError, Window
 from evsda.graph.commands import Command
+from evsda.graph.files import atomic_output, check_output_path
 
 from .passes import find_passes
 from .satellite import Satellite
@@ -52,6 +52,7 @@ class PlotPass(Command):
     def run(self, args: argparse.Namespace) -> int:
         from evsda.graph.graphfile import load_graph
 
+        check_output_path(args.png, overwrite=True, what="figure")
         graph = load_graph(args.graph, args.set)
         run = graph.run_info()
         satellites = [n for n, node in graph.nodes.items() if isinstance(node.block, Satellite)]
@@ -68,7 +69,8 @@ class PlotPass(Command):
         report = find_passes(view, 0, run.duration_ns, resolution_ns=block.cadence_ns)
         from .plot import plot_pass
 
-        plot_pass(view, report, -pad, run.duration_ns + pad, Path(args.png))
+        with atomic_output(args.png, overwrite=True, what="figure", suffix=".png") as temporary:
+            plot_pass(view, report, -pad, run.duration_ns + pad, temporary)
         print(f"{args.png}: {inputs['orbit'].name}; " + ("; ".join(str(p) for p in report.passes)
                                                         or "no observable pass during the run"))
         return 0

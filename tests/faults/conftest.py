@@ -14,7 +14,7 @@ import pytest
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))       # faultkit, for the tests (pytest runs with --import-mode=importlib)
-from faultkit import graph_file  # noqa: E402
+from faultkit import graph_file
 
 PLUGIN = HERE.parent / "framework" / "plugin" / "evsda_testblocks.py"
 DRIVER = HERE / "fault_driver.py"

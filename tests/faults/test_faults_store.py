@@ -8,10 +8,9 @@ import json
 
 import numpy as np
 import pytest
-from faultkit import chunk_file, cli, run_in_process
-
 from evsda.graph import StoreError
 from evsda.graph.store import RunStore
+from faultkit import chunk_file, cli, run_in_process
 
 
 def _flip(path, offset=-9):
