@@ -25,7 +25,7 @@ from typing import Any
 from .errors import GraphError, Problem, UserError
 from .executor import run_graph
 from .graphfile import load_graph, parse_value, read_yaml
-from .store import RunStore
+from .store import RunStore, is_run_store
 
 
 @dataclass(frozen=True)
@@ -75,11 +75,11 @@ def plan(graph_path: str, grid: dict[str, list[Any]], out_dir: Path, overrides: 
 
 def _run_point(graph_path: str, overrides: list[str], point: SweepPoint, reuse: list[Path], overwrite: bool) -> dict:
     graph = load_graph(graph_path, [*overrides, *(f"{k}={v}" for k, v in point.values.items())])
-    n_windows = graph.run_info().n_windows
     if point.store.exists() and not overwrite:
-        store = RunStore.open(point.store)
-        if store.committed_windows >= n_windows and store.attrs.get("graph_hash") == graph.digest():
-            return {"metrics": store.metrics, "reused": {}, "skipped": True}
+        if is_run_store(point.store):      # else a point killed before its first window: resume starts it over
+            store = RunStore.open(point.store)
+            if store.complete and store.attrs.get("graph_hash") == graph.digest():
+                return {"metrics": store.metrics, "reused": {}, "skipped": True}
         result = run_graph(graph, point.store, resume=True, reuse=reuse, progress=False)
     else:
         result = run_graph(graph, point.store, overwrite=overwrite, reuse=reuse, progress=False)

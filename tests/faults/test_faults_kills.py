@@ -110,3 +110,18 @@ def test_a_stale_lock_left_by_a_killed_run_is_taken_over(evsda, reference, tmp_p
     resumed = evsda("run", graph, "-o", store, "--resume", "-q")
     assert resumed.returncode == 0, resumed.stderr
     assert_identical(store, reference)
+
+
+def test_a_sweep_point_killed_before_its_first_window_is_run_again(capsys, tmp_path):
+    """A killed point can leave a folder holding only its (stale) lock: re-running the sweep starts it over."""
+    from faultkit import cli
+
+    from evsda.graph.store import RunStore
+
+    graph = graph_file(tmp_path)
+    out = tmp_path / "sweep"
+    (out / "point_001.zarr").mkdir(parents=True)
+    (out / "point_001.zarr" / ".evsda-lock").write_text('{"pid": 999999, "host": "gone"}')
+    status, lines = cli(capsys, "sweep", graph, "--vary", "spikes.step=[2.0, 3.0]", "-o", out)
+    assert status == 0, lines
+    assert all(RunStore.open(out / f"point_00{i}.zarr").complete for i in (0, 1))
