@@ -75,7 +75,8 @@ def specular_ripple() -> None:
             seconds, curve = timed(lambda: reflector.reflectance_m2_sr(
                 t_ns, None, None, np.tile(sun, (len(t_ns), 1)), np.tile(observer, (len(t_ns), 1))), repeat=3)
             mark = " (default)" if n == auto else ""
-            print(f"   {exponent:8.0e} {max(8, n):7d} {np.ptp(curve) / curve.mean():9.2e} {seconds * 1e3:15.1f} ms{mark}")
+            ripple = np.ptp(curve) / curve.mean()
+            print(f"   {exponent:8.0e} {max(8, n):7d} {ripple:9.2e} {seconds * 1e3:15.1f} ms{mark}")
 
 
 def sun_disc_blur() -> None:
@@ -112,8 +113,8 @@ def moon_place() -> None:
     slow_s = time.perf_counter() - start
     reference /= np.linalg.norm(reference, axis=1, keepdims=True)
     error = np.degrees(np.arccos(np.clip(np.sum(reference * samples.direction, axis=1), -1, 1))) * 3600
-    print(f"   {len(t_ns)} samples: knots {fast_s:.2f} s, Skyfield {slow_s:.2f} s; direction error max {error.max():.2e}"
-          f" arcsec")
+    print(f"   {len(t_ns)} samples: knots {fast_s:.2f} s, Skyfield {slow_s:.2f} s; direction error max "
+          f"{error.max():.2e} arcsec")
 
 
 def tumble_cost() -> None:

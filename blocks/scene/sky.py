@@ -17,7 +17,7 @@ from .moon import MOON_MEAN_DISTANCE_M, MOON_RADIUS_M, MoonModel, MoonSamples, r
 from .moonlight import magnitude_of_nanolamberts, moonlight_nanolamberts
 from .passes import iso
 from .pointing import PointingModel
-from .twilight import MIN_SUN_DEPRESSION_DEG, twilight_flux_relative
+from .twilight import MIN_SUN_DEPRESSION_DEG, twilight_surface_brightness
 
 ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
 
@@ -151,8 +151,7 @@ class SkyBackgroundBlock(Block):
                 distance_ratio=moon.distance_m / MOON_MEAN_DISTANCE_M)
             parts.append(magnitude_of_nanolamberts(nanolamberts))
         if self.params.twilight:
-            with np.errstate(divide="ignore"):
-                parts.append(-2.5 * np.log10(twilight_flux_relative(-np.degrees(moon.sun_elevation_rad))))
+            parts.append(twilight_surface_brightness(-np.degrees(moon.sun_elevation_rad)))
         return add_surface_brightness(*parts)
 
     def _check_run(self, window: Window, observer: Observer, cadence_ns: int) -> None:

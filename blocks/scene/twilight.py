@@ -57,3 +57,9 @@ def twilight_flux_relative(sun_depression_deg) -> np.ndarray:
     excess = 10.0 ** (-0.4 * total_zenith_sky_v(depression)) - 10.0 ** (-0.4 * PARANAL_NIGHT_SKY_V)
     excess = np.where(depression < END_OF_TWILIGHT_DEPRESSION_DEG, np.maximum(excess, 0.0), 0.0)
     return np.where(depression >= MIN_SUN_DEPRESSION_DEG, excess, np.nan)
+
+
+def twilight_surface_brightness(sun_depression_deg) -> np.ndarray:
+    """Twilight alone at the zenith [V mag/arcsec^2]: inf past the end of twilight, NaN above 5 deg of depression."""
+    with np.errstate(divide="ignore"):
+        return -2.5 * np.log10(twilight_flux_relative(sun_depression_deg))

@@ -5,12 +5,13 @@ from datetime import datetime, timezone
 
 import numpy as np
 import pytest
+from skyfield import almanac
 from skyfield.api import wgs84
 
 from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import SPACE, Observer, Pointing
 from evsda.blocks.scene import moonlight, twilight
-from evsda.blocks.scene.ephemeris import planets, skyfield_time
+from evsda.blocks.scene.ephemeris import planets, skyfield_time, timescale
 from evsda.blocks.scene.geometry import ObserverModel
 from evsda.blocks.scene.moon import MoonModel
 from evsda.blocks.scene.sky import SkyBackgroundBlock, add_surface_brightness, sky_brightness_at_zenith_angle
@@ -63,15 +64,38 @@ def test_twilight_follows_patat_table_1():
     depression = np.array([5.0, 7.5, 10.0, 12.5, 15.0])
     x = depression - 5.0
     patat = 11.84 + 1.518 * x - 0.057 * x**2
-    total = add_surface_brightness(-2.5 * np.log10(twilight.twilight_flux_relative(depression)), 21.6)
+    total = add_surface_brightness(twilight.twilight_surface_brightness(depression), 21.6)
     np.testing.assert_allclose(total, patat, atol=1e-9)
     assert twilight.END_OF_TWILIGHT_DEPRESSION_DEG == pytest.approx(15.85, abs=0.01)
     assert twilight.twilight_flux_relative(16.0) == 0.0 and twilight.twilight_flux_relative(30.0) == 0.0
     assert np.isnan(twilight.twilight_flux_relative(4.9))                     # outside the measurement
     flux = twilight.twilight_flux_relative(np.linspace(5, 15.8, 50))
     assert np.all(np.diff(flux) < 0)
-    # the textbook rule: nautical (12 deg) to astronomical twilight is more than a magnitude in V
-    assert -2.5 * np.log10(twilight.twilight_flux_relative(15.0) / twilight.twilight_flux_relative(12.0)) > 1.0
+    # "in a pollution-free site, the difference between nautical (-12) and astronomical (-18) twilight in
+    # the V passband is more than a magnitude" (F. Patat, quoted on old.nightwise.org/twilight.htm)
+    total = [add_surface_brightness(twilight.twilight_surface_brightness(d), 21.6) for d in (12, 18)]
+    assert total[1] - total[0] > 1.0
+
+
+def test_twilight_fades_as_measured_at_la_palma():
+    """A second, independent measurement (not fitted): the ING's INT Wide Field Camera, 2010-2011, found the V
+    twilight sky falling as log10(B) = A - 0.103 T for 10 < T < 35 min after sunset (ING, "Twilight sky
+    brightness", M. Karami): 0.2575 mag/min. The model, with the Sun from DE421 at the INT, over the part
+    of that span where it applies (T = 20-35 min, Sun 5 deg or more down), at the four seasons."""
+    eph = planets()
+    site = wgs84.latlon(28.7606, -17.8816, elevation_m=2336.0)
+    slopes = []
+    for month in (3, 6, 9, 12):
+        t0, t1 = timescale().utc(2011, month, 20, 12), timescale().utc(2011, month, 21, 6)
+        times, rising = almanac.find_discrete(t0, t1, almanac.sunrise_sunset(eph, site))
+        sunset = times[list(rising).index(0)]
+        minutes = np.arange(20.0, 35.01, 0.5)
+        sun = (eph["earth"] + site).at(timescale().tt_jd(sunset.tt + minutes / 1440)).observe(eph["sun"])
+        depression = -sun.apparent().altaz()[0].degrees
+        sky = add_surface_brightness(twilight.twilight_surface_brightness(depression), 21.6)
+        usable = depression >= twilight.MIN_SUN_DEPRESSION_DEG
+        slopes.append(np.polyfit(minutes[usable], sky[usable], 1)[0])
+    assert np.mean(slopes) == pytest.approx(0.2575, rel=0.10), slopes      # model: 0.275 mag/min, +7 %
 
 
 def test_moon_place_and_phase_against_skyfield(graz):
