@@ -170,6 +170,9 @@ class Executor:
             pass  # created with the store, like `mkdir -p`
         elif not out.parent.is_dir():
             raise StoreError(f"cannot create run store {out}: {out.parent} is not a folder")
+        for folder in out.resolve().parents:
+            if is_run_store(folder):
+                raise StoreError(f"cannot create run store {out} inside the run store {folder}")
 
     def _take_store_folder(self) -> None:
         """Create the output folder if needed (noting that this run created it) and lock it."""

@@ -141,6 +141,11 @@ def check_output_path(path: str | Path, overwrite: bool, what: str = "output fil
             raise UserError(f"{path}: cannot write the {what}: {file_kind(info.st_mode)} is in the way")
         if not overwrite:
             raise UserError(f"{path} already exists; pass --overwrite to replace it")
+    from .store import is_run_store
+
+    for folder in path.resolve().parents:
+        if is_run_store(folder):
+            raise UserError(f"{path}: cannot write the {what} inside the run store {folder}")
     return path
 
 
@@ -156,7 +161,12 @@ def atomic_output(path: str | Path, overwrite: bool = False, what: str = "output
     path = check_output_path(path, overwrite, what)
     temporary = path.with_name(f".{path.stem}.partial-{os.getpid()}{path.suffix if suffix is None else suffix}")
     try:
-        yield temporary
+        try:
+            yield temporary
+        except OSError as exc:
+            if exc.filename is not None and Path(exc.filename) == temporary:
+                raise UserError(f"{path}: cannot write the {what} ({os_reason(exc)})") from None
+            raise
         if not temporary.exists():
             raise UserError(f"{path}: nothing was written")
         if path.exists() and not overwrite:      # appeared while we wrote

@@ -106,3 +106,13 @@ def test_an_hdf5_export_stops_before_the_disk_fills_up(capsys, monkeypatch, tmp_
     status, lines = cli(capsys, "export", store, "--format", "hdf5", "-o", tmp_path / "out.h5", "--chunk-size", "100")
     assert status == 2 and len(lines) == 1 and "stopped the HDF5 export before it runs out of space" in lines[0]
     assert not (tmp_path / "out.h5").exists() and not leftovers(tmp_path)
+
+
+def test_nothing_is_written_inside_a_run_store(capsys, tmp_path, store):
+    metadata = (store / "zarr.json").read_bytes()
+    for args in (["export", store, "--format", "npy", "-o", store / "zarr.json", "--overwrite"],
+                 ["render", store, "--png", store / "events" / "image.png"],
+                 ["run", tmp_path / "chain.yaml", "-o", store / "inner.zarr"]):
+        status, lines = cli(capsys, *args)
+        assert status == 2 and len(lines) == 1 and f"inside the run store {store}" in lines[0], lines
+    assert (store / "zarr.json").read_bytes() == metadata and not (store / "inner.zarr").exists()
