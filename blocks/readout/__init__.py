@@ -3,6 +3,8 @@
 from .arbiters import ColumnBurstArbiter, IdealReadout, RowScanArbiter
 from .frame_sensor import FrameSensor
 from .metrics import EventMetrics
+from .object_metrics import ObjectMetrics
 from .photometry import FramePhotometry
 
-BLOCKS: list = [IdealReadout, RowScanArbiter, ColumnBurstArbiter, EventMetrics, FrameSensor, FramePhotometry]
+BLOCKS: list = [IdealReadout, RowScanArbiter, ColumnBurstArbiter, EventMetrics, ObjectMetrics, FrameSensor,
+                FramePhotometry]

@@ -21,12 +21,12 @@ from collections.abc import Callable
 from datetime import datetime
 
 import numpy as np
-from skyfield.api import wgs84
+from skyfield.api import EarthSatellite, wgs84
 from skyfield.framelib import itrs
 
 from evsda.blocks.ports.scene import Observer
 
-from .ephemeris import planets, skyfield_time
+from .ephemeris import planets, skyfield_time, timescale
 from .tle import earth_satellite
 
 NS_PER_S = 1_000_000_000
@@ -108,6 +108,12 @@ def _vectors(position) -> tuple[np.ndarray, np.ndarray]:
 def satellite_track(epoch: datetime, knot_step_ns: int, line1: str, line2: str) -> Track:
     """GCRS position/velocity of an SGP4 satellite (Skyfield ``EarthSatellite``)."""
     satellite = earth_satellite(line1, line2)
+    return Track(epoch, knot_step_ns, lambda t: _vectors(satellite.at(t)))
+
+
+def satrec_track(epoch: datetime, knot_step_ns: int, satrec) -> Track:
+    """GCRS position/velocity of SGP4 elements already in an ``sgp4`` ``Satrec`` (e.g. read from an OMM)."""
+    satellite = EarthSatellite.from_satrec(satrec, timescale())
     return Track(epoch, knot_step_ns, lambda t: _vectors(satellite.at(t)))
 
 

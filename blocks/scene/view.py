@@ -19,7 +19,7 @@ from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import Observer, Orbit, Pointing
 
 from . import projection, radiometry
-from .geometry import C_M_PER_S, NS_PER_S, ObserverModel, apparent_position, satellite_track, sun_track, unit
+from .geometry import C_M_PER_S, NS_PER_S, ObserverModel, Track, apparent_position, satellite_track, sun_track, unit
 from .pointing import PointingModel, azel_from_enu
 from .reflectors import FacetReflector
 from .visibility import EARTH_RADIUS_M, lit_fraction, segment_hits_sphere
@@ -73,19 +73,30 @@ class ViewSamples:
         return self.in_fov & self.sunlit & self.above_horizon & self.observer_dark
 
 
+class SharedGeometry:
+    """What every satellite seen by one observer through one pointed sensor shares: observer, pointing, Sun."""
+
+    def __init__(self, observer: Observer, pointing: Pointing, epoch: datetime, knot_step_ns: int):
+        self.observer_model = ObserverModel(observer, epoch, knot_step_ns)
+        self.pointing_model = PointingModel(pointing, self.observer_model, epoch, knot_step_ns)
+        self.sun = sun_track(epoch, knot_step_ns)
+
+
 class SatelliteView:
     """Geometry, visibility and brightness of ``orbit`` seen from ``observer`` with ``pointing``."""
 
     def __init__(self, orbit: Orbit, observer: Observer, pointing: Pointing, focal_plane: FocalPlane,
                  epoch: datetime, knot_step_ns: int = 10 * 10**9, reflector: Reflector | FacetReflector = Reflector(),
-                 band: radiometry.Band = radiometry.V_BAND):
+                 band: radiometry.Band = radiometry.V_BAND, *, shared: "SharedGeometry | None" = None,
+                 track: Track | None = None):
+        """``shared`` lets many satellites reuse one observer, pointing and Sun; ``track`` replaces the
+        orbit's TLE lines (e.g. elements read from an OMM catalogue)."""
         self.orbit, self.observer, self.focal_plane = orbit, observer, focal_plane
         self.epoch = epoch
         self.reflector, self.band = reflector, band
-        self.observer_model = ObserverModel(observer, epoch, knot_step_ns)
-        self.pointing_model = PointingModel(pointing, self.observer_model, epoch, knot_step_ns)
-        self.track = satellite_track(epoch, knot_step_ns, orbit.line1, orbit.line2)
-        self.sun = sun_track(epoch, knot_step_ns)
+        shared = shared or SharedGeometry(observer, pointing, epoch, knot_step_ns)
+        self.observer_model, self.pointing_model, self.sun = shared.observer_model, shared.pointing_model, shared.sun
+        self.track = track or satellite_track(epoch, knot_step_ns, orbit.line1, orbit.line2)
 
     def sample(self, t_ns) -> ViewSamples:
         t_ns = np.atleast_1d(np.asarray(t_ns))
