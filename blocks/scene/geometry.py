@@ -22,9 +22,11 @@ from datetime import datetime
 
 import numpy as np
 from skyfield.api import EarthSatellite, wgs84
+from skyfield.errors import EphemerisRangeError
 from skyfield.framelib import itrs
 
 from evsda.blocks.ports.scene import Observer
+from evsda.graph import SceneError
 
 from .ephemeris import planets, skyfield_time, timescale
 from .tle import earth_satellite
@@ -77,7 +79,12 @@ class KnotGrid:
             if len(self._cache) + len(missing) > self._max_cached:
                 self._cache.clear()
             t = skyfield_time(self.epoch, np.array(missing, dtype=np.int64) * self.step_ns)
-            results = self._evaluate(t)
+            try:
+                results = self._evaluate(t)
+            except EphemerisRangeError:
+                raise SceneError(f"the scene needs the Sun, the Moon or the Earth's motion from JPL DE421, which "
+                                 f"covers 1899-07-29 to 2053-10-09 UTC; the run asks for {t[0].utc_iso()} to "
+                                 f"{t[-1].utc_iso()}. Move the run's start inside DE421's span") from None
             for j, index in enumerate(missing):
                 self._cache[index] = tuple(r[j] for r in results)
         rows = [self._cache[int(i)] for i in wanted]

@@ -15,6 +15,7 @@ from evsda.blocks.scene.ephemeris import planets, skyfield_time, timescale
 from evsda.blocks.scene.geometry import ObserverModel
 from evsda.blocks.scene.moon import MoonModel
 from evsda.blocks.scene.sky import SkyBackgroundBlock, add_surface_brightness, sky_brightness_at_zenith_angle
+from evsda.blocks.scene.view import SatelliteView
 from evsda.graph import ParameterError, RunInfo, SceneError, Window
 
 from .conftest import GRAZ
@@ -187,3 +188,11 @@ def test_moonlight_from_space_is_refused(iss):
     station = Observer(name=iss.name, kind=SPACE, line1=iss.line1, line2=iss.line2)
     with pytest.raises(ParameterError, match="space observer"):
         _sky(SkyBackgroundBlock(moonlight=True), FULL_MOON_NIGHT, Pointing(mode="sidereal"), station)
+
+
+def test_any_scene_outside_the_ephemeris_is_one_clear_error(iss, graz, gen4):
+    """Not only the Moon: the Sun of a satellite's brightness comes from DE421 too."""
+    late = datetime(2060, 1, 1, tzinfo=timezone.utc)
+    view = SatelliteView(iss, graz, Pointing(mode="stare"), gen4, late)
+    with pytest.raises(SceneError, match="JPL DE421, which covers 1899-07-29 to 2053-10-09 UTC; the run asks for 2060"):
+        view.sample([0])
