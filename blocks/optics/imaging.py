@@ -33,6 +33,7 @@ from evsda.blocks.ports import FocalPlane
 from .atmosphere import Atmosphere
 from .fft_screens import fft_phase_screens
 from .layer_screen import MARGIN, LayerScreen
+from .modal_screen import ModalScreen, pupil_modes
 from .paths import LOG, PATHS, PROBE_FRAMES, PathChoice, pick, scintillation_error, total_variation
 from .propagation import plane_spacings, point_source_field, propagate
 from .psf import long_exposure_encircled_energy, long_exposure_profile
@@ -81,6 +82,8 @@ class Imager:
         self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
         self.geometry: PupilGeometry | None = None
         self.screens: dict[str, list[LayerScreen]] = {}
+        self.modal_screens: dict[str, list[ModalScreen]] = {}
+        self._modes: np.ndarray | None = None
         self.reference_screens: dict[str, list[LayerScreen]] = {}
         self._choices: dict[tuple, PathChoice] = {}
         self._pupil_errors: dict[tuple, float] = {}
@@ -129,7 +132,7 @@ class Imager:
             for r0_l in layer_r0:
                 step = float(np.clip(r0_l / 6, delta, d / 8))
                 across = int(np.ceil(footprint / step))
-                n = (4 if self.screen_method == "zernike" else 3) * across + 2 * MARGIN + 2
+                n = 3 * across + 2 * MARGIN + 2
                 layer_delta.append(step)
                 layer_n.append(n + n % 2)
         self.geometry = PupilGeometry(n_pupil, delta, size, oversample, tuple(layer_delta), tuple(layer_n))
@@ -322,10 +325,25 @@ class Imager:
         if source not in self.screens:
             g = self.geometry
             self.screens[source] = [
-                LayerScreen(n, step, (*self._source_seed(source, 0), i), L0=self._L0, method=self.screen_method,
-                            update=self.screen_update, n_modes=self.n_zernike_modes)
+                LayerScreen(n, step, (*self._source_seed(source, 0), i), L0=self._L0, update=self.screen_update)
                 for i, (n, step) in enumerate(zip(g.layer_n, g.layer_delta_m))]
         return self.screens[source]
+
+    def _modal_screens(self, source: str) -> list[ModalScreen]:
+        if source not in self.modal_screens:
+            self.modal_screens[source] = [
+                ModalScreen((*self._source_seed(source, 0), i), self.telescope.diameter_m, self.n_zernike_modes)
+                for i in range(len(self.atmosphere.layers))]
+        return self.modal_screens[source]
+
+    @property
+    def pupil_modes(self) -> np.ndarray:
+        """Zernike modes of modal screens on the pupil grid, flattened ``(n_modes, n_pupil^2)`` [1]."""
+        if self._modes is None:
+            g = self.geometry
+            modes = pupil_modes(self.n_zernike_modes, g.n_pupil, g.delta_m, self.telescope.diameter_m)
+            self._modes = modes.reshape(self.n_zernike_modes, -1)
+        return self._modes
 
     def _epochs(self, t_s: np.ndarray) -> np.ndarray:
         if not self.revisit_s:
@@ -351,6 +369,8 @@ class Imager:
         xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
         k2 = (2 * np.pi / self.wavelength) ** 2
         epochs = self._epochs(t_s)
+        if self.screen_method == "zernike":
+            return self._modal_phase(source, t_s, x_px, y_px, zenith_rad, range_m, epochs)
         for layer, screen in zip(self.atmosphere.layers, self._layer_screens(source)):
             if layer.cn2_dh <= 0:
                 continue
@@ -378,6 +398,22 @@ class Imager:
                                                              and epochs[stop] == screen.epoch):
                     raise RuntimeError("layer screen could not cover a footprint")
         return phase
+
+    def _modal_phase(self, source, t_s, x_px, y_px, zenith_rad, range_m, epochs) -> np.ndarray:
+        """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
+        g = self.geometry
+        turbulent = np.isfinite(zenith_rad)
+        zenith = np.where(turbulent, zenith_rad, 0.0)
+        k2 = (2 * np.pi / self.wavelength) ** 2
+        coefficients = np.zeros((len(t_s), self.n_zernike_modes))
+        for layer, screen in zip(self.atmosphere.layers, self._modal_screens(source)):
+            if layer.cn2_dh <= 0:
+                continue
+            centre, scale = self._footprints(layer, t_s, x_px, y_px, zenith, range_m)
+            # r0^(-5/6) of this layer times (footprint diameter s D)^(5/6): Noll's covariance for s D / r0
+            weight = np.sqrt(0.423 * k2 / np.cos(zenith) * layer.cn2_dh) * (scale * self.telescope.diameter_m) ** (5 / 6)
+            coefficients += np.where(turbulent, weight, 0.0)[:, None] * screen.coefficients(centre, epochs)
+        return (coefficients @ self.pupil_modes).reshape(len(t_s), g.n_pupil, g.n_pupil)
 
     def _render_pupil(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
         phase = self.turbulent_phase(source, t_s, x_px, y_px, zenith_rad, range_m)
@@ -478,7 +514,7 @@ class Imager:
                 n = int(np.ceil(1.3 * (grid.n + 2 * MARGIN + 4)))
                 n += n % 2
                 screens[i] = LayerScreen(n, float(spacing[plane]), (*self._source_seed(source, 1), i), L0=self._L0,
-                                         method="fft", update="extend" if np.isfinite(self._L0) else "regenerate")
+                                         update="extend" if np.isfinite(self._L0) else "regenerate")
         return screens
 
     def _render_reference(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
@@ -505,6 +541,7 @@ class Imager:
             int(geometry["oversample"]), tuple(float(v) for v in geometry["layer_delta_m"]),
             tuple(int(v) for v in geometry["layer_n"]))
         self._pupil_renderer = None
+        self._modes = None
         self._profiles.clear()
         self._choices.clear()
         self._pupil_errors.clear()

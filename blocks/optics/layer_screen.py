@@ -9,7 +9,7 @@ window moved. When a footprint would leave the window the screen is
 * ``"extend"``: continued on that side by conditional draws (:mod:`.autoregressive`),
   dropping as many samples on the opposite side; or
 * ``"regenerate"``: replaced by a fresh, independent screen centred on the footprint
-  (the paper's Sec. 2.2 revisit; also what modal screens do).
+  (the paper's Sec. 2.2 revisit). Modal (Zernike) screens live in :mod:`.modal_screen`.
 
 Each (re)generated screen draws from its own generator seeded by ``(seed, epoch,
 regeneration count)``, where the epoch counts revisit periods (``floor(t / revisit)``),
@@ -31,7 +31,6 @@ from scipy.ndimage import spline_filter
 
 from .autoregressive import extension_operator
 from .fft_screens import fft_phase_screens
-from .karhunen_loeve import KarhunenLoeve, zernike_phase_screen
 
 #: samples kept between a footprint and the window's edge (cubic spline support and prefilter edge effects)
 MARGIN = 6
@@ -40,14 +39,11 @@ MARGIN = 6
 class LayerScreen:
     """Frozen-flow phase screen of one layer seen by one source (phase for ``r0 = 1 m``)."""
 
-    def __init__(self, n: int, delta: float, seed: tuple[int, ...], *, L0: float = 25.0,
-                 method: str = "fft", update: str = "extend", n_modes: int = 66):
-        if method == "zernike" and update == "extend":
-            raise ValueError("modal (zernike) screens can only be regenerated, not extended")
+    def __init__(self, n: int, delta: float, seed: tuple[int, ...], *, L0: float = 25.0, update: str = "extend"):
         if update == "extend" and not np.isfinite(L0):
             raise ValueError("extending a screen needs a finite outer scale L0")
         self.n, self.delta, self.seed = int(n), float(delta), tuple(int(s) for s in seed)
-        self.L0, self.method, self.update, self.n_modes = float(L0), method, update, int(n_modes)
+        self.L0, self.update = float(L0), update
         self.values: np.ndarray | None = None
         self.origin = np.zeros(2, dtype=np.int64)
         self.epoch = -1            # revisit period the screen belongs to
@@ -66,16 +62,9 @@ class LayerScreen:
             [*self.seed, self.epoch & 0xFFFFFFFF, self.n_regenerations])))
         rng = self._rng
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
-        if self.method == "fft":
-            # a screen twice the window, cut down, keeps the low orders (cf. Johansson & Gavel 1994)
-            full, _ = fft_phase_screens(rng, 2 * self.n, self.delta, 1.0, self.L0)
-            self.values = np.ascontiguousarray(full[: self.n, : self.n])
-        else:
-            diameter = self.n * self.delta
-            kl = KarhunenLoeve.of(self.n_modes)
-            coefficients = kl.sample_coefficients(rng, diameter / 1.0)
-            x = (np.arange(self.n) - (self.n - 1) / 2) * self.delta
-            self.values = zernike_phase_screen(coefficients, x[None, :], x[:, None], diameter / 2)
+        # a screen twice the window, cut down, keeps the low orders (cf. Johansson & Gavel 1994)
+        full, _ = fft_phase_screens(rng, 2 * self.n, self.delta, 1.0, self.L0)
+        self.values = np.ascontiguousarray(full[: self.n, : self.n])
         self._coefficients = None
 
     # -- keeping footprints inside ------------------------------------------------------------
@@ -84,14 +73,9 @@ class LayerScreen:
         low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
         if self.values is None:
             return np.zeros(low.shape[:-1], dtype=bool) if low.ndim > 1 else False
-        if self.method == "zernike":                  # modal screens are defined on the inscribed disk only
-            centre = self.origin + (self.n - 1) / 2
-            far = np.maximum(np.abs(low - centre), np.abs(high - centre))
-            inside = np.hypot(far[..., 0], far[..., 1]) <= (self.n - 1) / 2 - MARGIN
-        else:
-            lo = self.origin + MARGIN
-            hi = self.origin + self.n - 1 - MARGIN
-            inside = np.all(low >= lo, axis=-1) & np.all(high <= hi, axis=-1)
+        lo = self.origin + MARGIN
+        hi = self.origin + self.n - 1 - MARGIN
+        inside = np.all(low >= lo, axis=-1) & np.all(high <= hi, axis=-1)
         return inside if low.ndim > 1 else bool(inside)
 
     def cover(self, low: np.ndarray, high: np.ndarray, epoch: int = 0) -> None:
