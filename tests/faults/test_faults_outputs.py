@@ -43,7 +43,7 @@ def test_export_refuses_a_read_only_folder(capsys, tmp_path, store):
     assert status == 2 and len(lines) == 1 and "is not writable" in lines[0]
 
 
-@pytest.mark.parametrize("command", [["export", "--format", "hdf5", "-o"], ["render", "--png"], ["render", "--gif"]])
+@pytest.mark.parametrize("command", [["export", "--format", "hdf5", "-o"], ["render", "--png"], ["render", "--frames", "2", "--gif"]])
 def test_an_existing_output_needs_overwrite(capsys, tmp_path, store, command):
     output = tmp_path / "existing.out"
     output.write_text("keep me")
