@@ -1,14 +1,18 @@
 """Per-object figures of a run with many satellites: the events each object caused, by space and time.
 
 An event belongs to a satellite when its pixel centre lies within ``track_radius_px`` of
-the path the satellite drew on the focal plane during the ``latency_s`` before the event
-fired (the pixels answer a passing image with some delay, and the OFF events trail it);
-an event near several satellites belongs to the nearest. The counts split by the
-simulation's own cause label (:class:`~evsda.blocks.ports.EventCause`): signal events
-are what a perfect detector could use, the others are noise (leak, parasitic, shot)
-that happened to fall in the object's space-time tube. A path is straight between
-consecutive samples (``PointSources`` cadence), so objects crossing each other's paths
-at different times (a train of satellites on one track) are told apart by time.
+the satellite's path and the path covered that pixel no more than ``latency_s`` before the
+event fired (or one sample after: the image moves between samples). The pixels answer a
+passing image with a delay and their OFF events trail it: for faint objects whose
+photocurrent is close to the dark current the trail lasts up to ~0.9 s (measured on
+``examples/starlink_field.yaml``), hence the 1 s default. An event that qualifies for
+several satellites belongs to the one whose path covered its pixel last. A path is
+straight between consecutive samples (``PointSources`` cadence), taken every 0.5 pixel,
+so the tube is exact to 0.25 pixel; objects crossing each other's paths at different
+times (a train of satellites on one track) are told apart by time. The counts split by
+the simulation's own cause label (:class:`~evsda.blocks.ports.EventCause`): signal events
+are what a perfect detector could use, the others are noise (leak, parasitic, shot) that
+fell in the object's space-time tube.
 
 Figures per satellite source id ``ID`` (the NORAD number for catalogued objects), all
 recorded events [event] unless stated:
@@ -44,8 +48,9 @@ class ObjectMetrics(Block):
     class Params(BlockParams):
         track_radius_px: float = Field(3.0, ge=0, description="An event within this distance of an object's path "
                                        "belongs to it [pixel]")
-        latency_s: float = Field(0.05, ge=0, le=10, description="How long after the object passed a pixel its "
-                                 "events still belong to it (pixel latency, OFF trail) [s]")
+        latency_s: float = Field(1.0, ge=0, le=10, description="How long after the object passed a pixel its "
+                                 "events still belong to it: the pixel latency and OFF trail, which reach ~0.9 s for "
+                                 "a faint object whose photocurrent is near the dark current [s]")
 
     inputs = {
         "events": Input(Events, "events as the readout records them"),
@@ -102,27 +107,30 @@ class ObjectMetrics(Block):
         return tracks
 
     def _attribute(self, events: Events, tracks: dict[str, tuple]) -> None:
-        """Give each event to the nearest object whose recent path passes within the track radius."""
-        radius = self.params.track_radius_px
-        latency_ns = round(self.params.latency_s * NS_PER_S)
-        ex = events.x.astype(np.float64)
-        ey = events.y.astype(np.float64)
-        et = events.t_trigger_ns.astype(np.int64)
+        """Give each event to the object whose path passed its pixel most recently within ``latency_s``."""
+        p = self.params
+        latency_ns = round(p.latency_s * NS_PER_S)
+        fp = events.focal_plane
+        pixel = events.y.astype(np.int64) * fp.width_px + events.x.astype(np.int64)
+        t_event = events.t_trigger_ns.astype(np.int64)
         best = np.full(len(events), np.inf)
         owner = np.full(len(events), -1)
         ids = list(tracks)
         for k, object_id in enumerate(ids):
             t, x, y = tracks[object_id]
-            finite = np.isfinite(x)
-            box = ((ex >= np.nanmin(x) - radius - 1) & (ex <= np.nanmax(x) + radius + 1)
-                   & (ey >= np.nanmin(y) - radius - 1) & (ey <= np.nanmax(y) + radius + 1))
-            candidates = np.flatnonzero(box)
-            if not candidates.size:
+            keys, first, last = _passages(t, x, y, p.track_radius_px, fp.width_px, fp.height_px)
+            if not keys.size:
                 continue
-            distance = _path_distance(t, x, y, finite, ex[candidates], ey[candidates], et[candidates], latency_ns)
-            closer = (distance <= radius) & (distance < best[candidates])
-            best[candidates[closer]] = distance[closer]
-            owner[candidates[closer]] = k
+            at = np.clip(np.searchsorted(keys, pixel), 0, keys.size - 1)
+            hit = keys[at] == pixel
+            step = int(np.median(np.diff(t))) if len(t) > 1 else 0
+            # the path covered the pixel during [first, last]; the event may follow it by up to the latency
+            # (and lead it by a sample: the image moves between samples)
+            gap = np.where(t_event < first[at], first[at] - t_event, np.maximum(t_event - last[at], 0))
+            ok = hit & (t_event >= first[at] - step) & (t_event <= last[at] + latency_ns)
+            closer = ok & (gap < best)
+            best[closer] = gap[closer]
+            owner[closer] = k
         signal = events.cause == EventCause.SIGNAL
         for k, object_id in enumerate(ids):
             mine = owner == k
@@ -162,29 +170,33 @@ def _fresh() -> np.ndarray:
     return a
 
 
-def _path_distance(t, x, y, finite, ex, ey, et, latency_ns) -> np.ndarray:
-    """Distance [pixel] from each event to the object's path drawn in ``[t_event - latency, t_event]``.
+def _passages(t, x, y, radius, width, height, step_px: float = 0.5):
+    """Pixels within ``radius`` of a path and when it covered them: ``(pixel, first [ns], last [ns])``, sorted.
 
-    The path is the straight segments between consecutive finite samples; an event
-    before the first sample in that range uses the segment into it.
+    The path is straight between consecutive finite samples, taken every ``step_px``
+    (so the tube is exact to ``step_px / 2``); ``pixel`` is ``row * width + column``.
     """
-    n = len(t)
-    hi = np.clip(np.searchsorted(t, et, side="right") - 1, 0, n - 1)
-    lo = np.clip(np.searchsorted(t, et - latency_ns, side="left") - 1, 0, n - 1)
-    span = int((hi - lo).max(initial=0)) + 1
-    best = np.full(len(et), np.inf)
-    for d in range(span):
-        a = np.minimum(lo + d, hi)
-        b = np.minimum(a + 1, n - 1)
-        ok = finite[a] & finite[b] & (b <= np.maximum(hi, a + 1))
-        single = finite[a] & ~ok
-        ax, ay = x[a], y[a]
-        bx, by = np.where(ok, x[b], ax), np.where(ok, y[b], ay)
-        dx, dy = bx - ax, by - ay
-        length2 = dx * dx + dy * dy
-        with np.errstate(invalid="ignore", divide="ignore"):
-            s = np.clip(np.where(length2 > 0, ((ex - ax) * dx + (ey - ay) * dy) / length2, 0.0), 0.0, 1.0)
-        distance = np.hypot(ex - (ax + s * dx), ey - (ay + s * dy))
-        distance = np.where(ok | single, distance, np.inf)
-        best = np.minimum(best, np.nan_to_num(distance, nan=np.inf))
-    return best
+    finite = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
+    if not finite.size:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    joined = np.flatnonzero(np.diff(finite) == 1)
+    a, b = finite[joined], finite[joined + 1]
+    n = np.maximum(1, np.ceil(np.hypot(x[b] - x[a], y[b] - y[a]) / step_px).astype(np.int64))
+    segment = np.repeat(np.arange(a.size), n)
+    fraction = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
+    px = np.concatenate([x[a][segment] + (x[b] - x[a])[segment] * fraction, x[finite]])
+    py = np.concatenate([y[a][segment] + (y[b] - y[a])[segment] * fraction, y[finite]])
+    pt = np.concatenate([t[a][segment] + ((t[b] - t[a])[segment] * fraction).astype(np.int64), t[finite]])
+    r = int(np.ceil(radius))
+    dx, dy = np.meshgrid(np.arange(-r, r + 2), np.arange(-r, r + 2))
+    cx = np.floor(px).astype(np.int64)[:, None] + dx.ravel()[None]
+    cy = np.floor(py).astype(np.int64)[:, None] + dy.ravel()[None]
+    near = ((cx - px[:, None]) ** 2 + (cy - py[:, None]) ** 2 <= radius * radius)
+    near &= (cx >= 0) & (cx < width) & (cy >= 0) & (cy < height)
+    keys = (cy * width + cx)[near]
+    times = np.broadcast_to(pt[:, None], near.shape)[near]
+    order = np.lexsort((times, keys))
+    keys, times = keys[order], times[order]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    ends = np.r_[starts[1:], keys.size] - 1
+    return keys[starts], times[starts], times[ends]
