@@ -14,7 +14,8 @@ the simulation's own cause label (:class:`~evsda.blocks.ports.EventCause`): sign
 are what a perfect detector could use, the others are noise (leak, parasitic, shot) that
 fell in the object's space-time tube.
 
-Figures per satellite source id ``ID`` (the NORAD number for catalogued objects), all
+Figures per source id ``ID`` (the NORAD number for catalogued objects; ``HIP_123`` for a
+star, spaces becoming ``_``) of the ``kinds`` asked for (satellites by default), all
 recorded events [event] unless stated:
 
 * ``object_ID_events``, ``object_ID_on_events``, ``object_ID_off_events``;
@@ -30,6 +31,8 @@ and ``objects_observed`` (with any observable sample) and ``objects_with_signal`
 from __future__ import annotations
 
 import numpy as np
+from typing import Literal
+
 from pydantic import Field
 
 from evsda.blocks.ports import EventCause, Events, Metrics, PointSources, SourceKind
@@ -51,10 +54,13 @@ class ObjectMetrics(Block):
         latency_s: float = Field(1.0, ge=0, le=10, description="How long after the object passed a pixel its "
                                  "events still belong to it: the pixel latency and OFF trail, which reach ~0.9 s for "
                                  "a faint object whose photocurrent is near the dark current [s]")
+        kinds: Literal["satellites", "stars", "all"] = Field("satellites", description="Which sources get "
+                                                             "figures: satellites, stars (e.g. a scan's star "
+                                                             "streaks) or all [-]")
 
     inputs = {
         "events": Input(Events, "events as the readout records them"),
-        "sources": Input(PointSources, "satellites (stars are ignored), one or more blocks", multi=True),
+        "sources": Input(PointSources, "satellites and/or stars (see kinds), one or more blocks", multi=True),
     }
     outputs = {"metrics": Output(Metrics, "per-object figures (running; final ones from finish)")}
     state = ("totals", "recent")
@@ -88,7 +94,7 @@ class ObjectMetrics(Block):
             else:
                 step = np.full(len(t), window.duration_ns)
             for j, object_id in enumerate(np.asarray(src.source_id).astype(str)):
-                if src.kind[j] != SourceKind.SATELLITE:
+                if not self._counted(int(src.kind[j])):
                     continue
                 x, y, mag = src.x_px[:, j], src.y_px[:, j], src.magnitude[:, j]
                 seen = np.isfinite(x) & np.isfinite(y)
@@ -105,6 +111,10 @@ class ObjectMetrics(Block):
                 keep = tt >= window.stop_ns - latency_ns
                 self.recent[object_id] = {"t": tt[keep], "x": xx[keep], "y": yy[keep]}
         return tracks
+
+    def _counted(self, kind: int) -> bool:
+        wanted = self.params.kinds
+        return wanted == "all" or (kind == SourceKind.STAR) == (wanted == "stars")
 
     def _attribute(self, events: Events, tracks: dict[str, tuple]) -> None:
         """Give each event to the object whose path passed its pixel most recently within ``latency_s``."""
@@ -151,7 +161,7 @@ class ObjectMetrics(Block):
             events, on, off, signal, noise, observed_ns, peak = a
             observed += observed_ns > 0
             with_signal += signal > 0
-            prefix = f"object_{object_id}_"
+            prefix = f"object_{object_id.replace(' ', '_')}_"
             for name, value in (("events", events), ("on_events", on), ("off_events", off),
                                 ("signal_events", signal), ("noise_events", noise)):
                 values[prefix + name], units[prefix + name] = int(value), "event"
