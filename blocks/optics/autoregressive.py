@@ -85,4 +85,4 @@ def extension_operator(n: int, k: int, delta: float, L0: float, width: int) -> E
     conditional = c_xx - a @ c_xz.T
     conditional = 0.5 * (conditional + conditional.T) + jitter * np.eye(len(c_xx))
     b = cholesky(conditional, lower=True)
-    return ExtensionOperator(n, k, z_rows, z_back, a, b)
+    return ExtensionOperator(n, k, z_rows, z_back, np.ascontiguousarray(a), np.ascontiguousarray(b))

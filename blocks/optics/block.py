@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
+from evsda.blocks.threads import worker_threads
 from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground
 from evsda.graph import Block, BlockParams, Input, InputError, Output, ParameterError, RunInfo, UserError, Window
 from evsda.graph.params import DataFile
@@ -228,14 +230,28 @@ class PointSourceOptics(Block):
         size = geometry.stamp_size
         origin = np.zeros((len(t_ns), len(tracks), 2), dtype=np.int32)
         flux = np.zeros((len(t_ns), len(tracks), size, size))
+        jobs = []
         for s, (key, tr) in enumerate(tracks):
             visible = np.isfinite(tr["x"]) & np.isfinite(tr["y"]) & (np.nan_to_num(tr["flux"]) > 0)
-            if not visible.any():
-                continue
-            idx = np.nonzero(visible)[0]
+            if visible.any():
+                idx = np.nonzero(visible)[0]
+                jobs.append((s, key, tr, idx))
+                imager.prepare(key, tr["zenith"][idx], tr["range"][idx])      # path choices, in order
+
+        def render(job):
+            s, key, tr, idx = job
             o, stamps, _ = imager.render(key, t_s[idx], tr["x"][idx], tr["y"][idx], tr["zenith"][idx], tr["range"][idx])
             origin[idx, s] = o
             flux[idx, s] = stamps * (tr["flux"][idx] * collected)[:, None, None]
+
+        # sources are independent (own screens, own slots of the output): render them on every core
+        threads = min(worker_threads(), len(jobs))
+        if threads > 1:
+            with ThreadPoolExecutor(threads) as pool:
+                list(pool.map(render, jobs))
+        else:
+            for job in jobs:
+                render(job)
 
         sky = np.zeros(len(t_ns))
         if background is not None and len(background.t_ns):

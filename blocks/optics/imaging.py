@@ -32,7 +32,8 @@ from evsda.blocks.ports import FocalPlane
 
 from .atmosphere import Atmosphere
 from .fft_screens import fft_phase_screens
-from .layer_screen import MARGIN, LayerScreen
+from .layer_screen import LayerScreen
+from .screen_kernels import MARGIN
 from .modal_screen import ModalScreen, pupil_modes
 from .paths import LOG, PATHS, PROBE_FRAMES, PathChoice, pick, scintillation_error, total_variation
 from .propagation import plane_spacings, point_source_field, propagate
@@ -132,7 +133,9 @@ class Imager:
             for r0_l in layer_r0:
                 step = float(np.clip(r0_l / 6, delta, d / 8))
                 across = int(np.ceil(footprint / step))
-                n = 3 * across + 2 * MARGIN + 2
+                # the footprint, half as much again (transverse drift, and the stencil's reach for the large
+                # scales: columns 3, 7, 15, ... back, beyond the footprint's width) and the margins
+                n = across + across // 2 + 2 * MARGIN + 2
                 layer_delta.append(step)
                 layer_n.append(n + n % 2)
         self.geometry = PupilGeometry(n_pupil, delta, size, oversample, tuple(layer_delta), tuple(layer_n))
@@ -291,6 +294,20 @@ class Imager:
         return np.pi / self.wavelength * curvature[:, None, None] * r2[None]
 
     # -- rendering --------------------------------------------------------------------------------
+    def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray) -> None:
+        """Make the path choices and shared tables a track needs, so that sources can then render concurrently."""
+        range_m = np.asarray(range_m, dtype=float)
+        zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), range_m.shape)
+        self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
+        self.pupil_renderer
+        for z, r in zip(zenith_rad, range_m):
+            if self.conditions_key(z, r) not in self._choices:
+                path = self.choose(z, r, source).path
+                if path in ("airy", "long_exposure"):
+                    self.radial_renderer(path, z)
+        if self.screen_method == "zernike" and self.atmosphere:
+            self.pupil_modes
+
     def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
                zenith_rad: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame."""
@@ -375,28 +392,11 @@ class Imager:
             if layer.cn2_dh <= 0:
                 continue
             centre, scale = self._footprints(layer, t_s, x_px, y_px, np.where(turbulent, zenith_rad, 0.0), range_m)
-            span = int(np.ceil((g.n_pupil - 1) * g.delta_m / screen.delta)) + 5     # the footprint's extent
             rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
             cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
             # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
             weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
-            weight = np.where(turbulent, weight, 0.0)
-            low = np.stack([rows[:, 0], cols[:, 0]], axis=-1)
-            high = np.stack([rows[:, -1], cols[:, -1]], axis=-1)
-            start = 0
-            while start < frames:
-                # frames from `start` that the window already holds, in the same revisit epoch
-                ok = screen.usable(low[start:], high[start:]) & (epochs[start:] == screen.epoch)
-                stop = start + (int(np.argmin(ok)) if not ok.all() else len(ok))
-                if stop > start:
-                    phase[start:stop] += weight[start:stop, None, None] * screen.sample(
-                        rows[start:stop], cols[start:stop], span)
-                if stop < frames:
-                    screen.cover(low[stop], high[stop], int(epochs[stop]))
-                start = stop if stop > start else start
-                if stop == start and stop < frames and not (screen.usable(low[stop], high[stop])
-                                                             and epochs[stop] == screen.epoch):
-                    raise RuntimeError("layer screen could not cover a footprint")
+            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase)
         return phase
 
     def _modal_phase(self, source, t_s, x_px, y_px, zenith_rad, range_m, epochs) -> np.ndarray:

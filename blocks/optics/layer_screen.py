@@ -7,7 +7,8 @@ is addressed in absolute screen coordinates ``[delta]`` that do not depend on wh
 window moved. When a footprint would leave the window the screen is
 
 * ``"extend"``: continued on that side by conditional draws (:mod:`.autoregressive`),
-  dropping as many samples on the opposite side; or
+  one column (or row) at a time, dropping as many on the opposite side, just until the
+  footprint fits; or
 * ``"regenerate"``: replaced by a fresh, independent screen centred on the footprint
   (the paper's Sec. 2.2 revisit). Modal (Zernike) screens live in :mod:`.modal_screen`.
 
@@ -20,20 +21,24 @@ round-trip it, generator included.
 Values between samples are cubic B-spline interpolants (Unser 1999, IEEE Signal
 Process. Mag. 16(6), 22): unlike bilinear weights they do not smooth the screen by an
 amount that changes with the sub-sample position (which would modulate the PSD at the
-rate the screen crosses samples).
+rate the screen crosses samples). :meth:`LayerScreen.accumulate` walks a whole batch of
+footprints in a few compiled calls (:mod:`.screen_kernels`): it plans the extensions,
+makes every value of the walk on one canvas, prefilters it with the local (truncated)
+B-spline filter and reads each frame with separable 4-tap weights.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
-from scipy.ndimage import spline_filter
 
 from .autoregressive import extension_operator
 from .fft_screens import fft_phase_screens
+from .screen_kernels import (MARGIN, REGENERATE, extend_columns, plan_walk, prefilter, prefilter_taps,
+                             sample_grids)
 
-#: samples kept between a footprint and the window's edge (cubic spline support and prefilter edge effects)
-MARGIN = 6
+#: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
+CANVAS_STEPS = 2048
+_TAPS = prefilter_taps()
 
 
 class LayerScreen:
@@ -60,10 +65,9 @@ class LayerScreen:
             self.epoch, self.n_regenerations = int(epoch), 0
         self._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
             [*self.seed, self.epoch & 0xFFFFFFFF, self.n_regenerations])))
-        rng = self._rng
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
         # a screen twice the window, cut down, keeps the low orders (cf. Johansson & Gavel 1994)
-        full, _ = fft_phase_screens(rng, 2 * self.n, self.delta, 1.0, self.L0)
+        full, _ = fft_phase_screens(self._rng, 2 * self.n, self.delta, 1.0, self.L0)
         self.values = np.ascontiguousarray(full[: self.n, : self.n])
         self._coefficients = None
 
@@ -81,84 +85,99 @@ class LayerScreen:
     def cover(self, low: np.ndarray, high: np.ndarray, epoch: int = 0) -> None:
         """Make the window hold the box ``low .. high`` [delta] of revisit period ``epoch``.
 
-        Extends or regenerates as configured; a footprint farther than a window width from
+        Extends or regenerates as configured; a footprint farther than 1.5 window widths from
         the window is regenerated in any case (the screen there is practically independent).
         """
-        low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
-        if high[0] - low[0] > self.n - 1 - 2 * MARGIN or high[1] - low[1] > self.n - 1 - 2 * MARGIN:
-            raise ValueError(f"a footprint of {high - low} samples does not fit a {self.n}-sample screen")
-        centre = 0.5 * (low + high)
-        if self.values is None or epoch != self.epoch:
-            self.regenerate(centre, epoch)
-        if self.usable(low, high):
-            return
-        far = np.any(np.abs(centre - (self.origin + self.n / 2)) > 1.5 * self.n)
-        if self.update == "regenerate" or far:
-            self.regenerate(centre, epoch)
-            return
-        k = self.block_columns
-        # extend toward the footprint until it fits, then on while its trailing side still fits,
-        # so that it lands at the trailing edge with the most room to travel
-        for axis, forward, backward in ((1, "right", "left"), (0, "down", "up")):
-            lo = self.origin[axis] + MARGIN
-            hi = self.origin[axis] + self.n - 1 - MARGIN
-            if high[axis] > hi:
-                while high[axis] > self.origin[axis] + self.n - 1 - MARGIN or \
-                        low[axis] - k >= self.origin[axis] + MARGIN + k:
-                    self._extend(forward, k)
-            elif low[axis] < lo:
-                while low[axis] < self.origin[axis] + MARGIN or \
-                        high[axis] + k <= self.origin[axis] + self.n - 1 - MARGIN - k:
-                    self._extend(backward, k)
+        self.walk(np.asarray(low, dtype=float)[None], np.asarray(high, dtype=float)[None],
+                  np.array([epoch], dtype=np.int64))
 
-    @property
-    def block_columns(self) -> int:
-        """Columns added per conditional draw: about 500 new values, at most a quarter of the window."""
-        return max(1, min(self.n // 4, 512 // self.n))
+    def walk(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray, read=None) -> None:
+        """Keep each box ``low[f] .. high[f]`` (F, 2) [delta] of epoch ``epochs[f]`` inside the window in turn.
 
-    def _extend(self, side: str, k: int) -> None:
-        operator = extension_operator(self.n, k, self.delta, self.L0, self.n)
-        noise = self._rng.standard_normal(self.n * k)
-        # view the screen so that the side to grow is on the right
-        view = {"right": lambda a: a, "left": lambda a: a[:, ::-1],
-                "down": lambda a: a.T, "up": lambda a: a[::-1, :].T}[side]
-        unview = {"right": lambda a: a, "left": lambda a: a[:, ::-1],
-                  "down": lambda a: a.T, "up": lambda a: a.T[::-1, :]}[side]
-        oriented = view(self.values)
-        block = operator.extend_right(oriented, noise)
-        grown = np.concatenate([oriented[:, k:], block], axis=1)
-        self.values = np.ascontiguousarray(unview(grown))
-        step = {"right": (0, k), "left": (0, -k), "down": (k, 0), "up": (-k, 0)}[side]
-        self.origin = self.origin + np.array(step, dtype=np.int64)
+        ``read(coefficients, top, left, first, stop)`` is called with the spline coefficients of a
+        canvas holding the windows of frames ``first .. stop - 1`` at their turn (its first sample
+        at absolute (``top``, ``left``)); values are made once, in order, whatever the batching.
+        """
+        low = np.ascontiguousarray(low, dtype=float)
+        high = np.ascontiguousarray(high, dtype=float)
+        kind, side, op_epoch, centre, before, frame_ops, starts = plan_walk(
+            low, high, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN, self.update == "regenerate",
+            self.origin.astype(np.int64), np.int64(self.epoch), self.values is not None, CANVAS_STEPS)
+        if len(kind) and kind[0] < 0:
+            span = np.max(high - low, axis=0)
+            raise ValueError(f"a footprint of {span} samples does not fit a {self.n}-sample screen")
+        # frames [0, ready) need no operation; those up to the end of each canvas's operations read it
+        ready = int(np.searchsorted(frame_ops, 0, side="right"))
+        if read is not None and ready:
+            read(prefilter(self.values, _TAPS), int(self.origin[0]), int(self.origin[1]), 0, ready)
+        for a, b in zip(starts[:-1], starts[1:]):
+            first = a
+            if kind[a] == REGENERATE:
+                self.regenerate(centre[a], int(op_epoch[a]))
+                first = a + 1
+            canvas, corner = self._extend(side[first:b], before[first:b])
+            stop = int(np.searchsorted(frame_ops, b, side="right"))
+            if read is not None and stop > ready:
+                read(prefilter(canvas, _TAPS), int(corner[0]), int(corner[1]), ready, stop)
+            ready = stop
+
+    def _extend(self, sides: np.ndarray, before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grow the window one column per entry of ``sides`` (its origin ``before`` each step).
+
+        Returns a canvas holding every window of the steps and the absolute position of its first sample.
+        """
+        if not len(sides):
+            return self.values, self.origin.copy()
+        n = self.n
+        moves = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)], dtype=np.int64)      # RIGHT, LEFT, DOWN, UP
+        after = before[-1] + moves[sides[-1]]
+        lo = np.minimum(before.min(axis=0), after)
+        canvas = np.zeros(tuple(np.maximum(before.max(axis=0), after) + n - lo))
+        top, left = self.origin - lo
+        canvas[top:top + n, left:left + n] = self.values
+        operator = extension_operator(n, 1, self.delta, self.L0, n)
+        noise = self._rng.standard_normal(n * len(sides))
+        extend_columns(canvas, before[:, 0] - lo[0], before[:, 1] - lo[1], sides.astype(np.int64), operator.A,
+                       operator.B, operator.stencil_rows, operator.stencil_cols, noise, n)
+        self.origin = after
+        top, left = after - lo
+        self.values = np.ascontiguousarray(canvas[top:top + n, left:left + n])
         self._coefficients = None
+        return canvas, lo
 
     # -- sampling ---------------------------------------------------------------------------------
-    def sample(self, rows: np.ndarray, cols: np.ndarray, span: int | None = None) -> np.ndarray:
-        """Phase [rad, for r0 = 1 m] on separable grids: ``rows`` (F, ny), ``cols`` (F, nx) absolute [delta].
+    def accumulate(self, rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray, weight: np.ndarray,
+                   out: np.ndarray) -> None:
+        """Walk the footprints of separable grids ``rows`` (F, ny), ``cols`` (F, nx) [delta] and add ``weight[f]`` times
+        the phase [rad, for r0 = 1 m] to ``out`` (F, ny, nx), each frame read when the window holds it.
+        """
+        rows = np.ascontiguousarray(rows, dtype=float)
+        cols = np.ascontiguousarray(cols, dtype=float)
+        weight = np.ascontiguousarray(weight, dtype=float)
+
+        def read(coefficients, top, left, first, stop):
+            if not sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
+                raise ValueError("screen sampled outside its window")
+
+        low = np.stack([rows[:, 0], cols[:, 0]], axis=-1)
+        high = np.stack([rows[:, -1], cols[:, -1]], axis=-1)
+        self.walk(low, high, epochs, read)
+
+    def sample(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Phase [rad, for r0 = 1 m] on separable grids of the present window: ``rows`` (F, ny), ``cols`` (F, nx) [delta].
 
         Returns ``(F, ny, nx)``. The points must lie in the usable part of the window and be
-        increasing along each axis. ``span`` fixes the width [samples] of the coefficient patch
-        each frame reads (at least the grid's extent plus 4); with it, a frame's result does not
-        depend on the other frames of the batch (bit for bit).
+        increasing along each axis.
         """
+        rows = np.ascontiguousarray(np.atleast_2d(rows), dtype=float)
+        cols = np.ascontiguousarray(np.atleast_2d(cols), dtype=float)
         if self._coefficients is None:
-            self._coefficients = spline_filter(self.values, order=3, mode="mirror")
-        iy, wy = _bspline_taps(np.asarray(rows, dtype=float) - self.origin[0], self.n)
-        ix, wx = _bspline_taps(np.asarray(cols, dtype=float) - self.origin[1], self.n)
-        # each frame needs one rectangular patch of coefficients: gather them all, then two small products
-        top, left = iy[:, 0, 0], ix[:, 0, 0]
-        height = int((iy[:, -1, -1] - top).max()) + 1
-        width = int((ix[:, -1, -1] - left).max()) + 1
-        if span is not None:
-            if span < max(height, width):
-                raise ValueError(f"sampling grids span {max(height, width)} samples, more than span={span}")
-            height = width = min(int(span), self.n)
-        top = np.minimum(top, self.n - height)
-        left = np.minimum(left, self.n - width)
-        patches = sliding_window_view(self._coefficients, (height, width))[top, left]
-        matrix_y = _scatter(iy - top[:, None, None], wy, height)
-        matrix_x = _scatter(ix - left[:, None, None], wx, width)
-        return matrix_y @ patches @ np.swapaxes(matrix_x, -1, -2)
+            self._coefficients = prefilter(self.values, _TAPS)
+        out = np.zeros((rows.shape[0], rows.shape[1], cols.shape[1]))
+        if not sample_grids(self._coefficients, int(self.origin[0]), int(self.origin[1]), rows, cols,
+                            np.ones(rows.shape[0]), 0, rows.shape[0], out):
+            raise ValueError("screen sampled outside its window")
+        return out
 
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:
@@ -174,23 +193,3 @@ class LayerScreen:
         self._rng = np.random.Generator(np.random.PCG64(0))
         self._rng.bit_generator.state = state["rng"]
         self._coefficients = None
-
-
-def _scatter(index: np.ndarray, weights: np.ndarray, width: int) -> np.ndarray:
-    """Dense (F, m, width) matrices with ``weights`` (F, m, 4) placed at columns ``index`` (F, m, 4)."""
-    out = np.zeros((*index.shape[:2], width))
-    np.put_along_axis(out, index, weights, axis=-1)
-    return out
-
-
-def _bspline_taps(u: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (..., m, 4) and weights (..., m, 4) of the cubic B-spline at positions ``u`` (..., m) [samples]."""
-    base = np.floor(u)
-    t = u - base
-    t2, t3 = t * t, t * t * t
-    weights = np.stack([(1 - t) ** 3 / 6, (3 * t3 - 6 * t2 + 4) / 6, (-3 * t3 + 3 * t2 + 3 * t + 1) / 6, t3 / 6],
-                       axis=-1)
-    index = base.astype(np.int64)[..., None] + np.arange(-1, 3)
-    if index.min() < 0 or index.max() >= n:
-        raise ValueError("screen sampled outside its window")
-    return index, weights

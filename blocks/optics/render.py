@@ -109,19 +109,29 @@ class PupilRenderer:
         return ey, ex
 
     def stamps(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
-        """Pixel energy fractions ``(F, M, M)`` from pupil ``amplitude`` (n, n) or (F, n, n) and ``phase`` (F, n, n)."""
+        """Pixel energy fractions ``(F, M, M)`` from pupil ``amplitude`` (n, n) or (F, n, n) and ``phase`` (F, n, n).
+
+        The sub-pixel offset's tilt is added to the phase before ``exp(i phase)`` (one complex
+        field, no separate tilt products).
+        """
+        theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
+        k = 2 * np.pi / self.wavelength
         real = self.b_real.dtype
-        phase = phase.astype(real)
-        field = np.empty(phase.shape, dtype=self.dtype)
-        field.real = np.cos(phase)
-        field.imag = np.sin(phase)
+        total = (phase + (k * theta[:, 1, None, None]) * self.x[None, :, None]
+                 + (k * theta[:, 0, None, None]) * self.x[None, None, :]).astype(real)
+        field = np.empty(total.shape, dtype=self.dtype)
+        np.cos(total, out=field.real)
+        np.sin(total, out=field.imag)
         field *= amplitude.astype(real)
-        return self.stamps_from_field(field, offset_px)
+        return self._integrate(field)
 
     def stamps_from_field(self, field: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
         ey, ex = self.tilt(offset_px)
-        tilted = field.astype(self.dtype) * ey[:, :, None] * ex[:, None, :]
+        return self._integrate(field.astype(self.dtype) * ey[:, :, None] * ex[:, None, :])
+
+    def _integrate(self, tilted: np.ndarray) -> np.ndarray:
+        """Pixel energy fractions of tilted pupil fields (F, n, n): padded FFT, ``|.|^2``, then ``B_y PSF B_x^T``."""
         size = self.padded
         spectrum = sfft.fft(sfft.fft(tilted, n=size, axis=-1, workers=1), n=size, axis=-2, workers=1)
         psf = spectrum.real**2 + spectrum.imag**2                        # (F, L, L), up to delta^4/lambda^2

@@ -28,6 +28,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from evsda.blocks.threads import worker_threads
+
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
@@ -38,19 +40,6 @@ NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on",
          "step": "step", "ready": "ready"}                                     # public names of some fields
 _CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
 _FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
-
-
-def worker_threads() -> int:
-    """Threads for the compiled loop: ``EVSDA_THREADS`` if set, else every core this process may use."""
-    value = os.environ.get("EVSDA_THREADS", "").strip()
-    if value:
-        if not value.isdigit():
-            raise ValueError(f"EVSDA_THREADS must be a whole number of threads, got {value!r}")
-        return max(1, int(value))
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:                 # no affinity masks (macOS, Windows)
-        return os.cpu_count() or 1
 
 
 class EventDrivenPixels:

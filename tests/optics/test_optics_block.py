@@ -80,6 +80,16 @@ def test_results_do_not_depend_on_how_the_run_is_cut_into_windows():
     assert not np.array_equal(a[2], c[2])                 # another seed, other screens
 
 
+def test_results_do_not_depend_on_the_number_of_threads(monkeypatch):
+    kwargs = dict(aperture_m=0.25, obscuration=0.2, seed=4, psf_path="pupil_fft")
+    outputs = []
+    for threads in ("1", "2"):
+        monkeypatch.setenv("EVSDA_THREADS", threads)
+        outputs.append(concat(run(PointSourceOptics(**kwargs), windows_of(0.02, 0.04))))
+    for u, v in zip(*outputs):
+        np.testing.assert_array_equal(u, v)
+
+
 def test_a_resumed_run_is_identical():
     kwargs = dict(aperture_m=0.25, obscuration=0.2, seed=4)
     windows = windows_of(0.02, 0.1)

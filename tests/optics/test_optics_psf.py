@@ -173,3 +173,17 @@ def test_stamp_placement_rounds_to_the_nearest_pixel():
     np.testing.assert_array_equal(origin[:2], [[8, 2], [9, -2]])
     np.testing.assert_allclose(offset[:2], [[0.4, -0.5], [-0.4, -0.2]])
     np.testing.assert_array_equal(offset[2], [0.0, 0.0])
+
+
+def test_pupil_stamps_from_a_phase_equal_those_from_its_field():
+    # the fast entry (tilt folded into the phase, one exp) against the field entry (separate tilt products)
+    telescope = Telescope(0.3, 0.2)
+    sampler = StampSampler(9, 4e-6, 4)
+    renderer = PupilRenderer(sampler, 40, 0.3 / 38, 550e-9, telescope.collecting_area_m2)
+    amplitude = telescope.pupil(40, 0.3 / 38)
+    rng = np.random.default_rng(3)
+    phase = fft_phase_screens(rng, 80, 0.3 / 38, 0.08)[0][None, :40, :40]
+    offsets = np.array([[0.31, -0.27]])
+    fast = renderer.stamps(amplitude, phase, offsets)
+    field = renderer.stamps_from_field(amplitude * np.exp(1j * phase), offsets)
+    np.testing.assert_allclose(fast, field, rtol=0, atol=1e-6 * field.sum())

@@ -12,6 +12,7 @@ from evsda.blocks.optics.fft_screens import fft_phase_screens, radial_profile, s
 from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
 from evsda.blocks.optics.layer_screen import LayerScreen
+from evsda.blocks.optics.screen_kernels import MARGIN
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics.imaging import Imager
 from evsda.blocks.optics.karhunen_loeve import KarhunenLoeve
@@ -125,21 +126,64 @@ def test_extended_screen_keeps_its_structure_function_far_from_the_start():
     np.testing.assert_allclose(np.mean(across, axis=0) / expected, 1.0, atol=0.1)
 
 
+def test_walked_screen_keeps_von_karman_statistics_up_to_several_footprints():
+    # a window 1.5 footprints wide plus margins, walked 1500 columns one conditional column at a time: the
+    # structure function along the walk (1 sample to 4 footprints) and across it stays within 8 % of von Karman's
+    delta, L0, across, seeds = 0.02, 25.0, 10, 40
+    n = across + across // 2 + 2 * MARGIN + 2
+    seps = np.array([1, 4, across, 2 * across, 4 * across])
+    along, transverse = np.zeros(len(seps)), 0.0
+    for seed in range(seeds):
+        steps = 1500
+        c = 20.0 + np.arange(steps)
+        rows, cols = np.tile([20.0, 20.0 + across], (steps, 1)), np.c_[c, c + 1]
+        out = np.zeros((steps, 2, 2))
+        LayerScreen(n, delta, (seed,), L0=L0).accumulate(rows, cols, np.zeros(steps, np.int64), np.ones(steps), out)
+        v = out[100:, 0, 0]
+        along += [np.mean((v[k:] - v[:-k]) ** 2) for k in seps]
+        transverse += np.mean((out[100:, 0, 0] - out[100:, 1, 0]) ** 2)
+    np.testing.assert_allclose(along / seeds / structure_function(seps * delta, 1.0, L0), 1.0, atol=0.08)
+    assert transverse / seeds == pytest.approx(structure_function(across * delta, 1.0, L0), rel=0.08)
+
+
 def test_spline_sampling_matches_scipy_map_coordinates():
-    screen = LayerScreen(48, 0.01, (1,), L0=25.0)
-    screen.cover(np.array([0.0, 0.0]), np.array([10.0, 10.0]))
+    # the compiled 4-tap sampler on the truncated prefilter against scipy's exact B-spline interpolation, far from
+    # the window's edges (where scipy's mirror boundary no longer matters): within the truncation's bound
+    # 2 sqrt(3) |z1|^9 / (1 - |z1|) per axis, 7e-5 of the screen's largest value
+    screen = LayerScreen(96, 0.01, (1,), L0=25.0)
+    screen.cover(np.array([40.0, 40.0]), np.array([50.0, 50.0]))
     rng = np.random.default_rng(0)
-    rows = screen.origin[0] + 10 + rng.uniform(0, 5, (4, 1)) + 0.9 * np.arange(20)[None]
-    cols = screen.origin[1] + 10 + rng.uniform(0, 5, (4, 1)) + 0.95 * np.arange(18)[None]
+    rows = screen.origin[0] + 30 + rng.uniform(0, 5, (4, 1)) + 0.9 * np.arange(20)[None]
+    cols = screen.origin[1] + 30 + rng.uniform(0, 5, (4, 1)) + 0.95 * np.arange(18)[None]
     sampled = screen.sample(rows, cols)
     coefficients = spline_filter(screen.values, order=3, mode="mirror")
+    bound = 7e-5 * np.abs(screen.values).max()
     for f in range(4):
         r, c = np.meshgrid(rows[f] - screen.origin[0], cols[f] - screen.origin[1], indexing="ij")
         np.testing.assert_allclose(sampled[f], map_coordinates(coefficients, [r, c], order=3, prefilter=False),
-                                   atol=1e-12)
-    # on the samples themselves the spline interpolates exactly
-    on_grid = screen.sample(screen.origin[0] + np.arange(8, 20)[None] * 1.0, screen.origin[1] + np.arange(8, 20)[None] * 1.0)
-    np.testing.assert_allclose(on_grid[0], screen.values[8:20, 8:20], atol=1e-10)
+                                   rtol=0, atol=bound)
+    # on the samples themselves the spline interpolates
+    on_grid = screen.sample(screen.origin[0] + np.arange(30, 60)[None] * 1.0, screen.origin[1] + np.arange(30, 60)[None] * 1.0)
+    np.testing.assert_allclose(on_grid[0], screen.values[30:60, 30:60], rtol=0, atol=bound)
+
+
+def test_batched_walk_reads_what_frame_by_frame_covers_read():
+    # accumulate (one planned walk, canvases, compiled reads) against cover + sample one frame at a time,
+    # on a walk that extends on every side, turns back and regenerates when it jumps far
+    path = np.r_[np.c_[np.zeros(40), 2.3 * np.arange(40)], np.c_[1.7 * np.arange(30), np.full(30, 90.0)],
+                 np.c_[np.full(30, 50.0), 90.0 - 3.1 * np.arange(30)], [[400.0, 400.0], [401.0, 398.0]]]
+    grid = 0.8 * np.arange(12)
+    rows, cols = path[:, :1] + grid, path[:, 1:] + grid
+    epochs = np.zeros(len(path), dtype=np.int64)
+    batched = LayerScreen(40, 0.02, (4,), L0=25.0)
+    out = np.zeros((len(path), 12, 12))
+    batched.accumulate(rows, cols, epochs, np.full(len(path), 2.0), out)
+    single = LayerScreen(40, 0.02, (4,), L0=25.0)
+    for f in range(len(path)):
+        single.cover(np.array([rows[f, 0], cols[f, 0]]), np.array([rows[f, -1], cols[f, -1]]))
+        np.testing.assert_allclose(out[f], 2.0 * single.sample(rows[f:f + 1], cols[f:f + 1])[0], rtol=0, atol=1e-12)
+    assert single.n_regenerations == batched.n_regenerations == 1
+    np.testing.assert_array_equal(single.values, batched.values)
 
 
 def _walk(screen, boxes, chunks):
@@ -156,19 +200,19 @@ def _walk(screen, boxes, chunks):
 @pytest.mark.parametrize("update", ["extend", "regenerate"])
 def test_screen_values_do_not_depend_on_how_the_walk_is_cut(update):
     boxes = [(np.array([5.0 + 0.3 * i, 5.0 - 0.7 * i]), np.array([15.0 + 0.3 * i, 15.0 - 0.7 * i])) for i in range(120)]
-    a = _walk(LayerScreen(32, 0.02, (7, 1), update=update), boxes, [120])
-    b = _walk(LayerScreen(32, 0.02, (7, 1), update=update), boxes, [7, 50, 13, 50])
+    a = _walk(LayerScreen(40, 0.02, (7, 1), update=update), boxes, [120])
+    b = _walk(LayerScreen(40, 0.02, (7, 1), update=update), boxes, [7, 50, 13, 50])
     np.testing.assert_array_equal(a, b)
-    c = _walk(LayerScreen(32, 0.02, (7, 2), update=update), boxes, [120])
+    c = _walk(LayerScreen(40, 0.02, (7, 2), update=update), boxes, [120])
     assert not np.allclose(a, c)                          # another seed, another screen
 
 
 def test_screen_state_round_trip_continues_identically():
     boxes = [(np.array([5.0, 5.0 + 2 * i]), np.array([15.0, 15.0 + 2 * i])) for i in range(80)]
-    whole = _walk(LayerScreen(32, 0.02, (3,)), boxes, [80])
-    first = LayerScreen(32, 0.02, (3,))
+    whole = _walk(LayerScreen(40, 0.02, (3,)), boxes, [80])
+    first = LayerScreen(40, 0.02, (3,))
     head = _walk(first, boxes[:30], [30])
-    resumed = LayerScreen(32, 0.02, (3,))
+    resumed = LayerScreen(40, 0.02, (3,))
     resumed.set_state(first.state())
     tail = _walk(resumed, boxes[30:], [50])
     np.testing.assert_array_equal(whole, np.r_[head, tail])
