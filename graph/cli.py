@@ -14,8 +14,6 @@ import sys
 import threading
 from pathlib import Path
 
-from threadpoolctl import threadpool_limits
-
 from . import __version__, registry
 from . import schema as schema_module
 from .commands import Command, contributed_commands
@@ -27,6 +25,7 @@ from .limits import Limits
 from .report import describe_block, list_blocks, run_summary
 from .store import RunStore
 from .sweep import read_grid, run_sweep
+from .threads import limit_blas
 
 
 def _load(args) -> Graph:
@@ -172,9 +171,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="evsda: %(name)s: %(message)s")
     previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
-        # the blocks' linear algebra is many small products: one BLAS thread per process is
-        # faster than several (which spin and contend), and leaves the cores to --jobs
-        with threadpool_limits(limits=int(os.environ.get("EVSDA_BLAS_THREADS", "1")), user_api="blas"):
+        with limit_blas():      # see evsda.graph.threads
             return int(args.func(args) or 0)
     except UserError as exc:
         for line in str(exc).splitlines():

@@ -34,6 +34,7 @@ from .lock import StoreLock
 from .ports import PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
+from .threads import limit_blas
 
 EVENTS_TYPE = "Events"      # outputs of this port type are recorded under events/
 METRICS_TYPE = "Metrics"    # outputs of this port type are recorded under metrics/
@@ -424,5 +425,7 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``checkpoint_every_s`` (wall-clock seconds between commits; 0 commits every window),
     ``keep_outputs`` (keep requested outputs in memory), ``max_windows`` (stop early),
     ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
+    BLAS libraries run one thread while it runs (see :mod:`evsda.graph.threads`).
     """
-    return Executor(graph, out, **options).execute()
+    with limit_blas():
+        return Executor(graph, out, **options).execute()

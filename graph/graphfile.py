@@ -138,6 +138,15 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+# YAML 1.1 (PyYAML) reads a float only with a dot and a signed exponent: ``1e-5``, ``1E5`` and ``1.0e6``
+# would be strings. Every number a user writes in scientific notation is read as a float (as YAML 1.2
+# does), in graph files, grid files, --set, --vary and list elements alike.
+_EXPONENT_FLOAT = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
+_UniqueKeyLoader.yaml_implicit_resolvers = {key: list(resolvers) for key, resolvers
+                                            in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", _EXPONENT_FLOAT, list("-+0123456789."))
+
+
 #: a YAML document (graph file, sweep grid) is at most this large [bytes]
 MAX_YAML_BYTES = 1 << 20
 #: at most this many aliases (``*name``) in one document
@@ -227,17 +236,11 @@ def read_yaml(path: Path, what: str = "graph file") -> Any:
 
 
 def parse_value(text: str) -> Any:
-    """A ``--set`` value: YAML scalar or flow collection (``1e-3`` is read as a float)."""
+    """A ``--set`` value: YAML scalar or flow collection, read as graph files are (``1e-3`` is a float)."""
     try:
-        value = yaml.safe_load(text)
+        return yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError:
         return text
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return value
-    return value
 
 
 # -- the resolved graph ----------------------------------------------------------------------------

@@ -268,3 +268,13 @@ def test_an_exposed_port_must_exist_even_if_nothing_uses_it(plugin, tmp_path):
         """)
     assert any("expose output 'events'" in p and "has no output 'events'" in p and "samples" in p
                for p in problems_of(main))
+
+
+def test_scientific_notation_is_a_number_everywhere(plugin, tmp_path):
+    """YAML 1.1 reads ``1e-5`` (no dot, or no exponent sign) as a string; graph files, --set and list
+    elements all read it as a float, as YAML 1.2 does."""
+    assert parse_value("1e-5") == 1e-5 and parse_value("[1e-5, 2E3, -1.5e+2, .5e1]") == [1e-5, 2e3, -150.0, 5.0]
+    assert parse_value("1e5") == 1e5 and isinstance(parse_value("12"), int) and parse_value("e5") == "e5"
+    path = write(tmp_path / "sci.yaml", good_graph(tmp_path).read_text().replace("slope_per_s: 50", "slope_per_s: 5e1"))
+    assert load_graph(path).nodes["ramp"].block.params.slope_per_s == 50.0
+    assert load_graph(path).to_dict()["blocks"]["ramp"]["params"]["slope_per_s"] == 50.0

@@ -265,3 +265,26 @@ def test_windows_and_seeds_are_checked_in_the_python_api():
         RunInfo(seed=-1)
     windows = RunInfo(duration_ns=10**18, window_ns=1).windows(start=5)   # 10^18 windows, made one at a time
     assert [next(windows).index for _ in range(3)] == [5, 6, 7]
+
+
+def test_run_graph_holds_blas_to_one_thread(plugin, tmp_path, monkeypatch):
+    """The Python API limits BLAS threads as the CLI does (EVSDA_BLAS_THREADS, default 1): the limit
+    in force during the run follows the variable, whatever the process had before."""
+    from threadpoolctl import threadpool_info
+
+    import evsda.graph.executor as executor_module
+    seen = []
+    real = executor_module.Executor.execute
+
+    def spy(self):
+        seen.append({info["num_threads"] for info in threadpool_info() if info["user_api"] == "blas"})
+        return real(self)
+
+    monkeypatch.setattr(executor_module.Executor, "execute", spy)
+    run_graph(load_graph(chain(tmp_path)))
+    monkeypatch.setenv("EVSDA_BLAS_THREADS", "2")
+    run_graph(load_graph(chain(tmp_path)))
+    assert seen[0] == {1} and seen[1] == {2}
+    monkeypatch.setenv("EVSDA_BLAS_THREADS", "0")
+    with pytest.raises(Exception, match="EVSDA_BLAS_THREADS"):
+        run_graph(load_graph(chain(tmp_path)))
