@@ -7,7 +7,9 @@ internal error (a bug: traceback on stderr).
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import math
 import os
 import signal
 import sys
@@ -22,7 +24,7 @@ from .executor import run_graph
 from .files import describe_os_error
 from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
-from .report import describe_block, list_blocks, run_summary
+from .report import describe_block, describe_store, list_blocks, run_summary, store_info
 from .store import RunStore
 from .sweep import read_grid, run_sweep
 from .threads import limit_blas
@@ -49,6 +51,30 @@ def cmd_run(args) -> int:
                        checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint)
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
+    if args.json:
+        print(json.dumps({"store": str(out), "windows": result.store.committed_windows if result.store else 0,
+                          "events": result.store.n_events if result.store else 0,
+                          "metrics": {k: _plain(v) for k, v in result.metrics.items()},
+                          "units": result.metric_units, "timing_s": result.timing_s, "reused": result.reused},
+                         indent=2, allow_nan=False))
+    return 0
+
+
+def _plain(value):
+    """A metric as JSON allows it: non-finite numbers become null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def cmd_info(args) -> int:
+    store = RunStore.open(args.store)
+    info = store_info(store)
+    if args.json:
+        info["metrics"] = {k: {**v, "value": _plain(v["value"])} for k, v in info["metrics"].items()}
+        print(json.dumps(info, indent=2, allow_nan=False))
+    else:
+        print(describe_store(info))
     return 0
 
 
@@ -94,10 +120,20 @@ def cmd_schema(args) -> int:
 
 
 def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="evsda", description="Event-based sensor simulator for space domain awareness.")
+    # -v and -q are accepted before or after the command: every parser knows them, and SUPPRESS keeps a
+    # sub-command's parser from resetting what was given before it
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                        help="log what blocks decide (paths taken, reuse)")
+    common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                        help="only errors and warnings: no summaries or progress lines")
+    parser = argparse.ArgumentParser(prog="evsda", parents=[common],
+                                     description="Event-based sensor simulator for space domain awareness.")
     parser.add_argument("--version", action="version", version=f"evsda {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log what blocks decide (paths taken, reuse)")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def add(name: str, **kwargs) -> argparse.ArgumentParser:
+        return subparsers.add_parser(name, parents=[common], **kwargs)
 
     def graph_args(p):
         p.add_argument("graph", help="graph file (a path or library:...), or a run store to re-run")
@@ -111,7 +147,7 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
                             f"({defaults.windows:.0e}), pixels ({defaults.pixels:.3g}), window_bytes "
                             f"({defaults.window_bytes:.3g} bytes held per window)")
 
-    p = sub.add_parser("run", help="run a graph file")
+    p = add("run", help="run a graph file")
     graph_args(p)
     limit_arg(p)
     p.add_argument("-o", "--output", help="run store to write (default: NAME.zarr)")
@@ -126,10 +162,11 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
                    help="wall-clock seconds between checkpoints (0: after every window)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no summary at the end")
+    p.add_argument("--json", action="store_true",
+                   help="print the store, event count, metrics (with units) and timing as JSON on stdout")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("sweep", help="run a graph over a grid of parameter values (a trade study)")
+    p = add("sweep", help="run a graph over a grid of parameter values (a trade study)")
     graph_args(p)
     p.add_argument("--grid", help="YAML file mapping block.param to a list of values")
     p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=[V1,V2]",
@@ -139,22 +176,28 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="recompute points whose stores exist")
     p.set_defaults(func=cmd_sweep)
 
-    p = sub.add_parser("validate", help="check a graph file without running it")
+    p = add("info", help="what a run store holds: graph, seed, epoch, events by cause, metrics, "
+                                    "products, complete or resumable")
+    p.add_argument("store", help="run store (.zarr)")
+    p.add_argument("--json", action="store_true", help="print it as JSON")
+    p.set_defaults(func=cmd_info)
+
+    p = add("validate", help="check a graph file without running it")
     graph_args(p)
     limit_arg(p)
     p.set_defaults(func=cmd_validate)
 
-    p = sub.add_parser("blocks", help="list block types, or describe one")
+    p = add("blocks", help="list block types, or describe one")
     p.add_argument("name", nargs="?", help="block type to describe")
     p.set_defaults(func=cmd_blocks)
 
-    p = sub.add_parser("schema", help="regenerate the JSON Schemas (or check that they are current)")
+    p = add("schema", help="regenerate the JSON Schemas (or check that they are current)")
     p.add_argument("--check", action="store_true", help="fail if the files on disk are stale")
     p.add_argument("--dir", default="schema", help="schema folder (default: ./schema)")
     p.set_defaults(func=cmd_schema)
 
     for command in extra:
-        p = sub.add_parser(command.name, help=command.help)
+        p = add(command.name, help=command.help)
         command.configure(p)
         p.set_defaults(func=command.run)
     return parser
@@ -167,12 +210,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"evsda: error: {exc}", file=sys.stderr)
         return 2
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+    args.verbose, args.quiet = getattr(args, "verbose", False), getattr(args, "quiet", False)
+    logging.basicConfig(level=logging.INFO if args.verbose and not args.quiet else logging.WARNING,
                         format="evsda: %(name)s: %(message)s")
     previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
         with limit_blas():      # see evsda.graph.threads
-            return int(args.func(args) or 0)
+            status = int(args.func(args) or 0)
+        sys.stdout.flush()      # here, so that a closed pipe is caught below rather than at exit
+        return status
     except UserError as exc:
         for line in str(exc).splitlines():
             print(f"evsda: error: {line}", file=sys.stderr)
@@ -182,7 +228,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"evsda: {exc if isinstance(exc, Interrupted) else 'interrupted'}", file=sys.stderr)
         return 128 + getattr(signal, name, signal.SIGINT)
     except BrokenPipeError:
-        raise
+        # the reader went away (`evsda blocks | head`): end quietly, as command-line tools do
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 128 + signal.SIGPIPE
     except OSError as exc:
         print(f"evsda: error: {describe_os_error(exc)}", file=sys.stderr)
         return 2

@@ -5,10 +5,12 @@ from __future__ import annotations
 import re
 import textwrap
 
+import numpy as np
 from pydantic_core import PydanticUndefined
 
 from .block import NS_PER_S, Block
 from .ports import port_type_label
+from .store import EVENT_ATTRS
 
 UNIT_RE = re.compile(r"\s*\[([^\[\]]*)\]\s*$")
 
@@ -106,4 +108,79 @@ def run_summary(graph, result) -> str:
     lines.append(f"time per block (wall clock, {simulated:g} s simulated):")
     for block, seconds in sorted(result.timing_s.items(), key=lambda kv: -kv[1]):
         lines.append(f"  {block:<40} {seconds:9.3f} s  {100 * seconds / total:5.1f} %")
+    return "\n".join(lines)
+
+
+def store_info(store) -> dict:
+    """What a run store holds, as plain data (``evsda info``): its graph, seed, epoch, duration, events by
+    cause, metrics with units, products, tables, and whether it is complete or resumable."""
+    attrs = store.attrs
+    status = store.status()
+    graph = attrs.get("graph") or {}
+    info = {
+        "store": str(store.path),
+        "status": status.describe(),
+        "complete": status.complete,
+        "resumable": status.resumable,
+        "graph": graph.get("name"),
+        "description": graph.get("description"),
+        "evsda_version": attrs.get("evsda_version"),
+        "seed": attrs.get("seed"),
+        "start_epoch": attrs.get("start_epoch"),
+        "duration_s": attrs.get("duration_ns", 0) / NS_PER_S if "duration_ns" in attrs else None,
+        "window_s": attrs.get("window_ns", 0) / NS_PER_S if "window_ns" in attrs else None,
+        "windows": status.windows,
+        "n_windows": status.n_windows,
+        "events": store.n_events,
+        "events_by_cause": {},
+        "metrics": {name: {"value": value, "unit": store.metric_units.get(name, "")}
+                    for name, value in store.metrics.items()},
+        "products": {},
+        "tables": {},
+        "checkpoint": status.has_checkpoint,
+        "disk_bytes": store.disk_bytes(),
+        "reused": attrs.get("reused", {}),
+    }
+    if store.n_events and not status.problems:
+        labels = store.group["events/cause"].attrs.get("flag_meanings", EVENT_ATTRS["cause"]["flag_meanings"]).split()
+        counts = np.zeros(256, np.int64)
+        for chunk in store.iter_events():
+            counts += np.bincount(chunk["cause"], minlength=256)
+        info["events_by_cause"] = {(labels[code] if code < len(labels) else f"cause_{code}"): int(counts[code])
+                                   for code in np.flatnonzero(counts)}
+    lengths = store._committed().get("lengths", {})
+    for key, length in sorted(lengths.items()):
+        parts = key.split("/")
+        if parts[0] == "products" and parts[-1] == "_attrs":
+            info["products"]["/".join(parts[1:-2]) + "." + parts[-2]] = int(length)
+        elif parts[0] not in ("products", "events", "checkpoint", "metrics") and len(parts) == 2:
+            info["tables"].setdefault(parts[0], {"rows": int(length), "columns": []})["columns"].append(parts[1])
+    return info
+
+
+def describe_store(info: dict) -> str:
+    """``evsda info``'s text from :func:`store_info`'s data."""
+    lines = [f"{info['store']}: {info['status']}"]
+    if info["graph"]:
+        lines.append(f"graph        {info['graph']}" + (f" — {info['description']}" if info["description"] else ""))
+    lines.append(f"seed         {info['seed']}")
+    lines.append(f"start epoch  {info['start_epoch']}")
+    if info["duration_s"] is not None:
+        lines.append(f"duration     {info['duration_s']:g} s in {info['n_windows']} windows of {info['window_s']:g} s")
+    by_cause = ", ".join(f"{k} {v}" for k, v in info["events_by_cause"].items())
+    lines.append(f"events       {info['events']}" + (f" ({by_cause})" if by_cause else ""))
+    for name, rows in info["products"].items():
+        lines.append(f"product      {name}: {rows} windows")
+    for name, table in info["tables"].items():
+        lines.append(f"table        {name}: {table['rows']} rows of {', '.join(table['columns'])}")
+    lines.append(f"checkpoint   {'kept' if info['checkpoint'] else 'none'}; "
+                 f"{info['disk_bytes'] / 1e6:.1f} MB on disk; evsda {info['evsda_version']}")
+    for block, source in info["reused"].items():
+        lines.append(f"reused       {block} from {source}")
+    if info["metrics"]:
+        lines.append("metrics:")
+        for key, entry in info["metrics"].items():
+            value = entry["value"]
+            shown = f"{value:.6g}" if isinstance(value, float) else str(value)
+            lines.append(f"  {key:<40} {shown} {entry['unit']}".rstrip())
     return "\n".join(lines)

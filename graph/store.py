@@ -1,14 +1,18 @@
 """A run's Zarr 3 store: events, products, metrics and crash-safe checkpoints.
 
-Layout::
+Layout (every array carries Zarr 3 ``dimension_names`` and its units in ``attrs["units"]``, so
+``xarray.open_zarr(path, group="events")`` and ``xarray.open_datatree(path, engine="zarr")`` read it)::
 
     root attrs      evsda_version, graph (resolved), graph_hash, seed, start_epoch,
                     window_ns, duration_ns, n_windows, timing, committed
-    events/         t_trigger_ns, t_readout_ns (int64), x, y (uint16), p (int8), cause (uint8)
-    products/<block>/<port>/<field>         every window's value, flattened and appended
-    products/<block>/<port>/<field>.shape   [n_windows, ndim] shape of each window's value
-    products/<block>/<port>/_attrs          one JSON document per window (scalars, strings)
-    metrics/        attrs: values, units
+    events/         (event) t_trigger_ns, t_readout_ns [ns since start_epoch] (int64), x, y [pixel]
+                    (uint16), p (int8, flag_values -1 1 = OFF ON), cause (uint8, CF flag_values /
+                    flag_meanings: signal leak parasitic shot)
+    products/<block>/<port>/<field>         (<field>_value) every window's value, flattened and appended
+    products/<block>/<port>/<field>.shape   (window, <field>_axis) shape of each window's value
+    products/<block>/<port>/_attrs          (window) one JSON document per window (scalars, strings)
+    metrics/        (metric) metric [name], value (float64), unit; also attrs: values, units
+    <table>/        (<dim>) columns appended with :meth:`RunStore.append_table` (e.g. truth/)
     checkpoint/w<k>                         every block's state and RNG state after window k
     .evsda-lock     while a run writes: its pid and host (see :mod:`evsda.graph.lock`)
 
@@ -74,6 +78,17 @@ CHECKPOINT_CODECS = (BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc
 #: every chunk is written, even one of zeros, so that a missing chunk file means damage
 ARRAY_CONFIG = {"write_empty_chunks": True}
 FORMAT = "evsda-run/1"
+
+#: CF-style attributes of the event arrays (units, meaning; flag_values/flag_meanings label the codes)
+EVENT_ATTRS: dict[str, dict[str, Any]] = {
+    "t_trigger_ns": {"units": "ns", "long_name": "trigger time since start_epoch (t_t, paper Eq. 22)"},
+    "t_readout_ns": {"units": "ns", "long_name": "readout time since start_epoch (t_a, paper Eq. 22)"},
+    "x": {"units": "pixel", "long_name": "column"},
+    "y": {"units": "pixel", "long_name": "row"},
+    "p": {"units": "1", "long_name": "polarity", "flag_values": [-1, 1], "flag_meanings": "OFF ON"},
+    "cause": {"units": "1", "long_name": "why the pixel fired (simulation truth)",
+              "flag_values": [0, 1, 2, 3], "flag_meanings": "signal leak parasitic shot"},
+}
 
 
 @dataclass
@@ -260,21 +275,27 @@ class RunStore:
                              f"({_short(str(exc)) or type(exc).__name__})") from None
 
     # -- appendable arrays -----------------------------------------------------------------
-    def _array(self, key: str, dtype: np.dtype, chunk: int, trailing: tuple[int, ...] = ()) -> zarr.Array:
+    def _array(self, key: str, dtype: np.dtype, chunk: int, trailing: tuple[int, ...] = (),
+               dims: tuple[str, ...] | None = None, attrs: dict[str, Any] | None = None) -> zarr.Array:
         array = self._arrays.get(key)
         if array is None:
             if key in self.group:
                 array = self.group[key].with_config(ARRAY_CONFIG)
             else:
                 codecs = NUMERIC_CODECS if dtype.kind in "biuf" else STRING_CODECS
+                leaf = key.rsplit("/", 1)[-1]
+                dims = dims or (f"{leaf}_index", *(f"{leaf}_axis{i}" for i in range(1, 1 + len(trailing))))
                 array = self.group.create_array(key, shape=(0, *trailing), chunks=(chunk, *trailing), dtype=dtype,
-                                                compressors=list(codecs), config=ARRAY_CONFIG)
+                                                compressors=list(codecs), config=ARRAY_CONFIG,
+                                                dimension_names=list(dims), attributes=dict(attrs or {}))
             self._arrays[key] = array
         return array
 
-    def _append(self, key: str, data: np.ndarray, chunk: int) -> None:
-        """Queue ``data`` for appending to array ``key`` (written by :meth:`flush`)."""
-        self._array(key, data.dtype, chunk, data.shape[1:])
+    def _append(self, key: str, data: np.ndarray, chunk: int, dims: tuple[str, ...] | None = None,
+                attrs: dict[str, Any] | None = None) -> None:
+        """Queue ``data`` for appending to array ``key`` (written by :meth:`flush`); ``dims`` and ``attrs``
+        name the array's dimensions and describe it when it is created."""
+        self._array(key, data.dtype, chunk, data.shape[1:], dims, attrs)
         self._pending.setdefault(key, []).append(data)
         self._lengths[key] = self._lengths.get(key, 0) + data.shape[0]
         self._pending_bytes += data.nbytes
@@ -312,7 +333,7 @@ class RunStore:
         _remove_partial_writes(self.path)
         lengths = self._lengths
         for key in _array_keys(self.group):
-            if key.startswith("checkpoint/"):
+            if key.startswith(("checkpoint/", "metrics/")):     # written whole, never appended
                 continue
             array = self.group[key]
             committed = lengths.get(key, 0)
@@ -332,9 +353,37 @@ class RunStore:
             raise ValueError(f"event fields have different lengths: {sizes}")
         for name, dtype in EVENT_FIELDS.items():
             self._append(f"events/{name}", np.asarray(events[name]).astype(dtype, copy=False),
-                         EVENT_CHUNK_BYTES // dtype.itemsize)
+                         EVENT_CHUNK_BYTES // dtype.itemsize, ("event",), EVENT_ATTRS[name])
         if focal_plane is not None and "focal_plane" not in self.group["events"].attrs:
             self.group["events"].attrs["focal_plane"] = focal_plane.to_arrays()[1]
+
+    def append_table(self, group: str, columns: dict[str, np.ndarray], dim: str,
+                     attrs: dict[str, dict[str, Any]] | None = None, chunk_bytes: int = PRODUCT_CHUNK_BYTES) -> None:
+        """Append rows to the table ``group`` (e.g. ``truth``): 1-D columns of one length along dimension
+        ``dim``, each column's ``attrs`` (units, long_name, flag_values...) set when it is created.
+        Durable after :meth:`commit`, checksummed and cut back on resume like the events."""
+        sizes = {len(np.asarray(values)) for values in columns.values()}
+        if len(sizes) != 1:
+            raise ValueError(f"columns of {group} have different lengths: {sizes}")
+        for name, values in columns.items():
+            values = np.asarray(values)
+            if values.dtype.kind in "UO":
+                values = values.astype(np.dtypes.StringDType())
+            self._append(f"{group}/{name}", values, max(chunk_bytes // max(values.itemsize, 1), 1), (dim,),
+                         (attrs or {}).get(name, {}))
+
+    def read_table(self, group: str) -> dict[str, np.ndarray]:
+        """Every committed row of the table ``group`` (see :meth:`append_table`)."""
+        if self.writable:
+            self.flush()
+        if group not in self.group:
+            raise StoreError(f"{self.path} holds no table {group}")
+        self.check_readable()
+        out = {}
+        for name in self.group[group].array_keys():
+            key = f"{group}/{name}"
+            out[name] = self._read(self.group[key], key, 0, self._lengths.get(key, 0))
+        return out
 
     @property
     def n_events(self) -> int:
@@ -376,9 +425,12 @@ class RunStore:
             if data.dtype.kind in "USO":  # strings travel in the JSON document
                 attrs[name] = {"__strings__": data.tolist(), "shape": list(data.shape)}
                 continue
-            self._append(f"{base}/{name}", data.reshape(-1), max(PRODUCT_CHUNK_BYTES // max(data.itemsize, 1), 1))
-            self._append(f"{base}/{name}.shape", np.asarray([data.shape], dtype=np.int64), 1024)
-        self._append(f"{base}/_attrs", np.array([json.dumps(attrs)], dtype=np.dtypes.StringDType()), 1024)
+            self._append(f"{base}/{name}", data.reshape(-1), max(PRODUCT_CHUNK_BYTES // max(data.itemsize, 1), 1),
+                         (f"{name}_value",), _field_attrs(name, value.unit))
+            self._append(f"{base}/{name}.shape", np.asarray([data.shape], dtype=np.int64), 1024,
+                         ("window", f"{name}_axis"), {"units": "1"})
+        self._append(f"{base}/_attrs", np.array([json.dumps(attrs)], dtype=np.dtypes.StringDType()), 1024,
+                     ("window",), {"long_name": "each window's scalar fields (JSON)"})
         group = self.group[base]
         if "type" not in group.attrs:
             group.attrs["type"] = type(value).type_name()
@@ -425,10 +477,26 @@ class RunStore:
 
     # -- metrics ------------------------------------------------------------------------------
     def set_metrics(self, values: dict[str, Any], units: dict[str, str]) -> None:
+        """Record metrics (merged with those already recorded) as attributes and as data: ``metrics/metric``
+        (names), ``metrics/value`` (float64; NaN where a value is missing) and ``metrics/unit`` along
+        dimension ``metric``, so ``xarray.open_zarr(path, group="metrics").value.sel(metric=NAME)`` works."""
         group = self.group.require_group("metrics")
         merged_values = {**group.attrs.get("values", {}), **values}
         merged_units = {**group.attrs.get("units", {}), **units}
         group.attrs.update({"values": _jsonable(merged_values), "units": merged_units})
+        names = [k for k, v in merged_values.items() if isinstance(v, (int, float, np.number, type(None)))]
+        numbers = np.array([np.nan if merged_values[k] is None else float(merged_values[k]) for k in names], np.float64)
+        columns = {"metric": (np.array(names, dtype=np.dtypes.StringDType()), {"long_name": "metric name"}),
+                   "value": (numbers, {"long_name": "metric value (units in unit)"}),
+                   "unit": (np.array([merged_units.get(k, "") for k in names], dtype=np.dtypes.StringDType()),
+                            {"long_name": "unit of each metric"})}
+        for name, (data, attrs) in columns.items():
+            codecs = NUMERIC_CODECS if data.dtype.kind == "f" else STRING_CODECS
+            array = group.create_array(name, shape=data.shape, chunks=(max(1, data.size),), dtype=data.dtype,
+                                       compressors=list(codecs), config=ARRAY_CONFIG, overwrite=True,
+                                       dimension_names=["metric"], attributes=attrs)
+            if data.size:
+                array[...] = data
 
     @property
     def metrics(self) -> dict[str, Any]:
@@ -454,7 +522,8 @@ class RunStore:
         packed = np.frombuffer(buffer.getbuffer(), dtype=np.uint8)
         group = self.group.require_group("checkpoint")
         array = group.create_array(name, shape=packed.shape, dtype=np.uint8, chunks=(max(1, min(packed.size, 1 << 24)),),
-                                   compressors=list(CHECKPOINT_CODECS), overwrite=True, config=ARRAY_CONFIG)
+                                   compressors=list(CHECKPOINT_CODECS), overwrite=True, config=ARRAY_CONFIG,
+                                   dimension_names=[f"{name}_byte"], attributes={"units": "byte"})
         array[...] = packed
         array.attrs.update({"states": skeleton, "bytes": int(packed.size)})
         return name
@@ -505,6 +574,20 @@ class RunStore:
         self.group.attrs["committed"] = record
         if old and old != record["checkpoint"] and "checkpoint" in self.group and old in self.group["checkpoint"]:
             del self.group["checkpoint"][old]
+
+
+#: units that a field's name states by its suffix (the blocks' naming rule: ``aperture_m``, ``t_ns``)
+_SUFFIX_UNITS = {"ns": "ns", "s": "s", "m": "m", "km": "km", "px": "pixel", "K": "K", "hz": "Hz", "rad": "rad",
+                 "deg": "deg", "mag": "mag", "arcsec": "arcsec"}
+
+
+def _field_attrs(name: str, port_unit: str) -> dict[str, str]:
+    """Attributes of a product field: its unit when its name states one, else the unit of its port type."""
+    suffix = name.rsplit("_", 1)[-1] if "_" in name else ""
+    attrs = {"long_name": f"{name} of every window, flattened (shapes in {name}.shape)", "port_unit": port_unit}
+    if suffix in _SUFFIX_UNITS:
+        attrs["units"] = _SUFFIX_UNITS[suffix]
+    return attrs
 
 
 def _write_slice(job: tuple[zarr.Array, int, int, np.ndarray]) -> None:

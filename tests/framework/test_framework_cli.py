@@ -126,3 +126,53 @@ def test_sweep_runs_the_grid_reuses_upstream_and_writes_a_table(evsda_cli, tmp_p
     assert again.stderr.count("already complete") == 2
     bad = evsda_cli("sweep", good, "--vary", "spikes.step=[2, -1]", "-o", tmp_path / "bad")
     assert bad.returncode == 2 and "parameter 'step': Input should be greater than 0" in bad.stderr
+
+
+def test_verbose_and_quiet_go_before_or_after_the_command(evsda_cli, tmp_path):
+    good = write(tmp_path / "good.yaml", GOOD)
+    loud = evsda_cli("run", good, "-o", tmp_path / "a.zarr", "--no-progress", "-v", check=True)
+    assert "time per block" in loud.stderr
+    for args in (("-q", "run", good), ("run", "-q", good), ("run", good, "--quiet")):
+        out = tmp_path / f"q{len(list(tmp_path.iterdir()))}.zarr"
+        quiet = evsda_cli(*args, "-o", out, "--no-progress", check=True)
+        assert quiet.stderr == "" and RunStore.open(out).complete
+    assert evsda_cli("blocks", "-v", check=True).stdout == evsda_cli("-v", "blocks", check=True).stdout
+
+
+def test_run_json_and_info_say_what_the_store_holds(evsda_cli, plugin, tmp_path):
+    import json
+    good = write(tmp_path / "good.yaml", GOOD)
+    out = tmp_path / "a.zarr"
+    report = json.loads(evsda_cli("run", good, "-o", out, "-q", "--json", check=True).stdout)
+    store = RunStore.open(out)
+    assert report["store"] == str(out) and report["events"] == store.n_events > 0 and report["windows"] == 3
+    info = json.loads(evsda_cli("info", out, "--json", check=True).stdout)
+    assert info["complete"] and not info["resumable"] and info["seed"] == 3 and info["graph"] == "good"
+    assert info["duration_s"] == pytest.approx(0.03) and info["n_windows"] == 3
+    causes = np.bincount(store.read_events()["cause"], minlength=4)
+    assert info["events_by_cause"] == {name: int(causes[i]) for i, name in
+                                       enumerate(["signal", "leak", "parasitic", "shot"]) if causes[i]}
+    assert sum(info["events_by_cause"].values()) == info["events"] == store.n_events
+    assert "ramp.samples" in info["products"] and info["products"]["ramp.samples"] == 3
+    text = evsda_cli("info", out, check=True).stdout
+    assert f"{out}: complete: 3 of 3 windows" in text and "seed         3" in text
+    from evsda.graph.executor import run_graph
+    from evsda.graph.graphfile import load_graph
+    partial = tmp_path / "p.zarr"
+    run_graph(load_graph(good), partial, max_windows=1, checkpoint_every_s=0, progress=False)
+    info = json.loads(evsda_cli("info", partial, "--json", check=True).stdout)
+    assert not info["complete"] and info["resumable"] and info["windows"] == 1 and info["checkpoint"]
+    missing = evsda_cli("info", tmp_path / "nope.zarr")
+    assert missing.returncode == 2 and missing.stderr.startswith("evsda: error:") and "Traceback" not in missing.stderr
+
+
+def test_a_closed_pipe_ends_quietly(plugin_dir):
+    import os
+    import subprocess
+    import sys
+    env = dict(os.environ, PYTHONPATH=str(plugin_dir))
+    proc = subprocess.Popen([sys.executable, "-m", "evsda.graph.cli", "blocks"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=env)
+    proc.stdout.close()                     # the reader is gone before the listing is printed
+    stderr = proc.communicate(timeout=120)[1].decode()
+    assert stderr == "" and proc.returncode == 141
