@@ -38,6 +38,7 @@ from .threads import limit_blas
 
 EVENTS_TYPE = "Events"      # outputs of this port type are recorded under events/
 METRICS_TYPE = "Metrics"    # outputs of this port type are recorded under metrics/
+TRUTH_TYPE = "Truth"        # outputs of this port type are recorded under truth/ (unless run.store_truth is false)
 log = logging.getLogger("evsda.executor")
 
 
@@ -312,6 +313,9 @@ class Executor:
                         self._use_store(self._create_store(), result, running)
                     for name, outputs in produced:
                         self._record(name, outputs, window, result)
+                    if self.store is not None and self.graph.run.store_truth:
+                        for name in self._loaded_truth():
+                            self.store.copy_truth(self.loaded[name], name, window.start_ns, window.stop_ns)
                 timing["(store)"] += time.perf_counter() - t0
                 result.windows_run += 1
                 if self.store is not None:
@@ -396,6 +400,10 @@ class Executor:
                 result.outputs.setdefault(key, []).append(value)
             if self.store is None or window is None:
                 continue
+            if kind == TRUTH_TYPE:
+                if self.graph.run.store_truth:
+                    self.store.append_truth(name, value)
+                continue
             if kind == EVENTS_TYPE and requested and key == self._event_output():
                 self.store.append_events({
                     "t_trigger_ns": value.t_trigger_ns, "t_readout_ns": value.t_readout_ns,
@@ -403,6 +411,11 @@ class Executor:
                 }, focal_plane=value.focal_plane)
             elif requested or self._stores_products(name):
                 self.store.append_product(name, port, value)
+
+    def _loaded_truth(self) -> list[str]:
+        """Blocks loaded from another store whose ground truth is copied from it (their Truth outputs)."""
+        return [name for name in self.loaded
+                if any(spec.type.type_name() == TRUTH_TYPE for spec in type(self.graph.nodes[name].block).outputs.values())]
 
     def _event_output(self) -> tuple[str, str] | None:
         if not hasattr(self, "_event_key"):

@@ -65,6 +65,8 @@ class RunSection(_Strict):
     store_products: bool | list[str] = Field(
         True, description="Store every block's outputs (true), none (false), or those of the listed blocks, "
                           "so later runs can reuse them [-]")
+    store_truth: bool = Field(
+        True, description="Store the true state of every source at the optics' render times (the truth group) [-]")
 
     @field_validator("start", mode="before")
     @classmethod

@@ -13,6 +13,8 @@ Layout (every array carries Zarr 3 ``dimension_names`` and its units in ``attrs[
     products/<block>/<port>/_attrs          (window) one JSON document per window (scalars, strings)
     metrics/        (metric) metric [name], value (float64), unit; also attrs: values, units
     <table>/        (<dim>) columns appended with :meth:`RunStore.append_table` (e.g. truth/)
+    truth/          (sample) t_ns, source_index, x_px, y_px, magnitude, photon_flux, range_m; (source) source_id,
+                    kind, block: the sources' true state at the optics' render times (:meth:`RunStore.append_truth`)
     checkpoint/w<k>                         every block's state and RNG state after window k
     .evsda-lock     while a run writes: its pid and host (see :mod:`evsda.graph.lock`)
 
@@ -134,6 +136,8 @@ class RunStore:
         self._pending_bytes = 0
         self._arrays: dict[str, zarr.Array] = {}
         self._checked = False       # a read-only store's structure has been checked
+        self._truth_sources: dict[tuple[str, str], int] | None = None   # (block, source_id) -> source number
+        self._truth_cache: dict[str, np.ndarray] | None = None
 
     # -- opening ----------------------------------------------------------------------
     @classmethod
@@ -474,6 +478,94 @@ class RunStore:
             return
         group = self.group.require_group(f"products/{block}")
         group.attrs["upstream_hash"] = digest
+
+    # -- ground truth ---------------------------------------------------------------------------
+    def append_truth(self, block: str, value: PortValue) -> None:
+        """Append one window's ground truth of ``block``: a port value whose ``table()`` gives per-source
+        columns (``source_id``, ``kind``), per-row columns (``t_ns``, ``source_index`` and the state) and their
+        attributes (:class:`evsda.blocks.ports.Truth`).
+
+        Sources are numbered in the order they first appear in the run (dimension ``source``, with the
+        ``block`` that rendered them); rows (dimension ``sample``) refer to them by that number.
+        """
+        sources, rows, attrs = value.table()
+        self._append_truth_table(block, sources, rows, attrs)
+        group = self.group["truth"]
+        if "focal_plane" not in group.attrs and isinstance(getattr(value, "focal_plane", None), PortValue):
+            group.attrs["focal_plane"] = value.focal_plane.to_arrays()[1]
+
+    def _append_truth_table(self, block: str, sources: dict[str, np.ndarray], rows: dict[str, np.ndarray],
+                            attrs: dict[str, dict]) -> None:
+        numbering = self._truth_numbering()
+        ids = np.asarray(sources["source_id"]).astype(str)
+        numbers = np.empty(len(ids), np.int32)
+        new = []
+        for k, source_id in enumerate(ids):
+            key = (block, str(source_id))
+            if key not in numbering:
+                numbering[key] = len(numbering)
+                new.append(k)
+            numbers[k] = numbering[key]
+        per_source = {name: np.asarray(values)[new] for name, values in sources.items()}
+        per_source["block"] = np.full(len(new), block)
+        attrs = {**attrs, "block": {"long_name": "block that rendered the source"}}
+        self.append_table("truth", per_source, "source", attrs, chunk_bytes=8 << 10)
+        self.append_table("truth", {**rows, "source_index": numbers[np.asarray(rows["source_index"], np.int64)]},
+                          "sample", attrs)
+        self._truth_cache = None
+
+    def _truth_numbering(self) -> dict[tuple[str, str], int]:
+        """(block, source_id) -> source number, of the committed sources (read once) and those appended since."""
+        if self._truth_sources is None:
+            self._truth_sources = {}
+            n = self._lengths.get("truth/source_id", 0)
+            if n:
+                ids = self._read(self.group["truth/source_id"], "truth/source_id", 0, n)
+                blocks = self._read(self.group["truth/block"], "truth/block", 0, n)
+                self._truth_sources = {(str(b), str(i)): k for k, (b, i) in enumerate(zip(blocks, ids))}
+        return self._truth_sources
+
+    @property
+    def has_truth(self) -> bool:
+        return "truth" in self.group and "t_ns" in self.group["truth"]
+
+    def read_truth(self) -> dict[str, np.ndarray]:
+        """Every committed truth row, sorted by time then source: the per-row columns plus the row's
+        ``source_id``, ``kind`` and ``block`` ({} when the store holds no truth)."""
+        if self._truth_cache is not None:
+            return self._truth_cache
+        if not self.has_truth:
+            return {}
+        columns = self.read_table("truth")
+        per_source = {name: columns.pop(name) for name in ("source_id", "kind", "block")}
+        source = columns["source_index"].astype(np.int64)
+        for name, values in per_source.items():
+            columns[name] = (values if values.dtype.kind in "biuf" else np.array(values.tolist(), dtype=str))[source]
+        order = np.lexsort((source, columns["t_ns"]))
+        self._truth_cache = {name: values[order] for name, values in columns.items()}
+        return self._truth_cache
+
+    def truth_attrs(self) -> dict[str, dict]:
+        """Each truth column's attributes (``units``, ``long_name``, flags)."""
+        if not self.has_truth:
+            return {}
+        group = self.group["truth"]
+        return {name: dict(group[name].attrs) for name in group.array_keys()}
+
+    def copy_truth(self, other: "RunStore", block: str, start_ns: int, stop_ns: int) -> None:
+        """Append ``other``'s truth rows of ``block`` in ``[start_ns, stop_ns)`` (a block reused from it)."""
+        rows = other.read_truth()
+        if not rows:
+            return
+        keep = (rows["block"] == block) & (rows["t_ns"] >= start_ns) & (rows["t_ns"] < stop_ns)
+        ids, first, source = np.unique(rows["source_id"][keep], return_index=True, return_inverse=True)
+        sources = {"source_id": ids, "kind": rows["kind"][keep][first]}
+        state = {name: values[keep] for name, values in rows.items()
+                 if name not in ("source_id", "kind", "block", "source_index")}
+        self._append_truth_table(block, sources, {**state, "source_index": source}, other.truth_attrs())
+        focal_plane = other.group["truth"].attrs.get("focal_plane")
+        if focal_plane is not None and "focal_plane" not in self.group["truth"].attrs:
+            self.group["truth"].attrs["focal_plane"] = focal_plane
 
     # -- metrics ------------------------------------------------------------------------------
     def set_metrics(self, values: dict[str, Any], units: dict[str, str]) -> None:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from evsda.blocks.pixel import DvsPixel
-from evsda.blocks.ports import EventCause, Irradiance
+from evsda.blocks.ports import EventCause, Irradiance, SourceKind
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
 from evsda.graph.store import RunStore
@@ -162,6 +162,95 @@ def test_iss_background_rates_match_the_configured_noise(iss_run):
     # and the configured leak shows: ON leak events at about R_leak (shot events spend part of its drift)
     leak_rate = ((events["cause"] == EventCause.LEAK) & quiet).sum() / exposure_scene
     assert 0.7 * alone.params.leak_rate_hz < leak_rate < 1.3 * alone.params.leak_rate_hz
+
+
+# the ground truth the run stores beside its events (the ``truth`` group): the optics block's own
+# sample-and-hold of its sources at its render times
+
+RENDER_NS = 1_000_000           # the ISS example's optics render rate, 1 kHz
+
+
+def satellite_truth(store: RunStore) -> dict:
+    truth = store.read_truth()
+    sat = truth["kind"] == SourceKind.SATELLITE
+    return {name: values[sat] for name, values in truth.items()}
+
+
+def test_iss_truth_is_the_sources_at_the_render_times(iss_run):
+    store = iss_run["store"]
+    truth = store.read_truth()
+    assert set(truth) >= {"t_ns", "x_px", "y_px", "magnitude", "photon_flux", "range_m", "source_id", "kind"}
+    sat = satellite_truth(store)
+    assert set(sat["source_id"]) == {"25544"} and set(sat["block"]) == {"telescope/optics"}
+    # one row per render time of the 0.4 s run (the ISS is in the field throughout)
+    np.testing.assert_array_equal(sat["t_ns"], np.arange(0, 400_000_000, RENDER_NS))
+    # the satellite block's own samples (1 ms cadence), held to the render times
+    t, x, y, _ = source_tracks(store, "sat")
+    windows = list(store.product_windows("sat", "sources"))
+    magnitude = np.concatenate([w.magnitude for w in windows])[:, 0]
+    range_m = np.concatenate([w.range_m for w in windows])[:, 0]
+    held = np.searchsorted(t, sat["t_ns"], side="right") - 1
+    np.testing.assert_allclose(sat["x_px"], x[held, 0], atol=1e-4)
+    np.testing.assert_allclose(sat["y_px"], y[held, 0], atol=1e-4)
+    np.testing.assert_allclose(sat["magnitude"], magnitude[held], rtol=1e-6)
+    np.testing.assert_allclose(sat["range_m"], range_m[held], rtol=1e-6)
+    # stars: fixed kind, infinite range
+    stars = truth["kind"] == SourceKind.STAR
+    assert stars.any() and np.all(np.isinf(truth["range_m"][stars]))
+    assert store.truth_attrs()["photon_flux"]["units"] == "photon s^-1 m^-2"
+
+
+def test_iss_truth_and_events_agree_on_where_the_track_is(iss_run):
+    events, sat = iss_run["events"], satellite_truth(iss_run["store"])
+    # the truth's position at each event's trigger time (sample and hold, as rendered)
+    at = np.clip(np.searchsorted(sat["t_ns"], events["t_trigger_ns"], side="right") - 1, 0, None)
+    dx, dy = events["x"] - sat["x_px"][at], events["y"] - sat["y_px"][at]
+    near = (events["cause"] == EventCause.SIGNAL) & (np.hypot(dx, dy) < 6)
+    assert near.sum() > 1000
+    # in every 20 ms with enough events, their centroid sits within a pixel of the true position
+    bins = events["t_trigger_ns"][near] // 20_000_000
+    offsets = [(dx[near][bins == b].mean(), dy[near][bins == b].mean()) for b in np.unique(bins)
+               if np.count_nonzero(bins == b) >= 50]
+    assert len(offsets) >= 10
+    assert np.all(np.hypot(*np.array(offsets).T) < 1.0), offsets
+    # and the track's events span the path the truth gives: first and last event columns at the truth's ends
+    assert abs(np.percentile(events["x"][near], 1) - sat["x_px"].min()) < 4
+    assert abs(np.percentile(events["x"][near], 99) - sat["x_px"].max()) < 4
+
+
+def test_iss_truth_survives_stop_and_resume_and_follows_a_reused_optics(iss_run, tmp_path):
+    reference = iss_run["store"].read_truth()
+    graph = load_graph(ISS, dict(ISS_SMALL))
+    out = tmp_path / "stopped.zarr"
+    run_graph(graph, out, progress=False, max_windows=2, checkpoint_every_s=0)
+    run_graph(load_graph(ISS, dict(ISS_SMALL)), out, progress=False, resume=True)
+    resumed = RunStore.open(out).read_truth()
+    for name in reference:
+        np.testing.assert_array_equal(resumed[name], reference[name], err_msg=name)
+    # a changed pixel reuses the scene and optics of the first run: the truth is copied from it
+    changed = load_graph(ISS, {**ISS_SMALL, "sensor/pixel.temperature_K": 290.0})
+    result = run_graph(changed, tmp_path / "reused.zarr", progress=False, reuse=[iss_run["out"]])
+    assert "telescope/optics" in result.reused
+    copied = RunStore.open(tmp_path / "reused.zarr").read_truth()
+    for name in reference:
+        np.testing.assert_array_equal(copied[name], reference[name], err_msg=name)
+
+
+def test_iss_truth_can_be_left_out(tmp_path):
+    graph = load_graph(ISS, {**ISS_SMALL, "run.duration_s": 0.1, "run.store_truth": False})
+    run_graph(graph, tmp_path / "none.zarr", progress=False)
+    store = RunStore.open(tmp_path / "none.zarr")
+    assert not store.has_truth and store.read_truth() == {}
+
+
+def test_iss_truth_opens_as_labelled_data(iss_run):
+    xr = pytest.importorskip("xarray")
+    ds = xr.open_zarr(iss_run["out"], group="truth", consolidated=False)
+    assert ds["x_px"].dims == ("sample",) and ds["source_id"].dims == ("source",)
+    assert ds["range_m"].attrs["units"] == "m"
+    assert ds["kind"].attrs["flag_meanings"] == "satellite star"
+    sat = ds["source_id"].values.tolist().index("25544")
+    assert int((ds["source_index"] == sat).sum()) == 400
 
 
 # --- (b) GEO under sidereal tracking --------------------------------------------------------

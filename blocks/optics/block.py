@@ -9,13 +9,14 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from evsda.blocks.threads import worker_threads
-from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground
+from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground, Truth
 from evsda.graph import Block, BlockParams, Input, InputError, Output, ParameterError, RunInfo, UserError, Window
 from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
 from .imaging import Imager
 from .telescope import Telescope
+from .truth import truth_table
 
 
 class PointSourceOptics(Block):
@@ -94,7 +95,8 @@ class PointSourceOptics(Block):
         "sources": Input(PointSources, "point sources on the focal plane (satellites, stars)", multi=True),
         "background": Input(SkyBackground, "diffuse sky brightness per pixel", required=False),
     }
-    outputs = {"irradiance": Output(Irradiance, "photon flux per pixel: stamps around sources plus background")}
+    outputs = {"irradiance": Output(Irradiance, "photon flux per pixel: stamps around sources plus background"),
+               "truth": Output(Truth, "every source on the detector at each render time (the run store keeps it)")}
     state = ("optics_state", "held")
 
     def __init__(self, *args, **kwargs):
@@ -184,6 +186,7 @@ class PointSourceOptics(Block):
         """Sample-and-hold the input at the render times, carrying the last sample across windows."""
         n_src = src.n_sources
         fields = {"x": src.x_px, "y": src.y_px, "flux": src.photon_flux, "range": src.range_m,
+                  "magnitude": src.magnitude,
                   "zenith": np.broadcast_to(np.asarray(src.zenith_angle_rad, dtype=float)[:, None],
                                             (len(src.t_ns), n_src))}
         index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
@@ -197,7 +200,7 @@ class PointSourceOptics(Block):
                 sampled = np.full((len(t_ns), n_src), np.nan)
             before = index < 0
             if before.any():
-                if held is not None and np.asarray(held[name]).shape == (n_src,):
+                if held is not None and name in held and np.asarray(held[name]).shape == (n_src,):
                     sampled[before] = np.asarray(held[name], dtype=float)
                 elif not len(src.t_ns):
                     sampled[before] = np.nan
@@ -219,11 +222,12 @@ class PointSourceOptics(Block):
         t_s = t_ns * 1e-9
         collected = self.telescope.collecting_area_m2 * self.params.throughput      # [m^2]
 
-        tracks = []
+        tracks, kinds = [], []
         for i, src in enumerate(sources):
             samples = self._held_samples(str(i), src, t_ns)
             for j, source_id in enumerate(np.asarray(src.source_id)):
                 tracks.append((f"{i}:{source_id}", {name: v[:, j] for name, v in samples.items()}))
+                kinds.append(int(src.kind[j]))
 
         zenith_first = next((float(tr["zenith"][0]) for _, tr in tracks if len(tr["zenith"])), np.nan)
         geometry = imager.ensure_geometry(zenith_first)
@@ -257,4 +261,6 @@ class PointSourceOptics(Block):
         if background is not None and len(background.t_ns):
             k = np.clip(np.searchsorted(np.asarray(background.t_ns), t_ns, side="right") - 1, 0, None)
             sky = np.asarray(background.photon_flux_per_pixel, dtype=float)[k] * collected
-        return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux)}
+        truth = truth_table(focal_plane, t_ns, [key.partition(":")[2] for key, _ in tracks], kinds,
+                            [tr for _, tr in tracks])
+        return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux), "truth": truth}

@@ -15,12 +15,13 @@ from .core import (
     SkyBackground,
     SourceKind,
     TriggeredEvents,
+    Truth,
     add_stamp,
 )
 from .scene import Observer, Orbit, Pointing
 
 __all__ = [
     "EventCause", "Events", "FocalPlane", "Frame", "Irradiance", "Metrics", "PointSources",
-    "SkyBackground", "SourceKind", "TriggeredEvents", "add_stamp",
+    "SkyBackground", "SourceKind", "TriggeredEvents", "Truth", "add_stamp",
     "Observer", "Orbit", "Pointing",
 ]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -82,6 +83,55 @@ class PointSources(PortValue):
         return cls(focal_plane, wavelength_m, np.asarray(t_ns, np.int64), np.array([], dtype=str),
                    np.array([], dtype=np.int8), nan, nan.copy(), np.zeros((n_t, 0)), nan.copy(), nan.copy(),
                    np.full(n_t, np.nan))
+
+
+@dataclass(frozen=True, eq=False)
+class Truth(PortValue):
+    """The true state of point sources at the optics' render times: one row per rendered sample.
+
+    A row is a source on the detector (finite position) at a render time, as the optics drew
+    it (sample and hold of :class:`PointSources`); ``source_index`` indexes the per-source
+    ``source_id`` and ``kind``. Rows are sorted by time, then source. The run store keeps
+    every window's rows in its ``truth`` group (see :mod:`evsda.graph.store`).
+    """
+
+    unit = "pixel"
+    #: per column: unit and meaning, written as the stored arrays' attributes
+    COLUMNS: ClassVar[dict[str, tuple[str, str]]] = {
+        "t_ns": ("ns", "render time since the run's start epoch"),
+        "source_index": ("1", "the row's source: its index along the source dimension (source_id, kind)"),
+        "x_px": ("pixel", "column coordinate of the source (pixel centres at integers)"),
+        "y_px": ("pixel", "row coordinate of the source (pixel centres at integers)"),
+        "magnitude": ("mag", "apparent magnitude in the band"),
+        "photon_flux": ("photon s^-1 m^-2", "photon flux at the aperture, after the atmosphere"),
+        "range_m": ("m", "observer-source distance (inf for stars)"),
+    }
+    focal_plane: FocalPlane
+    source_id: np.ndarray                    # str [n_src] e.g. NORAD number or HIP id
+    kind: np.ndarray                         # int8 [n_src] SourceKind
+    t_ns: np.ndarray                         # int64 [n] render time
+    source_index: np.ndarray                 # int32 [n] index into source_id
+    x_px: np.ndarray                         # float32 [n] column [pixel]
+    y_px: np.ndarray                         # float32 [n] row [pixel]
+    magnitude: np.ndarray                    # float32 [n] [mag]
+    photon_flux: np.ndarray                  # float32 [n] [photon s^-1 m^-2]
+    range_m: np.ndarray                      # float32 [n] [m]
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    def table(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, dict]]:
+        """``(per-source columns, per-row columns, attributes of each column)`` as the run store keeps them:
+        rows refer to sources by the ``source_index`` column; attributes hold ``units`` and ``long_name``
+        (CF ``flag_values`` / ``flag_meanings`` for ``kind``)."""
+        sources = {"source_id": np.asarray(self.source_id, dtype=str), "kind": np.asarray(self.kind, np.int8)}
+        rows = {name: np.asarray(getattr(self, name)) for name in self.COLUMNS}
+        attrs = {name: {"units": unit, "long_name": meaning} for name, (unit, meaning) in self.COLUMNS.items()}
+        attrs["source_id"] = {"long_name": "source identifier: NORAD number of a satellite, "
+                                           "HIP n or BS n (drawn from star counts) of a star"}
+        attrs["kind"] = {"long_name": "kind of source", "flag_values": [int(k) for k in SourceKind],
+                         "flag_meanings": " ".join(k.name.lower() for k in SourceKind)}
+        return sources, rows, attrs
 
 
 @dataclass(frozen=True, eq=False)

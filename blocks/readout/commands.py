@@ -1,6 +1,7 @@
 """Command-line sub-commands contributed by the readout stage (see evsda.graph.commands):
 
-* ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger] [--overwrite] [--partial]``
+* ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger] [--truth [csv|hdf5]]
+  [--overwrite] [--partial]``
 * ``evsda render STORE [--png F] [--gif F] [--start-s S] [--stop-s S] [--frames N] [--fps F] [--overwrite]``
 
 Both read the recorded events of a run store in chunks, so memory stays flat. Outputs are checked
@@ -20,6 +21,8 @@ from evsda.graph.files import atomic_output, check_free_space, check_output_path
 
 from .exporters import BYTES_PER_EVENT, WRITERS, export_events
 from .render import render_gif, render_png
+from .truth_export import FORMATS as TRUTH_FORMATS
+from .truth_export import truth_path, write_truth_csv, write_truth_hdf5
 
 NS_PER_S = 1_000_000_000
 
@@ -67,12 +70,20 @@ class ExportCommand(Command):
         parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
         parser.add_argument("--partial", action="store_true",
                             help="export the committed part of an unfinished run (refused otherwise)")
+        parser.add_argument("--truth", nargs="?", const="csv", choices=sorted(TRUTH_FORMATS), default=None,
+                            help="also write the ground truth (every source's time, x, y, magnitude, flux, range, "
+                                 "kind, id at the optics render rate) beside OUTPUT as NAME.truth.csv (default) "
+                                 "or NAME.truth.h5")
 
     def run(self, args: argparse.Namespace) -> int:
         if args.chunk_size < 1:
             raise UserError(f"--chunk-size must be at least 1, got {args.chunk_size}")
         output = check_output_path(args.output, args.overwrite, "export")
+        truth_output = check_output_path(truth_path(output, args.truth), args.overwrite, "truth") if args.truth else None
         store, fp = _open(args.store)
+        if truth_output is not None and not store.has_truth:
+            raise UserError(f"{args.store} holds no ground truth (run with run.store_truth: false, or by an evsda "
+                            f"older than the truth group); export without --truth")
         unfinished = _incomplete(store)
         if unfinished and not args.partial:
             raise UserError(f"{args.store} is not a finished run ({unfinished}); pass --partial to export "
@@ -85,6 +96,14 @@ class ExportCommand(Command):
         note = f"; partial run: {unfinished}" if unfinished else ""
         print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since "
               f"{epoch or 'the run start'}{note})")
+        if truth_output is not None:
+            rows = store.read_truth()
+            with atomic_output(truth_output, args.overwrite, "truth") as temporary:
+                if args.truth == "csv":
+                    k = write_truth_csv(rows, temporary)
+                else:
+                    k = write_truth_hdf5(rows, temporary, store.truth_attrs(), epoch, fp.width_px, fp.height_px)
+            print(f"wrote {k} truth rows ({len(set(rows['source_id'].tolist()))} sources) to {truth_output}")
         return 0
 
 

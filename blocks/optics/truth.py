@@ -1,0 +1,36 @@
+"""The optics block's ground truth: where every source was, and how bright, at each render time.
+
+The optics draws each source at its render times from the sample-and-hold of its
+:class:`~evsda.blocks.ports.PointSources` input; this module lists those same held samples
+as a :class:`~evsda.blocks.ports.Truth` table, one row per source on the detector per
+render time, so the truth and the rendered irradiance (hence the events) agree exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evsda.blocks.ports import FocalPlane, Truth
+
+
+def truth_table(focal_plane: FocalPlane, t_ns: np.ndarray, ids: list[str], kinds: list[int],
+                tracks: list[dict[str, np.ndarray]]) -> Truth:
+    """The rows of the sources ``ids`` (kinds ``kinds``) whose held samples ``tracks`` (``x``, ``y``,
+    ``flux``, ``magnitude``, ``range``, each ``[n_t]`` at ``t_ns``) put them on the detector."""
+    t_ns = np.asarray(t_ns, np.int64)
+    if tracks:
+        x = np.stack([tr["x"] for tr in tracks], axis=1)
+        y = np.stack([tr["y"] for tr in tracks], axis=1)
+        on_detector = np.isfinite(x) & np.isfinite(y)
+        time_index, source = np.nonzero(on_detector)     # row-major: sorted by time, then source
+    else:
+        time_index = source = np.zeros(0, np.int64)
+
+    def column(name: str) -> np.ndarray:
+        if not tracks:
+            return np.zeros(0, np.float32)
+        return np.stack([tr[name] for tr in tracks], axis=1)[time_index, source].astype(np.float32)
+
+    return Truth(focal_plane, np.asarray(ids, dtype=str), np.asarray(kinds, dtype=np.int8), t_ns[time_index],
+                 source.astype(np.int32), column("x"), column("y"), column("magnitude"), column("flux"),
+                 column("range"))
