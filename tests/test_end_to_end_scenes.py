@@ -111,7 +111,9 @@ def test_iss_on_events_lead_off_events_along_the_motion(iss_run):
     dx, dy = offsets_from(events, t, x, y)
     along = dx * direction[0] + dy * direction[1]
     across = np.abs(dx * direction[1] - dy * direction[0])
-    track = (events["cause"] == EventCause.SIGNAL) & (across < 3) & (np.abs(along) < 8)
+    # OFF events trail far behind: a pixel the satellite has left is dark again, and a dark
+    # photoreceptor is slow (bandwidth proportional to its current, Lichtsteiner et al. 2008)
+    track = (events["cause"] == EventCause.SIGNAL) & (across < 3) & (along < 8)
     on, off = track & (events["p"] > 0), track & (events["p"] < 0)
     assert on.sum() > 500 and off.sum() > 500
     # the satellite's leading edge brightens pixels (ON), its trailing edge darkens them (OFF)
@@ -299,7 +301,8 @@ def test_geo_events_follow_it_while_the_stars_stay_put(geo_run):
     on_geo = signal & (np.hypot(dx, dy) < 3)
     star_distance = np.min(np.hypot(events["x"][:, None] - sx[0], events["y"][:, None] - sy[0]), axis=1)
     on_star = signal & ~on_geo & (star_distance < 4)
-    assert on_geo.sum() > 20 and on_star.sum() > 100
+    # (the stars' events come from scintillation, which the photoreceptor low-passes at a few Hz)
+    assert on_geo.sum() > 20 and on_star.sum() > 50
     # every signal event belongs to the GEO or to a star: nothing else changes in the field
     assert (on_geo | on_star).sum() >= 0.99 * signal.sum()
     # the GEO's events sit on its predicted position (centroid within a pixel) ...
@@ -326,8 +329,12 @@ def test_geo_events_follow_it_while_the_stars_stay_put(geo_run):
 # --- (c) a space-based observer ------------------------------------------------------------
 
 SPACE = EXAMPLES / "space_based.yaml"
+# A geometry check: the faint target crosses a pixel in ~10 ms, far faster than the preset's dark-sky
+# photoreceptor (bandwidth proportional to its current: 0.2 Hz in the dark, tested in tests/pixel), so
+# the small run takes the paper's bandwidth law (Eq. 16 as printed, ~2-3 kHz) to see the target at all.
+FAST_PHOTORECEPTOR = {"sensor/pixel.cutoff_model": "paper"}
 SPACE_SMALL = {"run.start": "2023-03-19T20:57:44.8Z", "run.duration_s": 0.4, "run.store_products": ["sat"],
-               "stars.faint_limit_mag": 9.0, **half_size_sensor(640, 480, 15.0e-6)}
+               "stars.faint_limit_mag": 9.0, **half_size_sensor(640, 480, 15.0e-6), **FAST_PHOTORECEPTOR}
 SPACE_MID_NS = 200_000_000     # 2023-03-19T20:57:45Z, where the stare was aimed
 
 
@@ -377,7 +384,8 @@ def test_space_track_events_follow_the_target(space_run):
 
 FIELD = EXAMPLES / "starlink_field.yaml"
 FIELD_SMALL = {"run.duration_s": 2.0, "run.store_products": ["starlinks", "stars"], "stars.faint_limit_mag": 7.0,
-               **half_size_sensor(1280, 720, 4.86e-6)}
+               **half_size_sensor(1280, 720, 4.86e-6), **FAST_PHOTORECEPTOR,
+               "per_object.latency_s": 3.0}     # a faint object's OFF trail can outlast 1 s
 
 
 @pytest.fixture(scope="module")

@@ -86,7 +86,10 @@ class PixelModel:
     def _drive(self, flux: np.ndarray) -> Drive:
         p = self.params
         x = self.normalised_current(flux)
-        y = photoreceptor.lin_log(x, p.linear_knee)
+        if p.knee_at_dark_current and self.dark_current_A > 0:
+            y = photoreceptor.log_response(x)
+        else:
+            y = photoreceptor.lin_log(x, p.linear_knee)
         if p.cutoff_max_hz > 0:
             f3db = lowpass.cutoff_hz(x, y, p.cutoff_max_hz, p.cutoff_model, p.cutoff_saturation)
         else:

@@ -23,6 +23,10 @@ class DvsPixelParams(BlockParams):
                                                                 "of Eqs. 14, 16 and 20 (the paper's digital-number scale) [A]")
     linear_knee: float = Field(5.0, gt=1, description="Normalised current below which the log response of Eq. 14 "
                                                       "is linear (paper: 5) [1]")
+    knee_at_dark_current: bool = Field(False, description="Eq. 14 logarithmic down to the dark current: Y = ln x for "
+                                                          "every current when the dark current is positive (a real DVS "
+                                                          "photoreceptor; the linear piece is then never reached); "
+                                                          "false: the paper's knee at linear_knee I_ref [-]")
     # dark current (Eq. 15)
     temperature_K: float = Field(300.0, gt=0, le=500, description="Photodiode (die) temperature [K]")
     dark_current_density_A_m2: float = Field(1e-5, ge=0, description="Dark current per photodiode area at "

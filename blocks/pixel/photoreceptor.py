@@ -13,6 +13,19 @@ where ``I_ref`` (``reference_current_A``) is a stated reference current: one uni
 paper's scale. With the defaults (knee 5, ``I_max = ln 255``, ``I_ref`` = 1 fA) the paper's
 behaviour is reproduced exactly on that scale; changing ``I_ref`` moves the knee and the
 saturation of the noise model in amperes without touching the log-domain thresholds.
+
+Where the knee sits
+-------------------
+A DVS photoreceptor (the adaptive logarithmic photoreceptor of Delbruck & Mead 1994, the
+front end of every sensor since Lichtsteiner et al. 2008) responds to the logarithm of the
+total current through its photodiode, ``ln(I_p + I_dark)``, down to the dark current: the
+dark current is itself the floor, and a source adds contrast ``ln(1 + I_s/I_dark)``, linear in
+``I_s`` for faint sources without any knee. The paper's knee at ``5 I_ref`` (1 fA scale) sits
+above the dark current of the small pixels of modern sensors (0.24 fA for a 4.86 um pixel at
+1 nA/cm^2), where it makes the response linear with a fixed slope that cooling cannot
+improve. ``knee_at_dark_current`` (set by every sensor preset) uses the logarithm for every
+current when the dark current is positive; the linear piece then only serves a pixel with no
+dark current at all (paper Fig. 5a).
 """
 
 from __future__ import annotations
@@ -47,6 +60,11 @@ def responsivity_A_per_W(quantum_efficiency: float, wavelength_m: float) -> floa
 def photocurrent_A(power_W, responsivity: float):
     """Paper Eq. 13: ``I_p = R Phi`` [A] for an optical power ``Phi`` [W]."""
     return responsivity * np.asarray(power_W, dtype=float)
+
+
+def log_response(x):
+    """Eq. 14 without the linear piece: ``Y = ln x`` for a normalised current ``x > 0`` [1]."""
+    return np.log(np.asarray(x, dtype=float))
 
 
 def lin_log(x, knee: float = 5.0):

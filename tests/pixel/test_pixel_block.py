@@ -193,6 +193,32 @@ def test_cooling_raises_the_contrast_of_a_faint_source(scenes, implementation):
 
 
 @pytest.mark.parametrize("implementation", BOTH)
+def test_knee_at_dark_current_keeps_a_faint_source_on_the_log_response(scenes, implementation):
+    # A 4.86 um pixel at 1 nA/cm^2 has I_dark = 0.24 fA, below the paper's knee (5 I_ref = 5 fA).
+    # With the knee at the dark current the response is ln(I_p + I_dark) (Delbruck & Mead 1994), so
+    # a source of 0.5 I_dark gives floor(ln 1.5 / theta) = 4 ON events, 12 after cooling by 20 K
+    # (Arrhenius factor 0.22); on the paper's linear piece it gives none, cooled or not.
+    fp, theta, ea, pitch = scenes.focal_plane(2, 2), 0.1, 0.56, scenes.PITCH_M
+    k_ev = constants.k / constants.e
+    i_dark_300 = 1e-5 * pitch**2
+    counts = {}
+    for knee_at_dark in (True, False):
+        for temperature in (300.0, 280.0):
+            block = DvsPixel(implementation=implementation, time_step_s=1e-5, temperature_K=temperature,
+                             dark_current_density_A_m2=1e-5, dark_activation_energy_eV=ea,
+                             knee_at_dark_current=knee_at_dark, threshold_on=theta, threshold_off=theta,
+                             **dict(QUIET, threshold_sigma=0.0))
+            flux = np.array([0.0, 0.5 * i_dark_300 / (0.6 * constants.e)])
+            ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [0, 10_000_000], flux),
+                                               0.1, 0.05))
+            counts[knee_at_dark, temperature] = ev["counts"][EventCause.SIGNAL] / 4
+    i_dark_280 = i_dark_300 * np.exp(-ea / k_ev * (1 / 280.0 - 1 / 300.0))
+    assert counts[True, 300.0] == int(np.log(1.5) / theta) == 4
+    assert counts[True, 280.0] == int(np.log(1 + 0.5 * i_dark_300 / i_dark_280) / theta) == 12
+    assert counts[False, 300.0] == counts[False, 280.0] == 0
+
+
+@pytest.mark.parametrize("implementation", BOTH)
 def test_cooling_slows_a_dark_pixel_by_the_arrhenius_factor(scenes, implementation):
     # With the proportional cutoff law the bandwidth of a dark pixel is proportional to its
     # dark current, so the latency of the first event after a small step scales as 1/I_dark.

@@ -16,7 +16,9 @@ from evsda.graph import Window
 from evsda.graph.graphfile import load_graph
 from evsda.library import resolve
 
-PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6)}
+PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6),
+           "prophesee_gen3_vga": (640, 480, 15e-6), "cooled_bsi": (1280, 720, 4.86e-6)}
+LUX_PER_W_AT_555NM = 683.0          # SI definition of the candela [lm W^-1]
 
 
 def include_preset(tmp_path, name: str, **pixel_params):
@@ -55,3 +57,21 @@ def test_davis346_preset_runs_on_its_focal_plane(tmp_path, scenes):
     # only noise: about (0.1 Hz leak + 2 x 0.1 Hz shot) x 90k pixels x 0.05 s
     assert 0 < len(out) < 5000 and out.counts_by_cause[0] == 0
     assert np.all(out.x < width) and np.all(out.y < height)
+
+
+@pytest.mark.parametrize("name", sorted(PRESETS))
+def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
+    # Every preset: log response down to the dark current, and the proportional bandwidth reaching
+    # 3 kHz at the photocurrent of 1 klux on its pixel (555 nm, its QE and pitch; Lichtsteiner et al.
+    # 2008), as the comments in the preset derive. Catches a pitch or QE edited without the saturation.
+    from scipy import constants
+
+    width, height, pitch = PRESETS[name]
+    graph = include_preset(tmp_path, name)
+    p = graph.nodes["sensor/pixel"].block.params
+    camera = graph.nodes["sensor/camera"].block.params
+    assert (camera.width_px, camera.height_px, camera.pixel_pitch_m) == (width, height, pitch)
+    assert p.knee_at_dark_current and p.cutoff_model == "proportional" and p.cutoff_max_hz == 3000.0
+    power_W = 1000.0 / LUX_PER_W_AT_555NM * pitch**2
+    saturation_A = p.quantum_efficiency * constants.e * 555e-9 / (constants.h * constants.c) * power_W
+    assert p.cutoff_saturation * p.reference_current_A == pytest.approx(saturation_A, rel=1e-3)
