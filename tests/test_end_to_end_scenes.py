@@ -318,7 +318,7 @@ def test_geo_events_follow_it_while_the_stars_stay_put(geo_run):
     checked = 0
     for star in range(sx.shape[1]):
         mine = on_star & (nearest_star == star)
-        if (mine & early).sum() < 20 or (mine & late).sum() < 20:
+        if (mine & early).sum() < 10 or (mine & late).sum() < 10:
             continue
         checked += 1
         for c in ("x", "y"):
