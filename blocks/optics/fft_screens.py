@@ -19,6 +19,8 @@ one sample to half the screen (tests/optics).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 import scipy.fft as sfft
 
@@ -30,39 +32,55 @@ def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float,
     """Two independent ``n x n`` screens [rad] sampled every ``delta`` [m] with Fried parameter ``r0`` [m].
 
     ``L0`` is the von Karman outer scale [m]; ``subharmonics`` adds Lane et al. 1992's low frequencies.
+    The spectra depend only on ``(n, delta, r0, L0)`` and are kept (:func:`_spectra`), so a screen
+    costs its random draws and one FFT. The FFT runs on the calling thread (callers render
+    sources on every core).
     """
+    amplitude, low = _spectra(int(n), float(delta), float(r0), float(L0), bool(subharmonics))
+    coefficients = np.empty((n, n), dtype=complex)
+    coefficients.real = rng.standard_normal((n, n)) * amplitude
+    coefficients.imag = rng.standard_normal((n, n)) * amplitude
+    screen = sfft.ifft2(coefficients, workers=1, overwrite_x=True)
+    if subharmonics:
+        screen += _subharmonics(rng, *low)
+    return np.ascontiguousarray(screen.real), np.ascontiguousarray(screen.imag)
+
+
+@lru_cache(maxsize=64)
+def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool):
+    """Amplitudes of the ``n x n`` FFT coefficients and, with ``subharmonics``, the three levels' powers and phasors."""
     df = 1.0 / (n * delta)
     fx = sfft.fftfreq(n, delta)
     psd = phase_psd(np.hypot(fx[:, None], fx[None, :]), r0, L0)
     psd[0, 0] = 0.0                                             # no piston
     # coefficients c_k = (a + i b) sqrt(PSD) df, times n^2 to undo ifft2's 1/n^2: sum_k c_k exp(2 pi i f_k . x)
     amplitude = np.sqrt(psd) * (df * n * n)
-    coefficients = np.empty((n, n), dtype=complex)
-    coefficients.real = rng.standard_normal((n, n)) * amplitude
-    coefficients.imag = rng.standard_normal((n, n)) * amplitude
-    screen = sfft.ifft2(coefficients, workers=-1, overwrite_x=True)
-    if subharmonics:
-        screen += _subharmonics(rng, n, delta, r0, L0)
-    return np.ascontiguousarray(screen.real), np.ascontiguousarray(screen.imag)
-
-
-def _subharmonics(rng: np.random.Generator, n: int, delta: float, r0: float, L0: float) -> np.ndarray:
-    """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3)."""
+    amplitude.setflags(write=False)
+    if not subharmonics:
+        return amplitude, None
     x = (np.arange(n) - n / 2) * delta
-    frequencies = []
-    c = np.zeros((9, 9), dtype=complex)                          # block-diagonal: one 3 x 3 block per level
+    powers, frequencies = [], []
     for p in (1, 2, 3):
-        df = 1.0 / (3**p * n * delta)
-        f1 = np.array([-1.0, 0.0, 1.0]) * df
-        power = _cell_integrated_psd(f1, df, r0, L0)
-        c[3 * p - 3:3 * p, 3 * p - 3:3 * p] = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) \
-            * np.sqrt(power)                                     # c[iy, ix]
+        df_p = 1.0 / (3**p * n * delta)
+        f1 = np.array([-1.0, 0.0, 1.0]) * df_p
+        powers.append(np.sqrt(_cell_integrated_psd(f1, df_p, r0, L0)))
         frequencies.append(f1)
     f = np.concatenate(frequencies)
     ey = np.exp(2j * np.pi * np.outer(x, f))                     # rows: y, columns: fy
     ex = np.exp(2j * np.pi * np.outer(f, x))                     # rows: fx, columns: x
+    for a in (*powers, ey, ex):
+        a.setflags(write=False)
+    return amplitude, (tuple(powers), ey, ex, ey.mean(axis=0), ex.mean(axis=1))
+
+
+def _subharmonics(rng: np.random.Generator, powers, ey, ex, ey_mean, ex_mean) -> np.ndarray:
+    """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3)."""
+    c = np.zeros((9, 9), dtype=complex)                          # block-diagonal: one 3 x 3 block per level
+    for p, power in enumerate(powers):
+        c[3 * p:3 * p + 3, 3 * p:3 * p + 3] = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) \
+            * power                                              # c[iy, ix]
     low = (ey @ c) @ ex                                          # the three levels in one product
-    low -= ey.mean(axis=0) @ c @ ex.mean(axis=1)                 # no piston
+    low -= ey_mean @ c @ ex_mean                                 # no piston
     return low
 
 

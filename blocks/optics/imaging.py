@@ -22,7 +22,9 @@ beyond the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7).
 
 from __future__ import annotations
 
+import threading
 import zlib
+from collections import Counter
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -91,6 +93,9 @@ class Imager:
         self._profiles: dict[tuple, RadialRenderer] = {}
         self._pupil_renderer: PupilRenderer | None = None
         self._amplitude: np.ndarray | None = None
+        #: PSFs rendered so far by each path (benchmarks compare the block's cost with theirs)
+        self.frames_rendered: Counter = Counter()
+        self._count_lock = threading.Lock()
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -243,7 +248,7 @@ class Imager:
             offset = np.zeros((1, 2))
             for k in range(REFERENCE_PROBE_FRAMES):
                 probe = f"__probe {key} {k}"
-                field = self.reference_field(probe, 0.0, *self.boresight, zenith, distance)
+                field = self.reference_field(probe, 0.0, *self.boresight, zenith, distance, slack=1.0)
                 phase = self.reference_pupil_phase(probe, 0.0, *self.boresight, zenith, distance)
                 del self.reference_screens[probe]
                 reference = self.pupil_renderer.stamps_from_field(field[None], offset)
@@ -323,6 +328,8 @@ class Imager:
             idx = np.array([i for i, p in enumerate(paths) if p == path], dtype=int)
             if idx.size == 0:
                 continue
+            with self._count_lock:
+                self.frames_rendered[path] += int(idx.size)
             if path in ("airy", "long_exposure"):
                 for key in sorted({self.conditions_key(z, np.inf) for z in zenith_rad[idx]}):
                     sub = idx[[self.conditions_key(z, np.inf) == key for z in zenith_rad[idx]]]
@@ -447,15 +454,17 @@ class Imager:
         return geometry, grid, index
 
     def reference_field(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
-                        range_m: float) -> np.ndarray:
-        """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude."""
+                        range_m: float, slack: float = 1.3) -> np.ndarray:
+        """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude.
+
+        New screens are ``slack`` times the grid wide (:meth:`_reference_screens`)."""
         g = self.geometry
         geometry, grid, index = self.reference_grid(zenith_rad, range_m)
         distance = geometry.distance_m
         spacing = grid.spacings_m
         screens = {}
         if index:
-            per_layer = self._reference_screens(source, grid, index)
+            per_layer = self._reference_screens(source, grid, index, slack)
             k2 = (2 * np.pi / self.wavelength) ** 2
             for i, plane in index.items():
                 layer, screen = self.atmosphere.layers[i], per_layer[i]
@@ -504,14 +513,17 @@ class Imager:
             phase = phase + weight * screen.sample(rows, cols)[0]
         return phase
 
-    def _reference_screens(self, source: str, grid: PropagationGrid, index: dict) -> dict[int, LayerScreen]:
+    def _reference_screens(self, source: str, grid: PropagationGrid, index: dict,
+                           slack: float = 1.3) -> dict[int, LayerScreen]:
+        """Each layer's screen for the reference grid: ``slack`` times the grid and its margins wide
+        (room to move before an extension; path probes, which read one frame, take 1)."""
         spacing = grid.spacings_m
         screens = self.reference_screens.setdefault(source, {})
         for i, plane in index.items():
             step = screens[i].delta if i in screens else float(spacing[plane])
             needed = grid.n * spacing[plane] / step + 2 * MARGIN + 4
             if i not in screens or screens[i].n < needed:
-                n = int(np.ceil(1.3 * (grid.n + 2 * MARGIN + 4)))
+                n = int(np.ceil(slack * (grid.n + 2 * MARGIN + 4)))
                 n += n % 2
                 screens[i] = LayerScreen(n, float(spacing[plane]), (*self._source_seed(source, 1), i), L0=self._L0,
                                          update="extend" if np.isfinite(self._L0) else "regenerate")

@@ -33,8 +33,8 @@ import numpy as np
 
 from .autoregressive import extension_operator
 from .fft_screens import fft_phase_screens
-from .screen_kernels import (MARGIN, REGENERATE, extend_columns, plan_walk, prefilter, prefilter_taps,
-                             sample_grids)
+from .screen_kernels import (MARGIN, REGENERATE, extend_columns, plan_walk, prefilter, prefilter_band, prefilter_taps,
+                             read_band, sample_grids)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -94,9 +94,9 @@ class LayerScreen:
     def walk(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray, read=None) -> None:
         """Keep each box ``low[f] .. high[f]`` (F, 2) [delta] of epoch ``epochs[f]`` inside the window in turn.
 
-        ``read(coefficients, top, left, first, stop)`` is called with the spline coefficients of a
-        canvas holding the windows of frames ``first .. stop - 1`` at their turn (its first sample
-        at absolute (``top``, ``left``)); values are made once, in order, whatever the batching.
+        ``read(values, top, left, first, stop)`` is called with a canvas holding the windows of
+        frames ``first .. stop - 1`` at their turn (its first sample at absolute (``top``, ``left``));
+        values are made once, in order, whatever the batching.
         """
         low = np.ascontiguousarray(low, dtype=float)
         high = np.ascontiguousarray(high, dtype=float)
@@ -109,7 +109,7 @@ class LayerScreen:
         # frames [0, ready) need no operation; those up to the end of each canvas's operations read it
         ready = int(np.searchsorted(frame_ops, 0, side="right"))
         if read is not None and ready:
-            read(prefilter(self.values, _TAPS), int(self.origin[0]), int(self.origin[1]), 0, ready)
+            read(self.values, int(self.origin[0]), int(self.origin[1]), 0, ready)
         for a, b in zip(starts[:-1], starts[1:]):
             first = a
             if kind[a] == REGENERATE:
@@ -118,7 +118,7 @@ class LayerScreen:
             canvas, corner = self._extend(side[first:b], before[first:b])
             stop = int(np.searchsorted(frame_ops, b, side="right"))
             if read is not None and stop > ready:
-                read(prefilter(canvas, _TAPS), int(corner[0]), int(corner[1]), ready, stop)
+                read(canvas, int(corner[0]), int(corner[1]), ready, stop)
             ready = stop
 
     def _extend(self, sides: np.ndarray, before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -155,7 +155,13 @@ class LayerScreen:
         cols = np.ascontiguousarray(cols, dtype=float)
         weight = np.ascontiguousarray(weight, dtype=float)
 
-        def read(coefficients, top, left, first, stop):
+        def read(values, top, left, first, stop):
+            # spline coefficients only where these frames read (the footprints and their taps): a walk's
+            # canvas is mostly values other frames read, or margins
+            low, high, inside = read_band(rows, cols, top, left, first, stop, *values.shape)
+            if not inside:
+                raise ValueError("screen sampled outside its window")
+            coefficients = prefilter_band(values, _TAPS, low, high)
             if not sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
                 raise ValueError("screen sampled outside its window")
 

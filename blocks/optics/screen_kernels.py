@@ -24,6 +24,9 @@ import numba
 import numpy as np
 
 jit = numba.njit(cache=True, error_model="numpy", nogil=True)
+#: for the conditional draws' dot products: reassociated (SIMD) sums, the same machine code on every
+#: call, so results still do not depend on threads or batching
+fast_jit = numba.njit(cache=True, error_model="numpy", nogil=True, fastmath={"reassoc", "contract"})
 
 #: half-width of the truncated B-spline prefilter [samples]
 PREFILTER_HALF_WIDTH = 8
@@ -153,7 +156,7 @@ def _canvas_index(side, top, left, n, r, c):
     return top + n - 1 - c, left + r
 
 
-@jit
+@fast_jit
 def extend_columns(canvas, tops, lefts, sides, a, b, stencil_rows, stencil_back, noise, n):
     """One conditional column per step: window at canvas (``tops[i]``, ``lefts[i]``), grown on ``sides[i]``.
 
@@ -185,23 +188,63 @@ def prefilter(values, taps):
     Within ``len(taps) // 2`` of an edge the sums are cut short; callers never read there.
     """
     height, width = values.shape
+    return prefilter_band(values, taps, np.zeros(width, np.int64), np.full(width, height, np.int64))
+
+
+@jit
+def prefilter_band(values, taps, low, high):
+    """The coefficients of :func:`prefilter` in rows ``low[c] .. high[c] - 1`` of each column ``c`` only (0 elsewhere).
+
+    Each coefficient is the same sum, in the same order, as over the whole array, so a frame
+    reads identical values whatever part of its canvas was prefiltered.
+    """
+    height, width = values.shape
     half = taps.shape[0] // 2
+    # the first (vertical) pass is needed within `half` columns of every coefficient
+    need_low = np.full(width, height, np.int64)
+    need_high = np.zeros(width, np.int64)
+    for j in range(width):
+        if high[j] > low[j]:
+            for k in range(max(0, j - half), min(width, j + half + 1)):
+                need_low[k] = min(need_low[k], low[j])
+                need_high[k] = max(need_high[k], high[j])
     rows = np.zeros((height, width))
-    for i in range(height):
-        lo, hi = max(0, i - half), min(height, i + half + 1)
-        for k in range(lo, hi):
-            t = taps[k - i + half]
-            for j in range(width):
-                rows[i, j] += t * values[k, j]
+    for k in range(width):
+        for i in range(max(0, need_low[k]), min(height, need_high[k])):
+            lo, hi = max(0, i - half), min(height, i + half + 1)
+            acc = 0.0
+            for m in range(lo, hi):
+                acc += taps[m - i + half] * values[m, k]
+            rows[i, k] = acc
     out = np.zeros((height, width))
-    for i in range(height):
-        for j in range(width):
-            lo, hi = max(0, j - half), min(width, j + half + 1)
+    for j in range(width):
+        lo, hi = max(0, j - half), min(width, j + half + 1)
+        for i in range(max(0, low[j]), min(height, high[j])):
             acc = 0.0
             for k in range(lo, hi):
                 acc += taps[k - j + half] * rows[i, k]
             out[i, j] = acc
     return out
+
+
+@jit
+def read_band(rows, cols, top, left, first, stop, height, width):
+    """Rows ``low[c] .. high[c] - 1`` of each column ``c`` of an (``height``, ``width``) array whose first
+    sample is at (``top``, ``left``) that the 4-tap reads of frames ``first .. stop - 1`` of ``rows``
+    (F, ny) and ``cols`` (F, nx) touch; False when a read falls outside the array."""
+    low = np.full(width, height, np.int64)
+    high = np.zeros(width, np.int64)
+    for f in range(first, stop):
+        r0 = math.floor(rows[f, 0] - top) - 1
+        r1 = math.floor(rows[f, rows.shape[1] - 1] - top) + 3
+        c0 = math.floor(cols[f, 0] - left) - 1
+        c1 = math.floor(cols[f, cols.shape[1] - 1] - left) + 3
+        if r0 < 0 or c0 < 0 or r1 > height or c1 > width:
+            return low, high, False
+        for c in range(c0, c1):
+            low[c] = min(low[c], r0)
+            high[c] = max(high[c], r1)
+    return low, high, True
 
 
 @jit

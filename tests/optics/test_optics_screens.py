@@ -12,7 +12,7 @@ from evsda.blocks.optics.fft_screens import fft_phase_screens, radial_profile, s
 from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
 from evsda.blocks.optics.layer_screen import LayerScreen
-from evsda.blocks.optics.screen_kernels import MARGIN
+from evsda.blocks.optics.screen_kernels import MARGIN, prefilter, prefilter_band, prefilter_taps, read_band
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics.imaging import Imager
 from evsda.blocks.optics.karhunen_loeve import KarhunenLoeve
@@ -165,6 +165,23 @@ def test_spline_sampling_matches_scipy_map_coordinates():
     # on the samples themselves the spline interpolates
     on_grid = screen.sample(screen.origin[0] + np.arange(30, 60)[None] * 1.0, screen.origin[1] + np.arange(30, 60)[None] * 1.0)
     np.testing.assert_allclose(on_grid[0], screen.values[30:60, 30:60], rtol=0, atol=bound)
+
+
+def test_banded_prefilter_is_the_whole_prefilter_where_frames_read():
+    # a walk prefilters only the band its frames read (fast path); there every coefficient is bit for bit
+    # the whole canvas's (the reference), and a read that leaves the canvas is refused
+    rng = np.random.default_rng(3)
+    values = rng.standard_normal((60, 200))
+    whole = prefilter(values, prefilter_taps())
+    rows = 20 + 0.3 * np.arange(40)[:, None] + np.linspace(0, 9, 12)[None]       # a diagonal walk of 40 frames
+    cols = 15 + 3.5 * np.arange(40)[:, None] + np.linspace(0, 9, 12)[None]
+    low, high, inside = read_band(rows, cols, 0, 0, 0, 40, *values.shape)
+    assert inside and np.all(high[15:160] > low[15:160])
+    band = prefilter_band(values, prefilter_taps(), low, high)
+    mask = (np.arange(60)[:, None] >= low[None]) & (np.arange(60)[:, None] < high[None])
+    assert 0.05 < mask.mean() < 0.5
+    np.testing.assert_array_equal(band[mask], whole[mask])
+    assert not read_band(rows + 40, cols, 0, 0, 0, 40, *values.shape)[2]
 
 
 def test_batched_walk_reads_what_frame_by_frame_covers_read():

@@ -1,0 +1,163 @@
+"""End to end speed (issue 13): the tracked LEO pass of benchmarks/end_to_end.yaml, as a user runs it.
+
+Prints, each in fresh processes as a user meets them:
+
+1. fixed costs: importing the CLI, loading the graph (which imports the blocks it names) and a
+   one-window run, split by block (the optics' set-up and path choice, the pixels' start and
+   the load of their compiled loop);
+2. the whole run (``evsda run``, every core): wall time against the simulated time, CPU,
+   peak memory, events, bytes per event in the finished store, time per block;
+3. the optics block alone on one thread: its CPU against the bare FFT cost of the PSFs it
+   rendered (a 2-D complex64 FFT of the zero-padded pupil per PSF, timed here on batches of
+   256), the ratio issue 13 targets at <= 3.
+
+Targets (issue 13): >= 2x real time in wall time on a 2-core machine, peak memory <= 1 GB,
+optics <= 3x its FFT cost, <= 10 bytes per event.
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/end_to_end.py [--duration 10] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+GRAPH = Path(__file__).with_name("end_to_end.yaml")
+
+
+def fresh(code: str, env: dict | None = None) -> dict:
+    """Run ``code`` in a fresh interpreter; it prints one JSON object as its last line."""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, **(env or {})})
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+IMPORT_CLI = """
+import json, time
+t = time.perf_counter()
+import evsda.graph.cli
+print(json.dumps({"import_cli_s": time.perf_counter() - t}))
+"""
+
+LOAD_GRAPH = """
+import json, sys, time
+import evsda.graph.cli
+from evsda.graph.graphfile import load_graph
+t = time.perf_counter()
+load_graph(sys.argv[1] if len(sys.argv) > 1 else %r, [])
+print(json.dumps({"load_graph_s": time.perf_counter() - t, "modules": len(sys.modules)}))
+"""
+
+
+def run_cli(duration: float, store: Path) -> dict:
+    """``evsda run`` the benchmark graph in a child process: wall, CPU, peak RSS and its summary."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    out = subprocess.run([sys.executable, "-c", "import sys; from evsda.graph.cli import main; sys.exit(main())",
+                          "run", str(GRAPH), "-o", str(store), "--overwrite",
+                          "--no-progress", "--set", f"run.duration_s={duration}"],
+                         capture_output=True, text=True, check=True)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    text = out.stdout + out.stderr
+    blocks = {m.group(1): float(m.group(2))
+              for m in re.finditer(r"^\s+(\S+)\s+([0-9.]+) s\s+[0-9.]+ %$", text, flags=re.M)}
+    events = re.search(r"([0-9]+) events recorded; ([0-9.]+) MB on disk(?:, ([0-9.]+) bytes per event)?", text)
+    return {"wall_s": wall, "cpu_s": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
+            "peak_mb": after.ru_maxrss / 1024, "blocks": blocks,
+            "events": int(events.group(1)) if events else 0, "store_mb": float(events.group(2)) if events else 0.0,
+            "bytes_per_event": float(events.group(3)) if events and events.group(3) else float("nan")}
+
+
+OPTICS_PROBE = """
+import json, sys, time
+import numpy as np
+import scipy.fft as sfft
+from evsda.blocks.optics.block import PointSourceOptics
+from evsda.graph.executor import run_graph
+from evsda.graph.graphfile import load_graph
+
+spent = {"cpu": 0.0, "frames": {}, "padded": 0}
+step = PointSourceOptics.step
+def timed(self, *args, **kwargs):
+    t = time.process_time()
+    out = step(self, *args, **kwargs)
+    spent["cpu"] += time.process_time() - t
+    spent["frames"] = dict(self._imager.frames_rendered)
+    spent["padded"] = self._imager.pupil_renderer.padded
+    return out
+PointSourceOptics.step = timed
+graph = load_graph(%r, ["run.duration_s=%s"])
+run_graph(graph, %r, overwrite=True)
+
+size = spent["padded"]
+rng = np.random.default_rng(0)
+batch = (rng.standard_normal((256, size, size)) + 1j * rng.standard_normal((256, size, size))).astype(np.complex64)
+times = []
+for _ in range(7):
+    t = time.process_time()
+    sfft.fft2(batch, workers=1)
+    times.append(time.process_time() - t)
+per_psf = float(np.median(times)) / 256
+print(json.dumps({"optics_cpu_s": spent["cpu"], "frames": spent["frames"], "padded": size, "fft_per_psf_s": per_psf}))
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds of the whole run [s]")
+    parser.add_argument("--repeats", type=int, default=3, help="fresh processes per fixed cost (medians)")
+    parser.add_argument("--skip-optics", action="store_true", help="leave out the single-thread optics probe")
+    args = parser.parse_args()
+    print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f} at the start; "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Path(tmp) / "run.zarr"
+        run_cli(0.1, store)                                       # warm the compiled caches once
+
+        print("\n1. fixed costs (fresh processes, medians of %d)" % args.repeats)
+        cli = statistics.median(fresh(IMPORT_CLI)["import_cli_s"] for _ in range(args.repeats))
+        loads = [fresh(LOAD_GRAPH % str(GRAPH)) for _ in range(args.repeats)]
+        one = [run_cli(0.1, store) for _ in range(args.repeats)]
+        print(f"  import the CLI                 {cli:7.2f} s")
+        print(f"  load the graph (block imports) {statistics.median(x['load_graph_s'] for x in loads):7.2f} s "
+              f"({loads[0]['modules']} modules loaded)")
+        print(f"  a one-window (0.1 s) run       {statistics.median(x['wall_s'] for x in one):7.2f} s wall, "
+              f"{statistics.median(x['cpu_s'] for x in one):.2f} s CPU, of which:")
+        for name in sorted(one[0]["blocks"], key=lambda n: -one[0]["blocks"][n])[:5]:
+            print(f"    {name:28s} {statistics.median(x['blocks'].get(name, 0.0) for x in one):7.2f} s")
+
+        print(f"\n2. the whole run: {args.duration:g} s simulated, every core")
+        full = run_cli(args.duration, store)
+        print(f"  wall {full['wall_s']:.1f} s = {args.duration / full['wall_s']:.2f}x real time (target >= 2x); "
+              f"CPU {full['cpu_s']:.1f} s; peak memory {full['peak_mb']:.0f} MB (target <= 1000)")
+        print(f"  {full['events']} events, store {full['store_mb']:.1f} MB = {full['bytes_per_event']:.1f} bytes "
+              f"per event (target <= 10)")
+        for name, seconds in sorted(full["blocks"].items(), key=lambda kv: -kv[1])[:6]:
+            print(f"    {name:28s} {seconds:7.2f} s")
+
+        if not args.skip_optics:
+            print(f"\n3. optics on one thread ({args.duration:g} s simulated)")
+            probe = fresh(OPTICS_PROBE % (str(GRAPH), args.duration, str(store)), env={"EVSDA_THREADS": "1"})
+            psfs = sum(probe["frames"].values())
+            fft = psfs * probe["fft_per_psf_s"]
+            print(f"  PSFs rendered: {psfs} {probe['frames']}")
+            print(f"  bare FFT cost: {psfs} x {probe['fft_per_psf_s'] * 1e3:.3f} ms "
+                  f"({probe['padded']}^2 complex64) = {fft:.2f} s")
+            print(f"  optics CPU {probe['optics_cpu_s']:.2f} s = {probe['optics_cpu_s'] / fft:.1f}x its FFT cost "
+                  f"(target <= 3x)")
+    print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
