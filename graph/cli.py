@@ -96,10 +96,12 @@ def cmd_blocks(args) -> int:
     if args.name:
         cls = registry.get(args.name)
         if cls is None:
-            raise UserError(f"unknown block type '{args.name}'; `evsda blocks` lists them")
+            raise UserError(f"{registry.unknown_block(args.name)}; `evsda blocks` lists them")
         print(describe_block(args.name, cls))
     else:
         print(list_blocks(registry.available()))
+        for failure in registry.broken():
+            print(f"evsda: warning: {failure}", file=sys.stderr)
     return 0
 
 

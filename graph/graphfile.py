@@ -536,8 +536,8 @@ def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[P
         cls = available.get(node.type)
         where = f"block '{name}'"
         if cls is None:
-            problems.append(Problem(node.file, where, f"unknown block type '{node.type}'{_suggest(node.type, available)}"
-                                                      f" (see `evsda blocks`)"))
+            problems.append(Problem(node.file, where, f"{registry.unknown_block(node.type)}"
+                                                      f"{_suggest(node.type, available)} (see `evsda blocks`)"))
             continue
         node.cls = cls
         params = dict(node.params)

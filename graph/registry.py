@@ -8,6 +8,9 @@ blocks by declaring, in its pyproject.toml::
 
     [project.entry-points."evsda.blocks"]
     my_arbiter = "mypackage.arbiter:MyArbiter"
+
+A plugin that fails to import hides none of the others: its failure is kept (:func:`broken`)
+and shown where its blocks would be asked for (:func:`unknown_block`, ``evsda blocks``).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ ENTRY_POINT_GROUP = "evsda.blocks"
 
 _registered: dict[str, type[Block]] = {}
 _origin: dict[str, str] = {}
+_broken: dict[str, str] = {}   # entry-point name -> why it failed to import
 _loaded = False
 
 
@@ -60,11 +64,14 @@ def load_entry_points() -> None:
     if _loaded:
         return
     _loaded = True
+    _broken.clear()
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             obj = ep.load()
-        except Exception as exc:  # a broken plugin must not hide the others
-            raise UserError(f"block plugin '{ep.name}' ({ep.value}) failed to import: {exc}") from exc
+        except Exception as exc:  # kept, not raised: a broken plugin must not hide the others
+            why = " ".join(str(exc).split()) or type(exc).__name__
+            _broken[ep.name] = f"block plugin '{ep.name}' ({ep.value}) failed to import: {why}"
+            continue
         dist = getattr(ep, "dist", None)
         origin = f"entry point '{ep.name}'" + (f" of {dist.name}" if dist is not None else "")
         for block_class in _as_classes(obj):
@@ -82,6 +89,18 @@ def available() -> dict[str, type[Block]]:
     """All registered block types, by name."""
     load_entry_points()
     return dict(sorted(_registered.items()))
+
+
+def broken() -> list[str]:
+    """One line per block plugin that failed to import (its blocks are missing from :func:`available`)."""
+    load_entry_points()
+    return list(_broken.values())
+
+
+def unknown_block(name: str) -> str:
+    """The message for a block type nobody registered, naming the plugins that failed to import."""
+    failures = broken()
+    return f"unknown block type '{name}'" + (f" ({'; '.join(failures)})" if failures else "")
 
 
 def origin(name: str) -> str:
