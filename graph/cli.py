@@ -26,7 +26,7 @@ from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
 from .report import describe_block, describe_store, list_blocks, run_summary, store_info
 from .store import RunStore
-from .sweep import read_grid, run_sweep
+from .sweep import SAMPLING, read_grid, run_sweep
 from .threads import limit_blas
 
 
@@ -60,6 +60,10 @@ def cmd_run(args) -> int:
     return 0
 
 
+#: exit status of a sweep in which some points failed (the others finished; the last line counts them)
+SWEEP_FAILED = 3
+
+
 def _plain(value):
     """A metric as JSON allows it: non-finite numbers become null."""
     if isinstance(value, float) and not math.isfinite(value):
@@ -81,9 +85,13 @@ def cmd_info(args) -> int:
 def cmd_sweep(args) -> int:
     grid = read_grid(args.grid, args.vary)
     out = Path(args.output) if args.output else Path(f"{Path(args.graph).stem}_sweep")
-    run_sweep(args.graph, grid, out, overrides=args.set, jobs=args.jobs, overwrite=args.overwrite,
-              report=lambda line: print(line, file=sys.stderr))
-    return 0
+    report = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
+    result = run_sweep(args.graph, grid, out, overrides=args.set, jobs=args.jobs, scheduler=args.scheduler,
+                       overwrite=args.overwrite, method=args.sample, points=args.points, seed=args.seed,
+                       report=report)
+    if result.failed and args.quiet:
+        print(f"evsda: sweep: {result.failed} of {len(result.rows)} points failed (see {result.csv})", file=sys.stderr)
+    return SWEEP_FAILED if result.failed else 0
 
 
 def cmd_validate(args) -> int:
@@ -170,12 +178,24 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
 
     p = add("sweep", help="run a graph over a grid of parameter values (a trade study)")
     graph_args(p)
-    p.add_argument("--grid", help="YAML file mapping block.param to a list of values")
-    p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=[V1,V2]",
-                   help="a parameter and its values (repeatable; combined with --grid)")
-    p.add_argument("-o", "--output", help="folder for one run store per point and sweep.csv (default: GRAPH_sweep)")
-    p.add_argument("-j", "--jobs", type=int, default=1, help="points run in parallel after the first")
-    p.add_argument("--overwrite", action="store_true", help="recompute points whose stores exist")
+    p.add_argument("--grid", help="YAML file mapping block.param to a list of values or a range {min:, max:}")
+    p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=VALUES",
+                   help="a parameter and its values, [v1, v2] or {min: a, max: b, log: true} (repeatable; "
+                        "combined with --grid)")
+    p.add_argument("--sample", choices=SAMPLING, default="grid",
+                   help="grid: every combination of the lists; random or lhs (Latin hypercube): --points draws "
+                        "from the lists and ranges")
+    p.add_argument("--points", type=int, default=None, help="points drawn by --sample random or lhs")
+    p.add_argument("--seed", type=int, default=0, help="seed of --sample random or lhs (default 0)")
+    p.add_argument("-o", "--output", help="folder for one run store per point and the results table "
+                                          "sweep.csv / sweep.parquet (default: GRAPH_sweep)")
+    p.add_argument("-j", "--jobs", type=int, default=None,
+                   help="worker processes of the local Dask cluster (default: one per core; 1: run the points "
+                        "one after another in this process)")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run the points on a running Dask cluster (e.g. tcp://host:8786); its workers must reach "
+                        "the output folder and have evsda installed")
+    p.add_argument("--overwrite", action="store_true", help="recompute every point, replacing their stores")
     p.set_defaults(func=cmd_sweep)
 
     p = add("info", help="what a run store holds: graph, seed, epoch, events by cause, metrics, "

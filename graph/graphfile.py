@@ -22,6 +22,7 @@ block, the port or parameter, and what was expected.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import hashlib
 import json
@@ -534,29 +535,12 @@ def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[P
     available = registry.available()
     for name, node in flat.blocks.items():
         cls = available.get(node.type)
-        where = f"block '{name}'"
         if cls is None:
-            problems.append(Problem(node.file, where, f"{registry.unknown_block(node.type)}"
-                                                      f"{_suggest(node.type, available)} (see `evsda blocks`)"))
+            problems.append(Problem(node.file, f"block '{name}'", f"{registry.unknown_block(node.type)}"
+                                                                 f"{_suggest(node.type, available)} (see `evsda blocks`)"))
             continue
         node.cls = cls
-        params = dict(node.params)
-        unreadable = False
-        for key in path_fields(cls.Params):
-            if isinstance(params.get(key), str):
-                try:
-                    params[key] = _resolve_path(params[key], Path(node.file).parent)
-                except UserError as exc:
-                    problems.append(Problem(node.file, f"{where} ({node.type}) parameter '{key}'", str(exc)))
-                    unreadable = True
-        if unreadable:
-            continue
-        try:
-            node.block = cls(cls.Params.model_validate(params), name=name, seed=seed)
-        except ValidationError as exc:
-            problems.extend(params_problems(node.file, name, node.type, exc))
-        except ParameterError as exc:
-            problems.append(Problem(node.file, where, str(exc)))
+        node.block = _build_block(node, node.params, seed, problems)
 
     digraph = nx.DiGraph()
     digraph.add_nodes_from(flat.blocks)
@@ -647,6 +631,59 @@ def _check(file: str, spec: GraphFile, flat: _Flat, base: Path, problems: list[P
     return Graph(file=file, name=spec.name or Path(file).stem, run=spec.run, nodes=flat.blocks,
                  connections=connections, outputs=requested, exposed_inputs=flat.exposed_inputs,
                  exposed_outputs=flat.exposed_outputs, digraph=digraph)
+
+
+def _build_block(node: BlockNode, params: dict[str, Any], seed: int, problems: list[Problem]) -> Block | None:
+    """``node``'s block with ``params`` (file parameters resolved), or None with the problems noted."""
+    cls, where = node.cls, f"block '{node.name}'"
+    params = dict(params)
+    unreadable = False
+    for key in path_fields(cls.Params):
+        if isinstance(params.get(key), str):
+            try:
+                params[key] = _resolve_path(params[key], Path(node.file).parent)
+            except UserError as exc:
+                problems.append(Problem(node.file, f"{where} ({node.type}) parameter '{key}'", str(exc)))
+                unreadable = True
+    if unreadable:
+        return None
+    try:
+        return cls(cls.Params.model_validate(params), name=node.name, seed=seed)
+    except ValidationError as exc:
+        problems.extend(params_problems(node.file, node.name, node.type, exc))
+    except ParameterError as exc:
+        problems.append(Problem(node.file, where, str(exc)))
+    return None
+
+
+def check_override(graph: Graph, key: str, value: Any) -> list[Problem]:
+    """The problems of setting ``key`` (``block.param`` or ``run.field``) to ``value`` in ``graph``, checked on
+    that block's parameters (or the run section) alone: a sweep checks each distinct value once this way
+    instead of loading every point's whole graph. Checks that need the whole graph (sizes) run with the point."""
+    problems: list[Problem] = []
+    if key.startswith("run."):
+        if graph.run is None:
+            return [Problem(graph.file, f"'{key}'", "the graph has no run section")]
+        data = graph.run.model_dump()
+        data[key.removeprefix("run.")] = value
+        try:
+            RunSection.model_validate(data)
+        except ValidationError as exc:
+            problems.extend(Problem(graph.file, f"'run.{loc}'", message) for loc, message in describe_validation_error(exc))
+        return problems
+    block, sep, param = key.partition(".")
+    node = graph.nodes.get(block)
+    if not sep or not param:
+        return [Problem(graph.file, f"'{key}'", "expected block.param")]
+    if node is None:
+        return [Problem(graph.file, f"'{key}'", f"no block named '{block}'{_suggest(block, graph.nodes)}")]
+    params = copy.deepcopy(node.params)
+    try:
+        _set_param(params, param, value)
+    except KeyError:
+        return [Problem(graph.file, f"'{key}'", f"parameter '{param}' is not a mapping")]
+    _build_block(node, params, graph.run.seed if graph.run else 0, problems)
+    return problems
 
 
 def _resolve_path(value: str, base: Path) -> str:

@@ -1,31 +1,82 @@
-"""Parameter sweeps: run one graph over a grid of parameter values (a trade study).
+"""Parameter sweeps (trade studies): one graph over many parameter values, as Dask tasks.
 
-A grid file maps ``block.param`` to the list of values to try; the sweep runs the
-Cartesian product. Every point is checked before the first one runs. The first point
-runs in full; later points reuse every upstream output that does not depend on the
-swept parameters from the points already run (see :mod:`evsda.graph.executor`), so
-sweeping an arbiter's clock rate does not recompute the optics. Results go to one run
-store per point plus ``sweep.csv`` with each point's parameters and metrics::
+A grid file maps ``block.param`` (or ``run.field``) to a list of values or to a range::
 
     # temperature.yaml
-    sensor/pixel.temperature_K: [250, 270, 290]
-    sensor/arbiter.clock_hz: [1.0e6, 1.0e7]
+    sensor/pixel.temperature_K: [250, 270, 290]          # a list: every value (grid) or drawn from it
+    sensor/arbiter.clock_hz: {min: 1.0e6, max: 1.0e8, log: true}   # a range: sampled (random, lhs)
+
+``grid`` sampling runs the Cartesian product of the lists; ``random`` and ``lhs`` (Latin hypercube)
+draw ``points`` points from the lists and ranges with a seed. Each distinct value is checked once
+against its block's parameters before anything runs (:func:`~evsda.graph.graphfile.check_override`).
+
+Points run as Dask tasks, on a ``distributed.LocalCluster`` (one single-threaded worker process per
+job) or on a running cluster (``scheduler``); ``jobs=1`` runs them one after another in this process.
+Each point writes its own run store in the sweep folder, which every worker must reach. Points that
+share upstream blocks (those no swept value reaches) reuse them: the first point with given upstream
+values stores the outputs the others need and they wait for it (:func:`reuse_plan`).
+
+A failing point is recorded with its parameters and a one-line error; the others go on. Results
+stream as points finish: a row per point appended to ``sweep.csv`` and rewritten atomically into
+``sweep.parquet`` (parameters, status, wall and CPU time, error, store, metrics). Re-running the same
+command skips finished points (their stores are complete and made by the same graph), resumes
+interrupted ones from their last commit, and retries failed ones.
 """
 
 from __future__ import annotations
 
 import csv
 import itertools
+import json
+import logging
+import math
 import os
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import GraphError, Problem, UserError
-from .executor import run_graph
-from .graphfile import load_graph, parse_value, read_yaml
+import networkx as nx
+import numpy as np
+
+from .errors import GraphError, Interrupted, Problem, UserError, clip
+from .executor import requested_outputs, run_graph
+from .graphfile import check_override, load_graph, parse_value, read_yaml
 from .store import RunStore, is_run_store
+from .threads import limit_blas
+
+log = logging.getLogger("evsda.sweep")
+
+SAMPLING = ("grid", "random", "lhs")
+PLAN_FILE = "sweep-plan.json"
+RESULTS_CSV = "sweep.csv"
+RESULTS_PARQUET = "sweep.parquet"
+#: the fixed columns of the results table; parameters follow ``status``, metrics follow ``store``
+FIXED_COLUMNS = ("point", "status")
+TAIL_COLUMNS = ("wall_s", "cpu_s", "reused", "error", "store")
+PARQUET_EVERY_S = 2.0       # the Parquet copy of the table is rewritten at most this often (and at the end)
+
+
+@dataclass(frozen=True)
+class Range:
+    """A range of a swept parameter: uniform in value (or in log10 with ``log``), rounded with ``integer``."""
+
+    low: float
+    high: float
+    log: bool = False
+    integer: bool = False
+
+    def at(self, u: float) -> float | int:
+        """The value at the fraction ``u`` in [0, 1) of the range."""
+        if self.log:
+            value = 10 ** (math.log10(self.low) + u * (math.log10(self.high) - math.log10(self.low)))
+        else:
+            value = self.low + u * (self.high - self.low)
+        return int(round(value)) if self.integer else float(value)
+
+
+Axis = list | Range
 
 
 @dataclass(frozen=True)
@@ -35,21 +86,65 @@ class SweepPoint:
     store: Path
 
 
-def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, list[Any]]:
-    """The grid from a YAML file and/or ``--vary block.param=[v1, v2]`` strings."""
-    grid: dict[str, list[Any]] = {}
+@dataclass
+class SweepResult:
+    """What a sweep produced: one row per point (in point order) and where the tables are."""
+
+    rows: list[dict[str, Any]]
+    failed: int
+    csv: Path
+    parquet: Path
+
+    @property
+    def ok(self) -> bool:
+        return self.failed == 0
+
+
+# -- the grid ------------------------------------------------------------------------------------------
+def _axis(where: str, key: str, value: Any, problems: list[Problem]) -> Axis | None:
+    if isinstance(value, list):
+        if not value:
+            problems.append(Problem(where, f"'{key}'", "expected a non-empty list of values or a range {min:, max:}"))
+            return None
+        return value
+    if isinstance(value, dict):
+        unknown = set(value) - {"min", "max", "log", "integer"}
+        low, high = value.get("min"), value.get("max")
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in (low, high))
+        if unknown or not numbers or not low <= high:
+            problems.append(Problem(where, f"'{key}'", "expected a range {min: LOW, max: HIGH} with finite "
+                                                       "LOW <= HIGH (and optional log: true, integer: true)"
+                                    + (f"; unknown keys {sorted(unknown)}" if unknown else "")))
+            return None
+        log_scale, integer = bool(value.get("log", False)), bool(value.get("integer", False))
+        if log_scale and low <= 0:
+            problems.append(Problem(where, f"'{key}'", f"a log range needs min > 0, got {clip(repr(low))}"))
+            return None
+        return Range(float(low), float(high), log_scale, integer)
+    problems.append(Problem(where, f"'{key}'", "expected a non-empty list of values or a range {min:, max:}"))
+    return None
+
+
+def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, Axis]:
+    """The swept parameters from a YAML file and/or ``--vary block.param=[v1, v2]`` (or ``={min: a, max: b}``)
+    strings: each a list of values or a :class:`Range`."""
+    raw: list[tuple[str, str, Any]] = []
     if path is not None:
-        data = read_yaml(Path(path))
+        data = read_yaml(Path(path), what="sweep grid")
         if not isinstance(data, dict) or not data:
-            raise GraphError([Problem(str(path), "", "expected a mapping of block.param to a list of values")])
-        grid.update(data)
+            raise GraphError([Problem(str(path), "", "expected a mapping of block.param to a list of values or a range")])
+        raw.extend((str(path), str(k), v) for k, v in data.items())
     for text in vary:
         key, sep, value = text.partition("=")
         if not sep:
-            raise UserError(f"--vary '{text}': expected block.param=[v1, v2, ...]")
-        grid[key.strip()] = parse_value(value.strip())
-    problems = [Problem(str(path or "--vary"), f"'{k}'", "expected a non-empty list of values")
-                for k, v in grid.items() if not isinstance(v, list) or not v]
+            raise UserError(f"--vary '{clip(text)}': expected block.param=[v1, v2, ...] or block.param={{min: a, max: b}}")
+        raw.append(("--vary", key.strip(), parse_value(value.strip())))
+    problems: list[Problem] = []
+    grid: dict[str, Axis] = {}
+    for where, key, value in raw:
+        axis = _axis(where, key, value, problems)
+        if axis is not None:
+            grid[key] = axis
     if problems:
         raise GraphError(problems)
     if not grid:
@@ -57,72 +152,412 @@ def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, list[A
     return grid
 
 
-def plan(graph_path: str, grid: dict[str, list[Any]], out_dir: Path, overrides: list[str] = ()) -> list[SweepPoint]:
-    """Every point of the grid, each checked by loading its graph (all problems reported together)."""
+def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = None, seed: int = 0) -> list[dict[str, Any]]:
+    """The points' values: the Cartesian product of the lists (``grid``), or ``points`` draws from every
+    list and range, independent (``random``) or stratified so that each axis is cut into ``points``
+    equal slices each sampled once (``lhs``, McKay, Beckman & Conover 1979), with ``seed``."""
     keys = list(grid)
-    points, problems = [], []
-    for index, combo in enumerate(itertools.product(*(grid[k] for k in keys))):
-        values = dict(zip(keys, combo))
-        try:
-            load_graph(graph_path, [*overrides, *(f"{k}={v}" for k, v in values.items())])
-        except GraphError as exc:
-            problems.extend(p for p in exc.problems if p not in problems)
-        points.append(SweepPoint(index, values, out_dir / f"point_{index:03d}.zarr"))
+    if method == "grid":
+        ranges = [k for k in keys if isinstance(grid[k], Range)]
+        if ranges:
+            raise UserError(f"{ranges[0]} is a range: ranges need --sample random or lhs with --points N")
+        if points is not None:
+            raise UserError("--points goes with --sample random or lhs; a grid runs every combination")
+        return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
+    if method not in SAMPLING:
+        raise UserError(f"--sample must be one of {', '.join(SAMPLING)}, got {clip(method)!r}")
+    if points is None or points < 1:
+        raise UserError(f"--sample {method} needs --points N (at least 1)")
+    if seed < 0:
+        raise UserError(f"--seed must be >= 0, got {seed}")
+    if method == "random":
+        u = np.random.default_rng(seed).random((points, len(keys)))
+    else:
+        from scipy.stats import qmc
+        u = qmc.LatinHypercube(d=len(keys), rng=np.random.default_rng(seed)).random(points)
+    out = []
+    for row in u:
+        values = {}
+        for key, fraction in zip(keys, row):
+            axis = grid[key]
+            values[key] = axis.at(float(fraction)) if isinstance(axis, Range) else \
+                axis[min(int(fraction * len(axis)), len(axis) - 1)]
+        out.append(values)
+    return out
+
+
+def _overrides_dict(overrides: list[str]) -> dict[str, Any]:
+    out = {}
+    for text in overrides:
+        key, sep, value = text.partition("=")
+        if not sep:
+            raise UserError(f"--set '{clip(text)}': expected block.param=value")
+        out[key.strip()] = parse_value(value.strip())
+    return out
+
+
+def _key(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, default=str)
+
+
+def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides: list[str] = ()) -> list[SweepPoint]:
+    """The points, each distinct value checked once against its block (every problem reported together)."""
+    base = load_graph(graph_path, list(overrides))
+    problems: list[Problem] = []
+    checked: set[tuple[str, str]] = set()
+    for point in values:
+        for key, value in point.items():
+            marker = (key, _key(value))
+            if marker in checked:
+                continue
+            checked.add(marker)
+            problems.extend(p for p in check_override(base, key, value) if p not in problems)
     if problems:
         raise GraphError(problems)
-    return points
+    width = max(3, len(str(len(values) - 1)))
+    return [SweepPoint(i, v, out_dir / f"point_{i:0{width}d}.zarr") for i, v in enumerate(values)]
 
 
-def _run_point(graph_path: str, overrides: list[str], point: SweepPoint, reuse: list[Path], overwrite: bool) -> dict:
-    graph = load_graph(graph_path, [*overrides, *(f"{k}={v}" for k, v in point.values.items())])
-    if point.store.exists() and not overwrite:
-        if is_run_store(point.store):      # else a point killed before its first window: resume starts it over
-            store = RunStore.open(point.store)
-            if store.complete and store.attrs.get("graph_hash") == graph.digest():
-                return {"metrics": store.metrics, "reused": {}, "skipped": True}
-        result = run_graph(graph, point.store, resume=True, reuse=reuse, progress=False)
-    else:
-        result = run_graph(graph, point.store, overwrite=overwrite, reuse=reuse, progress=False)
-    return {"metrics": result.metrics, "reused": result.reused, "skipped": False}
+def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] = ()) -> tuple[dict[int, int], dict[int, list[str]]]:
+    """Which earlier point each point reuses upstream outputs from, and which blocks each provider must store.
 
-
-def _share_cores(threads: int) -> None:
-    """Let each of ``--jobs`` worker processes run its blocks' threads on its share of the cores only."""
-    os.environ.setdefault("EVSDA_THREADS", str(threads))
-
-
-def run_sweep(graph_path: str, grid: dict[str, list[Any]], out_dir: str | Path, overrides: list[str] = (),
-              jobs: int = 1, overwrite: bool = False, report=print) -> list[dict]:
-    """Run every point; returns one row (parameters + metrics) per point and writes ``sweep.csv``."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    points = plan(graph_path, grid, out_dir, overrides)
-    report(f"sweep: {len(points)} points into {out_dir}")
-    outcomes: dict[int, dict] = {}
-    first, rest = points[0], points[1:]
-    outcomes[first.index] = _run_point(graph_path, list(overrides), first, [], overwrite)
-    if jobs > 1 and rest:
-        threads = max(1, (os.cpu_count() or 1) // jobs)
-        with ProcessPoolExecutor(max_workers=jobs, initializer=_share_cores, initargs=(threads,)) as pool:
-            futures = {p.index: pool.submit(_run_point, graph_path, list(overrides), p, [first.store], overwrite)
-                       for p in rest}
-            outcomes.update({i: f.result() for i, f in futures.items()})
-    else:
-        done = [first.store]
-        for point in rest:
-            outcomes[point.index] = _run_point(graph_path, list(overrides), point, list(done), overwrite)
-            done.append(point.store)
-    rows = []
+    A block's outputs depend on the swept values of the block and of its ancestors (every value for a
+    ``run.`` key). Point p takes as provider the earliest point q < p sharing those values for the most
+    blocks that p would otherwise compute; q stores the blocks at the edge of what they share (a shared
+    block feeding one that is not), which p then loads instead of recomputing them and their ancestors.
+    """
+    graph = load_graph(graph_path, list(overrides))
+    requested = {block for block, _ in requested_outputs(graph)}
+    active = set(requested).union(*(nx.ancestors(graph.digraph, b) for b in requested))
+    keys = list(points[0].values) if points else []
+    reached: dict[str, list[str]] = {}
+    for key in keys:
+        if key.startswith("run."):
+            touched = set(graph.nodes)
+        else:
+            block = key.partition(".")[0]
+            touched = {block} | nx.descendants(graph.digraph, block) if block in graph.nodes else set(graph.nodes)
+        for name in touched:
+            reached.setdefault(name, []).append(key)
+    shareable = [b for b in nx.topological_sort(graph.digraph) if b in active and b not in requested]
+    first: dict[str, dict[str, int]] = {b: {} for b in shareable}
+    providers: dict[int, int] = {}
+    stores: dict[int, set[str]] = {}
     for point in points:
-        outcome = outcomes[point.index]
-        status = "already complete" if outcome["skipped"] else (
-            f"reused {', '.join(sorted(outcome['reused']))}" if outcome["reused"] else "computed in full")
-        report(f"  point {point.index}: {point.values} -> {point.store.name} ({status})")
-        rows.append({"point": point.index, **point.values, **outcome["metrics"], "store": str(point.store)})
-    columns = list(dict.fromkeys(key for row in rows for key in row))
-    with open(out_dir / "sweep.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns)
-        writer.writeheader()
-        writer.writerows(rows)
-    report(f"sweep: results in {out_dir / 'sweep.csv'}")
-    return rows
+        signature = {b: _key([point.values[k] for k in reached.get(b, [])]) for b in shareable}
+        candidates = {first[b][signature[b]] for b in shareable if signature[b] in first[b]}
+        best, best_shared = None, set()
+        for q in sorted(candidates):
+            other = points[q].values
+            shared = {b for b in shareable if all(_key(other[k]) == _key(point.values[k]) for k in reached.get(b, []))}
+            if len(shared) > len(best_shared):
+                best, best_shared = q, shared
+        for b in shareable:
+            first[b].setdefault(signature[b], point.index)
+        if best is None:
+            continue
+        providers[point.index] = best
+        edge = {b for b in best_shared if any(c in active and c not in best_shared for c in graph.digraph.successors(b))}
+        stores.setdefault(best, set()).update(edge)
+    return providers, {q: sorted(blocks) for q, blocks in stores.items()}
+
+
+# -- one point -----------------------------------------------------------------------------------------
+@dataclass
+class PointTask:
+    """Everything a worker needs to run one point (picklable)."""
+
+    graph_path: str
+    overrides: dict[str, Any]
+    point: SweepPoint
+    reuse: list[str]                        # stores of the provider chain, nearest first
+    store_products: list[str] | None        # blocks this point must store for the points that reuse it
+    overwrite: bool
+    threads: int | None                     # EVSDA_THREADS for the point's blocks
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, GraphError):
+        first = str(exc.problems[0]) if exc.problems else str(exc)
+        more = len(exc.problems) - 1
+        return clip(first + (f" (and {more} more problems)" if more > 0 else ""), 300)
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return clip(text if isinstance(exc, UserError) else f"{type(exc).__name__}: {text}", 300)
+
+
+def run_point(task: PointTask, provider: dict | None = None) -> dict:
+    """Run (or skip, or resume) one point; never raises for the point's own failure: the outcome says it.
+
+    ``provider`` is the outcome of the point this one reuses from (passed so that a scheduler runs this
+    point after it)."""
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    if task.threads:
+        os.environ.setdefault("EVSDA_THREADS", str(task.threads))
+    point = task.point
+    outcome: dict[str, Any] = {"point": point.index, "status": "ok", "metrics": {}, "units": {}, "reused": {},
+                               "error": ""}
+    try:
+        overrides = {**task.overrides, **point.values}
+        graph = load_graph(task.graph_path, overrides)
+        if task.store_products:
+            choice = graph.run.store_products
+            if choice is not True:
+                wanted = sorted(set(task.store_products) | set(choice or []))
+                graph = load_graph(task.graph_path, {**overrides, "run.store_products": wanted})
+        reuse = [p for p in task.reuse if is_run_store(p)]
+        if point.store.exists() and not task.overwrite:
+            if is_run_store(point.store):
+                store = RunStore.open(point.store)
+                if store.complete and store.attrs.get("graph_hash") == graph.digest():
+                    outcome.update(status="done", metrics=store.metrics, units=store.metric_units,
+                                   reused=dict(store.attrs.get("reused", {})))
+                    return outcome
+            result = run_graph(graph, point.store, resume=True, reuse=reuse, progress=False)
+        else:
+            result = run_graph(graph, point.store, overwrite=task.overwrite, reuse=reuse, progress=False)
+        outcome.update(metrics=result.metrics, units=result.metric_units, reused=result.reused)
+    except Exception as exc:  # a point's failure is recorded, the sweep goes on
+        outcome.update(status="failed", error=_one_line(exc))
+    finally:
+        outcome["wall_s"] = time.perf_counter() - wall0
+        outcome["cpu_s"] = time.process_time() - cpu0
+    return outcome
+
+
+# -- the results table ---------------------------------------------------------------------------------
+class ResultsTable:
+    """``sweep.csv`` (a row appended as each point finishes) and ``sweep.parquet`` (rewritten atomically)."""
+
+    def __init__(self, out_dir: Path, keys: list[str]):
+        self.csv, self.parquet = out_dir / RESULTS_CSV, out_dir / RESULTS_PARQUET
+        self.keys = keys
+        self.rows: list[dict[str, Any]] = []
+        self.columns: list[str] = [*FIXED_COLUMNS, *keys, *TAIL_COLUMNS]
+        self._parquet_at = 0.0
+        self._rewrite_csv()
+
+    def add(self, row: dict[str, Any]) -> None:
+        self.rows.append(row)
+        new = [c for c in row if c not in self.columns]
+        if new:
+            self.columns.extend(new)
+            self._rewrite_csv()
+        else:
+            with open(self.csv, "a", newline="") as handle:
+                csv.DictWriter(handle, fieldnames=self.columns).writerow(row)
+        if time.monotonic() - self._parquet_at >= PARQUET_EVERY_S:
+            self.write_parquet()
+
+    def _rewrite_csv(self) -> None:
+        temporary = self.csv.with_name(self.csv.name + ".tmp")
+        with open(temporary, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=self.columns)
+            writer.writeheader()
+            writer.writerows(self.rows)
+        os.replace(temporary, self.csv)
+
+    def write_parquet(self) -> None:
+        import pandas as pd
+        import pyarrow as pa
+
+        frame = pd.DataFrame(sorted(self.rows, key=lambda r: r["point"]), columns=self.columns)
+        temporary = self.parquet.with_name(self.parquet.name + ".tmp")
+        try:
+            frame.to_parquet(temporary, index=False)
+        except (pa.ArrowInvalid, pa.ArrowTypeError):   # a parameter with values of several types
+            mixed = [c for c in frame.columns if frame[c].dtype == object]
+            frame[mixed] = frame[mixed].astype(str)
+            frame.to_parquet(temporary, index=False)
+        os.replace(temporary, self.parquet)
+        self._parquet_at = time.monotonic()
+
+
+def read_results(out_dir: str | Path):
+    """A sweep's results table as a pandas DataFrame (from ``sweep.parquet``, else ``sweep.csv``)."""
+    import pandas as pd
+
+    out_dir = Path(out_dir)
+    if (out_dir / RESULTS_PARQUET).is_file():
+        return pd.read_parquet(out_dir / RESULTS_PARQUET)
+    if (out_dir / RESULTS_CSV).is_file():
+        return pd.read_csv(out_dir / RESULTS_CSV)
+    raise UserError(f"{out_dir} holds no sweep results ({RESULTS_PARQUET} or {RESULTS_CSV})")
+
+
+def _earlier_times(path: Path) -> dict[int, tuple[float, float]]:
+    """Wall and CPU time of the points an earlier run of the sweep finished (from its ``sweep.csv``)."""
+    times = {}
+    try:
+        with open(path, newline="") as handle:
+            for row in csv.DictReader(handle):
+                if row.get("status") in ("ok", "done"):
+                    try:
+                        times[int(row["point"])] = (float(row["wall_s"]), float(row["cpu_s"]))
+                    except (KeyError, TypeError, ValueError):
+                        continue
+    except (OSError, csv.Error, UnicodeDecodeError):
+        pass
+    return times
+
+
+def _row(point: SweepPoint, outcome: dict) -> dict[str, Any]:
+    row = {"point": point.index, "status": outcome["status"], **point.values,
+           "wall_s": round(outcome.get("wall_s", float("nan")), 4), "cpu_s": round(outcome.get("cpu_s", float("nan")), 4),
+           "reused": ";".join(sorted(outcome.get("reused", {}))), "error": outcome.get("error", ""),
+           "store": str(point.store)}
+    row.update({k: v for k, v in outcome.get("metrics", {}).items() if k not in row})
+    return row
+
+
+def _describe(point: SweepPoint, outcome: dict) -> str:
+    status = outcome["status"]
+    if status == "failed":
+        what = f"FAILED: {outcome['error']}"
+    elif status == "done":
+        what = "already complete"
+    else:
+        reused = outcome.get("reused") or {}
+        what = (f"reused {', '.join(sorted(reused))}" if reused else "computed in full") + f", {outcome['wall_s']:.1f} s"
+    return f"  point {point.index}: {point.values} -> {point.store.name} ({what})"
+
+
+# -- the sweep ---------------------------------------------------------------------------------------------
+def _check_plan_file(out_dir: Path, document: dict, overwrite: bool) -> None:
+    """A sweep folder holds one sweep: re-running another sweep into it is refused (its points would differ)."""
+    path = out_dir / PLAN_FILE
+    if path.is_file() and not overwrite:
+        try:
+            previous = json.loads(path.read_text())
+        except (OSError, ValueError):
+            previous = None
+        if previous != document:
+            raise UserError(f"{out_dir} holds another sweep (other graph, parameters or values; see {PLAN_FILE}); "
+                            f"choose another folder, or pass --overwrite to recompute every point")
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_text(json.dumps(document, indent=1, default=str))
+    os.replace(temporary, path)
+
+
+def default_jobs() -> int:
+    """Worker processes of a local cluster: one per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overrides: list[str] = (),
+              jobs: int | None = None, scheduler: str | None = None, overwrite: bool = False,
+              method: str = "grid", points: int | None = None, seed: int = 0,
+              report: Callable[[str], None] = print) -> SweepResult:
+    """Run every point of the sweep (see the module docstring); returns a :class:`SweepResult`.
+
+    ``jobs``: worker processes of a local Dask cluster (default: one per core; 1 runs the points in this
+    process); ``scheduler``: the address of a running Dask scheduler to use instead.
+    """
+    out_dir = Path(out_dir)
+    if jobs is not None and jobs < 1:
+        raise UserError(f"--jobs must be at least 1, got {jobs}")
+    graph_path = str(graph_path)
+    values = sample(grid, method, points, seed)
+    t0 = time.perf_counter()
+    with limit_blas():
+        sweep_points = plan(graph_path, values, out_dir, overrides)
+        providers, stored = reuse_plan(graph_path, sweep_points, overrides)
+    log.info("planned %d points in %.2f s", len(sweep_points), time.perf_counter() - t0)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create the sweep folder {out_dir}: {exc.strerror or exc}") from None
+    _check_plan_file(out_dir, {"graph": graph_path, "overrides": list(overrides), "sampling": method,
+                               "seed": seed if method != "grid" else None,
+                               "points": [p.values for p in sweep_points]}, overwrite)
+    workers = 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
+    threads = None if scheduler else max(1, default_jobs() // workers)
+    base = _overrides_dict(list(overrides))
+    tasks = {}
+    for point in sweep_points:
+        chain, q = [], providers.get(point.index)
+        while q is not None:
+            chain.append(str(sweep_points[q].store))
+            q = providers.get(q)
+        if scheduler:       # remote workers need paths that do not depend on this process's folder
+            point, chain = SweepPoint(point.index, point.values, point.store.absolute()), [str(Path(c).absolute()) for c in chain]
+        tasks[point.index] = PointTask(graph_path, base, point, chain, stored.get(point.index), overwrite, threads)
+    where = f"the Dask scheduler at {scheduler}" if scheduler else (
+        "this process" if workers == 1 else f"a local Dask cluster of {workers} workers")
+    report(f"sweep: {len(sweep_points)} points into {out_dir}, on {where}")
+    earlier = _earlier_times(out_dir / RESULTS_CSV)
+    table = ResultsTable(out_dir, list(grid))
+    failed = 0
+
+    def finished(index: int, outcome: dict) -> None:
+        nonlocal failed
+        point = sweep_points[index]
+        if outcome["status"] == "done" and index in earlier:    # the time it took when it ran
+            outcome["wall_s"], outcome["cpu_s"] = earlier[index]
+        failed += outcome["status"] == "failed"
+        table.add(_row(point, outcome))
+        report(_describe(point, outcome))
+
+    try:
+        if scheduler is None and workers == 1:
+            outcomes: dict[int, dict] = {}
+            for point in sweep_points:
+                q = providers.get(point.index)
+                outcomes[point.index] = run_point(tasks[point.index], outcomes.get(q))
+                finished(point.index, outcomes[point.index])
+        else:
+            _run_on_dask(tasks, providers, workers, scheduler, finished)
+    except KeyboardInterrupt as exc:
+        raise Interrupted(getattr(exc, "signal_name", "SIGINT"),
+                          f"sweep interrupted after {len(table.rows)} of {len(sweep_points)} points; finished points "
+                          f"are kept and unfinished ones resume: re-run the same command") from None
+    finally:
+        if table.rows:
+            table.write_parquet()
+    rows = sorted(table.rows, key=lambda r: r["point"])
+    if failed:
+        report(f"sweep: {failed} of {len(sweep_points)} points failed (see the error column of {table.csv}); "
+               f"re-run the same command to retry them")
+    else:
+        report(f"sweep: all {len(sweep_points)} points done; results in {table.csv} and {table.parquet}")
+    return SweepResult(rows, failed, table.csv, table.parquet)
+
+
+def _run_on_dask(tasks: dict[int, PointTask], providers: dict[int, int], workers: int, scheduler: str | None,
+                 finished: Callable[[int, dict], None]) -> None:
+    """Submit every point as a task (after its provider) and report each as it finishes."""
+    from distributed import Client, LocalCluster, as_completed
+
+    logging.getLogger("distributed").setLevel(logging.ERROR)
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.ERROR)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise UserError(f"cannot reach the Dask scheduler at {clip(scheduler)}: {clip(str(exc))}") from None
+    try:
+        futures = {}
+        for index in sorted(tasks):
+            provider = futures.get(providers.get(index))
+            futures[index] = client.submit(run_point, tasks[index], provider, pure=False,
+                                           key=f"evsda-point-{index}-{os.getpid()}-{time.time_ns()}")
+        index_of = {f.key: i for i, f in futures.items()}
+        for future in as_completed(list(futures.values())):
+            index = index_of[future.key]
+            if future.status == "finished":
+                outcome = future.result()
+            else:       # the worker died under the point (after Dask's retries): recorded like any failure
+                exc = future.exception()
+                outcome = {"point": index, "status": "failed", "error": _one_line(exc), "metrics": {},
+                           "reused": {}, "wall_s": float("nan"), "cpu_s": float("nan")}
+            finished(index, outcome)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -122,6 +122,6 @@ def test_a_sweep_point_killed_before_its_first_window_is_run_again(capsys, tmp_p
     out = tmp_path / "sweep"
     (out / "point_001.zarr").mkdir(parents=True)
     (out / "point_001.zarr" / ".evsda-lock").write_text('{"pid": 999999, "host": "gone"}')
-    status, lines = cli(capsys, "sweep", graph, "--vary", "spikes.step=[2.0, 3.0]", "-o", out)
+    status, lines = cli(capsys, "sweep", graph, "--vary", "spikes.step=[2.0, 3.0]", "-o", out, "-j", "1")
     assert status == 0, lines
     assert all(RunStore.open(out / f"point_00{i}.zarr").complete for i in (0, 1))

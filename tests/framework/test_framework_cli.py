@@ -113,16 +113,18 @@ def test_registry_rejects_a_clashing_type_name(plugin):
 def test_sweep_runs_the_grid_reuses_upstream_and_writes_a_table(evsda_cli, tmp_path):
     good = write(tmp_path / "good.yaml", GOOD)
     grid = write(tmp_path / "grid.yaml", "spikes.step: [2, 3]\n")
-    proc = evsda_cli("sweep", good, "--grid", grid, "--vary", "spikes.latency_s=[1.0e-6]", "-o", tmp_path / "sw")
+    proc = evsda_cli("sweep", good, "--grid", grid, "--vary", "spikes.latency_s=[1.0e-6]", "-o", tmp_path / "sw",
+                     "-j", "1")
     assert proc.returncode == 0, proc.stderr
-    assert "point 0: {'spikes.step': 2, 'spikes.latency_s': 1e-06} -> point_000.zarr (computed in full)" in proc.stderr
-    assert "point 1: {'spikes.step': 3, 'spikes.latency_s': 1e-06} -> point_001.zarr (reused ramp)" in proc.stderr
+    assert "point 0: {'spikes.step': 2, 'spikes.latency_s': 1e-06} -> point_000.zarr (computed in full" in proc.stderr
+    assert "point 1: {'spikes.step': 3, 'spikes.latency_s': 1e-06} -> point_001.zarr (reused ramp" in proc.stderr
     rows = (tmp_path / "sw" / "sweep.csv").read_text().splitlines()
-    assert rows[0].startswith("point,spikes.step,spikes.latency_s") and len(rows) == 3
+    assert rows[0].startswith("point,status,spikes.step,spikes.latency_s,wall_s,cpu_s") and len(rows) == 3
     n2 = RunStore.open(tmp_path / "sw" / "point_000.zarr").n_events
     n3 = RunStore.open(tmp_path / "sw" / "point_001.zarr").n_events
     assert n2 > n3 > 0
-    again = evsda_cli("sweep", good, "--grid", grid, "--vary", "spikes.latency_s=[1.0e-6]", "-o", tmp_path / "sw")
+    again = evsda_cli("sweep", good, "--grid", grid, "--vary", "spikes.latency_s=[1.0e-6]", "-o", tmp_path / "sw",
+                      "-j", "1")
     assert again.stderr.count("already complete") == 2
     bad = evsda_cli("sweep", good, "--vary", "spikes.step=[2, -1]", "-o", tmp_path / "bad")
     assert bad.returncode == 2 and "parameter 'step': Input should be greater than 0" in bad.stderr

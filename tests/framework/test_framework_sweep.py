@@ -1,0 +1,147 @@
+"""Sweeps: grids and seeded sampling, per-value checks, reuse planning, failure-tolerant streamed results,
+re-runs that skip finished points, and points run as Dask tasks on a 2-worker LocalCluster."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from evsda.graph import GraphError, UserError
+from evsda.graph import sweep as sweep_module
+from evsda.graph.executor import run_graph
+from evsda.graph.graphfile import load_graph
+from evsda.graph.store import RunStore
+from evsda.graph.sweep import Range, read_grid, read_results, reuse_plan, run_sweep, sample
+
+from .conftest import write
+
+GRAPH = """\
+evsda: 1
+name: chain
+run: {start: "2024-03-01T02:15:00Z", duration_s: 0.03, window_s: 0.01, seed: 3, store_products: false}
+blocks:
+  ramp: {type: test_ramp}
+  double: {type: test_scale}
+  spikes: {type: test_spikes}
+  count: {type: test_counter}
+connections:
+  - {from: ramp.samples, to: double.samples}
+  - {from: double.samples, to: spikes.samples}
+  - {from: spikes.events, to: count.events}
+"""
+
+
+def chain(tmp_path):
+    return write(tmp_path / "chain.yaml", GRAPH)
+
+
+def test_lists_make_a_grid_and_ranges_need_sampling(tmp_path):
+    grid_file = write(tmp_path / "grid.yaml", "a.x: [1, 2]\nb.y: {min: 1e-3, max: 1, log: true}\n")
+    grid = read_grid(grid_file, ["c.z=[5e-1, 7]"])
+    assert grid == {"a.x": [1, 2], "b.y": Range(1e-3, 1.0, log=True), "c.z": [0.5, 7]}
+    assert sample({"a.x": [1, 2], "c.z": [0.5, 7]}) == [{"a.x": 1, "c.z": 0.5}, {"a.x": 1, "c.z": 7},
+                                                       {"a.x": 2, "c.z": 0.5}, {"a.x": 2, "c.z": 7}]
+    with pytest.raises(UserError, match="b.y is a range"):
+        sample(grid)
+    with pytest.raises(UserError, match="needs --points"):
+        sample(grid, "lhs")
+    with pytest.raises(GraphError) as info:
+        read_grid(None, ["a.x={min: 2, max: 1}", "b.y={min: 0, max: 1, log: true}", "c.z=[]"])
+    assert len(info.value.problems) == 3
+
+
+def test_random_and_latin_hypercube_draws_are_seeded_and_lhs_stratifies():
+    grid = {"a.x": Range(0.0, 10.0), "b.y": Range(1.0, 1e4, log=True), "c.n": Range(1, 5, integer=True),
+            "d.k": ["p", "q"]}
+    for method in ("random", "lhs"):
+        first, again = sample(grid, method, 20, seed=4), sample(grid, method, 20, seed=4)
+        assert first == again and first != sample(grid, method, 20, seed=5)
+        assert all(0 <= p["a.x"] < 10 and 1 <= p["b.y"] < 1e4 and p["c.n"] in range(1, 6) and p["d.k"] in "pq"
+                   for p in first)
+        assert all(isinstance(p["c.n"], int) for p in first)
+    lhs = sample(grid, "lhs", 20, seed=4)
+    # every tenth of... every 1/20 of each axis holds exactly one point (McKay et al. 1979), in log for b.y
+    assert sorted(int(p["a.x"] / 10 * 20) for p in lhs) == list(range(20))
+    assert sorted(int(np.log10(p["b.y"]) / 4 * 20) for p in lhs) == list(range(20))
+    assert sorted(p["d.k"] for p in lhs) == ["p"] * 10 + ["q"] * 10
+
+
+def test_planning_checks_each_distinct_value_once(plugin, tmp_path, monkeypatch):
+    calls = []
+    real = sweep_module.check_override
+    monkeypatch.setattr(sweep_module, "check_override", lambda g, k, v: calls.append((k, v)) or real(g, k, v))
+    values = sample({"spikes.step": [1, 2, 3], "ramp.noise": [0.0, 0.1]}, "random", 300, seed=1)
+    points = sweep_module.plan(str(chain(tmp_path)), values, tmp_path / "out")
+    assert len(points) == 300 and points[0].store.name == "point_000.zarr" and len(calls) == 5
+    with pytest.raises(GraphError) as info:
+        sweep_module.plan(str(chain(tmp_path)), sample({"spikes.step": [1, -1, -1], "nope.x": [1]}), tmp_path)
+    messages = sorted(str(p) for p in info.value.problems)
+    assert len(messages) == 2, messages
+    assert "no block named 'nope'" in messages[0] and "'step': Input should be greater than 0" in messages[1]
+
+
+def test_points_reuse_the_earliest_point_sharing_their_upstream_values(plugin, tmp_path):
+    values = sample({"double.gain": [1.0, 2.0], "spikes.step": [2.0, 3.0]})
+    points = sweep_module.plan(str(chain(tmp_path)), values, tmp_path)
+    providers, stored = reuse_plan(str(chain(tmp_path)), points)
+    # 0 (g1,s2) computes all; 1 (g1,s3) reuses double from 0; 2 (g2,s2) reuses ramp from 0; 3 reuses double from 2
+    assert providers == {1: 0, 2: 0, 3: 2}
+    assert stored == {0: ["double", "ramp"], 2: ["double"]}
+
+
+def test_a_sweep_records_failures_streams_rows_and_a_rerun_skips_finished_points(plugin, tmp_path):
+    out = tmp_path / "sweep"
+    lines = []
+    # run.window_s = 1e-9 passes the run section's own check but the point's graph exceeds the window limit
+    grid = {"double.gain": [1.0, 2.0], "run.window_s": [0.01, 1e-9]}
+    result = run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lines.append)
+    assert result.failed == 2 and len(result.rows) == 4
+    assert lines[-1].startswith("sweep: 2 of 4 points failed")
+    table = read_results(out)
+    assert list(table.columns[:4]) == ["point", "status", "double.gain", "run.window_s"]
+    failed = table[table.status == "failed"]
+    assert list(failed["run.window_s"]) == [1e-9, 1e-9] and all("\n" not in e and "windows" in e for e in failed.error)
+    ok = table[table.status == "ok"]
+    assert (ok.wall_s > 0).all() and (ok.cpu_s > 0).all() and list(ok.reused) == ["", "ramp"]
+    assert all(row.events_counted == RunStore.open(row.store).n_events > 0 for row in ok.itertuples())
+    csv_table = pd.read_csv(result.csv)
+    assert sorted(csv_table.point) == [0, 1, 2, 3] and set(csv_table.status) == {"ok", "failed"}
+    # the reused point holds the same events as a point computed alone
+    alone = run_graph(load_graph(chain(tmp_path), {"double.gain": 2.0, "run.window_s": 0.01}), tmp_path / "alone.zarr")
+    assert np.array_equal(RunStore.open(ok.store.iloc[1]).read_events()["t_readout_ns"],
+                          alone.store.read_events()["t_readout_ns"])
+    lines.clear()
+    again = run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lines.append)
+    assert [r["status"] for r in again.rows] == ["done", "failed", "done", "failed"]
+    assert [r["wall_s"] for r in again.rows if r["status"] == "done"] == list(ok.wall_s)
+    with pytest.raises(UserError, match="holds another sweep"):
+        run_sweep(str(chain(tmp_path)), {"double.gain": [3.0]}, out, jobs=1, report=lines.append)
+
+
+def test_cli_sweep_exit_status_counts_failures(evsda_cli, tmp_path):
+    proc = evsda_cli("sweep", chain(tmp_path), "--vary", "run.window_s=[0.01, 1e-9]", "-j", "1", "-o", tmp_path / "s")
+    assert proc.returncode == 3 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("sweep: 1 of 2 points failed")
+    lhs = evsda_cli("sweep", chain(tmp_path), "--vary", "spikes.step={min: 1, max: 4}", "--sample", "lhs",
+                    "--points", "3", "--seed", "2", "-j", "1", "-q", "-o", tmp_path / "l")
+    assert lhs.returncode == 0 and lhs.stderr == ""
+    assert len(pd.read_parquet(tmp_path / "l" / "sweep.parquet")) == 3
+
+
+def test_points_run_as_dask_tasks_on_two_workers_and_reuse_across_them(plugin, tmp_path):
+    """Two workers; points sharing upstream values wait for the point that computes them and load its
+    outputs from its store; a failing point does not stop the others."""
+    out = tmp_path / "dask"
+    grid = {"double.gain": [1.0, 2.0], "spikes.step": [2.0, 3.0], "run.window_s": [0.01]}
+    bad = {"double.gain": [1.0], "spikes.step": [2.0], "run.window_s": [1e-9]}
+    result = run_sweep(str(chain(tmp_path)), grid, out, jobs=2, report=lambda line: None)
+    assert result.ok and [r["reused"] for r in result.rows] == ["", "double", "ramp", "double"]
+    for row in result.rows:
+        values = {k: row[k] for k in grid}
+        alone = run_graph(load_graph(chain(tmp_path), values), tmp_path / f"alone{row['point']}.zarr")
+        stored = RunStore.open(row["store"]).read_events()
+        assert np.array_equal(stored["t_readout_ns"], alone.store.read_events()["t_readout_ns"])
+        assert row["events_counted"] == alone.metrics["events_counted"]
+    failing = run_sweep(str(chain(tmp_path)), bad, tmp_path / "bad", jobs=2, report=lambda line: None)
+    assert failing.failed == 1 and "windows" in failing.rows[0]["error"]
