@@ -204,6 +204,7 @@ def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides
     """The points, each distinct value checked once against its block (every problem reported together)."""
     base = load_graph(graph_path, list(overrides))
     problems: list[Problem] = []
+    refused: dict[str, int] = {}        # values of each parameter refused (the first one's problems are listed)
     checked: set[tuple[str, str]] = set()
     for point in values:
         for key, value in point.items():
@@ -211,7 +212,13 @@ def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides
             if marker in checked:
                 continue
             checked.add(marker)
-            problems.extend(p for p in check_override(base, key, value) if p not in problems)
+            found = check_override(base, key, value)
+            if found:
+                refused[key] = refused.get(key, 0) + 1
+                if refused[key] == 1:
+                    problems.extend(p for p in found if p not in problems)
+    problems.extend(Problem(graph_path, f"'{key}'", f"{n - 1} more of its values refused")
+                    for key, n in refused.items() if n > 1)
     if problems:
         raise GraphError(problems)
     width = max(3, len(str(len(values) - 1)))
