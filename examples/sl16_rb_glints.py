@@ -90,14 +90,18 @@ def events_near(store: RunStore, curve: dict[str, np.ndarray], radius_px: float)
     return counts
 
 
+MIN_BURST_EVENTS = 10.0      # fewest ON events in 50 ms that make a burst [event]
+
+
 def bursts(counts: dict[str, np.ndarray], factor: float, window_bins: int = 5) -> list[dict]:
-    """Stretches where ON events over ``window_bins`` bins (50 ms) exceed ``factor`` times their median.
+    """Stretches where ON events over ``window_bins`` bins (50 ms) exceed ``factor`` times their median
+    and ``MIN_BURST_EVENTS`` (a photoreceptor slower than the flicker leaves a median of zero).
 
     Each burst gives its start, stop, ON events, and the OFF events from its start to 0.2 s after it.
     """
     on = counts["on"]
     running = np.convolve(on, np.ones(window_bins, dtype=np.int64), mode="same")
-    floor = max(1.0, factor * float(np.median(running)))
+    floor = max(MIN_BURST_EVENTS, factor * float(np.median(running)))
     out = []
     for a, b in _runs(running > floor):
         tail = slice(a, min(len(on), b + 20))

@@ -28,8 +28,9 @@ class DvsPixel(Block):
     per pixel per step. Junction leak (Eq. 18), parasitic photocurrent (Eq. 19) and shot
     noise (Eq. 20) add noise events; a refractory period (Eq. 21) follows every event.
     Every event carries its cause (signal, leak, parasitic, shot) and each window reports
-    ``n_loss``: the ``|N_loss|`` backlog of Eq. 17 at every comparison plus the shot-noise
-    events a refractory pixel could not emit.
+    ``n_loss``: the events the pixels could not emit -- Eq. 17's owed events that the input
+    took back before the pixel could compare again, and shot-noise events that arrived
+    while a pixel was blind (see :mod:`.comparator`).
 
     ``implementation='reference'`` steps every pixel at every ``time_step_s`` exactly as
     the paper writes it; ``'fast'`` (default) computes the same process event by event

@@ -8,9 +8,18 @@ Eq. 17: with ``dI = L - M`` (filtered log current minus memorised value),
     M <- M + Ne theta
 
 so a change of ``k`` thresholds is emitted one event per step (or per refractory
-period), the remainder staying in ``dI`` until the next comparison; ``|N_loss|`` is the
-backlog of possible-but-not-emitted events at that comparison (the paper's
-"potential data loss").
+period), the remainder staying in ``dI`` until the next comparison.
+
+Lost events. The paper records ``N_loss = Ne_total - Ne`` "to capture the potential data
+loss" (Sec. 2.3). Summed at every comparison that counts the same event again at each
+comparison it waits through: a step of 5 thresholds reports 4 + 3 + 2 + 1 = 10 although all
+5 are emitted. evsda counts what the paper's wording means, events a pixel could not emit:
+after an event the pixel owes ``N_loss`` events; at its next comparison (the first step
+after its refractory period) it could now emit ``Ne_total'``, and the owed events that
+``Ne_total'`` no longer holds (the input went back, or moved less) are lost:
+``lost = |N_loss| - clip(sign(N_loss) Ne_total', 0, |N_loss|)``. A 5-threshold step loses
+nothing; a pulse of 5 thresholds that ends after 2 events loses 3. Shot-noise events that
+arrive while a pixel is blind are lost too (:mod:`.reference`).
 
 Thresholds are per pixel and drawn from a Gaussian (paper: 0.2 +- 0.03, after v2e),
 frozen for the run; ``redraw`` draws a new threshold of the polarity that fired after
@@ -19,17 +28,16 @@ the extreme tail positive (v2e clamps at 0.01).
 
 Cause attribution (simulation ground truth, not in the paper): ``dI`` is split into the
 contributions that built it since the last events -- signal (changes of ``L``), junction
-leak, parasitic leak and shot noise (the threshold-sized shifts of ``M`` that shot events
-make, which the comparator later undoes with an opposite "rebound" event). An event is
-charged to the contribution pushing hardest in its direction, which then gives up one
-threshold. Over a long run each cause is charged its share of events: a static pixel
-gets ``R_leak : R_para`` leak to parasitic events, and rebounds go to SHOT.
+leak and parasitic leak. A comparator event is charged to the contribution pushing hardest
+in its direction, which then gives up one threshold. Over a long run each cause is charged
+its share of events: a static pixel gets ``R_leak : R_para`` leak to parasitic events.
+Shot-noise events do not pass through the comparator (:mod:`.noise`) and are SHOT.
 
-Rounding: a shot-noise event moves ``M`` by exactly one threshold, and the comparator
-must undo it at ``|dI| = theta``; whether ``L - M`` then lands on the threshold or one ulp
-short of it is an accident of floating point (v2e rounds its lin-log values to 1e-8 for
-the same reason). A change within ``TOLERANCE`` of a threshold therefore counts as
-reaching it, in both implementations.
+Rounding: an input that moves by exactly ``k`` thresholds (a contrast step, the leak's
+drift of exactly ``theta`` per period) must give ``k`` events whether ``L - M`` lands on the
+threshold or one ulp short of it, an accident of floating point (v2e rounds its lin-log
+values to 1e-8 for the same reason). A change within ``TOLERANCE`` of a threshold
+therefore counts as reaching it, in both implementations.
 """
 
 from __future__ import annotations
@@ -55,11 +63,23 @@ def reach(theta):
     return theta - TOLERANCE
 
 
+def lost_owed(owed, total):
+    """Events lost at a pixel's first comparison after an event: ``|owed|`` less what ``Ne_total`` still holds.
+
+    ``owed`` is the signed ``N_loss`` of the last event, ``total`` the signed ``Ne_total``
+    now; only events of the owed polarity count as kept.
+    """
+    owed = np.asarray(owed, dtype=np.int64)
+    total = np.asarray(total)
+    kept = np.clip(np.sign(owed) * total, 0, np.abs(owed))
+    return np.abs(owed) - kept.astype(np.int64)
+
+
 def charge_cause(polarity, signal, credits):
-    """Index (0 = SIGNAL, 1 = LEAK, 2 = PARASITIC, 3 = SHOT) of the contribution charged with an event.
+    """Index (0 = SIGNAL, 1 = LEAK, 2 = PARASITIC) of the contribution charged with a comparator event.
 
     ``signal`` is the signal contribution ``[n]`` and ``credits`` the noise
-    contributions ``[3, n]`` (leak, parasitic, shot), all in log units.
+    contributions ``[2, n]`` (leak, parasitic), all in log units.
     """
     stacked = np.vstack([signal[None, :], credits]) * polarity[None, :]
     return np.argmax(stacked, axis=0)

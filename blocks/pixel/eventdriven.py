@@ -8,8 +8,8 @@ the exact geometric waiting time to the next trial, thinned to the input's proba
 at that step: the same law as the reference, step by step, whatever the input does.
 
 All times live on the grid ``n dt``, so the fast and reference implementations produce
-the same process -- refractory period (Eq. 21), one event per step and ``N_loss``
-(Eq. 17) included -- and differ only in their random numbers. Random numbers are
+the same process -- refractory period (Eq. 21), one event per step and the events lost
+(Eq. 17's ``N_loss``, :mod:`.comparator`) included -- and differ only in their random numbers. Random numbers are
 addressed by (pixel, per-pixel counter) (:mod:`.counter_rng`) and a pixel's state is only
 ever advanced at its own events and input changes, in order, so the events do not
 depend on how the run is cut into windows.
@@ -33,7 +33,7 @@ from evsda.blocks.threads import worker_threads
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
-from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, C_SHOT, COUNT, FLUX, L_, LOG_A, M_, PARA, READY, REAL, STEP,
+from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, COUNT, FLUX, L_, LOG_A, M_, PARA, READY, REAL, STEP,
                          TH_OFF, TH_ON, Y, run_chunk, start_pixels)
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
@@ -87,7 +87,7 @@ class EventDrivenPixels:
         real[:] = pixels._inputs(np.asarray(photon_flux, dtype=float))
         real[:, L_], real[:, M_], real[:, TH_ON], real[:, TH_OFF] = (init.filtered, init.memorised, init.theta_on,
                                                                      init.theta_off)
-        real[:, C_LEAK], real[:, C_PARA], real[:, C_SHOT] = init.credit
+        real[:, C_LEAK], real[:, C_PARA] = init.credit
         count[:, STEP], count[:, READY] = n_start - 1, n_start
         leak_hz, dt, _, q, log_1mq, key, *_ = pixels._constants
         start_pixels(real, count, state["next"], leak_hz, dt, key, q, log_1mq)

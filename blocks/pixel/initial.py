@@ -24,7 +24,7 @@ class InitialPixels(NamedTuple):
     theta_off: np.ndarray    # [n]
     filtered: np.ndarray     # L [n]
     memorised: np.ndarray    # M [n]
-    credit: np.ndarray       # [3, n] leak, parasitic, shot contributions to L - M
+    credit: np.ndarray       # [2, n] leak and parasitic contributions to L - M
 
 
 def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> InitialPixels:
@@ -38,7 +38,7 @@ def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Ge
     rate = p.leak_rate_hz + drive.parasitic_hz
     head = np.where(rate > 0, phase * theta_on, 0.0)
     share = np.divide(p.leak_rate_hz, rate, out=np.zeros(n), where=rate > 0)
-    credit = np.zeros((3, n))
+    credit = np.zeros((2, n))
     credit[0] = head * share
     credit[1] = head - credit[0]
     return InitialPixels(theta_on, theta_off, drive.y.copy(), drive.y - head, credit)

@@ -55,6 +55,28 @@ class PixelModel:
                                                  p.dark_reference_temperature_K, p.dark_activation_energy_eV))
 
     @cached_property
+    def _log_to_dark(self) -> bool:
+        """Eq. 14 logarithmic for every current (``knee_at_dark_current`` with a positive dark current)."""
+        return self.params.knee_at_dark_current and self.dark_current_A > 0
+
+    @cached_property
+    def shot_noise_floor(self) -> float:
+        """The lin-log level at which Eq. 20 gives ``R_n``: 0 (the paper), or a dark pixel's ``ln x_dark`` [1].
+
+        With the photoreceptor logarithmic down to its dark current a pixel never sees
+        ``I = 0``; the dark pixel is the bottom of Eq. 20's scale, so ``R_n`` is the rate of a
+        dark pixel, the measured background activity a preset cites.
+        """
+        if not self._log_to_dark:
+            return 0.0
+        return float(np.log(self.dark_current_A / self.params.reference_current_A))
+
+    @cached_property
+    def parasitic_max_hz(self) -> float:
+        """Largest parasitic leak rate a pixel can emit beside its junction leak: one event per refractory period [Hz]."""
+        return max(1.0 / (self.refractory_steps * self.dt_s) - self.params.leak_rate_hz, 0.0)
+
+    @cached_property
     def refractory_steps(self) -> int:
         return refractory_steps(round(self.params.refractory_period_s * 1e9), self.dt_ns)
 
@@ -86,7 +108,7 @@ class PixelModel:
     def _drive(self, flux: np.ndarray) -> Drive:
         p = self.params
         x = self.normalised_current(flux)
-        if p.knee_at_dark_current and self.dark_current_A > 0:
+        if self._log_to_dark:
             y = photoreceptor.log_response(x)
         else:
             y = photoreceptor.lin_log(x, p.linear_knee)
@@ -97,7 +119,7 @@ class PixelModel:
         eps = lowpass.filter_gain(f3db, self.dt_s)
         power = photoreceptor.optical_power_W(flux, self.wavelength_m)
         lux = noise.illuminance_lux(power, self.pixel_area_m2, p.luminous_efficacy_lm_per_W)
-        parasitic = noise.parasitic_rate_hz(lux, p.parasitic_rate_per_lux_hz)
+        parasitic = noise.parasitic_rate_hz(lux, p.parasitic_rate_per_lux_hz, self.parasitic_max_hz)
         shot = noise.shot_noise_rate_hz(y, p.shot_noise_rate_hz, p.shot_noise_intensity_factor,
-                                        p.log_current_max) * self.dt_s
+                                        p.log_current_max, self.shot_noise_floor) * self.dt_s
         return Drive(y, eps, lowpass.log_retention(eps), parasitic, shot)

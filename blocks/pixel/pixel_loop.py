@@ -8,11 +8,13 @@ events up to the end of the window; between them its state follows in closed for
   ``(R_leak + R_para) theta_ON dt`` per step;
 * comparator (Eq. 17): the first step the input leaves its band (:mod:`.crossing`), not
   before the refractory period ends (Eq. 21); at most one event per step, the rest of
-  ``Ne_total`` counted as lost;
+  ``Ne_total`` owed; at the first step the pixel may compare again the owed events that
+  ``Ne_total`` no longer holds are lost (:mod:`.comparator`);
 * shot noise (Eq. 20): trials arrive with the geometric waiting time of success
   probability ``q = 2 p_max`` per step (``p_max`` the largest probability per polarity over
   all inputs) and are accepted with ``p / p_max`` of the input at that step, the polarity
-  from a fair coin (discrete-time thinning, Lewis & Shedler 1979): the reference's law.
+  from a fair coin (discrete-time thinning, Lewis & Shedler 1979): the reference's law. A
+  shot event leaves the memory where it is (see :mod:`.noise`).
 
 Within a step the comparator acts before the shot-noise trial, as in the reference. The
 per-pixel state lives in two tables (see :data:`REAL`, :data:`COUNT`); random numbers are
@@ -32,11 +34,12 @@ from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
 from .crossing import NEVER, first_crossing_one, power
 
 # state table columns (keep in step with REAL and COUNT)
-REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para", "c_shot",   # input, filter, memory, thresholds, causes
-        "y", "log_a", "para", "accept")                                        # derived from the input (Eqs. 14-16, 19-20)
-COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count")
-(FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, C_SHOT, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
-(STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT) = range(len(COUNT))
+REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
+        "y", "log_a", "para", "accept")                              # derived from the input (Eqs. 14-16, 19-20)
+COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count",
+         "owed")                                                     # signed events the comparator still owes
+(FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
+(STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT, OWED) = range(len(COUNT))
 GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
@@ -61,7 +64,13 @@ def start_pixels(real, count, next_step, leak_hz, dt, key, q, log_1mq):
         c = count[pixel]
         c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
         c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
-        next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT])
+        next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
+
+
+@jit
+def _settle_step(c):
+    """The step at which a pixel's owed events are settled: its first comparison after an event."""
+    return c[READY] if c[OWED] != 0 else NEVER
 
 
 @jit
@@ -108,24 +117,24 @@ def _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
 def _fire(r, c):
     """Comparator event (Eq. 17) of a pixel whose state is at the event step.
 
-    Returns ``(polarity, cause, lost)``: the cause is the contribution to ``L - M``
+    Returns ``(polarity, cause, total)``: the cause is the contribution to ``L - M``
     pushing hardest in the event's direction (see :mod:`.comparator`), which gives up one
-    threshold; ``lost`` the thresholds beyond the first (``|N_loss|``).
+    threshold; ``total`` is ``|Ne_total|``, the events the comparator could emit now.
     """
     delta = r[L_] - r[M_]
     sign = 1 if delta >= 0.0 else -1
     theta = r[TH_ON] if sign > 0 else r[TH_OFF]
     total = max(math.trunc((abs(delta) + TOLERANCE) / theta), 1.0)
-    signal = delta - (r[C_LEAK] + r[C_PARA] + r[C_SHOT])
+    signal = delta - (r[C_LEAK] + r[C_PARA])
     cause, best = SIGNAL, sign * signal
-    for k, column in ((LEAK, C_LEAK), (PARASITIC, C_PARA), (SHOT, C_SHOT)):
+    for k, column in ((LEAK, C_LEAK), (PARASITIC, C_PARA)):
         if sign * r[column] > best:
             cause, best = k, sign * r[column]
     moved = sign * theta
     if cause != SIGNAL:
         r[C_LEAK + cause - 1] -= moved
     r[M_] += moved
-    return sign, cause, total - 1.0
+    return sign, cause, total
 
 
 @jit
@@ -171,16 +180,25 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
         t_change = change_step[ptr] if ptr < end else NEVER
         cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
         while True:
-            t_event = min(cmp_next, c[SHOT_NEXT])
+            t_settle = _settle_step(c)
+            t_event = min(cmp_next, c[SHOT_NEXT], t_settle)
             if t_event < t_change and t_event < n_end:
                 if n_events + 2 > capacity:                       # no room: undo this pixel, stop here
                     r[:], c[:] = saved_r, saved_c
                     return first_event, i, lost_before
                 _advance(r, c, t_event, leak_hz, dt)
                 awake = c[READY] <= t_event
-                if cmp_next == t_event:
-                    sign, cause, backlog = _fire(r, c)
-                    lost += backlog
+                fires = cmp_next == t_event
+                sign, cause, total = 0, SIGNAL, 0.0
+                if fires:
+                    sign, cause, total = _fire(r, c)
+                if t_settle == t_event:                           # first comparison after an event (Eq. 17)
+                    owed = c[OWED]
+                    kept = min(float(abs(owed)), total) if (owed > 0) == (sign > 0) else 0.0
+                    lost += abs(owed) - kept
+                    c[OWED] = 0
+                if fires:
+                    c[OWED] = sign * np.int64(total - 1.0)
                     n_events = _record(r, c, pixel, t_event, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_cause,
                                        n_events, redraw, key, th_mean_on, th_mean_off, th_sigma, th_floor)
                     awake = False
@@ -189,9 +207,6 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
                     if unit_interval(bits) < r[ACCEPT]:
                         if awake:
                             sign = 1 if (bits & np.uint64(1)) == 1 else -1
-                            moved = sign * (r[TH_ON] if sign > 0 else r[TH_OFF])
-                            r[M_] += moved
-                            r[C_SHOT] -= moved
                             n_events = _record(r, c, pixel, t_event, sign, SHOT, k_refr, ev_step, ev_pixel, ev_pol,
                                                ev_cause, n_events, redraw, key, th_mean_on, th_mean_off, th_sigma,
                                                th_floor)
@@ -209,5 +224,5 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
                 break
             cmp_next = _schedule(r, c, t_change, leak_dt, dt)
         c[CMP_NEXT] = cmp_next
-        next_step[pixel] = min(cmp_next, c[SHOT_NEXT])
+        next_step[pixel] = min(cmp_next, c[SHOT_NEXT], _settle_step(c))
     return n_events, pixels.size, lost

@@ -5,10 +5,11 @@ One step ``n`` (time ``n dt``) of every pixel:
 1. photoreceptor: ``L <- (1 - eps) L + eps Y`` (Eqs. 12-16, for the input held at ``n dt``);
 2. junction leak and parasitic photocurrent lower the memory ``M`` (Eqs. 18-19);
 3. comparator (Eq. 17), for pixels not in their refractory period: at most one event,
-   the rest of ``Ne_total`` counted in ``N_loss``;
+   the rest of ``Ne_total`` owed; at a pixel's first comparison after an event, the owed
+   events its new ``Ne_total`` no longer holds are counted as lost (:mod:`.comparator`);
 4. shot noise (Eq. 20): a uniform number ``u`` per pixel; ``u < p`` is an OFF event,
-   ``u > 1 - p`` an ON event, which moves ``M`` like any event. A pixel that is refractory
-   or has just fired cannot emit it: it is counted as lost;
+   ``u > 1 - p`` an ON event; it leaves ``M`` where it is (:mod:`.noise`). A pixel that is
+   refractory or has just fired cannot emit it: it is counted as lost;
 5. refractory (Eq. 21): a pixel that fired at ``n`` may fire again at ``n + k``.
 
 It costs a few dozen array operations per step for the whole array, so it is meant for
@@ -20,12 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .comparator import charge_cause, events_possible
+from .comparator import charge_cause, events_possible, lost_owed
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
 
-STATE_KEYS = ("flux", "filtered", "memorised", "ready", "theta_on", "theta_off", "credit")
+STATE_KEYS = ("flux", "filtered", "memorised", "ready", "theta_on", "theta_off", "credit", "owed")
 
 
 def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> dict:
@@ -33,7 +34,7 @@ def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generat
     init = initial_pixels(model, photon_flux, rng)
     return {"flux": photon_flux.astype(float).copy(), "filtered": init.filtered, "memorised": init.memorised,
             "ready": np.zeros(photon_flux.shape[0], np.int64), "theta_on": init.theta_on,
-            "theta_off": init.theta_off, "credit": init.credit}
+            "theta_off": init.theta_off, "credit": init.credit, "owed": np.zeros(photon_flux.shape[0], np.int64)}
 
 
 def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: np.ndarray, frames: np.ndarray,
@@ -43,6 +44,7 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
     dt, k_refr = model.dt_s, model.refractory_steps
     flux, L, M = state["flux"], state["filtered"], state["memorised"]
     ready, th_on, th_off, credit = state["ready"], state["theta_on"], state["theta_off"], state["credit"]
+    owed = state["owed"]
     drive = model.drive(flux)
     next_change = 0
     for n in range(n_start, n_end):
@@ -63,10 +65,14 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
         delta = L - M
         total = events_possible(delta, th_on, th_off)
         fired = awake & (total != 0)
+        settle = np.flatnonzero((ready == n) & (owed != 0))      # first comparison after an event
+        if settle.size:
+            log.lose(np.sum(lost_owed(owed[settle], total[settle])))
+            owed[settle] = 0
         idx = np.flatnonzero(fired)
         if idx.size:
             sign = np.sign(total[idx]).astype(np.int8)
-            log.lose(np.sum(np.abs(total[idx]) - 1))
+            owed[idx] = (total[idx] - sign).astype(np.int64)
             theta = np.where(sign > 0, th_on[idx], th_off[idx])
             cause = charge_cause(sign, delta[idx] - credit[:, idx].sum(axis=0), credit[:, idx])
             noise = cause > 0
@@ -85,9 +91,6 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
         idx = np.flatnonzero(emitted)
         if idx.size:
             sign = np.where(shot_on[idx], 1, -1).astype(np.int8)
-            theta = np.where(sign > 0, th_on[idx], th_off[idx])
-            M[idx] += sign * theta
-            credit[2, idx] -= sign * theta
             ready[idx] = n + k_refr
             log.add(n, idx, sign, 3)
             if p.threshold_redraw:

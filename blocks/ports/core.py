@@ -204,7 +204,7 @@ class TriggeredEvents(PortValue):
     y: np.ndarray                            # uint16 [n] row
     p: np.ndarray                            # int8 [n] polarity, +1 ON / -1 OFF
     cause: np.ndarray                        # uint8 [n] EventCause
-    n_loss: int = 0                          # events lost in this window: |N_loss| of Eq. 17 plus those suppressed by the refractory period
+    n_loss: int = 0                          # events the pixels could not emit in this window (Eq. 17's owed events taken back, noise while blind)
     counts_by_cause: tuple[int, ...] = field(default=(0, 0, 0, 0))  # triggered events per EventCause in this window
 
     def __len__(self) -> int:

@@ -6,10 +6,13 @@ noise rate" (Sec. 3), and the arbiter's ordering errors and delays (Sec. 2.5). H
 
 * expected events ``N_exp = N_trig + N_loss``: the events the pixels would have produced
   had every threshold crossing been an event, i.e. the triggered events plus those lost
-  in the pixel (``|N_loss|`` of Eq. 17 and events suppressed by the refractory period,
-  :attr:`TriggeredEvents.n_loss`).
+  in the pixel (:attr:`TriggeredEvents.n_loss`): events a pixel could not emit -- Eq. 17's
+  owed events that the input took back before the pixel could compare again, and noise
+  events that arrived while it was blind. The paper's ``N_loss`` summed at every comparison
+  would count an event that waits through k comparisons k times (see
+  :mod:`evsda.blocks.pixel.comparator`).
 * ``ratio_recorded_to_expected = N_rec / N_exp``.
-* loss: ``loss_fraction_pixel = N_loss / N_exp`` (refractory period and N_loss),
+* loss: ``loss_fraction_pixel = N_loss / N_exp`` (events the pixels could not emit),
   ``loss_fraction_readout = N_drop / N_exp`` (dropped by the arbiter), and the paper's
   ``loss_to_recorded = (N_loss + N_drop) / N_rec``.
 * background rate: recorded events per second per pixel in the pixels farther than

@@ -68,10 +68,11 @@ def test_signal_counts_with_noise_agree(scenes, moving_runs):
     fp, runs = moving_runs
     signal = {k: scenes.counts_image(v, fp, v["cause"] == EventCause.SIGNAL) for k, v in runs.items()}
     lit = signal["reference"] > 0
-    # a noise event moves the memory by a threshold, which can add or remove a signal event;
-    # the two noise realisations differ, but neither implementation may be biased
+    # a leak event moves the memory by a threshold and a shot event blinds the pixel for a
+    # refractory period, either of which can add or remove a signal event; the two noise
+    # realisations differ, but neither implementation may be biased
     diff = (signal["fast"] - signal["reference"])[lit]
-    assert abs(diff.mean()) < 4 * diff.std() / np.sqrt(diff.size)
+    assert abs(diff.mean()) <= 4 * diff.std() / np.sqrt(diff.size)
     assert np.abs(diff).max() <= 4
     assert _poisson_close(int(runs["reference"]["counts"][0]), int(runs["fast"]["counts"][0]), 1.0)
 

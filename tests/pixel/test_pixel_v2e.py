@@ -64,15 +64,15 @@ def test_leak_events_are_periodic_at_the_leak_rate(scenes, implementation):
 @pytest.mark.parametrize("implementation", BOTH)
 def test_shot_noise_rate_is_half_of_v2es_parameter(scenes, implementation):
     # v2e generate_shot_noise in the dark: ON and OFF each with probability (R_v2e / 2) dt per step.
-    # Each shot event is undone by an opposite comparator event one refractory period (k
-    # steps) later, during which trials are lost: cycles of 1/q - 1 + 2k steps, q = R_v2e dt.
+    # evsda's shot events leave the memory alone (no rebound) and blind the pixel for k steps:
+    # cycles of 1/q - 1 + k steps, one event each, q = R_v2e dt.
     fp, r_v2e, dt, k, seconds = scenes.focal_plane(8, 8), 40.0, 1e-4, 1, 1.0
     block = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=k * dt, seed=2,
                      **dict(CLEAN, shot_noise_rate_hz=r_v2e / 2))
     ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [a], 0.0), seconds, 0.5))
     q = r_v2e * dt
-    expected = fp.width_px * fp.height_px * seconds * 2 / ((1 / q - 1 + 2 * k) * dt)
-    assert abs(ev["t"].size - expected) < 4 * np.sqrt(2 * expected)
+    expected = fp.width_px * fp.height_px * seconds / ((1 / q - 1 + k) * dt)
+    assert abs(ev["t"].size - expected) < 4 * np.sqrt(expected)
 
 
 def v2e_first_event_latency(x0, x1, theta, cutoff_hz, dt, saturation=275.0):
