@@ -1,7 +1,8 @@
 """Command-line sub-commands contributed by the optics stage (see evsda.graph.commands).
 
 * ``evsda plot-screen`` -- the paper's Fig. 4: Zernike modes and the Karhunen-Loeve screen they build;
-* ``evsda plot-propagation`` -- the paper's Fig. 3: a point source's power through turbulent layers.
+* ``evsda plot-propagation`` -- the paper's Fig. 3: a point source's power through turbulent layers;
+* ``evsda plot-psf`` -- the PSF stamp the optics block of a graph renders for one source.
 """
 
 from __future__ import annotations
@@ -104,4 +105,41 @@ class PlotPropagation(Command):
         return 0
 
 
-COMMANDS: list = [PlotScreen(), PlotPropagation()]
+class PlotPsf(Command):
+    name = "plot-psf"
+    help = "plot the PSF stamp a graph's optics block renders for one source at one time"
+
+    def configure(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("graph", help="graph file with an optics block")
+        parser.add_argument("-o", "--output", required=True, help="figure file to write (png, pdf, svg ...)")
+        parser.add_argument("--optics", default=None, help="name of the optics block (default: the first)")
+        parser.add_argument("--time-s", type=float, default=0.0, help="time after the run's start [s]")
+        parser.add_argument("--source", default=None,
+                            help="source id (default: the brightest satellite on the detector, else star)")
+        parser.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
+                            help="override a parameter, as for `evsda run`")
+        parser.add_argument("--dpi", type=float, default=110.0, help="resolution [dots per inch]")
+        parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+
+    def run(self, args: argparse.Namespace) -> int:
+        from pathlib import Path
+
+        from evsda.graph.graphfile import load_graph
+
+        from .plots import plot_psf_stamp, psf_stamp
+
+        if not 10 <= args.dpi <= 2400:
+            raise UserError(f"--dpi must be between 10 and 2400, got {args.dpi}")
+        check_output_path(args.output, args.overwrite, "figure")
+        stamp = psf_stamp(load_graph(args.graph, args.set), args.optics, args.time_s, args.source)
+        suffix = Path(args.output).suffix or ".png"
+        with atomic_output(args.output, args.overwrite, "figure", suffix=suffix) as temporary:
+            plot_psf_stamp(stamp, dpi=args.dpi).savefig(temporary, dpi=args.dpi, format=suffix.lstrip(".").lower())
+        cx, cy = stamp.centroid
+        print(f"{args.output}: {stamp.source_id} at {stamp.t_ns / 1e9:g} s, {stamp.image.shape[0]}x{stamp.image.shape[1]} "
+              f"stamp with {stamp.image.sum() / stamp.collected_photon_rate:.1%} of its flux, centroid "
+              f"({cx:.2f}, {cy:.2f}) vs true ({stamp.x_px:.2f}, {stamp.y_px:.2f}); {stamp.path}")
+        return 0
+
+
+COMMANDS: list = [PlotScreen(), PlotPropagation(), PlotPsf()]

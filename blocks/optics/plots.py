@@ -2,7 +2,9 @@
 modes and the Kolmogorov phase screen they build) as PNG files.
 
 Each figure has a function that computes its arrays (usable and testable without matplotlib)
-and one that draws them with matplotlib's Agg backend.
+and one that returns a :class:`matplotlib.figure.Figure` (built without pyplot: no backend is
+selected, nothing stays open; given a path, it is also saved there). Also the PSF stamp the
+optics block renders for one source of a graph (:func:`psf_stamp`, :func:`plot_psf_stamp`).
 """
 
 from __future__ import annotations
@@ -55,13 +57,13 @@ def zernike_screen(aperture_m: float, r0_m: float, n_modes: int, shown=(2, 4, 5,
     return ZernikeScreen(tuple(shown), modes, coefficients, screen, aperture_m, d_over_r0)
 
 
-def plot_zernike_screen(result: ZernikeScreen, path: str | Path) -> None:
-    """Write the paper's Fig. 4: each shown mode, then the screen (rms over the pupil in the title)."""
-    plt = _pyplot()
+def plot_zernike_screen(result: ZernikeScreen, path: str | Path | None = None):
+    """The paper's Fig. 4: each shown mode, then the screen (rms over the pupil in the title)."""
     panels = len(result.shown) + 1
     columns = min(3, panels)
     rows = int(np.ceil(panels / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.5 * rows), squeeze=False)
+    fig = _figure(4.2 * columns, 3.5 * rows)
+    axes = fig.subplots(rows, columns, squeeze=False)
     extent = np.array([-1, 1, -1, 1]) * result.aperture_m / 2
     for ax, j, mode in zip(axes.flat, result.shown, result.modes):
         n, m = noll_to_nm(j)
@@ -84,8 +86,7 @@ def plot_zernike_screen(result: ZernikeScreen, path: str | Path) -> None:
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return _saved(fig, path)
 
 
 # -- Fig. 3: a point source's power through turbulent phase screens --------------------------------
@@ -159,11 +160,13 @@ def propagation_demo(aperture_m: float = 0.3, distance_m: float = 400e3, wavelen
         focal_vacuum * step**2, float(np.sum(np.abs(field[crop, crop] * amplitude) ** 2) * grid.deltan_m**2), r0)
 
 
-def plot_propagation(demo: PropagationDemo, path: str | Path) -> None:
-    """Write the paper's Fig. 3: source plane, the strongest screen, the aperture plane and the focal plane."""
-    plt = _pyplot()
+def plot_propagation(demo: PropagationDemo, path: str | Path | None = None):
+    """The paper's Fig. 3: source plane, the strongest screen, the aperture plane and the focal plane."""
+    from matplotlib.patches import Circle
+
     g, geometry = demo.grid, demo.geometry
-    fig, axes = plt.subplots(2, 2, figsize=(10, 8.6))
+    fig = _figure(10, 8.6)
+    axes = fig.subplots(2, 2)
 
     def show(ax, values, delta, half_width, title, label, cmap="inferno", symmetric=False):
         x = grid_coordinates(values.shape[0], delta)
@@ -190,7 +193,7 @@ def plot_propagation(demo: PropagationDemo, path: str | Path) -> None:
     ax = show(axes[1, 0], demo.observed_power, g.deltan_m, geometry.roi_m / 2 * 1.2,
               f"aperture plane (Eq. 4, {len(g.planes_m)} steps, N = {g.n})\n"
               f"{demo.aperture_power_w:.3g} W in the aperture (circle)", "power per cell [W]")
-    ax.add_patch(plt.Circle((0, 0), geometry.aperture_m / 2, fill=False, color="cyan", lw=1))
+    ax.add_patch(Circle((0, 0), geometry.aperture_m / 2, fill=False, color="cyan", lw=1))
     ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]")
     arcsec = np.rad2deg(1) * 3600
     half = max(4 * geometry.wavelength_m / geometry.aperture_m, 2.5 * geometry.wavelength_m / demo.r0_m)
@@ -202,14 +205,119 @@ def plot_propagation(demo: PropagationDemo, path: str | Path) -> None:
     fig.suptitle(f"point source at {geometry.distance_m / 1e3:.4g} km, lambda = {geometry.wavelength_m * 1e9:.0f} nm,"
                  f" D = {geometry.aperture_m:g} m, r0 = {demo.r0_m * 100:.3g} cm", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return _saved(fig, path)
 
 
-def _pyplot():
-    import matplotlib
+def _figure(width_in: float, height_in: float, dpi: float = 110):
+    """A Figure made without pyplot (no backend selected, no global registry to close)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    return Figure(figsize=(width_in, height_in), dpi=dpi)
 
-    return plt
+
+def _saved(fig, path: str | Path | None):
+    if path is not None:
+        fig.savefig(path, dpi=fig.dpi)
+    return fig
+
+
+# -- the PSF stamp the optics block renders ------------------------------------------------------------
+@dataclass(frozen=True)
+class PsfStamp:
+    """One source's stamp as the optics block renders it at one render time."""
+
+    source_id: str
+    t_ns: int                      # render time [ns since the run's start]
+    image: np.ndarray              # (h, w) photon flux the source adds per pixel [photon s^-1 pixel^-1]
+    origin: tuple[int, int]        # (x0 column, y0 row) of the stamp's first pixel
+    x_px: float                    # the source's true position [pixel]
+    y_px: float
+    magnitude: float               # its apparent magnitude [mag]
+    collected_photon_rate: float   # its flux times the collecting area and throughput [photon s^-1]
+    pixel_scale_arcsec: float
+    path: str                      # the PSF path and why it was chosen
+
+    @property
+    def centroid(self) -> tuple[float, float]:
+        """Flux-weighted (x, y) of the stamp [pixel]."""
+        h, w = self.image.shape
+        total = self.image.sum()
+        return (float((self.image.sum(axis=0) * (self.origin[0] + np.arange(w))).sum() / total),
+                float((self.image.sum(axis=1) * (self.origin[1] + np.arange(h))).sum() / total))
+
+
+def psf_stamp(graph, optics: str | None = None, time_s: float = 0.0, source_id: str | None = None) -> PsfStamp:
+    """The stamp the graph's optics block (``optics``, default the first) renders for one source at the
+    render time at or before ``time_s`` after the run's start: ``source_id``, or by default the brightest
+    satellite on the detector then (else the brightest star). The blocks upstream run for that window."""
+    from evsda.blocks.ports import PointSources, SourceKind
+    from evsda.blocks.scene.commands import upstream_values
+    from evsda.graph import UserError, Window
+
+    from .block import PointSourceOptics
+
+    names = [n for n, node in graph.nodes.items() if isinstance(node.block, PointSourceOptics)]
+    if optics is not None and optics not in names:
+        raise UserError(f"{graph.file}: no optics block named '{optics}'; it has {names or 'none'}")
+    if not names:
+        raise UserError(f"{graph.file}: the graph has no optics block")
+    name = optics or names[0]
+    block: PointSourceOptics = graph.nodes[name].block
+    run = graph.run_info()
+    t_ns = round(time_s * 1e9)
+    if not 0 <= t_ns < run.duration_ns:
+        raise UserError(f"the stamp's time must be within the run, 0 to {run.duration_ns / 1e9:g} s; got {time_s}")
+    index = t_ns // run.window_ns
+    window = Window(index, index * run.window_ns, min((index + 1) * run.window_ns, run.duration_ns), run.epoch)
+    cadence = max(1, round(1e9 / block.params.render_rate_hz))
+    t_ns = max(window.start_ns, (t_ns // cadence) * cadence)
+    candidates = []          # (kind rank, magnitude, PointSources, column)
+    for src in upstream_values(graph, name, window).get("sources", []):
+        k = max(int(np.searchsorted(src.t_ns, t_ns, side="right")) - 1, 0)
+        for j, sid in enumerate(np.asarray(src.source_id).astype(str)):
+            if source_id is not None and sid != str(source_id):
+                continue
+            if np.isfinite(src.x_px[k, j]) and np.isfinite(src.y_px[k, j]) and src.photon_flux[k, j] > 0:
+                candidates.append((int(src.kind[j] != SourceKind.SATELLITE), float(src.magnitude[k, j]), src, j))
+    if not candidates:
+        what = f"source '{source_id}'" if source_id is not None else "source"
+        raise UserError(f"no {what} is on the detector at {t_ns / 1e9:g} s; choose another time or source")
+    _, magnitude, src, j = min(candidates, key=lambda c: c[:2])
+    one = PointSources(src.focal_plane, src.wavelength_m, src.t_ns, src.source_id[[j]], src.kind[[j]],
+                       src.x_px[:, [j]], src.y_px[:, [j]], src.photon_flux[:, [j]], src.magnitude[:, [j]],
+                       src.range_m[:, [j]], src.zenith_angle_rad)
+    block.setup(run)
+    out = block.step(Window(index, t_ns, t_ns + cadence, run.epoch), sources=[one])
+    irradiance, truth = out["irradiance"], out["truth"]
+    k = max(int(np.searchsorted(src.t_ns, t_ns, side="right")) - 1, 0)
+    zenith, range_m = float(src.zenith_angle_rad[k]), float(src.range_m[k, j])
+    imager = getattr(block, "_imager", None)
+    path = imager.choose(zenith, range_m).reason if imager is not None else block.params.psf_path
+    collected = float(src.photon_flux[k, j]) * block.telescope.collecting_area_m2 * block.params.throughput
+    return PsfStamp(str(src.source_id[j]), int(t_ns), irradiance.stamp_flux[0, 0].copy(),
+                    tuple(int(v) for v in irradiance.stamp_origin[0, 0]), float(truth.x_px[0]), float(truth.y_px[0]),
+                    magnitude, collected, float(np.degrees(src.focal_plane.pixel_scale_rad) * 3600), path)
+
+
+def plot_psf_stamp(stamp: PsfStamp, path: str | Path | None = None, dpi: float = 110):
+    """The stamp in detector pixels (photon flux per pixel), the true position (+) and the centroid (x)."""
+    fig = _figure(7.2, 6.2, dpi)
+    ax = fig.add_subplot()
+    h, w = stamp.image.shape
+    x0, y0 = stamp.origin
+    image = ax.imshow(stamp.image, origin="upper", interpolation="nearest", cmap="magma",
+                      extent=(x0 - 0.5, x0 + w - 0.5, y0 + h - 0.5, y0 - 0.5))
+    fig.colorbar(image, ax=ax, shrink=0.85, label="photon flux [photon s^-1 pixel^-1]", format="%.3g")
+    cx, cy = stamp.centroid
+    ax.plot(stamp.x_px, stamp.y_px, "+", color="cyan", ms=14, mew=1.5, label="true position")
+    ax.plot(cx, cy, "x", color="lime", ms=9, mew=1.5, label="stamp centroid")
+    ax.set_xlabel(f"column x [pixel] ({stamp.pixel_scale_arcsec:.3g} arcsec per pixel)")
+    ax.set_ylabel("row y [pixel]")
+    ax.legend(fontsize=8, loc="upper right")
+    fraction = stamp.image.sum() / stamp.collected_photon_rate if stamp.collected_photon_rate > 0 else np.nan
+    reason = "\n(".join(stamp.path.split(" (", 1))      # the path, then its conditions on their own line
+    ax.set_title(f"{stamp.source_id} at {stamp.t_ns / 1e9:.6g} s, {stamp.magnitude:.2f} mag: {h}x{w} stamp holds "
+                 f"{fraction:.1%} of {stamp.collected_photon_rate:.3g} photon/s; centroid - truth = "
+                 f"({cx - stamp.x_px:+.2f}, {cy - stamp.y_px:+.2f}) px\n{reason}", fontsize=7.5)
+    fig.tight_layout()
+    return _saved(fig, path)

@@ -2,7 +2,9 @@
 
 * ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger] [--truth [csv|hdf5]]
   [--overwrite] [--partial]``
-* ``evsda render STORE [--png F] [--gif F] [--start-s S] [--stop-s S] [--frames N] [--fps F] [--overwrite]``
+* ``evsda render STORE [--png F] [--gif F] [--truth] [--scale S] [--dpi D] [--start-s S] [--stop-s S] [--frames N]
+  [--fps F] [--overwrite]``
+* ``evsda plot-lightcurve | plot-rate | plot-spacetime STORE -o FILE [...]`` (see :mod:`.plots`)
 
 Both read the recorded events of a run store in chunks, so memory stays flat. Outputs are checked
 before any work (folder exists and is writable, no existing file unless ``--overwrite``), written
@@ -14,7 +16,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
+from evsda.blocks.ports import EventCause
 from evsda.graph import UserError
 from evsda.graph.commands import Command
 from evsda.graph.files import atomic_output, check_free_space, check_output_path
@@ -121,8 +125,15 @@ class RenderCommand(Command):
         parser.add_argument("--fps", type=float, default=10.0, help="frames per second of the animation")
         parser.add_argument("--chunk-size", type=int, default=1 << 20, help="events read at a time")
         parser.add_argument("--overwrite", action="store_true", help="replace the image files if they exist")
+        parser.add_argument("--truth", action="store_true", help="draw the true paths of the sources on the PNG")
+        parser.add_argument("--scale", type=float, default=None,
+                            help="PNG pixels per sensor pixel (1: native resolution; default: an 8-inch figure)")
+        parser.add_argument("--dpi", type=float, default=100.0, help="resolution of the PNG [dots per inch]")
 
     def run(self, args: argparse.Namespace) -> int:
+        if args.scale is not None and not 0 < args.scale <= 64:
+            raise UserError(f"--scale must be in (0, 64] PNG pixels per sensor pixel, got {args.scale}")
+        _check_dpi(args.dpi)
         if not args.png and not args.gif:
             raise UserError("evsda render needs --png FILE and/or --gif FILE")
         if args.frames < 1 or not 0 < args.fps < float("inf"):
@@ -144,9 +155,10 @@ class RenderCommand(Command):
         if start is not None and stop is not None and stop <= start:
             raise UserError(f"--stop-s ({args.stop_s}) must be after --start-s ({args.start_s})")
         if args.png:
+            truth = _truth_of(store) if args.truth else None
             with atomic_output(args.png, args.overwrite, "image", suffix=".png") as temporary:
                 on, off = render_png(store.iter_events(args.chunk_size), temporary, fp.width_px, fp.height_px,
-                                     start, stop)
+                                     start, stop, truth=truth, scale=args.scale, dpi=args.dpi)
             print(f"wrote {args.png}: {on} ON and {off} OFF events")
         if args.gif:
             lo = 0 if start is None else start
@@ -160,6 +172,119 @@ class RenderCommand(Command):
         return 0
 
 
+def _truth_of(store) -> dict:
+    truth = store.read_truth()
+    if not truth:
+        raise UserError(f"{store.path} holds no ground truth (run with run.store_truth: false, or by an evsda older "
+                        f"than the truth group); draw it without --truth")
+    return truth
+
+
+def _check_dpi(dpi: float) -> None:
+    if not 10 <= dpi <= 2400:
+        raise UserError(f"--dpi must be between 10 and 2400, got {dpi}")
+
+
+class _StorePlot(Command):
+    """A figure of a run store saved to ``-o FILE`` (format from the extension: png, pdf, svg...)."""
+
+    def configure(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("store", help="run store (.zarr) written by `evsda run`")
+        parser.add_argument("-o", "--output", required=True, help="figure file to write (png, pdf, svg ...)")
+        parser.add_argument("--dpi", type=float, default=100.0, help="resolution [dots per inch]")
+        parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+        self.options(parser)
+
+    def options(self, parser: argparse.ArgumentParser) -> None:
+        """This plot's own arguments."""
+
+    def figure(self, store, args: argparse.Namespace):
+        """The Figure, and one line saying what it shows."""
+        raise NotImplementedError
+
+    def run(self, args: argparse.Namespace) -> int:
+        from evsda.graph.store import RunStore
+
+        _check_dpi(args.dpi)
+        check_output_path(args.output, args.overwrite, "figure")
+        store = RunStore.open(args.store)
+        if store.focal_plane is None:
+            raise UserError(f"{args.store} holds no recorded events (no focal-plane geometry)")
+        unfinished = _incomplete(store)
+        if unfinished:
+            print(f"evsda: note: {args.store} is not a finished run ({unfinished}); drawing what it has committed",
+                  file=sys.stderr)
+        fig, summary = self.figure(store, args)
+        suffix = Path(args.output).suffix or ".png"
+        with atomic_output(args.output, args.overwrite, "figure", suffix=suffix) as temporary:
+            fig.savefig(temporary, dpi=args.dpi, format=suffix.lstrip(".").lower() or None)
+        print(f"wrote {args.output}: {summary}")
+        return 0
+
+
+def _bin(parser: argparse.ArgumentParser, default: float) -> None:
+    parser.add_argument("--bin-s", type=float, default=default, help=f"time bin [s] (default {default:g})")
+
+
+class PlotLightCurve(_StorePlot):
+    name = "plot-lightcurve"
+    help = "plot a source's light curve: ON/OFF events per time bin along its true path, and its magnitude"
+
+    def options(self, parser):
+        parser.add_argument("--source", default=None, help="source id (default: the satellite longest in the field)")
+        _bin(parser, 0.01)
+        parser.add_argument("--radius-px", type=float, default=3.0, help="track radius [pixel] (as object_metrics)")
+        parser.add_argument("--latency-s", type=float, default=1.0,
+                            help="how long after the source passed a pixel its events count [s] (as object_metrics)")
+
+    def figure(self, store, args):
+        from .plots import light_curve, plot_light_curve
+
+        if not args.radius_px >= 0 or not 0 <= args.latency_s <= 10:
+            raise UserError(f"--radius-px must be >= 0 and --latency-s in [0, 10], got {args.radius_px} and "
+                            f"{args.latency_s}")
+        curve = light_curve(store, args.source, args.bin_s, args.radius_px, args.latency_s)
+        return plot_light_curve(curve, args.dpi), (f"light curve of {curve.source_id}: {int(curve.on.sum())} ON and "
+                                                   f"{int(curve.off.sum())} OFF events along its path")
+
+
+class PlotRate(_StorePlot):
+    name = "plot-rate"
+    help = "plot the event rate against time, by cause (signal, leak, parasitic, shot)"
+
+    def options(self, parser):
+        _bin(parser, 0.01)
+        parser.add_argument("--time", choices=("readout", "trigger"), default="readout",
+                            help="bin events by readout time t_a (default) or trigger time t_t")
+
+    def figure(self, store, args):
+        from .plots import event_rate, plot_event_rate
+
+        rate = event_rate(store, args.bin_s, args.time)
+        counts = ", ".join(f"{c.name.lower()} {int(n)}" for c, n in zip(EventCause, rate.counts.sum(axis=1)))
+        return plot_event_rate(rate, args.dpi), f"event rate by cause ({counts})"
+
+
+class PlotSpaceTime(_StorePlot):
+    name = "plot-spacetime"
+    help = "plot events' x (or y) against time with the true tracks: a moving source is a line of its rate"
+
+    def options(self, parser):
+        parser.add_argument("--axis", choices=("x", "y"), default="x", help="column x (default) or row y")
+        parser.add_argument("--start-s", type=float, default=None, help="first trigger time shown [s]")
+        parser.add_argument("--stop-s", type=float, default=None, help="trigger time where the plot stops [s]")
+        parser.add_argument("--stars", action="store_true", help="draw the stars' true tracks too")
+        parser.add_argument("--max-events", type=int, default=200_000, help="events drawn at most (every k-th)")
+
+    def figure(self, store, args):
+        from .plots import plot_space_time
+
+        if args.max_events < 1:
+            raise UserError(f"--max-events must be at least 1, got {args.max_events}")
+        fig = plot_space_time(store, args.axis, args.start_s, args.stop_s, args.stars, args.max_events, dpi=args.dpi)
+        return fig, f"{args.axis}-t space-time plot"
+
+
 def _end_ns(store) -> int:
     """The end of the run (or just after its last recorded event) [ns]."""
     duration = store.attrs.get("duration_ns")
@@ -169,4 +294,4 @@ def _end_ns(store) -> int:
     return max(int(duration or 0), last)
 
 
-COMMANDS: list = [ExportCommand(), RenderCommand()]
+COMMANDS: list = [ExportCommand(), RenderCommand(), PlotLightCurve(), PlotRate(), PlotSpaceTime()]

@@ -128,7 +128,7 @@ class ObjectMetrics(Block):
         ids = list(tracks)
         for k, object_id in enumerate(ids):
             t, x, y = tracks[object_id]
-            keys, first, last = _passages(t, x, y, p.track_radius_px, fp.width_px, fp.height_px)
+            keys, first, last = passages(t, x, y, p.track_radius_px, fp.width_px, fp.height_px)
             if not keys.size:
                 continue
             at = np.clip(np.searchsorted(keys, pixel), 0, keys.size - 1)
@@ -180,7 +180,7 @@ def _fresh() -> np.ndarray:
     return a
 
 
-def _passages(t, x, y, radius, width, height, step_px: float = 0.5):
+def passages(t, x, y, radius, width, height, step_px: float = 0.5):
     """Pixels within ``radius`` of a path and when it covered them: ``(pixel, first [ns], last [ns])``, sorted.
 
     The path is straight between consecutive finite samples, taken every ``step_px``

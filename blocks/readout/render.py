@@ -54,36 +54,93 @@ def event_rgb(on: np.ndarray, off: np.ndarray, scale: float | None = None) -> np
     return rgb
 
 
-def _figure(width: int, height: int):
-    import matplotlib
+#: margins of a native-resolution figure around the image [pixel at 100 dpi]: left, right, bottom, top
+NATIVE_MARGINS_PX = (70, 20, 50, 40)
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def _figure(width: int, height: int, scale: float | None = None, dpi: float = 100):
+    """Figure, axes and image artist for a ``width`` x ``height`` sensor (built without pyplot: no backend
+    is selected and nothing stays registered). With ``scale`` the image area is exactly ``scale`` output
+    pixels per sensor pixel (native resolution at 1), labels in fixed margins around it; without, the
+    figure is 8 inches wide."""
+    from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
-    size = 8.0
-    fig, ax = plt.subplots(figsize=(size, size * height / width + 0.9), dpi=100)
+    if scale is None:
+        size = 8.0
+        fig = Figure(figsize=(size, size * height / width + 0.9), dpi=dpi)
+        ax = fig.add_subplot()
+    else:
+        left, right, bottom, top = (m * dpi / 100 for m in NATIVE_MARGINS_PX)
+        w_px, h_px = width * scale, height * scale
+        fig_w, fig_h = w_px + left + right, h_px + bottom + top
+        fig = Figure(figsize=(fig_w / dpi, fig_h / dpi), dpi=dpi)
+        ax = fig.add_axes((left / fig_w, bottom / fig_h, w_px / fig_w, h_px / fig_h))
     ax.set_xlabel("column x [pixel]")
     ax.set_ylabel("row y [pixel]")
     ax.legend(handles=[Patch(color=(0, 1, 0), label="ON"), Patch(color=(1, 0, 0), label="OFF")],
-              loc="upper right", framealpha=0.6)
+              **_legend_place(scale))
     image = ax.imshow(np.zeros((height, width, 3)), origin="upper", interpolation="nearest",
-                      extent=(-0.5, width - 0.5, height - 0.5, -0.5))
-    fig.tight_layout()
+                      extent=(-0.5, width - 0.5, height - 0.5, -0.5), resample=False)
+    if scale is None:
+        fig.tight_layout()
     return fig, ax, image
 
 
-def render_png(chunks: Iterable[Chunk], path, width: int, height: int, start_ns: int | None = None,
-               stop_ns: int | None = None, title: str = "") -> tuple[int, int]:
-    """Write the accumulated event image (paper Fig. 6) to ``path``; returns (ON, OFF) event counts."""
-    import matplotlib.pyplot as plt
+def _legend_place(scale: float | None) -> dict:
+    """Inside the image's upper right corner, or at native resolution above it (no sensor pixel hidden)."""
+    if scale is None:
+        return {"loc": "upper right", "framealpha": 0.6}
+    return {"loc": "lower right", "bbox_to_anchor": (1.0, 1.0), "ncol": 4, "fontsize": 7, "frameon": False,
+            "borderaxespad": 0.1}
 
-    on, off = accumulate(chunks, width, height, start_ns, stop_ns)
-    fig, ax, image = _figure(width, height)
+
+def draw_truth(ax, truth: dict[str, np.ndarray], start_ns: int | None = None, stop_ns: int | None = None,
+               scale: float | None = None) -> int:
+    """Draw each source's true path in ``[start_ns, stop_ns)`` from the store's truth (satellites cyan,
+    labelled; stars yellow); returns the number of paths drawn."""
+    from evsda.blocks.ports import SourceKind
+
+    t = truth["t_ns"]
+    span = (t >= (start_ns if start_ns is not None else t.min(initial=0))) & \
+        (t < (stop_ns if stop_ns is not None else t.max(initial=0) + 1))
+    drawn = 0
+    for source_id in dict.fromkeys(truth["source_id"][span].tolist()):
+        mine = span & (truth["source_id"] == source_id)
+        satellite = truth["kind"][mine][0] == SourceKind.SATELLITE
+        ax.plot(truth["x_px"][mine], truth["y_px"][mine], color="cyan" if satellite else "yellow",
+                lw=0.8 if satellite else 0.5, alpha=0.9, label=f"{source_id} (truth)" if satellite else None)
+        drawn += 1
+    if drawn:
+        handles = [h for h in ax.get_legend().legend_handles] + ax.get_legend_handles_labels()[0]
+        ax.legend(handles=handles, **{"fontsize": 8, **_legend_place(scale)})
+    return drawn
+
+
+def event_figure(on: np.ndarray, off: np.ndarray, title: str = "", truth: dict[str, np.ndarray] | None = None,
+                 start_ns: int | None = None, stop_ns: int | None = None, scale: float | None = None,
+                 dpi: float = 100):
+    """The event image of ON and OFF counts (paper Fig. 6, :func:`accumulate`) as a Figure, with the true
+    paths in ``[start_ns, stop_ns)`` on top when ``truth`` (:meth:`RunStore.read_truth`) is given;
+    ``scale`` output pixels per sensor pixel (see :func:`_figure`)."""
+    height, width = on.shape
+    fig, ax, image = _figure(width, height, scale, dpi)
     image.set_data(event_rgb(on, off))
-    ax.set_title(title or f"{int(on.sum())} ON, {int(off.sum())} OFF events")
-    fig.savefig(path)
-    plt.close(fig)
+    ax.set_title(title or f"{int(on.sum())} ON, {int(off.sum())} OFF events", fontsize=9,
+                 loc="center" if scale is None else "left")
+    if truth:
+        draw_truth(ax, truth, start_ns, stop_ns, scale)
+        ax.set_xlim(-0.5, width - 0.5)
+        ax.set_ylim(height - 0.5, -0.5)
+    return fig
+
+
+def render_png(chunks: Iterable[Chunk], path, width: int, height: int, start_ns: int | None = None,
+               stop_ns: int | None = None, title: str = "", truth: dict[str, np.ndarray] | None = None,
+               scale: float | None = None, dpi: float = 100) -> tuple[int, int]:
+    """Write the accumulated event image (:func:`event_figure`) to ``path``; returns (ON, OFF) event counts."""
+    on, off = accumulate(chunks, width, height, start_ns, stop_ns)
+    event_figure(on, off, title, truth, start_ns, stop_ns, scale, dpi).savefig(path, dpi=dpi)
     return int(on.sum()), int(off.sum())
 
 
@@ -95,7 +152,6 @@ def render_gif(chunks: Iterable[Chunk], path, width: int, height: int, start_ns:
     Each frame shows the events recorded in its slice; the colour scale is fixed over the
     animation by the first frame with events, so brightness compares between frames.
     """
-    import matplotlib.pyplot as plt
     from matplotlib.animation import PillowWriter
 
     if stop_ns <= start_ns or n_frames < 1:
@@ -137,5 +193,4 @@ def render_gif(chunks: Iterable[Chunk], path, width: int, height: int, start_ns:
         while frame < n_frames:
             flush()
             frame += 1
-    plt.close(fig)
     return n_frames

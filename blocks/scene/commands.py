@@ -30,10 +30,14 @@ def upstream_values(graph, block_name: str, window: Window) -> dict:
             values[(name, port)] = value
 
     inputs = {}
+    specs = type(graph.nodes[block_name].block).inputs
     for src, sport, dst, dport in graph.connections:
         if dst == block_name:
             evaluate(src)
-            inputs[dport] = values[(src, sport)]
+            if specs[dport].multi:          # a port taking several connections gets them all, as a list
+                inputs.setdefault(dport, []).append(values[(src, sport)])
+            else:
+                inputs[dport] = values[(src, sport)]
     return inputs
 
 

@@ -4,18 +4,13 @@ from __future__ import annotations
 
 from datetime import timedelta
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from . import projection  # noqa: E402
-from .geometry import NS_PER_S  # noqa: E402
-from .passes import PassReport, iso  # noqa: E402
-from .geometry import apparent_position, unit  # noqa: E402
-from .pointing import azel_from_enu  # noqa: E402
-from .view import SatelliteView  # noqa: E402
+from . import projection
+from .geometry import NS_PER_S, apparent_position, unit
+from .passes import PassReport, iso
+from .pointing import azel_from_enu
+from .view import SatelliteView
 
 
 def _sky(view: SatelliteView, t_ns: np.ndarray, directions: np.ndarray):
@@ -29,8 +24,10 @@ def _sky(view: SatelliteView, t_ns: np.ndarray, directions: np.ndarray):
     return np.degrees(lon), np.degrees(lat)
 
 
-def plot_pass(view: SatelliteView, report: PassReport, start_ns: int, stop_ns: int, path, title: str = "") -> None:
-    """Write a two-panel PNG: sky track with the field outline, and angle from the boresight versus time.
+def plot_pass(view: SatelliteView, report: PassReport, start_ns: int, stop_ns: int, path=None, title: str = ""):
+    """The pass as a Figure (saved to ``path`` if given; built without pyplot, so no backend is selected and
+    nothing stays open): sky track with the field outline, the track on the detector, and the angle from
+    the boresight versus time.
 
     Track colours: observable in the field (green), in the field but not observable
     (orange), sunlit outside the field (blue), in the Earth's shadow (grey). The field
@@ -41,7 +38,10 @@ def plot_pass(view: SatelliteView, report: PassReport, start_ns: int, stop_ns: i
     s = view.sample(t_ns)
     b, r, u = view.pointing_model.frame(t_ns.astype(np.float64))
     lon_0 = float(_sky(view, t_ns[:1], b[:1])[0][0])
-    fig, (sky, det, ax_t) = plt.subplots(1, 3, figsize=(18, 5.4), gridspec_kw={"width_ratios": [1.1, 1.1, 1]})
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(18, 5.4), dpi=110)
+    sky, det, ax_t = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.1, 1.1, 1]})
     seconds = (t_ns - report.start_ns) / NS_PER_S
     lon, lat = _sky(view, t_ns, unit(apparent_position(view.track, view.observer_model, t_ns.astype(np.float64))))
     x_sky, y_sky = (lon - lon_0 + 180.0) % 360.0 - 180.0, lat
@@ -94,5 +94,6 @@ def plot_pass(view: SatelliteView, report: PassReport, start_ns: int, stop_ns: i
     passes = "\n".join(str(p) for p in report.passes[:4]) or "no observable pass"
     ax_t.set_title(passes, fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig

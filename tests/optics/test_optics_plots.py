@@ -27,7 +27,7 @@ def png_size(path):
 
 
 def test_commands_are_registered():
-    assert {c.name for c in COMMANDS} == {"plot-screen", "plot-propagation"}
+    assert {c.name for c in COMMANDS} == {"plot-screen", "plot-propagation", "plot-psf"}
 
 
 def test_plot_screen_writes_a_png(tmp_path, capsys):
