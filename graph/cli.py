@@ -94,6 +94,21 @@ def cmd_sweep(args) -> int:
     return SWEEP_FAILED if result.failed else 0
 
 
+def cmd_sweep_plot(args) -> int:
+    from .files import atomic_output, check_output_path
+    from .sweep_plot import plot_sweep, read_results
+
+    check_output_path(args.output, overwrite=True, what="figure")
+    figure = plot_sweep(read_results(args.sweep), args.metric, args.x, args.y)
+    if not 0 < args.dpi < 10_000:
+        raise UserError(f"--dpi must be between 0 and 10000, got {args.dpi}")
+    with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
+        figure.savefig(temporary, dpi=args.dpi)
+    if not args.quiet:
+        print(f"{args.output}: {figure.axes[0].get_title()}", file=sys.stderr)
+    return 0
+
+
 def cmd_validate(args) -> int:
     graph = _load(args)
     print(f"{graph.file}: ok — {len(graph.nodes)} blocks, {len(graph.connections)} connections")
@@ -197,6 +212,16 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
                         "the output folder and have evsda installed")
     p.add_argument("--overwrite", action="store_true", help="recompute every point, replacing their stores")
     p.set_defaults(func=cmd_sweep)
+
+    p = add("sweep-plot", help="draw a metric of a sweep against one or two swept parameters (PNG), "
+                               "failed points marked")
+    p.add_argument("sweep", help="sweep folder (holding sweep.parquet or sweep.csv)")
+    p.add_argument("metric", help="metric to draw (a column of the results table)")
+    p.add_argument("--x", default=None, help="swept parameter on the x axis (default: the only one)")
+    p.add_argument("--y", default=None, help="second swept parameter: points in the (x, y) plane coloured by the metric")
+    p.add_argument("-o", "--output", required=True, help="output PNG file")
+    p.add_argument("--dpi", type=float, default=120.0, help="resolution of the PNG [dots per inch]")
+    p.set_defaults(func=cmd_sweep_plot)
 
     p = add("info", help="what a run store holds: graph, seed, epoch, events by cause, metrics, "
                                     "products, complete or resumable")

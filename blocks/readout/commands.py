@@ -1,6 +1,6 @@
 """Command-line sub-commands contributed by the readout stage (see evsda.graph.commands):
 
-* ``evsda export STORE --format aedat4|evt2|evt3|hdf5|npy -o FILE [--time readout|trigger] [--truth [csv|hdf5]]
+* ``evsda export STORE [--format aedat4|evt2|evt3|hdf5|npy] -o FILE [--time readout|trigger] [--truth [csv|hdf5]]
   [--overwrite] [--partial]``
 * ``evsda render STORE [--png F] [--gif F] [--truth] [--scale S] [--dpi D] [--start-s S] [--stop-s S] [--frames N]
   [--fps F] [--overwrite]``
@@ -23,7 +23,7 @@ from evsda.graph import UserError
 from evsda.graph.commands import Command
 from evsda.graph.files import atomic_output, check_free_space, check_output_path
 
-from .exporters import BYTES_PER_EVENT, WRITERS, export_events
+from .exporters import BYTES_PER_EVENT, WRITERS, export_events, extension_warning, infer_format
 from .render import render_gif, render_png
 from .truth_export import FORMATS as TRUTH_FORMATS
 from .truth_export import truth_path, write_truth_csv, write_truth_hdf5
@@ -58,15 +58,22 @@ def _progress(chunks, total: int, what: str):
             bar.update(len(chunk["x"]))
 
 
+def _max_time_us(store) -> int | None:
+    """The latest time any event of the run can carry [µs since the start epoch]: its duration."""
+    duration_ns = store.attrs.get("duration_ns")
+    return None if duration_ns is None else -(-int(duration_ns) // 1000)
+
+
 class ExportCommand(Command):
     name = "export"
     help = "write a run's recorded events to an event-camera file format"
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("store", help="run store (.zarr) written by `evsda run`")
-        parser.add_argument("--format", required=True, choices=sorted(WRITERS),
-                            help="aedat4 (iniVation), evt2/evt3 (Prophesee raw), hdf5 (v2e layout, int64 µs), "
-                                 "npy (tonic's x, y, t, p)")
+        parser.add_argument("--format", choices=sorted(WRITERS), default=None,
+                            help="aedat4 (iniVation), evt2/evt3 (Prophesee raw), hdf5 (v2e layout, integer µs, "
+                                 "gzip), npy (tonic's x, y, t, p); default: from the extension of OUTPUT "
+                                 "(.aedat4, .raw = evt3, .h5/.hdf5, .npy)")
         parser.add_argument("-o", "--output", required=True, help="file to write")
         parser.add_argument("--time", choices=("readout", "trigger"), default="readout",
                             help="which time of the Eq. 22 record to write (trigger: hdf5 and npy only)")
@@ -82,6 +89,8 @@ class ExportCommand(Command):
     def run(self, args: argparse.Namespace) -> int:
         if args.chunk_size < 1:
             raise UserError(f"--chunk-size must be at least 1, got {args.chunk_size}")
+        if args.format is None:
+            args.format = infer_format(args.output)
         output = check_output_path(args.output, args.overwrite, "export")
         truth_output = check_output_path(truth_path(output, args.truth), args.overwrite, "truth") if args.truth else None
         store, fp = _open(args.store)
@@ -93,10 +102,14 @@ class ExportCommand(Command):
             raise UserError(f"{args.store} is not a finished run ({unfinished}); pass --partial to export "
                             f"the events it has committed")
         check_free_space(output, store.n_events * BYTES_PER_EVENT.get(args.format, 64) + (1 << 20), "export")
+        warning = extension_warning(args.output, args.format)
+        if warning:
+            print(f"evsda: warning: {warning}", file=sys.stderr)
         epoch = store.attrs.get("start_epoch")
         chunks = _progress(store.iter_events(args.chunk_size), store.n_events, "export")
         with atomic_output(output, args.overwrite, "export") as temporary:
-            n = export_events(chunks, temporary, args.format, fp.width_px, fp.height_px, time=args.time, epoch=epoch)
+            n = export_events(chunks, temporary, args.format, fp.width_px, fp.height_px, time=args.time, epoch=epoch,
+                              max_time_us=_max_time_us(store))
         note = f"; partial run: {unfinished}" if unfinished else ""
         print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since "
               f"{epoch or 'the run start'}{note})")

@@ -15,11 +15,14 @@ Time. Every format carries integer microseconds since the run's start epoch
   that counts them from the start of the file recovers the absolute time. EVT 2.0/3.0
   address at most 2048 x 2048 pixels.
 * ``hdf5`` follows v2e's layout (dataset ``events``, one row ``[t, x, y, p]`` per event,
-  ``p`` 1 for ON and 0 for OFF) but stores int64, not v2e's uint32 of a float32 time that
-  loses microseconds after ~17 s (2**24 µs) and wraps after 71.6 min. Column ``t`` is the
-  readout time by default; the parallel datasets ``t_trigger_us`` (or ``t_readout_us``)
-  and ``cause`` (:class:`~evsda.blocks.ports.EventCause`, the simulation's truth) keep the
-  rest of the Eq. 22 record. Attributes give the sensor size and the time origin.
+  ``p`` 1 for ON and 0 for OFF), in integer microseconds (v2e converts a float32 time that
+  loses microseconds after ~17 s, 2**24 µs). The dtype is no wider than needed: v2e's uint32
+  when every time of the run fits (runs shorter than 2**32 µs = 71.6 min, given by
+  ``max_time_us``), else int64. Datasets are gzip-compressed with the byte shuffle filter by
+  default (every HDF5 reader decodes gzip). Column ``t`` is the readout time by default; the
+  parallel datasets ``t_trigger_us`` (or ``t_readout_us``) and ``cause``
+  (:class:`~evsda.blocks.ports.EventCause`, the simulation's truth; uint8) keep the rest of
+  the Eq. 22 record. Attributes give the sensor size and the time origin.
 * ``npy`` is a numpy structured array with tonic's fields and types
   ``x`` int16, ``y`` int16, ``t`` int64 [µs], ``p`` bool (True = ON), readout time by
   default.
@@ -109,25 +112,42 @@ def _camera_time(time: str, fmt: str) -> None:
 
 
 # -- HDF5 in v2e's layout ---------------------------------------------------------------------------
+#: HDF5 compression by default: gzip (deflate) at a moderate level, after the byte shuffle filter
+HDF5_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+
+
+def hdf5_time_dtype(max_time_us: int | None) -> np.dtype:
+    """The narrowest dtype of the ``events`` rows: v2e's uint32 when every time fits, else int64."""
+    if max_time_us is not None and 0 <= max_time_us < 2**32:
+        return np.dtype(np.uint32)
+    return np.dtype(np.int64)
+
+
 def write_hdf5(chunks: Iterable[Chunk], path, width: int, height: int, time: str = "readout",
-               epoch: str | None = None, compression: str | None = None, **_) -> int:
-    """v2e-layout HDF5 with int64 microseconds (see the module docstring); returns the count."""
+               epoch: str | None = None, compression: bool = True, max_time_us: int | None = None, **_) -> int:
+    """v2e-layout HDF5 in integer microseconds, as narrow as the run allows and compressed (see the module
+    docstring); returns the count. ``max_time_us`` bounds every time in the file (the run's duration)."""
     import h5py
 
     other = "trigger" if time == "readout" else "readout"
+    dtype = hdf5_time_dtype(max_time_us)
+    if max(width, height) >= np.iinfo(dtype).max:
+        dtype = np.dtype(np.int64)
+    limits = np.iinfo(dtype)
+    filters = HDF5_COMPRESSION if compression else {}
     rows = 1 << 16
     folder = Path(path).parent
     with h5py.File(path, "w") as f:
-        events = f.create_dataset("events", shape=(0, 4), maxshape=(None, 4), dtype=np.int64,
-                                  chunks=(rows, 4), compression=compression)
-        extra_t = f.create_dataset(f"t_{other}_us", shape=(0,), maxshape=(None,), dtype=np.int64,
-                                   chunks=(rows,), compression=compression)
+        events = f.create_dataset("events", shape=(0, 4), maxshape=(None, 4), dtype=dtype,
+                                  chunks=(rows, 4), **filters)
+        extra_t = f.create_dataset(f"t_{other}_us", shape=(0,), maxshape=(None,), dtype=dtype,
+                                   chunks=(rows,), **filters)
         cause = f.create_dataset("cause", shape=(0,), maxshape=(None,), dtype=np.uint8,
-                                 chunks=(rows,), compression=compression)
+                                 chunks=(rows,), **filters)
         f.attrs.update({
             "width": width, "height": height, "time_unit": "us", "time_origin_utc": epoch or "",
             "t_column": time, "columns": "t,x,y,p", "polarity": "1 ON, 0 OFF",
-            "layout": "v2e events (N, 4) with int64 instead of uint32", "source": "evsda",
+            "layout": f"v2e events (N, 4) of {dtype.name}", "source": "evsda",
         })
         n = 0
         for chunk in chunks:
@@ -135,15 +155,19 @@ def write_hdf5(chunks: Iterable[Chunk], path, width: int, height: int, time: str
             if not k:
                 continue
             _check_room(folder, path, 41 * k)
-            block = np.empty((k, 4), np.int64)
-            block[:, 0] = _micros(chunk, time)
+            t, t_other = _micros(chunk, time), _micros(chunk, other)
+            if min(t.min(), t_other.min()) < limits.min or max(t.max(), t_other.max()) > limits.max:
+                raise UserError(f"{path}: an event time lies outside the run ({max_time_us} µs); "
+                                f"the store's events and duration disagree")
+            block = np.empty((k, 4), dtype)
+            block[:, 0] = t
             block[:, 1] = chunk["x"]
             block[:, 2] = chunk["y"]
             block[:, 3] = np.asarray(chunk["p"]) > 0
             for dataset in (events, extra_t, cause):
                 dataset.resize(n + k, axis=0)
             events[n:n + k] = block
-            extra_t[n:n + k] = _micros(chunk, other)
+            extra_t[n:n + k] = t_other
             cause[n:n + k] = chunk["cause"]
             n += k
     return n
@@ -207,6 +231,38 @@ WRITERS: dict[str, Callable[..., int]] = {
     "hdf5": write_hdf5,
     "npy": write_npy,
 }
+
+
+#: the file extensions readers expect for each format (the first is the one a format is inferred from):
+#: Metavision opens EVT 2.0/3.0 only as ``.raw`` (the header names the version), dv / aedat as ``.aedat4``
+EXTENSIONS: dict[str, tuple[str, ...]] = {
+    "aedat4": (".aedat4",),
+    "evt3": (".raw",),          # Gen4's native encoding: what a bare .raw is taken to be
+    "evt2": (".raw",),
+    "hdf5": (".h5", ".hdf5"),
+    "npy": (".npy",),
+}
+
+
+def infer_format(path) -> str:
+    """The export format of ``path`` from its extension (``.raw`` is EVT 3.0); a UserError if none fits."""
+    suffix = Path(path).suffix.lower()
+    for fmt, suffixes in EXTENSIONS.items():
+        if suffix in suffixes:
+            return fmt
+    known = ", ".join(sorted({s for suffixes in EXTENSIONS.values() for s in suffixes}))
+    raise UserError(f"cannot tell the export format from the extension of {path} (known: {known}); "
+                    f"give --format")
+
+
+def extension_warning(path, fmt: str) -> str | None:
+    """A warning when ``path``'s extension is one readers of ``fmt`` refuse or take for another format."""
+    suffix = Path(path).suffix.lower()
+    expected = EXTENSIONS[fmt]
+    if suffix in expected:
+        return None
+    return (f"{path}: readers of {fmt} files expect the extension {' or '.join(expected)}; "
+            f"{suffix or 'no extension'} may be refused or taken for another format")
 
 
 def export_events(chunks: Iterable[Chunk], path, fmt: str, width: int, height: int, **options) -> int:

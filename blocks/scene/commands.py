@@ -47,7 +47,8 @@ class PlotPass(Command):
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("graph", help="graph file with a satellite block")
-        parser.add_argument("--png", required=True, help="output PNG file")
+        parser.add_argument("-o", "--output", "--png", dest="output", required=True,
+                            help="output PNG file (-o/--output as on every plot command; --png is its old name)")
         parser.add_argument("--satellite", default=None, help="name of the satellite block (default: the first)")
         parser.add_argument("--pad", type=float, default=30.0, help="seconds of track shown before and after the run")
         parser.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
@@ -56,7 +57,7 @@ class PlotPass(Command):
     def run(self, args: argparse.Namespace) -> int:
         from evsda.graph.graphfile import load_graph
 
-        check_output_path(args.png, overwrite=True, what="figure")
+        check_output_path(args.output, overwrite=True, what="figure")
         graph = load_graph(args.graph, args.set)
         run = graph.run_info()
         satellites = [n for n, node in graph.nodes.items() if isinstance(node.block, Satellite)]
@@ -73,9 +74,9 @@ class PlotPass(Command):
         report = find_passes(view, 0, run.duration_ns, resolution_ns=block.cadence_ns)
         from .plot import plot_pass
 
-        with atomic_output(args.png, overwrite=True, what="figure", suffix=".png") as temporary:
+        with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
             plot_pass(view, report, -pad, run.duration_ns + pad, temporary)
-        print(f"{args.png}: {inputs['orbit'].name}; " + ("; ".join(str(p) for p in report.passes)
+        print(f"{args.output}: {inputs['orbit'].name}; " + ("; ".join(str(p) for p in report.passes)
                                                         or "no observable pass during the run"))
         return 0
 

@@ -145,3 +145,31 @@ def test_points_run_as_dask_tasks_on_two_workers_and_reuse_across_them(plugin, t
         assert row["events_counted"] == alone.metrics["events_counted"]
     failing = run_sweep(str(chain(tmp_path)), bad, tmp_path / "bad", jobs=2, report=lambda line: None)
     assert failing.failed == 1 and "windows" in failing.rows[0]["error"]
+
+
+def test_sweep_plot_shows_the_metric_against_the_parameters_and_marks_failures(plugin, tmp_path, evsda_cli):
+    from evsda.graph.sweep_plot import plot_sweep
+
+    out = tmp_path / "plotted"
+    grid = {"double.gain": [1.0, 2.0, 4.0], "run.window_s": [0.01, 1e-9]}   # the 1e-9 points fail
+    run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lambda line: None)
+    table = read_results(out)
+    ok = table[table.status == "ok"].sort_values("double.gain")
+    figure = plot_sweep(table, "events_counted", x="double.gain")
+    axes = figure.axes[0]
+    line, crosses = axes.lines[0], axes.lines[-1]
+    assert list(line.get_xdata()) == [1.0, 2.0, 4.0] and list(line.get_ydata()) == list(ok.events_counted)
+    assert list(crosses.get_xdata()) == [1.0, 2.0, 4.0] and crosses.get_marker() == "x"
+    assert axes.get_ylabel() == "events_counted [event]" and "3 failed" in axes.get_title()
+    plane = plot_sweep(table, "events_counted", x="double.gain", y="run.window_s")
+    points = plane.axes[0].collections[0]
+    assert np.array_equal(points.get_offsets()[:, 0], table[table.status == "ok"]["double.gain"])
+    assert np.array_equal(points.get_array(), table[table.status == "ok"].events_counted)
+    assert plane.axes[0].get_yscale() == "log"          # 1e-9 .. 1e-2: seven decades
+    with pytest.raises(UserError, match="choose the x axis"):
+        plot_sweep(table, "events_counted")
+    with pytest.raises(UserError, match="not a metric"):
+        plot_sweep(table, "nope", x="double.gain")
+    proc = evsda_cli("sweep-plot", out, "events_counted", "--x", "double.gain", "-o", tmp_path / "p.png")
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from expelliarmus import Wizard
 
-from evsda.blocks.readout.exporters import TONIC_DTYPE, export_events
+from evsda.blocks.readout.exporters import TONIC_DTYPE, export_events, extension_warning, infer_format
 from evsda.graph import UserError
 
 W, H = 1280, 720
@@ -128,8 +128,9 @@ def test_hdf5_keeps_integer_microseconds(tmp_path, time):
     want = expected(N)
     other = "trigger" if time == "readout" else "readout"
     with h5py.File(path, "r") as f:
-        events = f["events"][:]
-        assert events.dtype == np.int64 and events.shape == (N, 4)
+        events = f["events"][:].astype(np.int64)
+        assert f["events"].dtype == np.int64 and events.shape == (N, 4)      # no max_time_us: the widest
+        assert f["events"].compression == "gzip" and f["events"].shuffle and f["cause"].dtype == np.uint8
         np.testing.assert_array_equal(events[:, 0], want[f"t_{time}_ns"] // 1000)
         np.testing.assert_array_equal(events[:, 1], want["x"])
         np.testing.assert_array_equal(events[:, 2], want["y"])
@@ -138,8 +139,36 @@ def test_hdf5_keeps_integer_microseconds(tmp_path, time):
         np.testing.assert_array_equal(f["cause"][:], want["cause"])
         assert f.attrs["width"] == W and f.attrs["height"] == H and f.attrs["time_unit"] == "us"
         assert f.attrs["time_origin_utc"] == "2024-03-01T02:15:00Z" and f.attrs["t_column"] == time
-    # the point of int64: v2e's float32 seconds cannot hold these microseconds
+    # the point of integers: v2e's float32 seconds cannot hold these microseconds
     assert np.any(np.float32(events[:, 0] / 1e6).astype(np.float64) * 1e6 != events[:, 0])
+
+
+def test_hdf5_is_as_narrow_as_the_run_allows_and_compressed(tmp_path):
+    want = expected(N)
+    longest = int(max(want["t_readout_ns"].max(), want["t_trigger_ns"].max()) // 1000) + 1
+    narrow, wide, raw = tmp_path / "narrow.h5", tmp_path / "wide.h5", tmp_path / "raw.h5"
+    export_events(synthetic_chunks(N), narrow, "hdf5", W, H, max_time_us=longest)
+    export_events(synthetic_chunks(N), wide, "hdf5", W, H, max_time_us=2**32)          # a run past 71.6 min
+    export_events(synthetic_chunks(N), raw, "hdf5", W, H, max_time_us=longest, compression=False)
+    with h5py.File(narrow, "r") as f, h5py.File(wide, "r") as g:
+        assert f["events"].dtype == np.uint32 and f["t_trigger_us"].dtype == np.uint32   # v2e's dtype
+        assert g["events"].dtype == np.int64
+        np.testing.assert_array_equal(f["events"][:], g["events"][:])
+        np.testing.assert_array_equal(f["t_trigger_us"][:], want["t_trigger_ns"] // 1000)
+    assert narrow.stat().st_size < 0.6 * raw.stat().st_size
+    late = {k: v[:1].copy() for k, v in next(iter(synthetic_chunks(N))).items()}
+    late["t_readout_ns"][:] = 2**33 * 1000          # past what the stated duration allows in uint32
+    with pytest.raises(UserError, match="outside the run"):
+        export_events(iter([late]), tmp_path / "late.h5", "hdf5", W, H, max_time_us=longest)
+
+
+def test_the_format_follows_the_extension_and_odd_extensions_are_warned_about():
+    assert [infer_format(f"a{ext}") for ext in (".aedat4", ".raw", ".h5", ".HDF5", ".npy")] == \
+        ["aedat4", "evt3", "hdf5", "hdf5", "npy"]
+    with pytest.raises(UserError, match="give --format"):
+        infer_format("a.raw2")
+    assert extension_warning("a.raw", "evt2") is None and extension_warning("a.h5", "hdf5") is None
+    assert ".raw" in extension_warning("a.raw2", "evt2") and ".aedat4" in extension_warning("a.aedat", "aedat4")
 
 
 def test_npy_has_tonic_fields(tmp_path):

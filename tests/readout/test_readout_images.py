@@ -131,3 +131,17 @@ def test_command_mistakes_are_user_errors(tmp_path):
         run_command("render", [str(store), "--png", "x.png", "--start-s", "0.5", "--stop-s", "0.1"])
     with pytest.raises(UserError):
         run_command("export", [str(tmp_path / "missing.zarr"), "--format", "npy", "-o", "x.npy"])
+
+
+def test_export_infers_the_format_and_warns_about_odd_extensions(tmp_path, capsys):
+    ev = random_events(2000)
+    store = make_store(tmp_path / "run.zarr", ev)
+    assert run_command("export", [str(store), "-o", str(tmp_path / "e.h5")]) == 0
+    with h5py.File(tmp_path / "e.h5", "r") as f:       # a 1 s run: v2e's uint32 microseconds, compressed
+        assert f["events"].dtype == np.uint32 and f["events"].compression == "gzip"
+        np.testing.assert_array_equal(f["events"][:, 0], ev["t_readout_ns"] // 1000)
+    assert capsys.readouterr().err == ""
+    assert run_command("export", [str(store), "--format", "evt2", "-o", str(tmp_path / "e.raw2")]) == 0
+    assert "evsda: warning:" in capsys.readouterr().err and (tmp_path / "e.raw2").stat().st_size > 0
+    with pytest.raises(UserError, match="give --format"):
+        run_command("export", [str(store), "-o", str(tmp_path / "e.dat")])
