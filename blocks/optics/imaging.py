@@ -51,7 +51,10 @@ ZENITH_BIN_RAD = np.deg2rad(1.0)
 RANGE_BIN_RATIO = 1.05
 #: the pupil path's error against the reference is measured on coarser bins: 10 degrees, factors of 2 in range
 PUPIL_ERROR_ZENITH_BIN_RAD = np.deg2rad(10.0)
-REFERENCE_PROBE_FRAMES = 3
+#: reference propagations per pupil-error bin: at least the first, more (up to the second) while the
+#: tolerance lies within two standard errors of their mean, so a close call is decided on the mean
+#: error rather than on the luck of three frames
+REFERENCE_PROBE_FRAMES = (3, 12)
 
 
 @dataclass(frozen=True)
@@ -232,8 +235,10 @@ class Imager:
         """Estimated error of ``pupil_fft`` against ``reference`` [1] (:mod:`.paths`), cached on coarse bins.
 
         The larger of the scintillation term ``sigma_I / sqrt(2 pi)`` and the mean distance
-        between the two paths over ``REFERENCE_PROBE_FRAMES`` independent screens at the
-        bin's conditions (each path fed the same screens, :meth:`reference_pupil_phase`).
+        between the two paths over independent screens at the bin's conditions (each path fed
+        the same screens, :meth:`reference_pupil_phase`): ``REFERENCE_PROBE_FRAMES[0]`` of them,
+        and more, up to ``REFERENCE_PROBE_FRAMES[1]``, while the tolerance lies within two
+        standard errors of their mean. A scintillation term above the tolerance settles it alone.
         """
         if not self.turbulent(zenith_rad):
             return 0.0
@@ -244,20 +249,26 @@ class Imager:
             zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
             distance = FAR_RANGE_M if r_bin < 0 else 2.0 ** (r_bin + 0.5)
             sigma2 = self.atmosphere.scintillation_index(self.telescope.diameter_m, self.wavelength, zenith, distance)
+            scintillation = scintillation_error(sigma2)
             measured = []
             offset = np.zeros((1, 2))
-            for k in range(REFERENCE_PROBE_FRAMES):
-                probe = f"__probe {key} {k}"
+            least, most = REFERENCE_PROBE_FRAMES
+            while scintillation <= self.tolerance and len(measured) < most:
+                probe = f"__probe {key} {len(measured)}"
                 field = self.reference_field(probe, 0.0, *self.boresight, zenith, distance, slack=1.0)
                 phase = self.reference_pupil_phase(probe, 0.0, *self.boresight, zenith, distance)
                 del self.reference_screens[probe]
                 reference = self.pupil_renderer.stamps_from_field(field[None], offset)
                 fast = self.pupil_renderer.stamps(self.pupil_amplitude, phase[None], offset)
                 measured.append(float(total_variation(fast, reference, reference.sum())[0]))
-            self._pupil_errors[key] = max(float(np.mean(measured)), scintillation_error(sigma2))
+                if len(measured) >= least:
+                    error = np.std(measured, ddof=1) / np.sqrt(len(measured))
+                    if abs(np.mean(measured) - self.tolerance) > 2 * error:
+                        break
+            self._pupil_errors[key] = max(float(np.mean(measured)) if measured else 0.0, scintillation)
             LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g "
                      "(%d reference frames; scintillation index %.3g)", self.name, np.rad2deg(zenith), distance,
-                     self._pupil_errors[key], REFERENCE_PROBE_FRAMES, sigma2)
+                     self._pupil_errors[key], len(measured), sigma2)
         return self._pupil_errors[key]
 
     def _probe_phase(self, rng, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
