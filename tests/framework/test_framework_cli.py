@@ -178,3 +178,18 @@ def test_a_closed_pipe_ends_quietly(plugin_dir):
     proc.stdout.close()                     # the reader is gone before the listing is printed
     stderr = proc.communicate(timeout=120)[1].decode()
     assert stderr == "" and proc.returncode == 141
+
+
+def test_example_scenes_ship_in_the_library():
+    """``library:examples/NAME.yaml`` is each example scene (installed inside evsda.library by the wheel)."""
+    from evsda import library
+    from evsda.graph.graphfile import load_graph
+
+    root = Path(__file__).parents[2] / "examples"
+    scenes = sorted(p.name for p in root.glob("*.yaml"))
+    assert "iss_pass.yaml" in scenes
+    for name in scenes:
+        # the same scene, whether evsda is installed from a wheel or from this checkout
+        assert library.resolve(f"library:examples/{name}").read_bytes() == (root / name).read_bytes()
+    graph = load_graph("library:examples/iss_pass_low_noise.yaml")      # its include is relative to it
+    assert graph.name == "iss_pass_low_noise" and "scene/iss" in graph.nodes
