@@ -33,8 +33,8 @@ from evsda.blocks.threads import worker_threads
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
-from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, COUNT, FLUX, L_, LOG_A, M_, PARA, READY, REAL, STEP,
-                         TH_OFF, TH_ON, Y, run_chunk, start_pixels)
+from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, COUNT, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, READY, REAL,
+                         STEP, TH_OFF, TH_ON, Y, run_chunk, start_pixels)
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
@@ -51,7 +51,7 @@ class EventDrivenPixels:
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._constants = (p.leak_rate_hz, model.dt_s, np.int64(model.refractory_steps), q,
-                           np.log1p(-q) if q < 1 else -np.inf, np.int64(state["key"]), p.threshold_redraw,
+                           np.int64(state["key"]), p.threshold_redraw,
                            p.threshold_on, p.threshold_off, p.threshold_sigma, p.threshold_floor)
 
     def _inputs(self, flux: np.ndarray) -> np.ndarray:
@@ -88,9 +88,10 @@ class EventDrivenPixels:
         real[:, L_], real[:, M_], real[:, TH_ON], real[:, TH_OFF] = (init.filtered, init.memorised, init.theta_on,
                                                                      init.theta_off)
         real[:, C_LEAK], real[:, C_PARA] = init.credit
+        real[:, NOISE_SCALE] = init.noise_scale
         count[:, STEP], count[:, READY] = n_start - 1, n_start
-        leak_hz, dt, _, q, log_1mq, key, *_ = pixels._constants
-        start_pixels(real, count, state["next"], leak_hz, dt, key, q, log_1mq)
+        leak_hz, dt, _, q, key, *_ = pixels._constants
+        start_pixels(real, count, state["next"], leak_hz, dt, key, q)
         return state
 
     # -- one window ---------------------------------------------------------------------------

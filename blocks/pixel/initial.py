@@ -6,7 +6,8 @@ value starts a uniformly random fraction of the ON threshold below it (``dI`` un
 been running shows leak events at a steady rate from the first moment instead of all
 pixels firing together one leak period after switch-on. That head start is charged to the
 leak and parasitic contributions in proportion to their rates; without either leak
-(``R_leak = R_para = 0``) the memorised value starts equal to ``L``.
+(``R_leak = R_para = 0``) the memorised value starts equal to ``L``. Each pixel also draws its
+factor on the noise rates (hot pixels, :func:`noise_scale`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ class InitialPixels(NamedTuple):
     filtered: np.ndarray     # L [n]
     memorised: np.ndarray    # M [n]
     credit: np.ndarray       # [2, n] leak and parasitic contributions to L - M
+    noise_scale: np.ndarray  # [n] each pixel's factor on the junction-leak and shot-noise rates [1]
 
 
 def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> InitialPixels:
@@ -41,4 +43,22 @@ def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Ge
     credit = np.zeros((2, n))
     credit[0] = head * share
     credit[1] = head - credit[0]
-    return InitialPixels(theta_on, theta_off, drive.y.copy(), drive.y - head, credit)
+    return InitialPixels(theta_on, theta_off, drive.y.copy(), drive.y - head, credit, noise_scale(model, n, rng))
+
+
+def noise_scale(model: PixelModel, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Each pixel's factor on its junction-leak and shot-noise rates: hot pixels [1].
+
+    Log-normal with ``noise_rate_spread_decades`` as the standard deviation of its log10 and
+    mean 1 (``exp(s z - s^2/2)``, ``s = spread ln 10``), so the array's mean rate stays the
+    configured one while a few pixels fire far more often; v2e's ``noise_rate_cov_decades`` is
+    the same spread with the median at 1 instead. Capped where a pixel's shot-noise trial would
+    come every step. Without a spread every pixel has 1 and no random number is drawn.
+    """
+    spread = model.params.noise_rate_spread_decades
+    if spread == 0:
+        return np.ones(n)
+    s = spread * np.log(10.0)
+    scale = np.exp(s * rng.standard_normal(n) - 0.5 * s * s)
+    cap = 1.0 / (2.0 * model.shot_p_max) if model.shot_p_max > 0 else np.inf
+    return np.minimum(scale, cap)

@@ -62,6 +62,10 @@ class DvsPixelParams(BlockParams):
                                                              "polarity in the dark (v2e's shot_noise_rate_hz is 2 R_n) [Hz]")
     shot_noise_intensity_factor: float = Field(0.25, ge=0, description="F of Eq. 20: shot-noise rate at I_max "
                                                                        "relative to the dark (v2e: 0.25) [1]")
+    noise_rate_spread_decades: float = Field(0.0, ge=0, le=2, description="Pixel-to-pixel spread of the junction-"
+                                             "leak and shot-noise rates (hot pixels): standard deviation of log10 of "
+                                             "each pixel's rate factor, log-normal with mean 1 (v2e's "
+                                             "noise_rate_cov_decades keeps the median at 1 instead) [decade]")
     log_current_max: float = Field(5.54, gt=0, description="I_max of Eq. 20: lin-log value of the brightest "
                                                            "current (paper: ln 255 = 5.54) [1]")
     # reset (Eq. 21)

@@ -14,7 +14,8 @@ events up to the end of the window; between them its state follows in closed for
   probability ``q = 2 p_max`` per step (``p_max`` the largest probability per polarity over
   all inputs) and are accepted with ``p / p_max`` of the input at that step, the polarity
   from a fair coin (discrete-time thinning, Lewis & Shedler 1979): the reference's law. A
-  shot event leaves the memory where it is (see :mod:`.noise`).
+  shot event leaves the memory where it is (see :mod:`.noise`). Each pixel's leak and trial
+  rates carry its own factor (``noise_scale``, hot pixels: :mod:`.initial`).
 
 Within a step the comparator acts before the shot-noise trial, as in the reference. The
 per-pixel state lives in two tables (see :data:`REAL`, :data:`COUNT`); random numbers are
@@ -35,10 +36,11 @@ from .crossing import NEVER, first_crossing_one, power
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
+        "noise_scale",                                               # the pixel's leak and shot-noise rate factor
         "y", "log_a", "para", "accept")                              # derived from the input (Eqs. 14-16, 19-20)
 COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count",
          "owed")                                                     # signed events the comparator still owes
-(FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
+(FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, NOISE_SCALE, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
 (STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT, OWED) = range(len(COUNT))
 GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
@@ -47,22 +49,22 @@ jit = numba.njit(cache=True, error_model="numpy")
 
 
 @jit
-def shot_gap(key, pixel, count, q, log_1mq):
+def shot_gap(key, pixel, count, q):
     """Steps to the next shot-noise trial: geometric with success probability ``q`` per step."""
     if q <= 0.0:
         return NEVER
     if q >= 1.0:
         return np.int64(1)
     u = uniform_open_one(key, GAP, pixel, count)
-    return np.int64(min(math.floor(math.log(u) / log_1mq) + 1.0, float(NEVER // 2)))
+    return np.int64(min(math.floor(math.log(u) / math.log1p(-q)) + 1.0, float(NEVER // 2)))
 
 
 @jit
-def start_pixels(real, count, next_step, leak_hz, dt, key, q, log_1mq):
+def start_pixels(real, count, next_step, leak_hz, dt, key, q):
     """Schedule every pixel's first shot-noise trial and comparator event after its present step."""
     for pixel in range(count.shape[0]):
         c = count[pixel]
-        c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
+        c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q * real[pixel, NOISE_SCALE])
         c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
         next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
 
@@ -78,7 +80,7 @@ def _schedule(r, c, t_change, leak_dt, dt):
     """Next comparator event of a pixel before its next input change ``t_change`` (``NEVER``: none)."""
     step = c[STEP]
     y, th_on = r[Y], r[TH_ON]
-    drift = (leak_dt + r[PARA] * dt) * th_on
+    drift = (leak_dt * r[NOISE_SCALE] + r[PARA] * dt) * th_on
     j0 = max(c[READY] - step, np.int64(1))
     horizon = NEVER if t_change >= NEVER else t_change - 1 - step
     j, _ = first_crossing_one(j0, y - r[M_], r[L_] - y, r[LOG_A], drift, th_on - TOLERANCE,
@@ -94,7 +96,7 @@ def _advance(r, c, t, leak_hz, dt):
         y = r[Y]
         r[L_] = y + (r[L_] - y) * power(r[LOG_A], j)
         scale = r[TH_ON] * j * dt
-        leak = leak_hz * scale
+        leak = leak_hz * r[NOISE_SCALE] * scale
         para = r[PARA] * scale
         r[M_] -= leak + para
         r[C_LEAK] += leak
@@ -153,7 +155,7 @@ def _record(r, c, pixel, t, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_c
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
-              leak_hz, dt, k_refr, q, log_1mq, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+              leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
               ev_step, ev_pixel, ev_pol, ev_cause):
     """Process every event of ``pixels`` before step ``n_end`` and their input changes, one pixel after the other.
 
@@ -213,7 +215,7 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
                         else:
                             lost += 1.0
                     c[SHOT_COUNT] += 1
-                    c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q, log_1mq)
+                    c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q * r[NOISE_SCALE])
             elif ptr < end:                                       # the next input takes over
                 _advance(r, c, t_change - 1, leak_hz, dt)
                 row = change_input[ptr]

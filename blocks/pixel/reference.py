@@ -26,7 +26,7 @@ from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
 
-STATE_KEYS = ("flux", "filtered", "memorised", "ready", "theta_on", "theta_off", "credit", "owed")
+STATE_KEYS = ("flux", "filtered", "memorised", "ready", "theta_on", "theta_off", "credit", "owed", "noise_scale")
 
 
 def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> dict:
@@ -34,7 +34,8 @@ def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generat
     init = initial_pixels(model, photon_flux, rng)
     return {"flux": photon_flux.astype(float).copy(), "filtered": init.filtered, "memorised": init.memorised,
             "ready": np.zeros(photon_flux.shape[0], np.int64), "theta_on": init.theta_on,
-            "theta_off": init.theta_off, "credit": init.credit, "owed": np.zeros(photon_flux.shape[0], np.int64)}
+            "theta_off": init.theta_off, "credit": init.credit, "owed": np.zeros(photon_flux.shape[0], np.int64),
+            "noise_scale": init.noise_scale}
 
 
 def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: np.ndarray, frames: np.ndarray,
@@ -44,7 +45,7 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
     dt, k_refr = model.dt_s, model.refractory_steps
     flux, L, M = state["flux"], state["filtered"], state["memorised"]
     ready, th_on, th_off, credit = state["ready"], state["theta_on"], state["theta_off"], state["credit"]
-    owed = state["owed"]
+    owed, scale = state["owed"], state["noise_scale"]
     drive = model.drive(flux)
     next_change = 0
     for n in range(n_start, n_end):
@@ -55,7 +56,7 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
         # 1. photoreceptor low-pass (Eq. 16)
         L[:] = (1.0 - drive.eps) * L + drive.eps * drive.y
         # 2. junction leak (Eq. 18) and parasitic photocurrent (Eq. 19)
-        leak = dt * p.leak_rate_hz * th_on
+        leak = dt * p.leak_rate_hz * scale * th_on
         para = dt * drive.parasitic_hz * th_on
         M -= leak + para
         credit[0] += leak
@@ -84,7 +85,8 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
                 _redraw(p, rng, idx, sign, th_on, th_off)
         # 4. shot noise (Eq. 20)
         u = rng.random(L.shape[0])
-        shot_on, shot_off = u > 1.0 - drive.shot_p, u < drive.shot_p
+        shot_p = drive.shot_p * scale
+        shot_on, shot_off = u > 1.0 - shot_p, u < shot_p
         candidate = shot_on | shot_off
         emitted = candidate & awake & ~fired
         log.lose(np.count_nonzero(candidate) - np.count_nonzero(emitted))

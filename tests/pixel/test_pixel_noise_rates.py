@@ -15,6 +15,7 @@ from scipy import constants
 from evsda.blocks.pixel import DvsPixel
 from evsda.blocks.pixel.model import PixelModel
 from evsda.blocks.ports import EventCause
+from evsda.graph import Window
 
 BOTH = ["reference", "fast"]
 # a preset-like photoreceptor: logarithmic down to its dark current, bandwidth proportional to its current
@@ -105,3 +106,29 @@ def test_a_dark_pixel_is_slower_than_a_lit_one(scenes, implementation):
     fall = theta + np.log(101) - on.size * theta
     assert (off[0] - t_off) * 1e-9 == pytest.approx(-np.log(1 - fall / np.log(101)) / (2 * np.pi * f_dark), rel=0.05)
     assert on[-1] < t_off                                      # the whole ON burst within the flash
+
+
+@pytest.mark.parametrize("implementation", BOTH)
+def test_hot_pixels_spread_the_rates_log_normally_around_the_configured_mean(scenes, implementation):
+    # noise_rate_spread_decades: each pixel's leak and shot-noise rates carry a factor with
+    # std(log10) = the spread and mean 1, so the array keeps the configured mean rate while a few
+    # pixels are hot; each pixel's own counts follow its factor.
+    fp, leak, r_n, dt, seconds, spread = scenes.focal_plane(32, 32), 20.0, 20.0, 1e-4, 1.0, 0.3
+    block = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=dt, leak_rate_hz=leak,
+                     shot_noise_rate_hz=r_n, parasitic_rate_per_lux_hz=0.0, noise_rate_spread_decades=spread,
+                     seed=9, **PRESET_LIKE)
+    _, ev = _rates(scenes, block, fp, 0.0, seconds, 0.5)
+    scale = block.pixel_field("noise_scale").reshape(fp.shape)
+    n = scale.size
+    assert np.std(np.log10(scale)) == pytest.approx(spread, rel=4 / np.sqrt(2 * n))
+    assert abs(scale.mean() - 1.0) < 4 * np.std(scale) / np.sqrt(n)
+    on = scenes.counts_image(ev, fp, ev["p"] > 0)
+    off = scenes.counts_image(ev, fp, ev["p"] < 0)
+    assert _within(on.sum(), (leak + r_n) * seconds * scale.sum()) and _within(off.sum(), r_n * seconds * scale.sum())
+    hot = scale > np.percentile(scale, 90)
+    cold = scale < np.percentile(scale, 10)
+    assert off[hot].mean() / off[cold].mean() == pytest.approx(scale[hot].mean() / scale[cold].mean(), rel=0.25)
+    # without a spread every pixel has the configured rates
+    plain = DvsPixel(implementation=implementation, time_step_s=dt, seed=9, **PRESET_LIKE)
+    plain.step(Window.from_seconds(0, 0.01), irradiance=scenes.uniform(fp, [0], 0.0))
+    assert np.all(plain.pixel_field("noise_scale") == 1.0)
