@@ -424,3 +424,25 @@ def test_every_signal_event_away_from_stars_belongs_to_a_catalogued_object(field
         path_y = np.interp(events["x"], x[seen, j][order], y[seen, j][order])
         mine = signal & (np.abs(events["y"] - path_y) < 4)
         assert mine.sum() >= 0.5 * metrics[f"object_{object_id}_signal_events"]
+
+
+def test_field_truth_is_per_object(field_run):
+    """Issue 15.1: the truth, like the metrics, is per catalogued object (its NORAD number), at the optics'
+    200 Hz render rate, each object where its own samples put it."""
+    store, metrics = field_run["store"], field_run["result"].metrics
+    truth = store.read_truth()
+    sat = truth["kind"] == SourceKind.SATELLITE
+    t, x, y, _ = source_tracks(store, "starlinks")
+    ids = list(store.product_windows("starlinks", "sources"))[0].source_id.astype(str)
+    observed = {i for j, i in enumerate(ids) if np.isfinite(x[:, j]).any()}
+    assert len(observed) >= 2 and set(truth["source_id"][sat].tolist()) == observed
+    for j, object_id in enumerate(ids):
+        if object_id not in observed:
+            continue
+        mine = sat & (truth["source_id"] == object_id)
+        assert np.all(np.diff(truth["t_ns"][mine]) % 5_000_000 == 0)          # 200 Hz render times
+        held = np.searchsorted(t, truth["t_ns"][mine], side="right") - 1
+        np.testing.assert_allclose(truth["x_px"][mine], x[held, j], atol=1e-3)
+        np.testing.assert_allclose(truth["y_px"][mine], y[held, j], atol=1e-3)
+        # the same time on the detector as object_metrics counts from the 1 ms samples
+        assert mine.sum() * 5e-3 == pytest.approx(metrics[f"object_{object_id}_observed_s"], abs=0.011)
