@@ -7,7 +7,7 @@ import numpy as np
 from evsda.blocks.ports import FocalPlane, Irradiance, TriggeredEvents
 from evsda.graph import Block, Footprint, InputError, Input, Output, RunInfo, Window
 
-from . import reference
+from . import jitter, reference
 from .eventdriven import EventDrivenPixels
 from .eventlog import EventLog
 from .model import PixelModel
@@ -26,7 +26,8 @@ class DvsPixel(Block):
     response (Eq. 14) through an intensity-dependent low-pass filter (Eq. 16) and compares
     it with its memorised value against per-pixel ON/OFF thresholds (Eq. 17), one event
     per pixel per step. Junction leak (Eq. 18), parasitic photocurrent (Eq. 19) and shot
-    noise (Eq. 20) add noise events; a refractory period (Eq. 21) follows every event.
+    noise (Eq. 20) add noise events; a refractory period (Eq. 21) follows every event;
+    ``timing_jitter_s`` delays each event's time stamp at random (:mod:`.jitter`).
     Every event carries its cause (signal, leak, parasitic, shot) and each window reports
     ``n_loss``: the events the pixels could not emit -- Eq. 17's owed events that the input
     took back before the pixel could compare again, and shot-noise events that arrived
@@ -51,13 +52,15 @@ class DvsPixel(Block):
     Params = DvsPixelParams
     inputs = {"irradiance": Input(Irradiance, "photon flux on every pixel: background plus stamps [photon s^-1 pixel^-1]")}
     outputs = {"events": Output(TriggeredEvents, "events as the pixels trigger them, with cause and N_loss")}
-    state = ("pixels", "held_background", "sensor")
+    state = ("pixels", "held_background", "sensor", "late", "jitter_key")
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.pixels: dict | None = None          # per-pixel state (see reference.new_state / EventDrivenPixels.new_state)
         self.held_background: float | None = None
         self.sensor: dict | None = None          # geometry and band the state belongs to
+        self.late: dict | None = None            # events delayed past the last window's end (timing jitter)
+        self.jitter_key: int | None = None       # counter-RNG key of the timing jitter
         self._model: PixelModel | None = None
         self._engine: EventDrivenPixels | None = None
 
@@ -83,7 +86,11 @@ class DvsPixel(Block):
             self._run_fast(model, irradiance, samples, steps, n_end, log)
         if samples.size:
             self.held_background = float(irradiance.background[samples[-1]])
-        return {"events": log.to_port(fp, dt_ns)}
+        events = log.to_port(fp, dt_ns)
+        if self.params.timing_jitter_s > 0:
+            events, self.late = jitter.jittered(events, self.late, window.stop_ns, self.jitter_key,
+                                                self.params.timing_jitter_s, dt_ns)
+        return {"events": events}
 
     def footprint(self, run: RunInfo) -> Footprint:
         """Memory per sensor pixel: the event-driven state (12 floats and 7 integers per pixel) and its
@@ -132,6 +139,8 @@ class DvsPixel(Block):
             self.pixels = EventDrivenPixels.new_state(model, flux, self.rng, n_start,
                                                       float(irradiance.background[first[0]]))
         self.held_background = float(irradiance.background[first[0]])
+        if self.params.timing_jitter_s > 0:
+            self.jitter_key = int(self.rng.integers(0, 2**63 - 1))
 
     def _run_fast(self, model, irradiance, samples, steps, n_end, log) -> None:
         if self._engine is None or self._engine.s is not self.pixels:

@@ -68,6 +68,8 @@ class DvsPixelParams(BlockParams):
                                              "noise_rate_cov_decades keeps the median at 1 instead) [decade]")
     log_current_max: float = Field(5.54, gt=0, description="I_max of Eq. 20: lin-log value of the brightest "
                                                            "current (paper: ln 255 = 5.54) [1]")
+    timing_jitter_s: float = Field(0.0, ge=0, le=0.1, description="Timing jitter: each event's time stamp is "
+                                   "delayed by sigma |z|, z standard normal (half-normal, mean 0.80 sigma) [s]")
     # reset (Eq. 21)
     refractory_period_s: float = Field(1e-4, ge=0, description="Refractory period T_refr of Eq. 21 [s]")
 

@@ -132,3 +132,37 @@ def test_hot_pixels_spread_the_rates_log_normally_around_the_configured_mean(sce
     plain = DvsPixel(implementation=implementation, time_step_s=dt, seed=9, **PRESET_LIKE)
     plain.step(Window.from_seconds(0, 0.01), irradiance=scenes.uniform(fp, [0], 0.0))
     assert np.all(plain.pixel_field("noise_scale") == 1.0)
+
+
+@pytest.mark.parametrize("implementation", BOTH)
+def test_timing_jitter_delays_events_half_normally_and_keeps_them_in_order(scenes, implementation):
+    # Leak events of a static pixel come exactly every 1/R_leak on the grid; with timing_jitter_s
+    # each is delayed by sigma |z|: mean sigma sqrt(2/pi), std sigma sqrt(1 - 2/pi), never early.
+    # Events delayed past a window's end come in the next window; the windows do not matter.
+    fp, leak, dt, sigma = scenes.focal_plane(16, 16), 50.0, 1e-5, 3e-4
+    runs = {}
+    for window in (0.1, 0.04):
+        block = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=dt, leak_rate_hz=leak,
+                         shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0,
+                         timing_jitter_s=sigma, seed=4)
+        outs = scenes.simulate(block, lambda a, b: scenes.uniform(fp, [a], 1e4), 0.2, window)
+        for out, w in zip(outs, range(len(outs))):
+            assert np.all(np.diff(out.t_ns) >= 0) and np.all(out.t_ns < round((w + 1) * window * 1e9) + 1)
+            assert out.counts_by_cause[EventCause.LEAK] == len(out)
+        runs[window] = scenes.concat(outs)
+    a, b = runs[0.1], runs[0.04]
+    order_a, order_b = np.lexsort((a["x"], a["y"], a["t"])), np.lexsort((b["x"], b["y"], b["t"]))
+    np.testing.assert_array_equal(a["t"][order_a], b["t"][order_b])
+    reference = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=dt, leak_rate_hz=leak,
+                         shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0, seed=4)
+    plain = scenes.concat(scenes.simulate(reference, lambda a_, b_: scenes.uniform(fp, [a_], 1e4), 0.2, 0.1))
+    key = lambda e: e["y"].astype(np.int64) * 1000 + e["x"]        # noqa: E731  (pixel of each event)
+    delays = []
+    for pixel in np.unique(key(plain)):
+        t0, t1 = plain["t"][key(plain) == pixel], np.sort(a["t"][key(a) == pixel])
+        n = min(t0.size, t1.size) - 1                              # the last may fall past the run's end
+        delays.append(t1[:n] - t0[:n])
+    delays = np.concatenate(delays) * 1e-9
+    assert delays.min() >= 0 and delays.size > 1500
+    assert delays.mean() == pytest.approx(sigma * np.sqrt(2 / np.pi), rel=4 * 0.76 / np.sqrt(delays.size))
+    assert delays.std() == pytest.approx(sigma * np.sqrt(1 - 2 / np.pi), rel=0.1)
