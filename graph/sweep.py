@@ -54,7 +54,7 @@ RESULTS_CSV = "sweep.csv"
 RESULTS_PARQUET = "sweep.parquet"
 #: the fixed columns of the results table; parameters follow ``status``, metrics follow ``store``
 FIXED_COLUMNS = ("point", "status")
-TAIL_COLUMNS = ("wall_s", "cpu_s", "reused", "error", "store")
+TAIL_COLUMNS = ("wall_s", "cpu_s", "run_s", "reused", "error", "store")
 PARQUET_EVERY_S = 2.0       # the Parquet copy of the table is rewritten at most this often (and at the end)
 
 
@@ -278,7 +278,7 @@ class PointTask:
     overrides: dict[str, Any]
     point: SweepPoint
     reuse: list[str]                        # stores of the provider chain, nearest first
-    store_products: list[str] | None        # blocks this point must store for the points that reuse it
+    store_products: list[str] | None        # the run's store_products when points reuse this one's outputs
     overwrite: bool
     threads: int | None                     # EVSDA_THREADS for the point's blocks
 
@@ -305,12 +305,9 @@ def run_point(task: PointTask, provider: dict | None = None) -> dict:
                                "error": ""}
     try:
         overrides = {**task.overrides, **point.values}
+        if task.store_products is not None:
+            overrides["run.store_products"] = task.store_products
         graph = load_graph(task.graph_path, overrides)
-        if task.store_products:
-            choice = graph.run.store_products
-            if choice is not True:
-                wanted = sorted(set(task.store_products) | set(choice or []))
-                graph = load_graph(task.graph_path, {**overrides, "run.store_products": wanted})
         reuse = [p for p in task.reuse if is_run_store(p)]
         if point.store.exists() and not task.overwrite:
             if is_run_store(point.store):
@@ -319,10 +316,13 @@ def run_point(task: PointTask, provider: dict | None = None) -> dict:
                     outcome.update(status="done", metrics=store.metrics, units=store.metric_units,
                                    reused=dict(store.attrs.get("reused", {})))
                     return outcome
+            run0 = time.perf_counter()
             result = run_graph(graph, point.store, resume=True, reuse=reuse, progress=False)
         else:
+            run0 = time.perf_counter()
             result = run_graph(graph, point.store, overwrite=task.overwrite, reuse=reuse, progress=False)
-        outcome.update(metrics=result.metrics, units=result.metric_units, reused=result.reused)
+        outcome.update(metrics=result.metrics, units=result.metric_units, reused=result.reused,
+                       run_s=time.perf_counter() - run0)
     except Exception as exc:  # a point's failure is recorded, the sweep goes on
         outcome.update(status="failed", error=_one_line(exc))
     finally:
@@ -391,15 +391,16 @@ def read_results(out_dir: str | Path):
     raise UserError(f"{out_dir} holds no sweep results ({RESULTS_PARQUET} or {RESULTS_CSV})")
 
 
-def _earlier_times(path: Path) -> dict[int, tuple[float, float]]:
-    """Wall and CPU time of the points an earlier run of the sweep finished (from its ``sweep.csv``)."""
+def _earlier_times(path: Path) -> dict[int, tuple[float, float, float]]:
+    """Wall, CPU and run time of the points an earlier run of the sweep finished (from its ``sweep.csv``)."""
     times = {}
     try:
         with open(path, newline="") as handle:
             for row in csv.DictReader(handle):
                 if row.get("status") in ("ok", "done"):
                     try:
-                        times[int(row["point"])] = (float(row["wall_s"]), float(row["cpu_s"]))
+                        times[int(row["point"])] = (float(row["wall_s"]), float(row["cpu_s"]),
+                                                    float(row.get("run_s") or "nan"))
                     except (KeyError, TypeError, ValueError):
                         continue
     except (OSError, csv.Error, UnicodeDecodeError):
@@ -410,6 +411,7 @@ def _earlier_times(path: Path) -> dict[int, tuple[float, float]]:
 def _row(point: SweepPoint, outcome: dict) -> dict[str, Any]:
     row = {"point": point.index, "status": outcome["status"], **point.values,
            "wall_s": round(outcome.get("wall_s", float("nan")), 4), "cpu_s": round(outcome.get("cpu_s", float("nan")), 4),
+           "run_s": round(outcome.get("run_s", float("nan")), 4),
            "reused": ";".join(sorted(outcome.get("reused", {}))), "error": outcome.get("error", ""),
            "store": str(point.store)}
     row.update({k: v for k, v in outcome.get("metrics", {}).items() if k not in row})
@@ -482,6 +484,7 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     workers = 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
     threads = None if scheduler else max(1, default_jobs() // workers)
     base = _overrides_dict(list(overrides))
+    choice = load_graph(graph_path, list(overrides)).run.store_products
     tasks = {}
     for point in sweep_points:
         chain, q = [], providers.get(point.index)
@@ -490,7 +493,9 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
             q = providers.get(q)
         if scheduler:       # remote workers need paths that do not depend on this process's folder
             point, chain = SweepPoint(point.index, point.values, point.store.absolute()), [str(Path(c).absolute()) for c in chain]
-        tasks[point.index] = PointTask(graph_path, base, point, chain, stored.get(point.index), overwrite, threads)
+        needed = stored.get(point.index)
+        store_products = None if not needed or choice is True else sorted(set(needed) | set(choice or []))
+        tasks[point.index] = PointTask(graph_path, base, point, chain, store_products, overwrite, threads)
     where = f"the Dask scheduler at {scheduler}" if scheduler else (
         "this process" if workers == 1 else f"a local Dask cluster of {workers} workers")
     report(f"sweep: {len(sweep_points)} points into {out_dir}, on {where}")
@@ -502,7 +507,7 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
         nonlocal failed
         point = sweep_points[index]
         if outcome["status"] == "done" and index in earlier:    # the time it took when it ran
-            outcome["wall_s"], outcome["cpu_s"] = earlier[index]
+            outcome["wall_s"], outcome["cpu_s"], outcome["run_s"] = earlier[index]
         failed += outcome["status"] == "failed"
         table.add(_row(point, outcome))
         report(_describe(point, outcome))
