@@ -154,7 +154,7 @@ def store_info(store) -> dict:
         if parts[0] == "products" and parts[-1] == "_attrs":
             info["products"]["/".join(parts[1:-2]) + "." + parts[-2]] = int(length)
         elif parts[0] not in ("products", "events", "checkpoint", "metrics") and len(parts) == 2:
-            info["tables"].setdefault(parts[0], {"rows": int(length), "columns": []})["columns"].append(parts[1])
+            info["tables"].setdefault(parts[0], {})[parts[1]] = int(length)
     return info
 
 
@@ -171,8 +171,12 @@ def describe_store(info: dict) -> str:
     lines.append(f"events       {info['events']}" + (f" ({by_cause})" if by_cause else ""))
     for name, rows in info["products"].items():
         lines.append(f"product      {name}: {rows} windows")
-    for name, table in info["tables"].items():
-        lines.append(f"table        {name}: {table['rows']} rows of {', '.join(table['columns'])}")
+    for name, columns in info["tables"].items():
+        by_rows: dict[int, list[str]] = {}
+        for column, rows in columns.items():
+            by_rows.setdefault(rows, []).append(column)
+        lines.append(f"table        {name}: " + "; ".join(f"{rows} rows of {', '.join(names)}"
+                                                       for rows, names in sorted(by_rows.items(), reverse=True)))
     lines.append(f"checkpoint   {'kept' if info['checkpoint'] else 'none'}; "
                  f"{info['disk_bytes'] / 1e6:.1f} MB on disk; evsda {info['evsda_version']}")
     for block, source in info["reused"].items():

@@ -464,6 +464,10 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     ``jobs``: worker processes of a local Dask cluster (default: one per core; 1 runs the points in this
     process); ``scheduler``: the address of a running Dask scheduler to use instead.
     """
+    if "://" in str(out_dir):
+        raise UserError(f"{clip(str(out_dir))}: a sweep writes run stores to a folder every worker mounts (a local "
+                        f"disk, or a shared file system such as NFS or Lustre); URLs such as s3:// are not "
+                        f"supported (stores take file locks and rename files atomically)")
     out_dir = Path(out_dir)
     if jobs is not None and jobs < 1:
         raise UserError(f"--jobs must be at least 1, got {jobs}")

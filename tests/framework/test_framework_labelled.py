@@ -84,3 +84,7 @@ def test_tables_append_and_open_in_xarray(tmp_path):
     truth = open_group(tmp_path / "t.zarr", "truth")
     assert truth.t_ns.dims == ("sample",) and truth.t_ns.attrs["units"] == "ns"
     assert list(truth.id.values) == ["a", "b", "c"] * 2
+    from evsda.graph.report import describe_store, store_info
+    info = store_info(RunStore.open(tmp_path / "t.zarr"))
+    assert info["tables"] == {"truth": {"id": 6, "t_ns": 6}}
+    assert "table        truth: 6 rows of id, t_ns" in describe_store(info)

@@ -115,6 +115,8 @@ def test_a_sweep_records_failures_streams_rows_and_a_rerun_skips_finished_points
     again = run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lines.append)
     assert [r["status"] for r in again.rows] == ["done", "failed", "done", "failed"]
     assert [r["wall_s"] for r in again.rows if r["status"] == "done"] == list(ok.wall_s)
+    with pytest.raises(UserError, match="URLs such as s3:// are not supported"):
+        run_sweep(str(chain(tmp_path)), grid, "s3://bucket/study", jobs=1, report=lines.append)
     with pytest.raises(UserError, match="holds another sweep"):
         run_sweep(str(chain(tmp_path)), {"double.gain": [3.0]}, out, jobs=1, report=lines.append)
 
