@@ -93,3 +93,12 @@ def test_export_truth_refuses_a_store_without_truth_and_an_existing_file(store, 
     assert main(["export", str(store.path), "--format", "npy", "-o", str(tmp_path / "b.npy"), "--truth"]) == 2
     assert "b.truth.csv" in capsys.readouterr().err
     assert (tmp_path / "b.truth.csv").read_text() == "keep" and not (tmp_path / "b.npy").exists()
+
+
+def test_info_lists_the_truth_by_dimension(store):
+    from evsda.graph.report import describe_store, store_info
+
+    info = store_info(RunStore.open(store.path))
+    assert info["tables"]["truth"]["source_id"] == 3 and info["tables"]["truth"]["x_px"] == 8
+    assert "table        truth: 8 rows of " in describe_store(info) and "; 3 rows of block, kind, source_id" in \
+        describe_store(info)
