@@ -9,7 +9,7 @@ sampled finely enough (the star and optics sampling follow the rate, so a star m
 0.9 pixel per sample), and counts per magnitude bin the stars that crossed the detector and
 those that left at least one signal event (``object_metrics`` with ``kinds: stars``).
 
-    OPENBLAS_NUM_THREADS=1 python examples/scan_star_streaks.py [--rates 0.03 0.1 0.3 1 3] [--set KEY=VALUE ...]
+    OPENBLAS_NUM_THREADS=1 python examples/scan_star_streaks.py [--rates 0.03 0.1 0.3 1 3 10 30] [--set KEY=VALUE ...]
 
 ``--set`` changes the design like ``evsda run --set`` (e.g. ``--set sensor/pixel.temperature_K=253``).
 """
@@ -30,7 +30,7 @@ from evsda.graph.store import RunStore
 
 SCENE = Path(__file__).with_name("scan_star_streaks.yaml")
 BINS = [(-2.0, 8.0), (8.0, 9.0), (9.0, 10.0), (10.0, 11.0), (11.0, 12.0)]
-SWEEP_DEG = 1.5          # sky each run sweeps past the field (beyond the field itself) [deg]
+SWEEP_DEG = 3.0          # sky each run sweeps past the field (beyond the field itself) [deg]
 DEC_DEG = 20.0           # the scene's declination: the sky moves rate * cos(Dec) [deg]
 
 
@@ -43,7 +43,7 @@ def run_rate(rate_deg_s: float, design: dict, workdir: Path) -> dict:
     scale_deg = np.degrees(pitch / focal)
     sky_rate = rate_deg_s * np.cos(np.radians(DEC_DEG))
     cadence_s = min(1e-3, 0.9 * scale_deg / sky_rate)
-    duration_s = float(np.clip(SWEEP_DEG / sky_rate, 0.3, 4.0))
+    duration_s = float(np.clip(SWEEP_DEG / sky_rate, 0.1, 8.0))
     overrides = {"pointing.ra_rate_deg_s": rate_deg_s, "run.duration_s": duration_s,
                  "stars.cadence_s": cadence_s, "telescope/optics.render_rate_hz": 1.0 / cadence_s, **design}
     graph = load_graph(SCENE, overrides)
@@ -70,7 +70,7 @@ def run_rate(rate_deg_s: float, design: dict, workdir: Path) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rates", type=float, nargs="+", default=[0.01, 0.03, 0.1, 0.3, 1.0, 3.0],
+    parser.add_argument("--rates", type=float, nargs="+", default=[0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0],
                         help="RA scan rates [deg/s]")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="design override")
     args = parser.parse_args()
