@@ -12,7 +12,8 @@ from .eventdriven import EventDrivenPixels
 from .eventlog import EventLog
 from .model import PixelModel
 from .params import DvsPixelParams
-from .sampling import dense_frames, sample_steps, stamp_pixels, window_steps
+from .sampling import (DENSE_FRACTION, dense_frames, dense_rows, sample_steps, stamp_coverage, stamp_pixels,
+                       window_steps)
 
 #: memory the pixel block holds per sensor pixel, for the limits checked before a run [byte]
 STATE_BYTES_PER_PIXEL = 400
@@ -63,6 +64,8 @@ class DvsPixel(Block):
         self.jitter_key: int | None = None       # counter-RNG key of the timing jitter
         self._model: PixelModel | None = None
         self._engine: EventDrivenPixels | None = None
+        #: input path of the fast implementation: 'auto' (from the input), 'sparse' or 'dense' (tests, benchmarks)
+        self.input_path = "auto"
 
     def set_state(self, state) -> None:
         super().set_state(state)
@@ -146,5 +149,18 @@ class DvsPixel(Block):
         if self._engine is None or self._engine.s is not self.pixels:
             self._engine = EventDrivenPixels(model, self.pixels)
         background = np.asarray(irradiance.background, dtype=float)[samples]
-        self._engine.run_window(self.held_background, background, steps, stamp_pixels(irradiance, samples),
-                                n_end, log)
+        if self._dense(irradiance, samples):
+            height, width = irradiance.focal_plane.shape
+            self._engine.run_dense_window(background, steps, lambda r0, r1: dense_rows(irradiance, samples, r0, r1),
+                                          n_end, log, height, width)
+        else:
+            self._engine.run_window(self.held_background, background, steps, stamp_pixels(irradiance, samples),
+                                    n_end, log)
+
+    def _dense(self, irradiance: Irradiance, samples: np.ndarray) -> bool:
+        """Whether this window's input takes the dense path (``input_path``, or ``auto``: stamps covering
+        at least ``DENSE_FRACTION`` of the sensor per sample); both paths give identical events."""
+        path = self.input_path
+        if path == "auto":
+            return samples.size > 1 and stamp_coverage(irradiance, samples) >= DENSE_FRACTION
+        return path == "dense" and samples.size > 0

@@ -40,6 +40,7 @@ NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on",
          "step": "step", "ready": "ready"}                                     # public names of some fields
 _CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
 _FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
+_DENSE_BLOCK_CHANGES = 1 << 20         # (pixel, sample) values per block of rows on the dense path (~100 MB of inputs)
 
 
 class EventDrivenPixels:
@@ -54,13 +55,16 @@ class EventDrivenPixels:
                            np.int64(state["key"]), p.threshold_redraw,
                            p.threshold_on, p.threshold_off, p.threshold_sigma, p.threshold_floor)
 
-    def _inputs(self, flux: np.ndarray) -> np.ndarray:
-        """Rows of the state table's input columns for photon fluxes ``flux`` (Eqs. 12-16, 19-20)."""
-        drive = self.model.drive(flux)
-        rows = np.zeros((flux.size, len(REAL)))
+    def _inputs(self, flux: np.ndarray, distinct: bool = False) -> np.ndarray:
+        """Rows of the state table's input columns for photon fluxes ``flux`` (Eqs. 12-16, 19-20).
+
+        Only the input columns (``FLUX``, ``Y``, ``LOG_A``, ``PARA``, ``ACCEPT``), all the compiled
+        loop reads, are set. ``distinct``: the fluxes hardly repeat (dense input).
+        """
+        drive = self.model.drive(flux, distinct)
+        rows = np.empty((flux.size, len(REAL)))
         rows[:, FLUX], rows[:, Y], rows[:, LOG_A], rows[:, PARA] = flux, drive.y, drive.log_a, drive.parasitic_hz
-        if self.model.shot_p_max > 0:
-            rows[:, ACCEPT] = drive.shot_p / self.model.shot_p_max
+        rows[:, ACCEPT] = drive.shot_p / self.model.shot_p_max if self.model.shot_p_max > 0 else 0.0
         return rows
 
     @staticmethod
@@ -136,6 +140,37 @@ class EventDrivenPixels:
         change_step = np.concatenate([own_step, steps[shared].astype(np.int64)])
         change_input = self._inputs(np.concatenate([own_flux, background[shared]]))
         self._run(pixels, lo, hi, change_step, change_input, n_end, log)
+
+    def run_dense_window(self, background: np.ndarray, steps: np.ndarray, rows_of, n_end: int, log: EventLog,
+                         height: int, width: int) -> None:
+        """Process a window whose input changes almost everywhere each sample (video frames, noise upstream).
+
+        ``rows_of(row0, row1)`` gives the flux ``[pixel, sample]`` of image rows ``row0 .. row1 - 1``
+        (:func:`.sampling.dense_rows`). Rows are taken a block at a time: every pixel's changes
+        are read off its whole-frame values (no sorting or scattering of per-pixel change lists)
+        and the block's pixels go through the same compiled loop, so the events are exactly those
+        :meth:`run_window` makes from the same input (tested), in bounded memory.
+        """
+        s = self.s
+        rows_per_block = max(1, _DENSE_BLOCK_CHANGES // max(1, steps.size * width))
+        off_background = []
+        for row0 in range(0, height, rows_per_block):
+            row1 = min(height, row0 + rows_per_block)
+            values = rows_of(row0, row1)                                              # [pixel, sample]
+            block = np.arange(row0 * width, row1 * width, dtype=np.int64)
+            before = np.concatenate([s["real"][block, FLUX, None], values[:, :-1]], axis=1)
+            row, col = np.nonzero(values != before)                                  # sorted by pixel, then step
+            off_background.append(block[values[:, -1] != background[-1]])
+            first = np.flatnonzero(np.r_[True, row[1:] != row[:-1]]) if row.size else np.zeros(0, np.int64)
+            busy = s["next"][block] < n_end
+            busy[row[first]] = True
+            local = np.flatnonzero(busy)
+            lo, hi = np.zeros(local.size, np.int64), np.zeros(local.size, np.int64)
+            where = np.searchsorted(local, row[first])
+            lo[where], hi[where] = first, np.r_[first[1:], row.size]
+            self._run(block[local], lo, hi, steps[col].astype(np.int64), self._inputs(values[row, col], True), n_end,
+                      log)
+        s["off_background"] = np.concatenate(off_background)
 
     def _run(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
         """The compiled loop (:func:`.pixel_loop.run_chunk`) over chunks of ``pixels``, in threads.

@@ -92,14 +92,14 @@ class PixelModel:
         current = photoreceptor.photocurrent_A(power, self.responsivity_A_per_W) + self.dark_current_A
         return current / self.params.reference_current_A
 
-    def drive(self, photon_flux) -> Drive:
+    def drive(self, photon_flux, distinct: bool = False) -> Drive:
         """Everything a constant ``photon_flux`` [photon s^-1 per pixel] sets in the circuit.
 
         A whole sensor under a uniform background holds few distinct values: those are
-        evaluated once each.
+        evaluated once each (unless the caller knows them ``distinct``, as for video frames).
         """
         flux = np.asarray(photon_flux, dtype=float)
-        if flux.ndim == 1 and flux.size > 65536:
+        if not distinct and flux.ndim == 1 and flux.size > 65536:
             values, inverse = np.unique(flux, return_inverse=True)
             if values.size < flux.size // 16:
                 return Drive(*(v[inverse] for v in self._drive(values)))

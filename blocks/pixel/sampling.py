@@ -74,3 +74,44 @@ def dense_frames(irradiance: Irradiance, samples: np.ndarray) -> np.ndarray:
     sparse = stamp_pixels(irradiance, samples)
     np.add.at(frames, (sparse.sample, sparse.pixel), sparse.flux)
     return frames
+
+
+#: stamps covering at least this fraction of the sensor per sample, on average, make the input dense
+DENSE_FRACTION = 0.25
+
+
+def stamp_coverage(irradiance: Irradiance, samples: np.ndarray) -> float:
+    """Mean fraction of the sensor's pixels that the stamps of ``samples`` cover per sample (overlaps counted twice)."""
+    height, width = irradiance.focal_plane.shape
+    flux = np.asarray(irradiance.stamp_flux)
+    if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0:
+        return 0.0
+    h, w = flux.shape[2:]
+    origin = np.asarray(irradiance.stamp_origin, dtype=np.int64)[samples]             # [K, S, (x0, y0)]
+    cols = np.clip(origin[..., 0] + w, 0, width) - np.clip(origin[..., 0], 0, width)
+    rows = np.clip(origin[..., 1] + h, 0, height) - np.clip(origin[..., 1], 0, height)
+    return float((cols * rows).sum() / (samples.size * height * width))
+
+
+def dense_rows(irradiance: Irradiance, samples: np.ndarray, row0: int, row1: int) -> np.ndarray:
+    """Photon flux ``[pixel, sample]`` of image rows ``row0 .. row1 - 1`` (pixels in row-major order) at ``samples``.
+
+    The stamps are summed first, in their order, then added to the background: the same
+    additions, in the same order, as :func:`stamp_pixels` and the event-driven path make, so
+    both give bit-identical inputs.
+    """
+    width = irradiance.focal_plane.width_px
+    flux = np.asarray(irradiance.stamp_flux)
+    origin = np.asarray(irradiance.stamp_origin, dtype=np.int64)
+    summed = np.zeros((samples.size, row1 - row0, width))
+    if flux.ndim == 4 and flux.shape[1] and flux.shape[2] * flux.shape[3]:
+        h, w = flux.shape[2:]
+        for i, k in enumerate(samples):
+            for s in range(flux.shape[1]):
+                x0, y0 = int(origin[k, s, 0]), int(origin[k, s, 1])
+                r0, r1 = max(y0, row0), min(y0 + h, row1)
+                c0, c1 = max(x0, 0), min(x0 + w, width)
+                if r0 < r1 and c0 < c1:
+                    summed[i, r0 - row0:r1 - row0, c0:c1] += flux[k, s, r0 - y0:r1 - y0, c0 - x0:c1 - x0]
+    background = np.asarray(irradiance.background, dtype=float)[samples]
+    return (background[:, None, None] + summed).reshape(samples.size, -1).T

@@ -1,0 +1,136 @@
+"""Dense input to the pixel block: a 346 x 260 video at 1 kHz with noise on every pixel (issue 13 item 2).
+
+Prints the time per frame of
+
+* the pixel block's fast implementation on its dense path (``auto`` picks it: the frame is a
+  stamp covering the sensor) and on its sparse path (per-pixel change lists, forced), with
+  whether the two give identical events;
+* a frame-by-frame simulator written here as v2e and IEBCS work: every pixel's state is
+  updated every frame with NumPy (the same photoreceptor physics, ``PixelModel.drive``, then
+  the low-pass filter, the comparator, leak and shot noise per frame).
+
+Target (issue 13): the pixel block >= 10x faster than the frame-by-frame simulator, events
+identical on both of its paths. Input frames are made before the clock starts.
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_dense.py [--seconds 0.5] [--noise 0.02]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+import yaml
+
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.model import PixelModel
+from evsda.blocks.ports import FocalPlane, Irradiance
+from evsda.graph import RunInfo, Window
+from evsda.library import resolve
+
+FP = FocalPlane(346, 260, 18.5e-6, 0.05)             # DAVIS346 pixels
+WINDOW_S = 0.1
+FRAME_NS = 1_000_000                                 # 1 kHz video
+
+
+def davis346_params() -> dict:
+    """The DAVIS346 preset's pixel parameters (library:sensors/davis346.yaml)."""
+    with open(resolve("library:sensors/davis346.yaml")) as f:
+        return yaml.safe_load(f)["blocks"]["pixel"]["params"]
+
+
+def frames_of(window: Window, noise: float) -> Irradiance:
+    """A bright bar sweeping over a textured scene, ``noise`` (relative, Gaussian) on every pixel of every frame."""
+    t = np.arange(-(-window.start_ns // FRAME_NS) * FRAME_NS, window.stop_ns, FRAME_NS, dtype=np.int64)
+    height, width = FP.shape
+    y, x = np.mgrid[0:height, 0:width]
+    scene = 2e5 * (1.5 + np.sin(x / 9.0) * np.cos(y / 13.0))
+    frames = np.empty((t.size, 1, height, width))
+    for i, tk in enumerate(t * 1e-9):
+        rng = np.random.default_rng(round(tk * 1e3))
+        bar = 4e6 * np.exp(-((x - 346 * (tk % 1.0)) ** 2) / 50.0)
+        frames[i, 0] = (scene + bar) * (1 + noise * rng.standard_normal((height, width)))
+    return Irradiance(FP, 550e-9, t, np.zeros(t.size), np.zeros((t.size, 1, 2), np.int32), frames)
+
+
+class FrameByFrame:
+    """Every pixel, every frame (v2e, IEBCS): photoreceptor, low-pass, comparator, leak and shot noise in NumPy."""
+
+    def __init__(self, params: dict, first: np.ndarray, seed: int = 1):
+        self.model = PixelModel(DvsPixel.Params(**params), FP.pixel_area_m2, 550e-9)
+        p = self.model.params
+        self.rng = np.random.default_rng(seed)
+        self.on = np.maximum(p.threshold_on + p.threshold_sigma * self.rng.standard_normal(first.size), p.threshold_floor)
+        self.off = np.maximum(p.threshold_off + p.threshold_sigma * self.rng.standard_normal(first.size),
+                              p.threshold_floor)
+        drive = self.model.drive(first)
+        self.filtered = drive.y.copy()
+        self.memorised = drive.y - self.rng.random(first.size) * self.on
+        self.dt = FRAME_NS * 1e-9
+
+    def frame(self, flux: np.ndarray) -> int:
+        """One frame of ``dt``: returns the number of events."""
+        p = self.model.params
+        drive = self.model.drive(flux)
+        gain = 1.0 - np.exp(drive.log_a * (self.dt / self.model.dt_s))           # the filter over a whole frame
+        self.filtered += gain * (drive.y - self.filtered)
+        self.memorised -= (p.leak_rate_hz + drive.parasitic_hz) * self.on * self.dt
+        delta = self.filtered - self.memorised
+        n_on = np.floor(np.maximum(delta, 0) / self.on)
+        n_off = np.floor(np.maximum(-delta, 0) / self.off)
+        self.memorised += n_on * self.on - n_off * self.off
+        shot = self.rng.random(flux.size) < drive.shot_p * (self.dt / self.model.dt_s)
+        self.events = (np.nonzero(n_on)[0], np.nonzero(n_off)[0], np.nonzero(shot)[0])      # this frame's pixels
+        return int(n_on.sum() + n_off.sum() + shot.sum())
+
+
+def run_block(params: dict, path: str, windows: list[Window], inputs: list[Irradiance]):
+    block = DvsPixel(seed=3, **params)
+    block.input_path = path
+    block.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+    out, spent = [], 0.0
+    for window, irradiance in zip(windows, inputs):
+        t = time.perf_counter()
+        e = block.step(window, irradiance=irradiance)["events"]
+        spent += time.perf_counter() - t
+        out.append((e.t_ns, e.x, e.y, e.p))
+    return [np.concatenate(parts) for parts in zip(*out)], spent
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=0.5, help="video length [s]")
+    parser.add_argument("--noise", type=float, default=0.02, help="relative noise on every pixel and frame [1]")
+    args = parser.parse_args()
+    params = davis346_params()
+    windows = [Window.from_seconds(i * WINDOW_S, (i + 1) * WINDOW_S, index=i)
+               for i in range(int(round(args.seconds / WINDOW_S)))]
+    inputs = [frames_of(w, args.noise) for w in windows]
+    n_frames = sum(len(i.t_ns) for i in inputs)
+    print(f"346 x 260 pixels, {n_frames} frames at 1 kHz, noise {args.noise:g}; {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.2f}; EVSDA_THREADS={os.environ.get('EVSDA_THREADS', 'all')}")
+
+    dense, dense_s = run_block(params, "auto", windows, inputs)
+    sparse, sparse_s = run_block(params, "sparse", windows, inputs)
+    identical = all(np.array_equal(a, b) for a, b in zip(dense, sparse))
+
+    reference = FrameByFrame(params, inputs[0].frame(0).ravel())
+    events, t = 0, time.perf_counter()
+    for irradiance in inputs:
+        for k in range(len(irradiance.t_ns)):
+            events += reference.frame(irradiance.stamp_flux[k, 0].ravel())
+    reference_s = time.perf_counter() - t
+
+    per = lambda s: f"{s / n_frames * 1e3:7.2f} ms/frame"
+    print(f"  pixel block, dense path (auto):  {per(dense_s)}  {dense[0].size:9d} events   "
+          f"{reference_s / dense_s:5.1f}x the frame-by-frame simulator (target >= 10x)")
+    print(f"  pixel block, sparse path:        {per(sparse_s)}  {sparse[0].size:9d} events   "
+          f"{reference_s / sparse_s:5.1f}x; events identical to the dense path: {identical}")
+    print(f"  frame-by-frame simulator:        {per(reference_s)}  {events:9d} events")
+    print(f"load average at the end: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
