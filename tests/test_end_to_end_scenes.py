@@ -122,8 +122,8 @@ def test_iss_on_events_lead_off_events_along_the_motion(iss_run):
 
 def test_iss_background_rates_match_the_configured_noise(iss_run):
     """Pixels away from every source see the uniform sky: no signal events, and the noise of the
-    configured pixel circuit under that flux, i.e. the rates of the pixel block alone (Eq. 18-20
-    with their rebound events; tests/pixel checks those against the analytic rates)."""
+    configured pixel circuit under that flux, i.e. the rates of the pixel block alone (Eq. 18-20;
+    tests/pixel checks those against the configured rates)."""
     graph, events = iss_run["graph"], iss_run["events"]
     irradiance = list(iss_run["store"].product_windows("telescope/optics", "irradiance"))
     focal_plane = irradiance[0].focal_plane

@@ -143,8 +143,8 @@ def test_first_crossing_matches_stepping():
 
 
 def test_comparator_counts_thresholds_towards_zero_and_forgives_rounding():
-    # Eq. 17: Ne_total = dI / theta rounded towards zero; a shot-noise event shifts M by exactly
-    # theta, and the rebound must fire whether L - M lands on -theta or one ulp short of it
+    # Eq. 17: Ne_total = dI / theta rounded towards zero; a change of exactly k thresholds gives k
+    # events whether L - M lands on k theta or one ulp short of it
     from evsda.blocks.pixel.comparator import events_possible
     theta = 0.2
     delta = np.array([0.0, 0.19, 0.2, 0.41, -0.39, -0.61, np.nextafter(-0.2, 0.0), np.nextafter(0.2, 0.0)])
