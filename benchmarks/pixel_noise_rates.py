@@ -25,7 +25,7 @@ from evsda.graph.graphfile import load_graph
 
 WAVELENGTH_M = 555e-9
 LUX_PER_W_AT_555NM = 683.0            # SI definition of the candela [lm W^-1]
-PRESETS = ("prophesee_gen4", "prophesee_gen3_vga", "davis346", "cooled_bsi")
+PRESETS = ("prophesee_gen4", "prophesee_gen3_vga", "davis346", "dvs128", "cooled_bsi")
 
 
 def uniform(fp: FocalPlane, start_ns: int, flux: float) -> Irradiance:

@@ -24,7 +24,7 @@ from evsda.blocks.pixel.model import PixelModel
 from evsda.blocks.scene.radiometry import V_BAND
 from evsda.graph.graphfile import load_graph
 
-PRESETS = ("prophesee_gen4", "prophesee_gen3_vga", "davis346", "cooled_bsi")
+PRESETS = ("prophesee_gen4", "prophesee_gen3_vga", "davis346", "dvs128", "cooled_bsi")
 WAVELENGTH_M = 550e-9
 RAD_TO_ARCSEC = 180 / np.pi * 3600
 

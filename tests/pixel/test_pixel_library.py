@@ -17,7 +17,7 @@ from evsda.graph.graphfile import load_graph
 from evsda.library import resolve
 
 PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6),
-           "prophesee_gen3_vga": (640, 480, 15e-6), "cooled_bsi": (1280, 720, 4.86e-6)}
+           "prophesee_gen3_vga": (640, 480, 15e-6), "cooled_bsi": (1280, 720, 4.86e-6), "dvs128": (128, 128, 40e-6)}
 LUX_PER_W_AT_555NM = 683.0          # SI definition of the candela [lm W^-1]
 
 
