@@ -29,6 +29,33 @@ WAVELENGTH_M = 550e-9
 RAD_TO_ARCSEC = 180 / np.pi * 3600
 
 
+def star_and_sky(name: str, aperture_m: float, focal_m: float, sky_mag: float, psf_fraction: float) -> dict:
+    """A preset's pixel behind the lens: its parameters, pitch, and electrons per second from dark, sky and V = 0."""
+    graph = load_graph(f"library:sensors/{name}.yaml", overrides={"camera.focal_length_m": focal_m})
+    pitch = graph.nodes["camera"].block.params.pixel_pitch_m
+    params = graph.nodes["pixel"].block.params
+    model = PixelModel(params, pitch**2, WAVELENGTH_M)
+    zero = V_BAND.zero_point_photon_flux * np.pi * (aperture_m / 2) ** 2      # V = 0 through the aperture [photon/s]
+    pixel_arcsec = pitch / focal_m * RAD_TO_ARCSEC
+    qe = params.quantum_efficiency
+    return {"params": params, "pitch_m": pitch, "pixel_arcsec": pixel_arcsec,
+            "dark_e": model.dark_current_A / constants.e,
+            "sky_e": zero * 10 ** (-0.4 * sky_mag) * pixel_arcsec**2 * qe,
+            "star0_e": zero * psf_fraction * qe}                                  # a V = 0 star in its brightest pixel
+
+
+def contrast(pixel: dict, v_mag) -> np.ndarray:
+    """Log contrast ``ln(1 + I_s / (I_sky + I_dark))`` of a star of ``v_mag`` (Eq. 12-15) [1]."""
+    star = pixel["star0_e"] * 10 ** (-0.4 * np.asarray(v_mag, dtype=float))
+    return np.log1p(star / (pixel["sky_e"] + pixel["dark_e"]))
+
+
+def faintest_v(pixel: dict) -> float:
+    """The V at which the contrast equals ``threshold_on``: ``I_s = (e^theta - 1)(I_sky + I_dark)``."""
+    needed = np.expm1(pixel["params"].threshold_on) * (pixel["sky_e"] + pixel["dark_e"])
+    return float(-2.5 * np.log10(needed / pixel["star0_e"]))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--aperture-m", type=float, default=0.06)
@@ -37,32 +64,18 @@ def main() -> None:
     parser.add_argument("--psf-fraction", type=float, default=0.5, help="share of a star's light in its brightest pixel")
     parser.add_argument("--target-v", type=float, default=12.0)
     args = parser.parse_args()
-    area_m2 = np.pi * (args.aperture_m / 2) ** 2
-    zero = V_BAND.zero_point_photon_flux * area_m2                     # V = 0 through the aperture [photon/s]
     mags = np.arange(6, 13)
     print(f"aperture {args.aperture_m * 100:g} cm, focal length {args.focal_m * 1000:g} mm, sky {args.sky_mag} "
           f"mag/arcsec^2, {args.psf_fraction:g} of the PSF in one pixel; contrast ln(1 + I_s/(I_sky + I_dark)):")
     print(f"{'preset':<20} {'pixel':>7} {'I_dark':>9} {'I_sky':>8} " + " ".join(f"{'V' + str(m):>6}" for m in mags)
           + f" {'limit':>6} {'I_dark for V' + format(args.target_v, 'g'):>16}")
     for name in PRESETS:
-        graph = load_graph(f"library:sensors/{name}.yaml", overrides={"camera.focal_length_m": args.focal_m})
-        pitch = graph.nodes["camera"].block.params.pixel_pitch_m
-        params = graph.nodes["pixel"].block.params
-        model = PixelModel(params, pitch**2, WAVELENGTH_M)
-        qe = params.quantum_efficiency
-        pixel_arcsec = pitch / args.focal_m * RAD_TO_ARCSEC
-        sky_e = zero * 10 ** (-0.4 * args.sky_mag) * pixel_arcsec**2 * qe
-        dark_e = model.dark_current_A / constants.e
-        star_e = zero * 10 ** (-0.4 * mags) * args.psf_fraction * qe
-        contrast = np.log1p(star_e / (sky_e + dark_e))
-        theta = params.threshold_on
-        # faintest V with contrast >= theta: I_s = (e^theta - 1)(I_sky + I_dark)
-        limit = -2.5 * np.log10((np.expm1(theta) * (sky_e + dark_e)) / (zero * args.psf_fraction * qe))
-        target_e = zero * 10 ** (-0.4 * args.target_v) * args.psf_fraction * qe
-        dark_needed = target_e / np.expm1(theta) - sky_e
+        pixel = star_and_sky(name, args.aperture_m, args.focal_m, args.sky_mag, args.psf_fraction)
+        theta = pixel["params"].threshold_on
+        dark_needed = pixel["star0_e"] * 10 ** (-0.4 * args.target_v) / np.expm1(theta) - pixel["sky_e"]
         needed = f"{dark_needed:.3g} e-/s" if dark_needed > 0 else "sky too bright"
-        print(f"{name:<20} {pixel_arcsec:6.1f}\" {dark_e:7.3g}/s {sky_e:6.3g}/s "
-              + " ".join(f"{c:6.3f}" for c in contrast) + f" {limit:6.2f} {needed:>16}")
+        print(f"{name:<20} {pixel['pixel_arcsec']:6.1f}\" {pixel['dark_e']:7.3g}/s {pixel['sky_e']:6.3g}/s "
+              + " ".join(f"{c:6.3f}" for c in contrast(pixel, mags)) + f" {faintest_v(pixel):6.2f} {needed:>16}")
     print("(electrons per second; theta = each preset's threshold_on; I_dark at the preset's temperature)")
 
 

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from evsda.blocks.pixel import DvsPixel
-from evsda.blocks.ports import FocalPlane
+from evsda.blocks.ports import FocalPlane, Irradiance
 from evsda.graph import Window
 from evsda.graph.graphfile import load_graph
 from evsda.library import resolve
@@ -75,3 +75,32 @@ def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
     power_W = 1000.0 / LUX_PER_W_AT_555NM * pitch**2
     saturation_A = p.quantum_efficiency * constants.e * 555e-9 / (constants.h * constants.c) * power_W
     assert p.cutoff_saturation * p.reference_current_A == pytest.approx(saturation_A, rel=1e-3)
+
+
+def test_faint_limit_script_agrees_with_the_simulated_pixel(scenes):
+    # examples/pixel_faint_limit.py's contrast condition against the pixel block itself: a static
+    # star 0.3 mag brighter than the computed limit on the Gen3 preset's pixel (noise off, one
+    # pixel, the preset's slow photoreceptor given 6 s to settle) fires floor(contrast/theta) ON
+    # events; one 0.3 mag fainter fires none.
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "examples" / "pixel_faint_limit.py"
+    spec = importlib.util.spec_from_file_location("pixel_faint_limit", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    pixel = script.star_and_sky("prophesee_gen3_vga", 0.06, 0.1, 19.5, 0.5)
+    limit = script.faintest_v(pixel)
+    assert 7.0 < limit < 7.6
+    fp = FocalPlane(1, 1, pixel["pitch_m"], 0.1)
+    qe = pixel["params"].quantum_efficiency
+    for v_mag, want in ((limit - 0.3, 1), (limit + 0.3, 0)):
+        block = DvsPixel(pixel["params"], leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0,
+                         threshold_sigma=0.0, noise_rate_spread_decades=0.0, time_step_s=1e-4)
+        star_photons = pixel["star0_e"] * 10 ** (-0.4 * v_mag) / qe
+        flux = np.array([pixel["sky_e"] / qe, pixel["sky_e"] / qe + star_photons])
+        ev = scenes.concat(scenes.simulate(
+            block, lambda a, b: Irradiance(fp, 550e-9, np.array([0, 100_000_000]), flux, np.zeros((2, 0, 2), np.int32),
+                                           np.zeros((2, 0, 1, 1))), 6.0, 2.0))
+        expected = int(script.contrast(pixel, v_mag) / pixel["params"].threshold_on)
+        assert expected == want and ev["t"].size == want and np.all(ev["p"] > 0), (v_mag, ev["t"].size)
