@@ -23,7 +23,6 @@ import argparse
 import json
 import os
 import re
-import resource
 import statistics
 import subprocess
 import sys
@@ -57,23 +56,53 @@ load_graph(sys.argv[1] if len(sys.argv) > 1 else %r, [])
 print(json.dumps({"load_graph_s": time.perf_counter() - t, "modules": len(sys.modules)}))
 """
 
+COMPILED_LOAD = """
+import json, time
+import numpy as np
+t = time.perf_counter()
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.optics.layer_screen import LayerScreen
+from evsda.blocks.ports import FocalPlane, Irradiance
+from evsda.graph import RunInfo, Window
+imported = time.perf_counter() - t
+fp = FocalPlane(8, 8, 10e-6, 1.0)
+t_ns = np.arange(0, 10_000_000, 1_000_000)
+irradiance = Irradiance(fp, 550e-9, t_ns, np.full(t_ns.size, 1e5), np.zeros((t_ns.size, 0, 2), np.int32),
+                        np.zeros((t_ns.size, 0, 1, 1)))
+block = DvsPixel(seed=1)
+block.setup(RunInfo(duration_ns=10_000_000))
+t = time.perf_counter()
+block.step(Window.from_seconds(0, 0.01), irradiance=irradiance)
+pixel = time.perf_counter() - t
+screen = LayerScreen(40, 0.02, (1,))
+t = time.perf_counter()
+screen.accumulate(np.tile(np.arange(12.0) + 14, (3, 1)), np.arange(12.0)[None] + 14 + np.arange(3.0)[:, None] * 5,
+                  np.zeros(3, np.int64), np.ones(3), np.zeros((3, 12, 12)))
+optics = time.perf_counter() - t
+print(json.dumps({"import_s": imported, "pixel_s": pixel, "screens_s": optics}))
+"""
 
-def run_cli(duration: float, store: Path) -> dict:
-    """``evsda run`` the benchmark graph in a child process: wall, CPU, peak RSS and its summary."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+
+def run_cli(duration: float, store: Path, settings=()) -> dict:
+    """``evsda run`` the benchmark graph in a child process (``settings``: more ``--set`` values): wall, CPU,
+    peak RSS and its summary."""
     t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-c", "import sys; from evsda.graph.cli import main; sys.exit(main())",
-                          "run", str(GRAPH), "-o", str(store), "--overwrite",
-                          "--no-progress", "--set", f"run.duration_s={duration}"],
-                         capture_output=True, text=True, check=True)
+    child = subprocess.Popen([sys.executable, "-c", "import sys; from evsda.graph.cli import main; sys.exit(main())",
+                              "run", str(GRAPH), "-o", str(store), "--overwrite",
+                              "--no-progress", "--set", f"run.duration_s={duration}",
+                              *(arg for setting in settings for arg in ("--set", setting))],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    text = child.stdout.read()
+    _, status, usage = os.wait4(child.pid, 0)                  # this child's own CPU and peak memory
+    child.returncode = os.waitstatus_to_exitcode(status)
     wall = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    text = out.stdout + out.stderr
+    if child.returncode:
+        raise RuntimeError(f"evsda run failed ({child.returncode}):\n{text[-3000:]}")
     blocks = {m.group(1): float(m.group(2))
               for m in re.finditer(r"^\s+(\S+)\s+([0-9.]+) s\s+[0-9.]+ %$", text, flags=re.M)}
     events = re.search(r"([0-9]+) events recorded; ([0-9.]+) MB on disk(?:, ([0-9.]+) bytes per event)?", text)
-    return {"wall_s": wall, "cpu_s": (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime),
-            "peak_mb": after.ru_maxrss / 1024, "blocks": blocks,
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024,
+            "blocks": blocks,
             "events": int(events.group(1)) if events else 0, "store_mb": float(events.group(2)) if events else 0.0,
             "bytes_per_event": float(events.group(3)) if events and events.group(3) else float("nan")}
 
@@ -132,6 +161,10 @@ def main() -> None:
         print(f"  import the CLI                 {cli:7.2f} s")
         print(f"  load the graph (block imports) {statistics.median(x['load_graph_s'] for x in loads):7.2f} s "
               f"({loads[0]['modules']} modules loaded)")
+        compiled = [fresh(COMPILED_LOAD) for _ in range(args.repeats)]
+        print(f"  compiled loops, first call     {statistics.median(x['pixel_s'] for x in compiled):7.2f} s pixels "
+              f"(8 x 8 sensor, one window), {statistics.median(x['screens_s'] for x in compiled):.2f} s screen walk "
+              f"(Numba's cache loaded; their imports {statistics.median(x['import_s'] for x in compiled):.2f} s)")
         print(f"  a one-window (0.1 s) run       {statistics.median(x['wall_s'] for x in one):7.2f} s wall, "
               f"{statistics.median(x['cpu_s'] for x in one):.2f} s CPU, of which:")
         for name in sorted(one[0]["blocks"], key=lambda n: -one[0]["blocks"][n])[:5]:

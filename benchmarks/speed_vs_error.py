@@ -1,0 +1,154 @@
+"""Speed against error end to end (issue 13 item 5; the paper's proposed time-step sensitivity study).
+
+Runs the tracked LEO pass of benchmarks/end_to_end.yaml (first ``--duration`` seconds) with
+the fidelity knobs turned one at a time from the most faithful combination this machine can
+afford, and prints each run's wall and CPU time beside its errors against that combination:
+
+* knobs: the pixel time step (``sensor/pixel.time_step_s``), the PSF render rate
+  (``telescope/optics.render_rate_hz``), the PSF path (``psf_path``; the Fresnel ``reference``
+  costs minutes per simulated second and is left out: the optics block's own probes give its
+  error against ``pupil_fft``, 8-12 % of the flux here), the screen update
+  (``screen_update``) and the satellite's Skyfield knot step (``sat.knot_step_s``);
+* statistics, against the faithful run: the track's event count (events within 4 pixels of
+  the true satellite position at their time, relative difference), the centroid error (RMS
+  distance between the two runs' 50 ms centroids of those events [pixel]), the event-timing
+  error (median |difference| between each of the faithful run's track events and the nearest
+  event of the same pixel and polarity, within 5 ms [us]), the background
+  rate (events not caused by the signal, per pixel and second, relative difference).
+  Detection probability waits for the detection blocks (issue 11).
+
+Saves a Pareto plot (CPU time against centroid error and track-count error) next to the
+printed table. The seed is fixed, so differences are the knobs' (plus the noise drawn
+differently where the knob changes the random streams: compare with the repeat of the
+faithful run at another seed, printed as ``seed 2``).
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/speed_vs_error.py [--duration 1] [--plot speed_vs_error.png]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from end_to_end import GRAPH, run_cli                                   # noqa: E402
+
+from evsda.blocks.ports import EventCause, SourceKind                    # noqa: E402
+from evsda.graph.store import RunStore                                   # noqa: E402
+
+FAITHFUL = {"sensor/pixel.time_step_s": 1e-6, "telescope/optics.render_rate_hz": 2000,
+            "telescope/optics.psf_path": "pupil_fft", "telescope/optics.screen_update": "extend",
+            "sat.knot_step_s": 1.0}
+VARIANTS = [
+    ("faithful", {}),
+    ("seed 2", {"run.seed": 2}),
+    ("dt 10 us", {"sensor/pixel.time_step_s": 1e-5}),
+    ("dt 100 us", {"sensor/pixel.time_step_s": 1e-4}),
+    ("render 1 kHz", {"telescope/optics.render_rate_hz": 1000}),
+    ("render 500 Hz", {"telescope/optics.render_rate_hz": 500}),
+    ("render 200 Hz", {"telescope/optics.render_rate_hz": 200}),
+    ("long_exposure", {"telescope/optics.psf_path": "long_exposure"}),
+    ("airy", {"telescope/optics.psf_path": "airy"}),
+    ("regenerate", {"telescope/optics.screen_update": "regenerate"}),
+    ("knots 10 s", {"sat.knot_step_s": 10.0}),
+    ("defaults", {"telescope/optics.render_rate_hz": 1000, "sat.knot_step_s": 10.0}),
+    ("fast", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "long_exposure",
+              "sensor/pixel.time_step_s": 1e-5, "sat.knot_step_s": 10.0}),
+]
+TRACK_RADIUS_PX = 4.0
+BIN_NS = 50_000_000
+
+
+def statistics(store_path: Path, duration_s: float, pixels: int = 1280 * 720) -> dict:
+    """Track events, 50 ms centroids, track events keyed by pixel and polarity, background rate of one run."""
+    store = RunStore.open(store_path)
+    events, truth = store.read_events(), store.read_truth()
+    sat = truth["kind"] == SourceKind.SATELLITE
+    t_true, x_true, y_true = truth["t_ns"][sat], truth["x_px"][sat], truth["y_px"][sat]
+    at = np.clip(np.searchsorted(t_true, events["t_trigger_ns"], side="right") - 1, 0, None)
+    dx = events["x"].astype(float) - x_true[at]
+    dy = events["y"].astype(float) - y_true[at]
+    track = np.hypot(dx, dy) <= TRACK_RADIUS_PX
+    t = events["t_trigger_ns"][track]
+    bins = t // BIN_NS
+    centroids = {int(b): (events["x"][track][bins == b].mean(), events["y"][track][bins == b].mean())
+                 for b in np.unique(bins) if np.count_nonzero(bins == b) >= 10}
+    # track events by (pixel, polarity), each key's times in order: matched against the faithful run's
+    key = (events["y"][track].astype(np.int64) * 100_000 + events["x"][track]) * 2 + (events["p"][track] > 0)
+    stamp = key << 40 | t                                       # t < 2^40 ns (18 minutes)
+    background = np.count_nonzero(events["cause"] != EventCause.SIGNAL) / (pixels * duration_s)
+    return {"track": int(track.sum()), "centroids": centroids, "stamps": np.sort(stamp), "background": background,
+            "events": int(events["t_trigger_ns"].size)}
+
+
+def errors(run: dict, faithful: dict) -> dict:
+    common = sorted(set(run["centroids"]) & set(faithful["centroids"]))
+    centroid = (np.sqrt(np.mean([np.hypot(run["centroids"][b][0] - faithful["centroids"][b][0],
+                                          run["centroids"][b][1] - faithful["centroids"][b][1]) ** 2
+                                 for b in common])) if common else np.nan)
+    # each faithful track event's nearest event of the same pixel and polarity in this run (within 5 ms)
+    mine, theirs = run["stamps"], faithful["stamps"]
+    timing = np.nan
+    if mine.size and theirs.size:
+        i = np.clip(np.searchsorted(mine, theirs), 1, mine.size - 1)
+        nearest = np.minimum(np.abs(mine[i] - theirs), np.abs(mine[i - 1] - theirs))
+        matched = nearest < 5_000_000                           # same key: otherwise the difference is >= 2^40
+        timing = float(np.median(nearest[matched])) * 1e-3 if matched.any() else np.nan
+    return {"track": run["track"] / max(faithful["track"], 1) - 1, "centroid_px": centroid, "timing_us": timing,
+            "background": run["background"] / faithful["background"] - 1 if faithful["background"] else np.nan}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run [s]")
+    parser.add_argument("--plot", default="speed_vs_error.png", help="Pareto plot to write (PNG)")
+    parser.add_argument("--only", type=int, default=len(VARIANTS), help="run the first N combinations only")
+    args = parser.parse_args()
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {GRAPH.name}, "
+          f"{args.duration:g} s simulated per run; faithful: {FAITHFUL}")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        run_cli(0.1, Path(tmp) / "warm.zarr", [f"{k}={v}" for k, v in FAITHFUL.items()])     # compiled caches
+        faithful = None
+        for name, change in VARIANTS[:args.only]:
+            settings = {**FAITHFUL, **change}
+            store = Path(tmp) / f"{len(rows)}.zarr"
+            timing = run_cli(args.duration, store, [f"{k}={v}" for k, v in settings.items()])
+            stats = statistics(store, args.duration)
+            faithful = faithful or stats
+            rows.append((name, timing, stats, errors(stats, faithful)))
+            e = rows[-1][3]
+            print(f"  {name:14s} wall {timing['wall_s']:6.1f} s  CPU {timing['cpu_s']:6.1f} s  "
+                  f"track events {stats['track']:6d} ({e['track']:+6.1%})  centroid {e['centroid_px']:5.2f} px  "
+                  f"timing {e['timing_us']:7.1f} us  background {e['background']:+6.1%}", flush=True)
+    print(f"load average at the end: {os.getloadavg()[0]:.2f}")
+    pareto(rows, args.plot)
+
+
+def pareto(rows, path: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, key, label in ((axes[0], "centroid_px", "centroid error vs faithful [pixel]"),
+                           (axes[1], "track", "|track event count error| vs faithful [1]")):
+        for name, timing, _, e in rows:
+            value = abs(e[key])
+            ax.scatter(timing["cpu_s"], value, color="C3" if name == "seed 2" else "C0")
+            ax.annotate(name, (timing["cpu_s"], value), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel("CPU time [s]")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    fig.suptitle("Speed against error, tracked LEO pass (red: the faithful run at another seed = noise floor)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"Pareto plot: {path}")
+
+
+if __name__ == "__main__":
+    main()
