@@ -42,7 +42,7 @@ import numpy as np
 
 from .errors import GraphError, Interrupted, Problem, UserError, clip
 from .executor import requested_outputs, run_graph
-from .graphfile import check_override, load_graph, parse_value, read_yaml
+from .graphfile import Graph, check_override, load_graph, parse_value, read_yaml
 from .store import RunStore, is_run_store
 from .threads import limit_blas
 
@@ -200,9 +200,11 @@ def _key(value: Any) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides: list[str] = ()) -> list[SweepPoint]:
-    """The points, each distinct value checked once against its block (every problem reported together)."""
-    base = load_graph(graph_path, list(overrides))
+def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides: list[str] = (),
+         base: Graph | None = None) -> list[SweepPoint]:
+    """The points, each distinct value checked once against its block (every problem reported together);
+    ``base`` is the graph with ``overrides`` if already loaded."""
+    base = base or load_graph(graph_path, list(overrides))
     problems: list[Problem] = []
     refused: dict[str, int] = {}        # values of each parameter refused (the first one's problems are listed)
     checked: set[tuple[str, str]] = set()
@@ -225,7 +227,8 @@ def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides
     return [SweepPoint(i, v, out_dir / f"point_{i:0{width}d}.zarr") for i, v in enumerate(values)]
 
 
-def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] = ()) -> tuple[dict[int, int], dict[int, list[str]]]:
+def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] = (),
+               graph: Graph | None = None) -> tuple[dict[int, int], dict[int, list[str]]]:
     """Which earlier point each point reuses upstream outputs from, and which blocks each provider must store.
 
     A block's outputs depend on the swept values of the block and of its ancestors (every value for a
@@ -233,7 +236,7 @@ def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] =
     blocks that p would otherwise compute; q stores the blocks at the edge of what they share (a shared
     block feeding one that is not), which p then loads instead of recomputing them and their ancestors.
     """
-    graph = load_graph(graph_path, list(overrides))
+    graph = graph or load_graph(graph_path, list(overrides))
     requested = {block for block, _ in requested_outputs(graph)}
     active = set(requested).union(*(nx.ancestors(graph.digraph, b) for b in requested))
     keys = list(points[0].values) if points else []
@@ -475,8 +478,9 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     values = sample(grid, method, points, seed)
     t0 = time.perf_counter()
     with limit_blas():
-        sweep_points = plan(graph_path, values, out_dir, overrides)
-        providers, stored = reuse_plan(graph_path, sweep_points, overrides)
+        base_graph = load_graph(graph_path, list(overrides))
+        sweep_points = plan(graph_path, values, out_dir, overrides, base_graph)
+        providers, stored = reuse_plan(graph_path, sweep_points, overrides, base_graph)
     log.info("planned %d points in %.2f s", len(sweep_points), time.perf_counter() - t0)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -488,7 +492,7 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     workers = 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
     threads = None if scheduler else max(1, default_jobs() // workers)
     base = _overrides_dict(list(overrides))
-    choice = load_graph(graph_path, list(overrides)).run.store_products
+    choice = base_graph.run.store_products
     tasks = {}
     for point in sweep_points:
         chain, q = [], providers.get(point.index)
