@@ -31,6 +31,7 @@ import numpy as np
 from scipy.special import erf
 
 from evsda.blocks.ports import FocalPlane
+from evsda.graph import ParameterError
 
 from .atmosphere import Atmosphere
 from .fft_screens import fft_phase_screens
@@ -55,6 +56,8 @@ PUPIL_ERROR_ZENITH_BIN_RAD = np.deg2rad(10.0)
 #: tolerance lies within two standard errors of their mean, so a close call is decided on the mean
 #: error rather than on the luck of three frames
 REFERENCE_PROBE_FRAMES = (3, 12)
+
+MAX_SUBPIXELS_PER_AXIS = 2048     # sub-pixel samples across a stamp (the renderers' tables grow with its square) [1]
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,13 @@ class Imager:
         # midpoint-rule error ~ 0.03 (sub-pixels per lambda/2D)^-2 (tests/optics), a quarter of the tolerance
         density = float(np.clip(np.sqrt(0.12 / tol), 1.0, 4.0))
         oversample = oversampling_for(p, d, lam, density)
+        if size * oversample > MAX_SUBPIXELS_PER_AXIS:
+            arcsec = 180 / np.pi * 3600
+            raise ParameterError(
+                f"{self.name}: the PSF is far smaller than a pixel (diffraction width lambda/D = {lam / d * arcsec:.3g} "
+                f"arcsec, a pixel {p * arcsec:.3g} arcsec): rendering it would take {oversample} x {oversample} sub-pixels "
+                f"per pixel, {size * oversample} across a stamp (at most {MAX_SUBPIXELS_PER_AXIS}); lengthen the focal "
+                f"length or shrink the pixels")
         if self.pupil_samples is not None:
             n_pupil = int(self.pupil_samples)
             delta = d / (n_pupil - 2)

@@ -18,10 +18,11 @@ from .core import (
     Truth,
     add_stamp,
 )
+from .detection import Detections
 from .scene import Observer, Orbit, Pointing
 
 __all__ = [
     "EventCause", "Events", "FocalPlane", "Frame", "Irradiance", "Metrics", "PointSources",
     "SkyBackground", "SourceKind", "TriggeredEvents", "Truth", "add_stamp",
-    "Observer", "Orbit", "Pointing",
+    "Observer", "Orbit", "Pointing", "Detections",
 ]
