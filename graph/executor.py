@@ -414,8 +414,8 @@ class Executor:
 
     def _loaded_truth(self) -> list[str]:
         """Blocks loaded from another store whose ground truth is copied from it (their Truth outputs)."""
-        return [name for name in self.loaded
-                if any(spec.type.type_name() == TRUTH_TYPE for spec in type(self.graph.nodes[name].block).outputs.values())]
+        return [name for name in self.loaded if any(spec.type.type_name() == TRUTH_TYPE
+                                                    for spec in type(self.graph.nodes[name].block).outputs.values())]
 
     def _event_output(self) -> tuple[str, str] | None:
         if not hasattr(self, "_event_key"):

@@ -136,7 +136,8 @@ class PlotPsf(Command):
         with atomic_output(args.output, args.overwrite, "figure", suffix=suffix) as temporary:
             plot_psf_stamp(stamp, dpi=args.dpi).savefig(temporary, dpi=args.dpi, format=suffix.lstrip(".").lower())
         cx, cy = stamp.centroid
-        print(f"{args.output}: {stamp.source_id} at {stamp.t_ns / 1e9:g} s, {stamp.image.shape[0]}x{stamp.image.shape[1]} "
+        height, width = stamp.image.shape
+        print(f"{args.output}: {stamp.source_id} at {stamp.t_ns / 1e9:g} s, {height}x{width} "
               f"stamp with {stamp.image.sum() / stamp.collected_photon_rate:.1%} of its flux, centroid "
               f"({cx:.2f}, {cy:.2f}) vs true ({stamp.x_px:.2f}, {stamp.y_px:.2f}); {stamp.path}")
         return 0

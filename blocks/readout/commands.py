@@ -92,7 +92,9 @@ class ExportCommand(Command):
         if args.format is None:
             args.format = infer_format(args.output)
         output = check_output_path(args.output, args.overwrite, "export")
-        truth_output = check_output_path(truth_path(output, args.truth), args.overwrite, "truth") if args.truth else None
+        truth_output = None
+        if args.truth:
+            truth_output = check_output_path(truth_path(output, args.truth), args.overwrite, "truth")
         store, fp = _open(args.store)
         if truth_output is not None and not store.has_truth:
             raise UserError(f"{args.store} holds no ground truth (run with run.store_truth: false, or by an evsda "
