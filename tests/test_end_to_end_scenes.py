@@ -246,7 +246,8 @@ def test_iss_truth_can_be_left_out(tmp_path):
 
 
 def test_iss_truth_opens_as_labelled_data(iss_run):
-    xr = pytest.importorskip("xarray")
+    import xarray as xr
+
     ds = xr.open_zarr(iss_run["out"], group="truth", consolidated=False)
     assert ds["x_px"].dims == ("sample",) and ds["source_id"].dims == ("source",)
     assert ds["range_m"].attrs["units"] == "m"

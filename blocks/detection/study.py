@@ -514,12 +514,10 @@ def summary_lines(curves: list[Curve]) -> list[str]:
 
 def plot(curves: list[Curve], png: Path) -> None:
     """P_d against magnitude for every design: measured points with binomial errors, the fit, the analytic curve."""
-    import matplotlib
+    from matplotlib.figure import Figure        # not pyplot: a caller's backend is left alone, nothing stays open
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=120)
+    fig = Figure(figsize=(7.5, 4.5), dpi=120)
+    ax = fig.add_subplot()
     for i, c in enumerate(curves):
         colour = f"C{i}"
         p = c.pd
@@ -545,4 +543,3 @@ def plot(curves: list[Curve], png: Path) -> None:
 
     with atomic_output(png, overwrite=True, what="figure") as tmp:
         fig.savefig(tmp, format="png")
-    plt.close(fig)
