@@ -113,7 +113,7 @@ def test_hot_pixels_spread_the_rates_log_normally_around_the_configured_mean(sce
     # noise_rate_spread_decades: each pixel's leak and shot-noise rates carry a factor with
     # std(log10) = the spread and mean 1, so the array keeps the configured mean rate while a few
     # pixels are hot; each pixel's own counts follow its factor.
-    fp, leak, r_n, dt, seconds, spread = scenes.focal_plane(32, 32), 20.0, 20.0, 1e-4, 1.0, 0.3
+    fp, leak, r_n, dt, seconds, spread = scenes.focal_plane(24, 24), 30.0, 30.0, 2e-4, 1.0, 0.3
     block = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=dt, leak_rate_hz=leak,
                      shot_noise_rate_hz=r_n, parasitic_rate_per_lux_hz=0.0, noise_rate_spread_decades=spread,
                      seed=9, **PRESET_LIKE)
@@ -139,7 +139,7 @@ def test_timing_jitter_delays_events_half_normally_and_keeps_them_in_order(scene
     # Leak events of a static pixel come exactly every 1/R_leak on the grid; with timing_jitter_s
     # each is delayed by sigma |z|: mean sigma sqrt(2/pi), std sigma sqrt(1 - 2/pi), never early.
     # Events delayed past a window's end come in the next window; the windows do not matter.
-    fp, leak, dt, sigma = scenes.focal_plane(16, 16), 50.0, 1e-5, 3e-4
+    fp, leak, dt, sigma = scenes.focal_plane(12, 12), 100.0, 2e-5, 3e-4
     runs = {}
     for window in (0.1, 0.04):
         block = DvsPixel(implementation=implementation, time_step_s=dt, refractory_period_s=dt, leak_rate_hz=leak,
