@@ -3,6 +3,8 @@ re-runs that skip finished points, and points run as Dask tasks on a 2-worker Lo
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -145,8 +147,15 @@ def test_points_run_as_dask_tasks_on_two_workers_and_reuse_across_them(plugin, t
         stored = RunStore.open(row["store"]).read_events()
         assert np.array_equal(stored["t_readout_ns"], alone.store.read_events()["t_readout_ns"])
         assert row["events_counted"] == alone.metrics["events_counted"]
-    failing = run_sweep(str(chain(tmp_path)), bad, tmp_path / "bad", jobs=2, report=lambda line: None)
-    assert failing.failed == 1 and "windows" in failing.rows[0]["error"]
+    # a running cluster (--scheduler): stores go where its workers can reach them (absolute paths)
+    import logging
+
+    from distributed import LocalCluster
+    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=":0", silence_logs=logging.ERROR) as cluster:
+        failing = run_sweep(str(chain(tmp_path)), {**bad, "run.window_s": [0.01, 1e-9]}, tmp_path / "bad",
+                            scheduler=cluster.scheduler_address, report=lambda line: None)
+    assert failing.failed == 1 and "windows" in failing.rows[1]["error"] and failing.rows[0]["status"] == "ok"
+    assert Path(failing.rows[0]["store"]).is_absolute() and RunStore.open(failing.rows[0]["store"]).complete
 
 
 def test_sweep_plot_shows_the_metric_against_the_parameters_and_marks_failures(plugin, tmp_path, evsda_cli):
