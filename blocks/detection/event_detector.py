@@ -16,7 +16,8 @@ In each look:
    background event takes Gehrels' (1986, Table 1) one-sided 84 % upper limit, 1.841 events over
    the detector, so a threshold is never set against zero;
 3. for every trial velocity (|v| up to ``max_rate_px_s``, spaced ``velocity_step_px / look_s``), the
-   events are moved back to the look's middle and counted in ``box_px x box_px`` boxes; a box whose
+   events are moved back to the look's middle and counted in ``box_px x box_px`` boxes (the local
+   maxima of the box counts are the candidates); a box whose
    centre stays on the detector for a fraction ``f`` of the look expects ``mu = rho box^2 f`` events
    of background, and its count ``k`` has the Poisson p-value ``P(N >= k | mu)``;
 4. a box is a detection when that p-value is below the threshold that holds the expected false
@@ -209,7 +210,7 @@ class EventDetector(Block):
         t_rel = (t_ns - mid_ns) / NS_PER_S
         xs, ys = x.astype(np.float64), y.astype(np.float64)
         pad = int(math.ceil(p.max_rate_px_s * look_s / 2)) + p.box_px
-        capacity = 1 << 16
+        capacity = 1 << 18
         while True:
             rows, found = mf.candidate_boxes(t_rel, xs, ys, self.velocities, p.box_px, pad, width, height, k_min,
                                              capacity)
@@ -218,7 +219,7 @@ class EventDetector(Block):
             capacity *= 4
         if found == 0:
             return none, measured
-        rows = np.unique(rows[:found], axis=0)
+        rows = rows[:found]                          # one row per velocity and box
         v = self.velocities[rows[:, 0]]
         centre = rows[:, 1:3] - pad + (p.box_px - 1) / 2
         exposure = mf.exposure_fraction(centre[:, 0], centre[:, 1], v[:, 0], v[:, 1], look_s, width, height)

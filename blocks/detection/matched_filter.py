@@ -71,21 +71,36 @@ def background_density(x: np.ndarray, y: np.ndarray, width: int, height: int, ti
 
 
 @numba.njit(cache=True, nogil=True)
+def _box_sum(counts, i0, j0, box):
+    s = 0
+    for jj in range(j0, j0 + box):
+        for ii in range(i0, i0 + box):
+            s += counts[jj, ii]
+    return s
+
+
+@numba.njit(cache=True, nogil=True)
 def candidate_boxes(t_s, x, y, velocities, box, pad, width, height, k_min, capacity):
-    """Boxes whose motion-compensated count reaches ``k_min``, for every trial velocity.
+    """Boxes whose motion-compensated count reaches ``k_min`` and is a local maximum, for every trial velocity.
 
     ``t_s`` are event times from the look's middle [s], ``x``, ``y`` pixel coordinates. A box is
     ``box x box`` cells of the compensated image, indexed by its first cell ``(i0, j0)`` in a map
-    padded by ``pad`` cells on each side. Returns ``(velocity index, i0, j0, count)`` rows (a box
-    may appear more than once) and their number; ``-1`` when more than ``capacity`` were found.
+    padded by ``pad`` cells on each side. A box is reported once per velocity, when no box shifted by
+    one cell holds more events (a bright source at a nearly right velocity fills a line of boxes above
+    ``k_min``: only its peaks are candidates). Returns ``(velocity index, i0, j0, count)`` rows and their
+    number; ``-1`` when more than ``capacity`` were found.
     """
     n = t_s.size
     map_w, map_h = width + 2 * pad, height + 2 * pad
     counts = np.zeros((map_h, map_w), np.int32)
+    seen = np.full((map_h, map_w), -1, np.int32)      # last velocity at which a box was examined
     ci = np.empty(n, np.int64)
     cj = np.empty(n, np.int64)
     out = np.empty((capacity, 4), np.int64)
     found = 0
+    # a box of box^2 cells holding k_min events has a cell holding at least k_min / box^2 of them: only boxes
+    # around such cells need their sums
+    cell_min = max(1, -(-k_min // (box * box)))
     for k in range(velocities.shape[0]):
         vx, vy = velocities[k, 0], velocities[k, 1]
         for e in range(n):
@@ -97,19 +112,29 @@ def candidate_boxes(t_s, x, y, velocities, box, pad, width, height, k_min, capac
             if i >= 0:
                 counts[j, i] += 1
         for e in range(n):
-            if ci[e] < 0:
+            if ci[e] < 0 or counts[cj[e], ci[e]] < cell_min:
                 continue
             for j0 in range(max(0, cj[e] - box + 1), min(cj[e], map_h - box) + 1):
                 for i0 in range(max(0, ci[e] - box + 1), min(ci[e], map_w - box) + 1):
-                    s = 0
-                    for jj in range(j0, j0 + box):
-                        for ii in range(i0, i0 + box):
-                            s += counts[jj, ii]
-                    if s >= k_min:
-                        if found >= capacity:
-                            return out, -1
-                        out[found, 0], out[found, 1], out[found, 2], out[found, 3] = k, i0, j0, s
-                        found += 1
+                    if seen[j0, i0] == k:
+                        continue
+                    seen[j0, i0] = k
+                    s = _box_sum(counts, i0, j0, box)
+                    if s < k_min:
+                        continue
+                    peak = True
+                    for dj in range(-1, 2):
+                        for di in range(-1, 2):
+                            jn, i_n = j0 + dj, i0 + di
+                            if (di != 0 or dj != 0) and 0 <= jn <= map_h - box and 0 <= i_n <= map_w - box:
+                                if _box_sum(counts, i_n, jn, box) > s:
+                                    peak = False
+                    if not peak:
+                        continue
+                    if found >= capacity:
+                        return out, -1
+                    out[found, 0], out[found, 1], out[found, 2], out[found, 3] = k, i0, j0, s
+                    found += 1
         for e in range(n):
             if ci[e] >= 0:
                 counts[cj[e], ci[e]] = 0

@@ -6,8 +6,11 @@ least ``edge_margin_px`` inside the detector at the look's middle has one *oppor
 *detected* in that look when a detection of the look lies within ``match_radius_px`` of the
 source's position at the look's middle (the position interpolated linearly between the source's
 samples), and, if ``max_velocity_error_px_s`` is set, the detection's velocity is that close to
-the source's. Each detection goes to the nearest source within the radius; a detection near no
-observable source is a false alarm. Figures:
+the source's. Each detection goes to the nearest source within the radius. A detection near none
+whose track (its position moved with its velocity) passes within the radius of a source at some
+sample of the look found a source that entered or left the detector during the look
+(``detections_of_partly_seen_sources``: no opportunity, no false alarm); any other is a false
+alarm. Figures:
 
 * ``detection_probability``: detected opportunities over opportunities (all sources), and per
   magnitude bin of ``magnitude_bin_mag`` (``pd_m<centre>``, with ``opportunities_m<centre>`` and
@@ -69,7 +72,8 @@ class DetectionScoring(Block):
         self.first_seen_ns = None                   # int64 [n_src] first sample on the detector (-1: never)
         self.first_detected_ns = None               # int64 [n_src] first matched detection's report time (-1)
         self.per_source = None                      # int64 [n_src, 2] opportunities, detected
-        self.totals = {"looks": 0, "detections": 0, "false_alarms": 0, "look_ns": 0, "far_target": 0.0}
+        self.totals = {"looks": 0, "detections": 0, "false_alarms": 0, "partly_seen": 0, "look_ns": 0,
+                       "far_target": 0.0}
         self.errors = np.zeros((0, 2))              # [n_matched, 2] position error [px], velocity error [px/s]
         self.focal_plane = None
 
@@ -176,7 +180,10 @@ class DetectionScoring(Block):
                 dv = np.hypot(*(velocity[candidates] - det_v[d]).T)
                 ok &= ~(dv > self.params.max_velocity_error_px_s)
             if not ok.any():
-                self.totals["false_alarms"] += 1
+                if self._on_a_track(det_xy[d], det_v[d], mid, inside):
+                    self.totals["partly_seen"] += 1
+                else:
+                    self.totals["false_alarms"] += 1
                 continue
             k = np.flatnonzero(ok)[np.argmin(distance[ok])]
             s = candidates[k]
@@ -188,6 +195,25 @@ class DetectionScoring(Block):
         self.per_source[detected, 1] += 1
         if errors:
             self.errors = np.concatenate([self.errors, np.array(errors)])
+
+    def _on_a_track(self, xy: np.ndarray, v: np.ndarray, mid_ns: int, inside: np.ndarray) -> bool:
+        """Whether a detection's track (its position moved with its velocity, or held where it has none) passes
+        within the match radius of a source's sampled position at some sample of the look: a source that left
+        or entered the detector during the look, seen by the detector but given no opportunity."""
+        if not inside.any():
+            return False
+        dt = (self.history_t[inside] - mid_ns) / NS_PER_S
+        velocity = np.where(np.isfinite(v), v, 0.0)
+        track = xy[None, :] + dt[:, None] * velocity[None, :]                       # [n_s, 2]
+        sx, sy = self.history_x[inside].astype(float), self.history_y[inside].astype(float)
+        with np.errstate(invalid="ignore"):
+            near = np.hypot(sx - track[:, 0:1], sy - track[:, 1:2]) <= self.params.match_radius_px
+            gate = self.params.max_velocity_error_px_s
+            if gate is not None and dt.size > 1:
+                # the source's velocity at each sample (finite differences) must match the detection's as well
+                vx, vy = np.gradient(sx, dt, axis=0), np.gradient(sy, dt, axis=0)
+                near &= np.hypot(vx - velocity[0], vy - velocity[1]) <= gate
+        return bool(near.any())
 
     # -- the figures ------------------------------------------------------------------------------
     def summary(self) -> Metrics:
@@ -209,6 +235,7 @@ class DetectionScoring(Block):
         hours = tot["looks"] * tot["look_ns"] / NS_PER_S / 3600.0
         mpx = fp.width_px * fp.height_px / 1e6
         put("false_alarms", tot["false_alarms"], "detection")
+        put("detections_of_partly_seen_sources", tot["partly_seen"], "detection")
         put("false_alarm_rate_per_hour_per_mpx", tot["false_alarms"] / (hours * mpx) if hours else float("nan"),
             "h^-1 Mpixel^-1")
         put("false_alarm_rate_target_per_hour_per_mpx", tot["far_target"], "h^-1 Mpixel^-1")

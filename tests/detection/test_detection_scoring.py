@@ -70,3 +70,23 @@ def test_velocity_gate_turns_a_wrong_velocity_into_a_false_alarm():
     found = detections(fp, look, [0], [(0, 11.0, 10.0, -2.0, 0.0)])      # right place, wrong direction
     metrics = block.step(Window(0, 0, look), found, [sources(fp, t)])["metrics"].values
     assert metrics["detected_opportunities"] == 0 and metrics["false_alarms"] == 1
+
+
+def test_a_source_seen_for_part_of_a_look_is_no_false_alarm():
+    """Source C enters at x = 60 at t = 0.6 s moving -2 px/s (NaN before): a detection on its track is neither a
+    detected opportunity nor a false alarm; a detection off every track still is one."""
+    fp = focal_plane()
+    look = NS_PER_S
+    t = np.arange(0, look, look // 100, dtype=np.int64)
+    s = t / NS_PER_S
+    x = np.where(s >= 0.6, 60 - 2 * (s - 0.6), np.nan)[:, None]
+    y = np.full_like(x, 20.0)
+    n = t.size
+    c = PointSources(fp, 550e-9, t, np.array(["C"]), np.full(1, SourceKind.SATELLITE, np.int8), x, y, np.ones((n, 1)),
+                     np.full((n, 1), 9.0), np.full((n, 1), np.inf), np.zeros(n))
+    block = DetectionScoring({"match_radius_px": 2.0}, name="score")
+    block.setup(RunInfo(duration_ns=look, window_ns=look))
+    found = detections(fp, look, [0], [(0, 60.0, 20.0, -2.0, 0.0), (0, 30.0, 40.0, -2.0, 0.0)])
+    metrics = block.step(Window(0, 0, look), found, [c])["metrics"].values
+    assert metrics["opportunities"] == 0 and metrics["detections_of_partly_seen_sources"] == 1
+    assert metrics["false_alarms"] == 1
