@@ -437,6 +437,7 @@ def _describe(point: SweepPoint, outcome: dict) -> str:
 def _check_plan_file(out_dir: Path, document: dict, overwrite: bool) -> None:
     """A sweep folder holds one sweep: re-running another sweep into it is refused (its points would differ)."""
     path = out_dir / PLAN_FILE
+    document = json.loads(json.dumps(document, default=str))     # as it reads back (dates become strings)
     if path.is_file() and not overwrite:
         try:
             previous = json.loads(path.read_text())
@@ -446,7 +447,7 @@ def _check_plan_file(out_dir: Path, document: dict, overwrite: bool) -> None:
             raise UserError(f"{out_dir} holds another sweep (other graph, parameters or values; see {PLAN_FILE}); "
                             f"choose another folder, or pass --overwrite to recompute every point")
     temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(json.dumps(document, indent=1, default=str))
+    temporary.write_text(json.dumps(document, indent=1))
     os.replace(temporary, path)
 
 

@@ -117,6 +117,11 @@ def test_a_sweep_records_failures_streams_rows_and_a_rerun_skips_finished_points
     again = run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lines.append)
     assert [r["status"] for r in again.rows] == ["done", "failed", "done", "failed"]
     assert [r["wall_s"] for r in again.rows if r["status"] == "done"] == list(ok.wall_s)
+    # values YAML reads as dates are compared as they read back from the plan file
+    dated = {"run.start": read_grid(None, ["run.start=[2024-03-01 02:15:00Z]"])["run.start"]}
+    assert run_sweep(str(chain(tmp_path)), dated, tmp_path / "dated", jobs=1, report=lines.append).ok
+    assert [r["status"] for r in run_sweep(str(chain(tmp_path)), dated, tmp_path / "dated", jobs=1,
+                                           report=lines.append).rows] == ["done"]
     with pytest.raises(UserError, match="URLs such as s3:// are not supported"):
         run_sweep(str(chain(tmp_path)), grid, "s3://bucket/study", jobs=1, report=lines.append)
     with pytest.raises(UserError, match="holds another sweep"):
