@@ -1,13 +1,14 @@
-"""Do old scenes give identical events across a range of commits? (issue 15.5: new blocks and parameters
-must leave scenes that do not use them unchanged.)
+"""Do the example scenes record identical bytes at two commits? (issue 15.5: new blocks and parameters must
+leave scenes that do not use them unchanged; issue 16: a redesign changes no behaviour.)
 
-Checks out two commits of this repository side by side (``git worktree``, removed afterwards), runs the
-same small versions of the example scenes of the older commit with each (in separate processes, each
-importing its own commit's code) and compares the recorded events array by array.
+Checks out two commits of this repository side by side (``git worktree``, removed afterwards) and runs
+every example scene of the older commit, in the short versions of ``tests/test_examples_identical.py``
+(this checkout's), with each commit's code (separate processes, each importing its own commit's code).
+Compares the SHA-256 of everything each run store records (events, products, truth, metrics).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/old_scenes_identical.py OLD_COMMIT NEW_COMMIT
 
-Prints, per scene, the events of each commit and whether they are identical. A difference is expected
+Prints, per scene, the events of each commit and whether the stores are identical. A difference is expected
 where a commit between the two changes physics on purpose (its message says so).
 """
 
@@ -21,22 +22,15 @@ import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-HALF = {"sensor/camera.width_px": 640, "sensor/camera.height_px": 360, "sensor/camera.pixel_pitch_m": 9.72e-6}
-SCENES = {   # the scenes of the end-to-end tests, shortened
-    "iss_pass.yaml": {**HALF, "run.start": "2023-03-20T19:18:39.4Z", "run.duration_s": 0.3,
-                      "stars.faint_limit_mag": 9.0},
-    "geo_sidereal.yaml": {**HALF, "run.start": "2013-03-24T09:40:01.5Z", "run.duration_s": 0.5,
-                          "stars.faint_limit_mag": 11.0},
-    "space_based.yaml": {"run.duration_s": 0.3},
-}
+SCENES = REPO / "tests" / "test_examples_identical.py"   # the short versions and the store digest
 RUN = """
-import json, sys, numpy as np
-from evsda.graph.executor import run_graph
-from evsda.graph.graphfile import load_graph
+import json, runpy, sys
+from pathlib import Path
 from evsda.graph.store import RunStore
-scene, overrides, out = sys.argv[1], json.loads(sys.argv[2]), sys.argv[3]
-run_graph(load_graph(scene, overrides), out + ".zarr", progress=False)
-np.savez(out, **RunStore.open(out + ".zarr").read_events())
+test = runpy.run_path(sys.argv[1])
+scene, examples, out = sys.argv[2], Path(sys.argv[3]), Path(sys.argv[4])
+graph, store = test["run_example"](scene, out, examples)
+print(json.dumps({"store": store, "events": RunStore.open(out).n_events}))
 """
 
 
@@ -56,28 +50,39 @@ def main() -> None:
     parser.add_argument("old")
     parser.add_argument("new")
     args = parser.parse_args()
-    import numpy as np
+    scenes = sorted(runpy_short())
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         paths = {c: checkout(c, tmp / c) for c in (args.old, args.new)}
+        examples = tmp / args.old / "tree" / "examples"
         try:
-            print(f"{'scene':20} {args.old:>12} {args.new:>12}  identical")
-            for scene, overrides in SCENES.items():
-                graph = tmp / args.old / "tree" / "examples" / scene
-                events = {}
+            print(f"{'scene':32} {args.old:>12} {args.new:>12}  identical")
+            for scene in scenes:
+                if not (examples / scene).exists():
+                    print(f"{scene:32} {'(not at ' + args.old + ')':>26}")
+                    continue
+                runs = {}
                 for commit, path in paths.items():
-                    out = tmp / commit / scene.replace(".yaml", "")
-                    subprocess.run([sys.executable, "-c", RUN, str(graph), json.dumps(overrides), str(out)],
-                                   check=True, env={**_env(), "PYTHONPATH": str(path)})
-                    events[commit] = np.load(f"{out}.npz")
-                a, b = events[args.old], events[args.new]
-                same = a.files == b.files and all(np.array_equal(a[k], b[k]) for k in a.files)
-                print(f"{scene:20} {len(a['x']):12d} {len(b['x']):12d}  {'yes' if same else 'NO'}", flush=True)
+                    out = tmp / commit / scene.replace(".yaml", ".zarr")
+                    done = subprocess.run([sys.executable, "-c", RUN, str(SCENES), scene, str(examples), str(out)],
+                                          check=True, capture_output=True, text=True,
+                                          env={**_env(), "PYTHONPATH": str(path)})
+                    runs[commit] = json.loads(done.stdout.strip().splitlines()[-1])
+                a, b = runs[args.old], runs[args.new]
+                same = "yes" if a["store"] == b["store"] else "NO"
+                print(f"{scene:32} {a['events']:12d} {b['events']:12d}  {same}", flush=True)
         finally:
             for commit in paths:
                 subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(tmp / commit / "tree")],
                                check=False)
+
+
+def runpy_short() -> dict:
+    """The short versions of the example scenes (``SHORT`` of the test file)."""
+    import runpy
+
+    return runpy.run_path(str(SCENES))["SHORT"]
 
 
 def _env() -> dict:
