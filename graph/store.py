@@ -77,6 +77,7 @@ COMPRESSOR = BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")
 NUMERIC_CODECS = (COMPRESSOR, Crc32cCodec())
 STRING_CODECS = (ZstdCodec(level=3), Crc32cCodec())
 CHECKPOINT_CODECS = (BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc32cCodec())
+CHECKPOINT_CHUNK_BYTES = 1 << 24   # checkpoint archives are written and read in chunks of this size
 #: every chunk is written, even one of zeros, so that a missing chunk file means damage
 ARRAY_CONFIG = {"write_empty_chunks": True}
 FORMAT = "evsda-run/1"
@@ -604,20 +605,20 @@ class RunStore:
 
         All states go into one array (an uncompressed ``.npz`` archive, read back without
         pickle) with the non-array entries as JSON in its attributes: one Zarr array per
-        checkpoint instead of one per state entry keeps frequent checkpoints cheap.
+        checkpoint instead of one per state entry keeps frequent checkpoints cheap. The archive
+        is streamed into the array one chunk at a time, so writing it holds one chunk beside the
+        states, not a copy of them (a 1280 x 720 sensor's pixel state is ~150 MB).
         """
         name = f"w{window_index}"
         arrays: dict[str, np.ndarray] = {}
         skeleton = {block: _encode_state(state, arrays) for block, state in states.items()}
-        buffer = io.BytesIO()
-        np.savez(buffer, **arrays)
-        packed = np.frombuffer(buffer.getbuffer(), dtype=np.uint8)
         group = self.group.require_group("checkpoint")
-        array = group.create_array(name, shape=packed.shape, dtype=np.uint8, chunks=(max(1, min(packed.size, 1 << 24)),),
+        array = group.create_array(name, shape=(0,), dtype=np.uint8, chunks=(CHECKPOINT_CHUNK_BYTES,),
                                    compressors=list(CHECKPOINT_CODECS), overwrite=True, config=ARRAY_CONFIG,
                                    dimension_names=[f"{name}_byte"], attributes={"units": "byte"})
-        array[...] = packed
-        array.attrs.update({"states": skeleton, "bytes": int(packed.size)})
+        with _ChunkedWriter(array, CHECKPOINT_CHUNK_BYTES) as stream:
+            np.savez(stream, **arrays)
+        array.attrs.update({"states": skeleton, "bytes": int(stream.size)})
         return name
 
     def read_checkpoint(self) -> dict[str, dict[str, Any]]:
@@ -781,6 +782,46 @@ def _array_keys(group: zarr.Group, prefix: str = "") -> Iterator[str]:
 
 
 # -- state (de)serialisation --------------------------------------------------------------------
+class _ChunkedWriter(io.RawIOBase):
+    """A write-only stream into a 1-D uint8 Zarr array, one full chunk at a time (the array grows as it goes)."""
+
+    def __init__(self, array: zarr.Array, chunk_bytes: int):
+        super().__init__()
+        self.array, self.chunk, self.size = array, int(chunk_bytes), 0
+        self._pending = bytearray()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        size = view.nbytes
+        if self._pending:                                  # complete the chunk begun before
+            take = min(size, self.chunk - len(self._pending))
+            self._pending += view[:take]
+            view = view[take:]
+            if len(self._pending) == self.chunk:
+                self._store(self._pending)
+                self._pending = bytearray()
+        whole = len(view) // self.chunk * self.chunk
+        if whole:                                          # whole chunks straight from the caller's buffer
+            self._store(view[:whole])
+        self._pending += view[whole:]
+        return size
+
+    def close(self) -> None:
+        if not self.closed and self._pending:
+            self._store(self._pending)
+            self._pending = bytearray()
+        super().close()
+
+    def _store(self, data) -> None:
+        start = self.size
+        self.size += len(data)
+        self.array.resize((self.size,))
+        self.array[start:self.size] = np.frombuffer(data, dtype=np.uint8)
+
+
 def _encode_state(value: Any, arrays: dict[str, np.ndarray]) -> Any:
     """JSON skeleton of a state value; its arrays go into ``arrays`` under fresh keys."""
     if isinstance(value, np.ndarray) and value.dtype.kind != "O":
