@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import __version__, registry
 from . import schema as schema_module
-from .commands import Command, contributed_commands
+from .commands import Command, add_figure_options, contributed_commands
 from .errors import Interrupted, UserError
 from .executor import run_graph
 from .files import describe_os_error
@@ -95,15 +95,12 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_sweep_plot(args) -> int:
-    from .files import atomic_output, check_output_path
+    from .files import check_figure_output, save_figure
     from .sweep_plot import plot_sweep, read_results
 
-    check_output_path(args.output, overwrite=True, what="figure")
+    check_figure_output(args.output, args.overwrite, args.dpi)
     figure = plot_sweep(read_results(args.sweep), args.metric, args.x, args.y)
-    if not 0 < args.dpi < 10_000:
-        raise UserError(f"--dpi must be between 0 and 10000, got {args.dpi}")
-    with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
-        figure.savefig(temporary, dpi=args.dpi)
+    save_figure(figure, args.output, args.overwrite, args.dpi)
     if not args.quiet:
         print(f"{args.output}: {figure.axes[0].get_title()}", file=sys.stderr)
     return 0
@@ -213,14 +210,13 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="recompute every point, replacing their stores")
     p.set_defaults(func=cmd_sweep)
 
-    p = add("sweep-plot", help="draw a metric of a sweep against one or two swept parameters (PNG), "
-                               "failed points marked")
+    p = add("sweep-plot", help="draw a metric of a sweep against one or two swept parameters, failed points "
+                               "marked")
     p.add_argument("sweep", help="sweep folder (holding sweep.parquet or sweep.csv)")
     p.add_argument("metric", help="metric to draw (a column of the results table)")
     p.add_argument("--x", default=None, help="swept parameter on the x axis (default: the only one)")
     p.add_argument("--y", default=None, help="second swept parameter: points in the (x, y) plane coloured by the metric")
-    p.add_argument("-o", "--output", required=True, help="output PNG file")
-    p.add_argument("--dpi", type=float, default=120.0, help="resolution of the PNG [dots per inch]")
+    add_figure_options(p, dpi=120.0)
     p.set_defaults(func=cmd_sweep_plot)
 
     p = add("info", help="what a run store holds: graph, seed, epoch, events by cause, metrics, "

@@ -30,6 +30,17 @@ class Command:
         raise NotImplementedError
 
 
+def add_figure_options(parser: argparse.ArgumentParser, dpi: float = 100.0, aliases: tuple[str, ...] = ()) -> None:
+    """The output options every plot command shares: ``-o/--output FILE`` (format from the extension),
+    ``--dpi`` and ``--overwrite``. Check them with :func:`evsda.graph.files.check_figure_output` before any
+    work and save with :func:`evsda.graph.files.save_figure`."""
+    parser.add_argument("-o", "--output", *aliases, dest="output", required=True,
+                        help="figure file to write; the extension gives the format (png, pdf, svg ...)"
+                             + (f"; {', '.join(aliases)} is its old name" if aliases else ""))
+    parser.add_argument("--dpi", type=float, default=dpi, help=f"resolution [dots per inch] (default {dpi:g})")
+    parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+
+
 def contributed_commands() -> list[Command]:
     """Every command advertised in the ``evsda.commands`` entry-point group."""
     commands: list[Command] = []

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import errno
+import math
 import os
 import shutil
 import stat
@@ -178,3 +179,33 @@ def atomic_output(path: str | Path, overwrite: bool = False, what: str = "output
         except OSError:
             pass
         raise
+
+
+#: the resolutions a figure may be saved at [dots per inch]
+FIGURE_DPI_RANGE = (10.0, 2400.0)
+
+
+def check_figure_output(path: str | Path, overwrite: bool, dpi: float) -> str:
+    """Refuse, before any work, a figure that cannot be saved as asked: a resolution out of range, an
+    extension matplotlib cannot write (the format follows it; none means PNG), or a bad output path
+    (:func:`check_output_path`). Returns the format (``png``, ``pdf``, ``svg`` ...)."""
+    low, high = FIGURE_DPI_RANGE
+    if not (math.isfinite(dpi) and low <= dpi <= high):
+        raise UserError(f"--dpi must be between {low:g} and {high:g}, got {dpi:g}")
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    known = FigureCanvasBase.get_supported_filetypes()
+    if fmt not in known:
+        raise UserError(f"{path}: cannot write a figure as .{fmt[:20]}; the extension gives the format, one of "
+                        f"{', '.join(sorted(known))}")
+    check_output_path(path, overwrite, "figure")
+    return fmt
+
+
+def save_figure(figure, path: str | Path, overwrite: bool, dpi: float) -> None:
+    """Save a matplotlib Figure to ``path`` (format from its extension) through a temporary name, so a
+    failed save leaves no partial file; checked first as :func:`check_figure_output`."""
+    fmt = check_figure_output(path, overwrite, dpi)
+    with atomic_output(path, overwrite, "figure", suffix=f".{fmt}") as temporary:
+        figure.savefig(temporary, dpi=dpi, format=fmt)

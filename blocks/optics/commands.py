@@ -10,8 +10,8 @@ from __future__ import annotations
 import argparse
 
 from evsda.graph import UserError
-from evsda.graph.commands import Command
-from evsda.graph.files import atomic_output, check_output_path
+from evsda.graph.commands import Command, add_figure_options
+from evsda.graph.files import check_figure_output, save_figure
 
 from .zernike import noll_to_nm
 
@@ -40,7 +40,7 @@ class PlotScreen(Command):
     help = "plot Zernike modes and the Kolmogorov phase screen they build (the paper's Fig. 4) as a PNG"
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("-o", "--output", required=True, help="output PNG file")
+        add_figure_options(parser, dpi=110.0)
         parser.add_argument("--aperture", type=_positive(float), default=0.3, help="aperture diameter D [m]")
         parser.add_argument("--r0", type=_positive(float), default=0.05,
                             help="Fried parameter at the wavelength of the phase [m]")
@@ -56,10 +56,9 @@ class PlotScreen(Command):
 
         if args.modes > 1000:
             raise UserError(f"plot-screen: --modes {args.modes} is more than the 1000 modes supported")
-        check_output_path(args.output, overwrite=True, what="figure")
+        check_figure_output(args.output, args.overwrite, args.dpi)
         result = zernike_screen(args.aperture, args.r0, args.modes, args.show, args.samples, args.seed)
-        with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
-            plot_zernike_screen(result, temporary)
+        save_figure(plot_zernike_screen(result), args.output, args.overwrite, args.dpi)
         shown = ", ".join(f"j={j} (n={noll_to_nm(j)[0]}, m={noll_to_nm(j)[1]})" for j in args.show)
         print(f"{args.output}: modes {shown}; screen of {args.modes} modes, D/r0 = {result.d_over_r0:.3g}")
         return 0
@@ -70,7 +69,7 @@ class PlotPropagation(Command):
     help = "plot a point source's power through turbulent phase screens to the focal plane (the paper's Fig. 3)"
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("-o", "--output", required=True, help="output PNG file")
+        add_figure_options(parser, dpi=110.0)
         parser.add_argument("--aperture", type=_positive(float), default=0.3, help="aperture diameter D [m]")
         parser.add_argument("--distance", type=_positive(float), default=400e3, help="source range [m]")
         parser.add_argument("--wavelength", type=_positive(float), default=550e-9, help="wavelength [m]")
@@ -89,7 +88,7 @@ class PlotPropagation(Command):
 
         if not 0 <= args.zenith < 90:
             raise UserError(f"plot-propagation: --zenith must be in [0, 90) degrees, got {args.zenith}")
-        check_output_path(args.output, overwrite=True, what="figure")
+        check_figure_output(args.output, args.overwrite, args.dpi)
         if args.layers > 32:
             raise UserError(f"plot-propagation: --layers {args.layers} is more than the 32 supported")
         try:
@@ -98,8 +97,7 @@ class PlotPropagation(Command):
         except ValueError as exc:
             raise UserError(f"plot-propagation: no valid propagation grid for this geometry: {exc}; "
                             f"try fewer --pupil-samples or a shorter --distance") from None
-        with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
-            plot_propagation(demo, temporary)
+        save_figure(plot_propagation(demo), args.output, args.overwrite, args.dpi)
         print(f"{args.output}: grid {demo.grid.describe()}; {demo.aperture_power_w:.3g} W of {args.power:g} W "
               f"in the aperture; r0 = {demo.r0_m:.3g} m at {args.wavelength * 1e9:.0f} nm")
         return 0
@@ -111,30 +109,22 @@ class PlotPsf(Command):
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("graph", help="graph file with an optics block")
-        parser.add_argument("-o", "--output", required=True, help="figure file to write (png, pdf, svg ...)")
+        add_figure_options(parser, dpi=110.0)
         parser.add_argument("--optics", default=None, help="name of the optics block (default: the first)")
         parser.add_argument("--time-s", type=float, default=0.0, help="time after the run's start [s]")
         parser.add_argument("--source", default=None,
                             help="source id (default: the brightest satellite on the detector, else star)")
         parser.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
                             help="override a parameter, as for `evsda run`")
-        parser.add_argument("--dpi", type=float, default=110.0, help="resolution [dots per inch]")
-        parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
 
     def run(self, args: argparse.Namespace) -> int:
-        from pathlib import Path
-
         from evsda.graph.graphfile import load_graph
 
         from .plots import plot_psf_stamp, psf_stamp
 
-        if not 10 <= args.dpi <= 2400:
-            raise UserError(f"--dpi must be between 10 and 2400, got {args.dpi}")
-        check_output_path(args.output, args.overwrite, "figure")
+        check_figure_output(args.output, args.overwrite, args.dpi)
         stamp = psf_stamp(load_graph(args.graph, args.set), args.optics, args.time_s, args.source)
-        suffix = Path(args.output).suffix or ".png"
-        with atomic_output(args.output, args.overwrite, "figure", suffix=suffix) as temporary:
-            plot_psf_stamp(stamp, dpi=args.dpi).savefig(temporary, dpi=args.dpi, format=suffix.lstrip(".").lower())
+        save_figure(plot_psf_stamp(stamp, dpi=args.dpi), args.output, args.overwrite, args.dpi)
         cx, cy = stamp.centroid
         height, width = stamp.image.shape
         print(f"{args.output}: {stamp.source_id} at {stamp.t_ns / 1e9:g} s, {height}x{width} "

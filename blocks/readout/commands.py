@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from evsda.blocks.ports import EventCause
 from evsda.graph import UserError
-from evsda.graph.commands import Command
-from evsda.graph.files import atomic_output, check_free_space, check_output_path
+from evsda.graph.commands import Command, add_figure_options
+from evsda.graph.files import (atomic_output, check_figure_output, check_free_space, check_output_path,
+                               save_figure)
 
 from .exporters import BYTES_PER_EVENT, WRITERS, export_events, extension_warning, infer_format
 from .render import render_gif, render_png
@@ -205,9 +205,7 @@ class _StorePlot(Command):
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("store", help="run store (.zarr) written by `evsda run`")
-        parser.add_argument("-o", "--output", required=True, help="figure file to write (png, pdf, svg ...)")
-        parser.add_argument("--dpi", type=float, default=100.0, help="resolution [dots per inch]")
-        parser.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+        add_figure_options(parser, dpi=100.0)
         self.options(parser)
 
     def options(self, parser: argparse.ArgumentParser) -> None:
@@ -220,8 +218,7 @@ class _StorePlot(Command):
     def run(self, args: argparse.Namespace) -> int:
         from evsda.graph.store import RunStore
 
-        _check_dpi(args.dpi)
-        check_output_path(args.output, args.overwrite, "figure")
+        check_figure_output(args.output, args.overwrite, args.dpi)
         store = RunStore.open(args.store)
         if store.focal_plane is None:
             raise UserError(f"{args.store} holds no recorded events (no focal-plane geometry)")
@@ -230,9 +227,7 @@ class _StorePlot(Command):
             print(f"evsda: note: {args.store} is not a finished run ({unfinished}); drawing what it has committed",
                   file=sys.stderr)
         fig, summary = self.figure(store, args)
-        suffix = Path(args.output).suffix or ".png"
-        with atomic_output(args.output, args.overwrite, "figure", suffix=suffix) as temporary:
-            fig.savefig(temporary, dpi=args.dpi, format=suffix.lstrip(".").lower() or None)
+        save_figure(fig, args.output, args.overwrite, args.dpi)
         print(f"wrote {args.output}: {summary}")
         return 0
 

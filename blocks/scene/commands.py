@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from evsda.graph import NS_PER_S, UserError, Window
-from evsda.graph.commands import Command
-from evsda.graph.files import atomic_output, check_output_path
+from evsda.graph.commands import Command, add_figure_options
+from evsda.graph.files import check_figure_output, save_figure
 
 from .passes import find_passes
 from .satellite import Satellite
@@ -43,12 +43,11 @@ def upstream_values(graph, block_name: str, window: Window) -> dict:
 
 class PlotPass(Command):
     name = "plot-pass"
-    help = "plot a satellite's track through the field of view (the paper's Fig. 2) as a PNG"
+    help = "plot a satellite's track through the field of view (the paper's Fig. 2)"
 
     def configure(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("graph", help="graph file with a satellite block")
-        parser.add_argument("-o", "--output", "--png", dest="output", required=True,
-                            help="output PNG file (-o/--output as on every plot command; --png is its old name)")
+        add_figure_options(parser, dpi=110.0, aliases=("--png",))
         parser.add_argument("--satellite", default=None, help="name of the satellite block (default: the first)")
         parser.add_argument("--pad", type=float, default=30.0, help="seconds of track shown before and after the run")
         parser.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
@@ -57,7 +56,7 @@ class PlotPass(Command):
     def run(self, args: argparse.Namespace) -> int:
         from evsda.graph.graphfile import load_graph
 
-        check_output_path(args.output, overwrite=True, what="figure")
+        check_figure_output(args.output, args.overwrite, args.dpi)
         graph = load_graph(args.graph, args.set)
         run = graph.run_info()
         satellites = [n for n, node in graph.nodes.items() if isinstance(node.block, Satellite)]
@@ -74,8 +73,7 @@ class PlotPass(Command):
         report = find_passes(view, 0, run.duration_ns, resolution_ns=block.cadence_ns)
         from .plot import plot_pass
 
-        with atomic_output(args.output, overwrite=True, what="figure", suffix=".png") as temporary:
-            plot_pass(view, report, -pad, run.duration_ns + pad, temporary)
+        save_figure(plot_pass(view, report, -pad, run.duration_ns + pad), args.output, args.overwrite, args.dpi)
         print(f"{args.output}: {inputs['orbit'].name}; " + ("; ".join(str(p) for p in report.passes)
                                                         or "no observable pass during the run"))
         return 0
