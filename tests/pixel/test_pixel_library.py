@@ -19,6 +19,10 @@ from evsda.library import resolve
 PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6),
            "prophesee_gen3_vga": (640, 480, 15e-6), "cooled_bsi": (1280, 720, 4.86e-6), "dvs128": (128, 128, 40e-6)}
 LUX_PER_W_AT_555NM = 683.0          # SI definition of the candela [lm W^-1]
+#: Pixel illuminance at which the bandwidth reaches 3 kHz [lx]: Lichtsteiner et al. 2008's DVS128 bandwidth
+#: curves, as iniVation's application note reads them, reach 3 kHz with a 300 cd/m^2 LED through an f/1.2
+#: lens (image illuminance pi L / (4 N^2)) and "the same bandwidth at 10x lower luminance".
+LUX_AT_3KHZ = np.pi * 300.0 / (4 * 1.2**2) / 10
 
 
 def include_preset(tmp_path, name: str, **pixel_params):
@@ -62,8 +66,8 @@ def test_davis346_preset_runs_on_its_focal_plane(tmp_path, scenes):
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
     # Every preset: log response down to the dark current, and the proportional bandwidth reaching
-    # 3 kHz at the photocurrent of 1 klux on its pixel (555 nm, its QE and pitch; Lichtsteiner et al.
-    # 2008), as the comments in the preset derive. Catches a pitch or QE edited without the saturation.
+    # 3 kHz at the photocurrent of LUX_AT_3KHZ on its pixel (555 nm, its QE and pitch; Lichtsteiner et
+    # al. 2008), as the comments in the preset derive. Catches a pitch or QE edited without the saturation.
     from scipy import constants
 
     width, height, pitch = PRESETS[name]
@@ -72,9 +76,38 @@ def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
     camera = graph.nodes["sensor/camera"].block.params
     assert (camera.width_px, camera.height_px, camera.pixel_pitch_m) == (width, height, pitch)
     assert p.knee_at_dark_current and p.cutoff_model == "proportional" and p.cutoff_max_hz == 3000.0
-    power_W = 1000.0 / LUX_PER_W_AT_555NM * pitch**2
+    power_W = LUX_AT_3KHZ / LUX_PER_W_AT_555NM * pitch**2
     saturation_A = p.quantum_efficiency * constants.e * 555e-9 / (constants.h * constants.c) * power_W
-    assert p.cutoff_saturation * p.reference_current_A == pytest.approx(saturation_A, rel=1e-3)
+    # relative only: pytest.approx's default absolute tolerance (1e-12) would pass any current below a pA
+    assert p.cutoff_saturation * p.reference_current_A == pytest.approx(saturation_A, rel=1e-3, abs=0.0)
+
+
+#: Per-pixel dark currents measured on the sensor a preset models, at room temperature [A]:
+#: IMX636 5.5 fA, inferred from S-curves by McReynolds et al. 2024 (SPIE, doi:10.1117/12.3022308), as
+#: Kruger et al. 2025 quote it (neuromorphicsystems/dvs_performance_metrics, config/Gen4_config.ini);
+#: DVS128 4 fA, Lichtsteiner et al. 2008 Table I. cooled_bsi carries the IMX636's at 300 K before cooling.
+MEASURED_DARK_CURRENT_A = {"prophesee_gen4": 5.5e-15, "cooled_bsi": 5.5e-15, "dvs128": 4.0e-15}
+
+
+@pytest.mark.parametrize("name", sorted(MEASURED_DARK_CURRENT_A))
+def test_preset_dark_current_is_the_measured_one(tmp_path, name):
+    # The preset stores a density at dark_reference_temperature_K; on its own pitch and at that
+    # temperature it must give back the measured per-pixel current it cites.
+    from evsda.blocks.pixel.model import PixelModel
+
+    pitch = PRESETS[name][2]
+    reference_K = include_preset(tmp_path, name).nodes["sensor/pixel"].block.params.dark_reference_temperature_K
+    p = include_preset(tmp_path, name, temperature_K=reference_K).nodes["sensor/pixel"].block.params
+    assert reference_K == 300.0
+    assert PixelModel(p, pitch**2, 555e-9).dark_current_A == pytest.approx(MEASURED_DARK_CURRENT_A[name], rel=1e-4)
+
+
+def test_preset_quantum_efficiency_carries_the_measured_fill_factor(tmp_path):
+    # Eq. 12's eta is per pixel area: photodiode QE (assumed) x the fill factor the source measured,
+    # Finateu et al. 2020 (IMX636, 77 %) and Lichtsteiner et al. 2008 (DVS128, 9.4 %).
+    for name, photodiode_qe, fill_factor in (("prophesee_gen4", 0.6, 0.77), ("dvs128", 0.3, 0.094)):
+        p = include_preset(tmp_path, name).nodes["sensor/pixel"].block.params
+        assert p.quantum_efficiency == pytest.approx(photodiode_qe * fill_factor, rel=0.01), name
 
 
 def test_faint_limit_script_agrees_with_the_simulated_pixel(scenes):
