@@ -7,6 +7,7 @@ and exits with status 2. Anything else is a bug in evsda and exits with 1.
 
 from __future__ import annotations
 
+import difflib
 import reprlib
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +23,12 @@ def clip(text: str, limit: int = 80) -> str:
     """``text`` on one line, control characters escaped, cut to ``limit`` characters."""
     text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in " ".join(str(text).split()))
     return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def suggest(name: str, choices) -> str:
+    """``; did you mean 'a', 'b'?`` naming up to three of ``choices`` close to ``name``, or nothing."""
+    close = difflib.get_close_matches(name, list(choices), n=3)
+    return f"; did you mean {', '.join(repr(c) for c in close)}?" if close else ""
 
 
 def excerpt(value: Any, limit: int = 60) -> str:

@@ -14,7 +14,7 @@ import json
 from pathlib import Path
 
 from . import registry
-from .graphfile import GraphFile
+from .reading import GraphFile
 
 GRAPH_SCHEMA = "graph.schema.json"
 BLOCKS_DIR = "blocks"
