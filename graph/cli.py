@@ -26,7 +26,7 @@ from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
 from .report import describe_block, describe_store, list_blocks, run_summary, store_info
 from .store import RunStore
-from .sweep import SAMPLING, read_grid, run_sweep
+from .sweep import MAX_POINTS, SAMPLING, parse_limits, read_grid, run_sweep
 from .threads import limit_blas
 
 
@@ -86,9 +86,10 @@ def cmd_sweep(args) -> int:
     grid = read_grid(args.grid, args.vary)
     out = Path(args.output) if args.output else Path(f"{Path(args.graph).stem}_sweep")
     report = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
+    limits, max_points = parse_limits(args.limit)
     result = run_sweep(args.graph, grid, out, overrides=args.set, jobs=args.jobs, scheduler=args.scheduler,
                        overwrite=args.overwrite, method=args.sample, points=args.points, seed=args.seed,
-                       report=report)
+                       report=report, limits=limits, max_points=max_points)
     if result.failed and args.quiet:
         print(f"evsda: sweep: {result.failed} of {len(result.rows)} points failed (see {result.csv})", file=sys.stderr)
     return SWEEP_FAILED if result.failed else 0
@@ -162,12 +163,13 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
         p.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
                        help="override a parameter (repeatable); included blocks are named include/block")
 
-    def limit_arg(p):
+    def limit_arg(p, sweep: bool = False):
         defaults = Limits()
         p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
                        help=f"raise a size limit checked before any work (repeatable): windows "
                             f"({defaults.windows:.0e}), pixels ({defaults.pixels:.3g}), window_bytes "
-                            f"({defaults.window_bytes:.3g} bytes held per window)")
+                            f"({defaults.window_bytes:.3g} bytes held per window)"
+                            + (f" of each point, points ({MAX_POINTS:.0e}) in the sweep" if sweep else ""))
 
     p = add("run", help="run a graph file")
     graph_args(p)
@@ -190,6 +192,7 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
 
     p = add("sweep", help="run a graph over a grid of parameter values (a trade study)")
     graph_args(p)
+    limit_arg(p, sweep=True)
     p.add_argument("--grid", help="YAML file mapping block.param to a list of values or a range {min:, max:}")
     p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=VALUES",
                    help="a parameter and its values, [v1, v2] or {min: a, max: b, log: true} (repeatable; "

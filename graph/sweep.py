@@ -43,6 +43,7 @@ import numpy as np
 from .errors import GraphError, Interrupted, Problem, UserError, clip
 from .executor import requested_outputs, run_graph
 from .graphfile import Graph, check_override, load_graph, parse_value, read_yaml
+from .limits import Limits
 from .store import RunStore, is_run_store
 from .threads import limit_blas
 
@@ -56,6 +57,9 @@ RESULTS_PARQUET = "sweep.parquet"
 FIXED_COLUMNS = ("point", "status")
 TAIL_COLUMNS = ("wall_s", "cpu_s", "run_s", "reused", "error", "store")
 PARQUET_EVERY_S = 2.0       # the Parquet copy of the table is rewritten at most this often (and at the end)
+#: a sweep has at most this many points (each a run store; planning takes ~0.7 ms each) unless
+#: ``--limit points=N`` raises it: counted before any point's values are built
+MAX_POINTS = 10_000
 
 
 @dataclass(frozen=True)
@@ -152,10 +156,41 @@ def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, Axis]:
     return grid
 
 
-def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = None, seed: int = 0) -> list[dict[str, Any]]:
+def parse_limits(items: list[str] | tuple[str, ...] = ()) -> tuple[Limits, int]:
+    """``--limit NAME=VALUE`` of a sweep: ``points`` (the sweep's size, default :data:`MAX_POINTS`) and the
+    run limits every point is checked against (:class:`~evsda.graph.limits.Limits`)."""
+    max_points, others = MAX_POINTS, []
+    for item in items:
+        name, _, text = item.partition("=")
+        if name.strip() != "points":
+            others.append(item)
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not (math.isfinite(value) and value >= 1):
+            raise UserError(f"--limit points: expected a finite number >= 1, got {clip(text, 40)}")
+        max_points = int(value)
+    try:
+        return Limits.parse(others), max_points
+    except UserError as exc:
+        raise UserError(f"{exc}, or points (the sweep's size)") from None
+
+
+def _check_size(n_points: int, max_points: int, how: str) -> None:
+    if n_points > max_points:
+        raise UserError(f"the sweep has {n_points:.4g} points ({how}), more than the limit of {max_points:.4g}; "
+                        f"vary fewer values, draw fewer with --sample lhs --points N, or raise the limit with "
+                        f"--limit points={n_points:.4g}")
+
+
+def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = None, seed: int = 0,
+           max_points: int = MAX_POINTS) -> list[dict[str, Any]]:
     """The points' values: the Cartesian product of the lists (``grid``), or ``points`` draws from every
     list and range, independent (``random``) or stratified so that each axis is cut into ``points``
-    equal slices each sampled once (``lhs``, McKay, Beckman & Conover 1979), with ``seed``."""
+    equal slices each sampled once (``lhs``, McKay, Beckman & Conover 1979), with ``seed``. More than
+    ``max_points`` points are refused before any is built."""
     keys = list(grid)
     if method == "grid":
         ranges = [k for k in keys if isinstance(grid[k], Range)]
@@ -163,11 +198,14 @@ def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = Non
             raise UserError(f"{ranges[0]} is a range: ranges need --sample random or lhs with --points N")
         if points is not None:
             raise UserError("--points goes with --sample random or lhs; a grid runs every combination")
+        _check_size(math.prod(len(grid[k]) for k in keys), max_points,
+                    " x ".join(str(len(grid[k])) for k in keys) + " values")
         return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
     if method not in SAMPLING:
         raise UserError(f"--sample must be one of {', '.join(SAMPLING)}, got {clip(method)!r}")
     if points is None or points < 1:
         raise UserError(f"--sample {method} needs --points N (at least 1)")
+    _check_size(points, max_points, f"--points {points}")
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
     if method == "random":
@@ -284,6 +322,7 @@ class PointTask:
     store_products: list[str] | None        # the run's store_products when points reuse this one's outputs
     overwrite: bool
     threads: int | None                     # EVSDA_THREADS for the point's blocks
+    limits: Limits = field(default_factory=Limits)     # the size limits the point's graph is checked against
 
 
 def _one_line(exc: BaseException) -> str:
@@ -310,7 +349,7 @@ def run_point(task: PointTask, provider: dict | None = None) -> dict:
         overrides = {**task.overrides, **point.values}
         if task.store_products is not None:
             overrides["run.store_products"] = task.store_products
-        graph = load_graph(task.graph_path, overrides)
+        graph = load_graph(task.graph_path, overrides, limits=task.limits)
         reuse = [p for p in task.reuse if is_run_store(p)]
         if point.store.exists() and not task.overwrite:
             if is_run_store(point.store):
@@ -462,12 +501,15 @@ def default_jobs() -> int:
 def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overrides: list[str] = (),
               jobs: int | None = None, scheduler: str | None = None, overwrite: bool = False,
               method: str = "grid", points: int | None = None, seed: int = 0,
-              report: Callable[[str], None] = print) -> SweepResult:
+              report: Callable[[str], None] = print, limits: Limits | None = None,
+              max_points: int = MAX_POINTS) -> SweepResult:
     """Run every point of the sweep (see the module docstring); returns a :class:`SweepResult`.
 
     ``jobs``: worker processes of a local Dask cluster (default: one per core; 1 runs the points in this
-    process); ``scheduler``: the address of a running Dask scheduler to use instead.
+    process); ``scheduler``: the address of a running Dask scheduler to use instead. ``limits``: the size
+    limits each point's graph is checked against; ``max_points``: the most points the sweep may have.
     """
+    limits = limits or Limits()
     if "://" in str(out_dir):
         raise UserError(f"{clip(str(out_dir))}: a sweep writes run stores to a folder every worker mounts (a local "
                         f"disk, or a shared file system such as NFS or Lustre); URLs such as s3:// are not "
@@ -476,10 +518,10 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     if jobs is not None and jobs < 1:
         raise UserError(f"--jobs must be at least 1, got {jobs}")
     graph_path = str(graph_path)
-    values = sample(grid, method, points, seed)
+    values = sample(grid, method, points, seed, max_points)
     t0 = time.perf_counter()
     with limit_blas():
-        base_graph = load_graph(graph_path, list(overrides))
+        base_graph = load_graph(graph_path, list(overrides), limits=limits)
         sweep_points = plan(graph_path, values, out_dir, overrides, base_graph)
         providers, stored = reuse_plan(graph_path, sweep_points, overrides, base_graph)
     log.info("planned %d points in %.2f s", len(sweep_points), time.perf_counter() - t0)
@@ -504,7 +546,7 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
             point, chain = SweepPoint(point.index, point.values, point.store.absolute()), [str(Path(c).absolute()) for c in chain]
         needed = stored.get(point.index)
         store_products = None if not needed or choice is True else sorted(set(needed) | set(choice or []))
-        tasks[point.index] = PointTask(graph_path, base, point, chain, store_products, overwrite, threads)
+        tasks[point.index] = PointTask(graph_path, base, point, chain, store_products, overwrite, threads, limits)
     where = f"the Dask scheduler at {scheduler}" if scheduler else (
         "this process" if workers == 1 else f"a local Dask cluster of {workers} workers")
     report(f"sweep: {len(sweep_points)} points into {out_dir}, on {where}")

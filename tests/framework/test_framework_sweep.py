@@ -189,3 +189,37 @@ def test_sweep_plot_shows_the_metric_against_the_parameters_and_marks_failures(p
     proc = evsda_cli("sweep-plot", out, "events_counted", "--x", "double.gain", "-o", tmp_path / "p.png")
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_sweep_size_and_each_points_size_are_limited_and_the_limits_can_be_raised(plugin, tmp_path, capsys):
+    """100^4 grid points or 10^8 drawn points are refused before any is built (they exhausted memory);
+    ``--limit`` on sweep reaches every point's graph, as its failure message says it does."""
+    from evsda.graph.cli import main
+
+    def sweep(*args):
+        capsys.readouterr()
+        status = main(["sweep", str(chain(tmp_path)), "-j", "1", "-q", *map(str, args)])
+        return status, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+    hundred = "[" + ", ".join(str(v) for v in range(1, 101)) + "]"
+    status, lines = sweep(*[a for k in ("ramp.slope_per_s", "double.gain", "spikes.step", "spikes.latency_s")
+                            for a in ("--vary", f"{k}={hundred}")], "-o", tmp_path / "grid")
+    assert status == 2 and lines == ["evsda: error: the sweep has 1e+08 points (100 x 100 x 100 x 100 values), more "
+                                     "than the limit of 1e+04; vary fewer values, draw fewer with --sample lhs "
+                                     "--points N, or raise the limit with --limit points=1e+08"]
+    status, lines = sweep("--vary", "spikes.step={min: 1, max: 2}", "--sample", "lhs", "--points", "100000000",
+                          "-o", tmp_path / "lhs")
+    assert status == 2 and len(lines) == 1 and "(--points 100000000), more than the limit of 1e+04" in lines[0]
+    with pytest.raises(UserError, match="more than the limit of 3"):
+        sample({"a.x": [1, 2], "b.y": [1, 2]}, max_points=3)
+    assert len(sample({"a.x": [1, 2], "b.y": [1, 2]}, max_points=4)) == 4
+    assert not (tmp_path / "grid").exists() and not (tmp_path / "lhs").exists()
+    # a point of 3 windows passes a limit of 5 windows, one of 30 does not; the message names the flag
+    status, lines = sweep("--vary", "run.window_s=[0.01, 0.001]", "--limit", "windows=5", "-o", tmp_path / "w")
+    error = read_results(tmp_path / "w").set_index("point").error
+    assert status == 3 and lines[-1].startswith("evsda: sweep: 1 of 2 points failed")
+    assert "30 windows (duration_s / window_s) is more than the limit of 5" in error[1] and "--limit windows=30" in error[1]
+    status, lines = sweep("--vary", "run.window_s=[0.01, 0.001]", "--limit", "windows=30", "-o", tmp_path / "w")
+    assert status == 0 and lines == []
+    assert sweep("--vary", "spikes.step=[1]", "--limit", "points=0", "-o", tmp_path / "p")[1] == [
+        "evsda: error: --limit points: expected a finite number >= 1, got 0"]
