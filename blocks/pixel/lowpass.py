@@ -10,7 +10,7 @@ the backward-Euler (always stable) gain
 applied, as in v2e, to the lin-log value ``Y`` of Eq. 14 (the photoreceptor output is a
 voltage proportional to the log current; its bandwidth limit acts on that voltage).
 
-Two cutoff laws:
+Three cutoff laws:
 
 * ``paper`` -- Eq. 16 as printed, ``f_3dB = (Y + 3) / 5.616 f_max`` with ``Y`` the lin-log
   input (the constants are v2e's ``(DN + 20) / 275`` carried to log units: ln 20 = 3.0,
@@ -20,6 +20,13 @@ Two cutoff laws:
   ``x`` the normalised total (photo + dark) current. The bandwidth then falls in proportion
   to the current in the dark, so cooling, by lowering the dark current, also lowers the
   dark-pixel bandwidth.
+* ``power`` -- ``f_3dB = f_max min(1, (x / x_sat)^n)``. The DVS128's measured bandwidth curves
+  (Lichtsteiner et al. 2008, "fast" biases: events per cycle of a sinusoidal stimulus at 0, -1,
+  -2, -3 decades of light) fall to zero at ~2.5-3 kHz, ~2 kHz, ~700 Hz and ~200 Hz: 3.2x per
+  decade of light, ``n = 0.5``. That is the second-order photoreceptor of Graca & Delbruck 2021
+  (the photodiode node's pole goes as the photocurrent, the amplifier's as its bias current;
+  their geometric mean sets the cutoff while the two are apart); the resonant peaking of the
+  second-order response is left out of this one-pole filter.
 """
 
 from __future__ import annotations
@@ -30,18 +37,21 @@ PAPER_OFFSET = 3.0        # Eq. 16 "+3" (ln 20 of v2e's DN offset) [1]
 PAPER_SCALE = 5.616       # Eq. 16 "/5.616" (ln 275 of v2e's DN normaliser) [1]
 
 
-def cutoff_hz(x, y, max_hz: float, model: str = "paper", saturation: float = 275.0):
+def cutoff_hz(x, y, max_hz: float, model: str = "paper", saturation: float = 275.0, exponent: float = 1.0):
     """3 dB cutoff of the photoreceptor (paper Eq. 16) [Hz].
 
     ``x`` is the normalised current and ``y = lin_log(x)``; ``saturation`` is the
-    normalised current at which the ``proportional`` law reaches ``max_hz``.
+    normalised current at which the ``proportional`` and ``power`` laws reach ``max_hz``;
+    ``exponent`` is the ``power`` law's.
     """
     if model == "paper":
         f = (np.asarray(y, dtype=float) + PAPER_OFFSET) / PAPER_SCALE * max_hz
     elif model == "proportional":
         f = np.asarray(x, dtype=float) / saturation * max_hz
+    elif model == "power":
+        f = np.power(np.asarray(x, dtype=float) / saturation, exponent) * max_hz
     else:
-        raise ValueError(f"unknown cutoff model {model!r}; expected 'paper' or 'proportional'")
+        raise ValueError(f"unknown cutoff model {model!r}; expected 'paper', 'proportional' or 'power'")
     return np.clip(f, 0.0, max_hz)
 
 

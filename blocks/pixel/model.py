@@ -113,7 +113,7 @@ class PixelModel:
         else:
             y = photoreceptor.lin_log(x, p.linear_knee)
         if p.cutoff_max_hz > 0:
-            f3db = lowpass.cutoff_hz(x, y, p.cutoff_max_hz, p.cutoff_model, p.cutoff_saturation)
+            f3db = lowpass.cutoff_hz(x, y, p.cutoff_max_hz, p.cutoff_model, p.cutoff_saturation, p.cutoff_exponent)
         else:
             f3db = np.full_like(y, np.inf)
         eps = lowpass.filter_gain(f3db, self.dt_s)

@@ -38,11 +38,14 @@ class DvsPixelParams(BlockParams):
     # low-pass filter (Eq. 16)
     cutoff_max_hz: float = Field(3000.0, ge=0, description="Maximum photoreceptor 3 dB cutoff f_3dB,max; 0 disables "
                                                            "the filter (paper: ~3 kHz after Lichtsteiner 2008) [Hz]")
-    cutoff_model: Literal["paper", "proportional"] = Field(
+    cutoff_model: Literal["paper", "proportional", "power"] = Field(
         "paper", description="Cutoff law: 'paper' = Eq. 16 as printed, (Y+3)/5.616 f_max; 'proportional' = "
-                             "f_max min(1, x/cutoff_saturation), proportional to the total current [-]")
-    cutoff_saturation: float = Field(275.0, gt=0, description="Normalised current at which the proportional "
-                                                              "cutoff reaches its maximum (v2e: 255 + 20) [1]")
+                             "f_max min(1, x/cutoff_saturation), proportional to the total current; 'power' = "
+                             "f_max min(1, (x/cutoff_saturation)^cutoff_exponent) [-]")
+    cutoff_saturation: float = Field(275.0, gt=0, description="Normalised current at which the proportional or "
+                                                              "power cutoff reaches its maximum (v2e: 255 + 20) [1]")
+    cutoff_exponent: float = Field(0.5, gt=0, le=2, description="Exponent of the 'power' cutoff law (0.5: the "
+                                                                "second-order photoreceptor, Graca & Delbruck 2021) [1]")
     # comparator (Eq. 17)
     threshold_on: float = Field(0.2, gt=0, description="Mean ON threshold theta_ON (in ln of current) [1]")
     threshold_off: float = Field(0.2, gt=0, description="Mean OFF threshold theta_OFF (in ln of current) [1]")

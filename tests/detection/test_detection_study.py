@@ -94,16 +94,16 @@ def test_a_star_field_ladder_beyond_its_stars_is_refused(designs, tmp_path, caps
 
 
 def test_a_motion_no_pixel_can_follow_is_refused(designs, tmp_path, capsys):
-    """100 deg/s (9 890 px/s) on the 85 mm lens: a pixel sees a V 6 source for 0.1 ms, its photoreceptor's time
-    constant is ~5 ms even under the source's light (the Gen3 preset's bandwidth, 3 kHz at 16.4 lx on the pixel).
-    Refused before any rung runs, saying why."""
+    """500 deg/s (49 500 px/s) on the 85 mm lens: a pixel sees a V 7 source for 0.02 ms, its photoreceptor's time
+    constant is ~1 ms even under the source's light (the Gen3 preset's measured square-root bandwidth, 3 kHz at 56 lx
+    on the pixel). Refused before any rung runs, saying why."""
     events, _ = designs
-    fast = ["--set", "scene/inject.rate_arcsec_s=360000", "--set", "scene/inject.cadence_s=0.00005", "--set",
-            "detector.max_rate_px_s=10000", "--set", "detector.look_s=0.001"]
+    fast = ["--set", "scene/inject.rate_arcsec_s=1800000", "--set", "scene/inject.cadence_s=0.00001", "--set",
+            "detector.max_rate_px_s=50000", "--set", "detector.look_s=0.0002"]
     out = tmp_path / "o"
-    assert main(["limiting-magnitude", str(events), "--magnitudes", "6,7", "-o", str(out), *SMALL, *fast]) == 2
+    assert main(["limiting-magnitude", str(events), "--magnitudes", "7,8", "-o", str(out), *SMALL, *fast]) == 2
     err = capsys.readouterr().err
-    assert "no pixel can respond to this motion" in err and "crosses a pixel in 0.101 ms" in err
+    assert "no pixel can respond to this motion" in err and "crosses a pixel in 0.0202 ms" in err
     assert not list(out.glob("*/point_*.zarr"))
     # the detector must search the sources' rate
     assert main(["limiting-magnitude", str(events), "--magnitudes", "6,7", "-o", str(out), *SMALL,

@@ -19,10 +19,14 @@ from evsda.library import resolve
 PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6),
            "prophesee_gen3_vga": (640, 480, 15e-6), "cooled_bsi": (1280, 720, 4.86e-6), "dvs128": (128, 128, 40e-6)}
 LUX_PER_W_AT_555NM = 683.0          # SI definition of the candela [lm W^-1]
-#: Pixel illuminance at which the bandwidth reaches 3 kHz [lx]: Lichtsteiner et al. 2008's DVS128 bandwidth
-#: curves, as iniVation's application note reads them, reach 3 kHz with a 300 cd/m^2 LED through an f/1.2
-#: lens (image illuminance pi L / (4 N^2)) and "the same bandwidth at 10x lower luminance".
-LUX_AT_3KHZ = np.pi * 300.0 / (4 * 1.2**2) / 10
+#: Lichtsteiner et al. 2008's DVS128 bandwidth curves ("fast" biases), read off the figure iniVation's application
+#: note on pixel bandwidth reproduces: a 300 cd/m^2 LED through an f/1.2 lens (image illuminance pi L / (4 N^2) =
+#: 164 lx), attenuated by 0-3 decades; for each, the last stimulus frequency with events and the first without
+#: (events per cycle fall from ~3-6 to 0) bracket the pixel's cutoff [lx, Hz, Hz].
+LICHTSTEINER_LED_LUX = np.pi * 300.0 / (4 * 1.2**2)
+LICHTSTEINER_CUTOFF_BRACKETS = ((LICHTSTEINER_LED_LUX * 1e-3, 131.0, 257.0), (LICHTSTEINER_LED_LUX * 1e-2, 479.0, 857.0),
+                                (LICHTSTEINER_LED_LUX * 1e-1, 870.0, 3000.0), (LICHTSTEINER_LED_LUX, 1600.0, 3000.0))
+LUX_AT_3KHZ = 56.0                  # the presets' fit of those brackets with a square-root law [lx]
 
 
 def include_preset(tmp_path, name: str, **pixel_params):
@@ -65,7 +69,7 @@ def test_davis346_preset_runs_on_its_focal_plane(tmp_path, scenes):
 
 @pytest.mark.parametrize("name", sorted(PRESETS))
 def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
-    # Every preset: log response down to the dark current, and the proportional bandwidth reaching
+    # Every preset: log response down to the dark current, and the square-root bandwidth reaching
     # 3 kHz at the photocurrent of LUX_AT_3KHZ on its pixel (555 nm, its QE and pitch; Lichtsteiner et
     # al. 2008), as the comments in the preset derive. Catches a pitch or QE edited without the saturation.
     from scipy import constants
@@ -75,12 +79,35 @@ def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
     p = graph.nodes["sensor/pixel"].block.params
     camera = graph.nodes["sensor/camera"].block.params
     assert (camera.width_px, camera.height_px, camera.pixel_pitch_m) == (width, height, pitch)
-    assert p.knee_at_dark_current and p.cutoff_model == "proportional" and p.cutoff_max_hz == 3000.0
+    assert p.knee_at_dark_current and p.cutoff_model == "power" and p.cutoff_exponent == 0.5
+    assert p.cutoff_max_hz == 3000.0
     power_W = LUX_AT_3KHZ / LUX_PER_W_AT_555NM * pitch**2
     saturation_A = p.quantum_efficiency * constants.e * 555e-9 / (constants.h * constants.c) * power_W
     # relative only: pytest.approx's default absolute tolerance (1e-12) would pass any current below a pA
     assert p.cutoff_saturation * p.reference_current_A == pytest.approx(saturation_A, rel=1e-3, abs=0.0)
 
+
+
+def test_dvs128_preset_bandwidth_reproduces_lichtsteiner_curves(tmp_path):
+    # The DVS128 preset's cutoff (its own QE, pitch and 4 fA dark current through the pixel model) at each
+    # of the four measured light levels lies inside the bracket read off the measured curves.
+    from scipy import constants
+
+    from evsda.blocks.pixel import lowpass
+    from evsda.blocks.pixel.model import PixelModel
+
+    pitch = PRESETS["dvs128"][2]
+    p = include_preset(tmp_path, "dvs128").nodes["sensor/pixel"].block.params
+    model = PixelModel(p, pitch**2, 555e-9)
+    for lux, last_with_events, first_without in LICHTSTEINER_CUTOFF_BRACKETS:
+        photons_s = lux / LUX_PER_W_AT_555NM * pitch**2 / (constants.h * constants.c / 555e-9)
+        x = model.normalised_current(np.array([photons_s]))
+        cutoff = lowpass.cutoff_hz(x, None, p.cutoff_max_hz, p.cutoff_model, p.cutoff_saturation, p.cutoff_exponent)[0]
+        assert last_with_events <= cutoff <= first_without, (lux, cutoff)
+    # a proportional law through the same 3 kHz point would miss the dim curves by 5-15x
+    x_dim = model.normalised_current(np.array([LICHTSTEINER_CUTOFF_BRACKETS[0][0] / LUX_PER_W_AT_555NM * pitch**2
+                                              / (constants.h * constants.c / 555e-9)]))
+    assert lowpass.cutoff_hz(x_dim, None, 3000.0, "proportional", p.cutoff_saturation)[0] < 131.0 / 5
 
 #: Per-pixel dark currents measured on the sensor a preset models, at room temperature [A]:
 #: IMX636 5.5 fA, inferred from S-curves by McReynolds et al. 2024 (SPIE, doi:10.1117/12.3022308), as

@@ -63,6 +63,16 @@ def test_proportional_cutoff_law():
         lowpass.cutoff_hz(1.0, 1.0, 3000.0, "other")
 
 
+def test_power_cutoff_law():
+    # f = f_max min(1, (x / x_sat)^n): a square root gives a tenth of f_max at a hundredth of the saturation current
+    f = lowpass.cutoff_hz(np.array([0.0, 2.75, 275.0, 1e4]), 0.0, 3000.0, "power", saturation=275.0, exponent=0.5)
+    np.testing.assert_allclose(f, [0.0, 300.0, 3000.0, 3000.0])
+    # exponent 1 is the proportional law
+    x = np.array([1.0, 50.0, 500.0])
+    np.testing.assert_allclose(lowpass.cutoff_hz(x, 0.0, 3000.0, "power", 275.0, 1.0),
+                               lowpass.cutoff_hz(x, 0.0, 3000.0, "proportional", 275.0))
+
+
 def test_discrete_filter_converges_to_the_one_pole_response():
     # Eq. 16's backward-Euler filter tends to 1 - exp(-2 pi f t) as the step shrinks
     f, t_end = 200.0, 2e-3
