@@ -110,6 +110,8 @@ class DvsPixel(Block):
             raise RuntimeError(f"block '{self.name}' has no pixel state before its first step")
         if self.params.implementation == "reference":
             return np.array(self.pixels[name], copy=True)
+        if self._engine is not None:
+            self._engine.take_pending()
         return EventDrivenPixels.field(self.pixels, name)
 
     # -- helpers -------------------------------------------------------------------------------

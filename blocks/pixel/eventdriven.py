@@ -30,6 +30,7 @@ import numpy as np
 
 from evsda.blocks.threads import worker_threads
 
+from .deferred import SharedChanges, select_pixels
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
@@ -45,6 +46,9 @@ _DENSE_BLOCK_CHANGES = 1 << 20         # (pixel, sample) values per block of row
 
 class EventDrivenPixels:
     """Event-driven pixel array over a state dict (see :meth:`new_state`)."""
+
+    #: leave background changes out of pixels they cannot make fire (:mod:`.deferred`); False: the reference
+    defer_background = True
 
     def __init__(self, model: PixelModel, state: dict):
         self.model = model
@@ -105,14 +109,21 @@ class EventDrivenPixels:
 
         ``held_background`` is the uniform flux of the input held before the window. The
         pixels under stamps (now or before) get their own input changes; every other pixel
-        shares the changes of the background, if any.
+        shares the changes of the background, if any, and takes them only when they can
+        matter (:mod:`.deferred`): when it is due for an event, or its comparator could reach
+        a threshold under them before the window's end.
         """
         s = self.s
         n = s["real"].shape[0]
+        history = SharedChanges(s, len(REAL))
         empty = np.zeros(0, np.int64)
         shared = empty
         own_pixel, own_step, own_flux = empty, empty, np.zeros(0)
-        touched = np.union1d(s["off_background"], stamps.pixel)
+        mark = np.zeros(n, np.bool_)
+        mark[s["off_background"]] = True
+        mark[stamps.pixel] = True
+        touched = np.flatnonzero(mark)                        # pixels under stamps, now or before
+        self._catch_up(history, history.behind(touched))      # earlier background changes first
         if steps.size:
             shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
             if touched.size:
@@ -125,21 +136,45 @@ class EventDrivenPixels:
         first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
         if shared.size:
-            pixels = np.arange(n)
-        else:
-            busy = s["next"] < n_end
-            busy[changed] = True
-            pixels = np.flatnonzero(busy)
+            history.append(steps[shared], self._inputs(background[shared]))
+        leak_hz, dt = self._constants[:2]
+        pixels, takes = select_pixels(s["real"], s["count"], s["next"], s["applied"], touched, changed, np.int64(n_end),
+                                      np.int64(s["shared_base"]), np.int64(history.end),
+                                      *history.suffix_bounds(Y, PARA), leak_hz * dt, dt, self.defer_background)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
-        if shared.size:                                   # pixels away from stamps take the background's changes
-            lo[:], hi[:] = own_pixel.size, own_pixel.size + shared.size
-            where = np.searchsorted(pixels, touched)
-            lo[where], hi[where] = 0, 0
+        taking = pixels[takes]
+        lo[takes], hi[takes] = history.ranges(taking, own_pixel.size)
         where = np.searchsorted(pixels, changed)
         lo[where], hi[where] = first, first + counts
-        change_step = np.concatenate([own_step, steps[shared].astype(np.int64)])
-        change_input = self._inputs(np.concatenate([own_flux, background[shared]]))
+        change_step = np.concatenate([own_step, s["shared_step"]])
+        change_input = np.concatenate([self._inputs(own_flux), s["shared_input"]])
         self._run(pixels, lo, hi, change_step, change_input, n_end, log)
+        history.taken(taking)
+        history.taken(touched)
+        history.prune()
+
+    def take_pending(self) -> None:
+        """Give every pixel the background changes it was left out of (its state then reads as if it took each
+        at once; events are unaffected either way)."""
+        history = SharedChanges(self.s, len(REAL))
+        self._catch_up(history, history.behind(np.arange(self.s["real"].shape[0])))
+
+    def _catch_up(self, history: SharedChanges, pixels: np.ndarray) -> None:
+        """Give ``pixels`` the background changes they have not taken (all before the present window).
+
+        They were left out only while they provably could not fire (:func:`.deferred.select_pixels`),
+        so this makes no events; one would mean the bound is wrong, which is raised, not hidden.
+        """
+        if not pixels.size:
+            return
+        lo, hi = history.ranges(pixels, 0)
+        steps = self.s["shared_step"]
+        scratch = EventLog()
+        self._run(pixels, lo, hi, steps, self.s["shared_input"], int(steps[-1]) + 1, scratch)
+        if scratch._chunks or scratch.n_loss:
+            raise RuntimeError("a pixel left out of a background change would have fired (deferral bound violated)")
+        history.taken(pixels)
+        history.prune()
 
     def run_dense_window(self, background: np.ndarray, steps: np.ndarray, rows_of, n_end: int, log: EventLog,
                          height: int, width: int) -> None:
@@ -152,6 +187,7 @@ class EventDrivenPixels:
         :meth:`run_window` makes from the same input (tested), in bounded memory.
         """
         s = self.s
+        self.take_pending()                                   # background changes left out before
         rows_per_block = max(1, _DENSE_BLOCK_CHANGES // max(1, steps.size * width))
         off_background = []
         for row0 in range(0, height, rows_per_block):

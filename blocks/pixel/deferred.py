@@ -1,0 +1,140 @@
+"""Changes of the uniform background, applied to each pixel only when they can matter.
+
+A background that drifts (the sky brightening as a tracking mount climbs, sampled every
+``cadence_s``) changes the input of every pixel away from the stamps at once. Taking each
+change to every pixel costs sensor pixels x changes, although almost no pixel can fire
+because of a change of a few 1e-4 of the log-intensity. Instead the changes are kept, in
+order, in a history (:class:`SharedChanges`) and each pixel records how many of them it
+has taken (``applied``). A pixel that is due for nothing before the window's end (its next
+comparator, shot-noise or settling step lies beyond it) and whose comparator provably
+cannot reach a threshold before then under the changes it has not taken
+(:func:`select_pixels`) is left alone; the next time it is processed for any reason it takes
+its pending changes first, at their own steps, through the same compiled loop
+(:mod:`.pixel_loop`). Because a pixel's state is only ever advanced at its own events and
+input changes, in order, the events are the same bytes as when every change is taken at
+once (the property that makes the events independent of the window length; tested).
+
+The bound (paper Eqs. 16-19 at piecewise constant input): between updates the filtered
+log-intensity ``L`` relaxes geometrically towards the input's ``Y``, so it stays within the
+hull of its value at the last update and every ``Y`` it is given; the memorised ``M`` only
+falls, by at most the largest drift ``(R_leak + R_para) theta_ON dt`` per step. So
+``L - M`` stays below ``max(L_0, Y_i) - M_0 + drift_max (n_end - 1 - step_0)`` and above
+``min(L_0, Y_i) - M_0``; if that band lies inside the comparator's thresholds (less their
+rounding tolerance and a margin for floating-point rounding), the pixel cannot fire.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .comparator import TOLERANCE
+from .pixel_loop import L_, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y
+
+#: margin for rounding in the loop's closed forms [ln of current]; values are O(10), their rounding ~1e-14
+ROUNDING_MARGIN = 1e-9
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _cannot_fire(r, step, k, y_high, y_low, para_high, n_end, leak_dt, dt):
+    """Whether a pixel (state row ``r`` at ``step``) provably cannot fire before ``n_end`` under its
+    pending changes from index ``k`` of the suffix tables (see the module's bound)."""
+    high = max(r[L_], r[Y], y_high[k])
+    low = min(r[L_], r[Y], y_low[k])
+    drift = (leak_dt * r[NOISE_SCALE] + max(r[PARA], para_high[k]) * dt) * r[TH_ON]
+    rise = high - r[M_] + drift * max(n_end - 1 - step, 0)
+    fall = low - r[M_]
+    return rise < r[TH_ON] - TOLERANCE - ROUNDING_MARGIN and fall > -(r[TH_OFF] - TOLERANCE) + ROUNDING_MARGIN
+
+
+@numba.njit(cache=True, error_model="numpy")
+def select_pixels(real, count, next_step, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
+                  leak_dt, dt, defer):
+    """The pixels a window must process, in order, and whether each takes pending background changes.
+
+    A pixel is processed when it is due before ``n_end`` (``next_step``), has its own input
+    changes (``changed``, sorted), or lies away from the stamps (not in ``touched``, sorted)
+    with background changes it has not taken (``applied < end``) that could make it fire
+    (:func:`_cannot_fire`; ``y_high``, ``y_low``, ``para_high``: :meth:`SharedChanges.suffix_bounds`).
+    ``defer`` False takes every change to every pixel at once (the reference the tests compare with).
+    Returns ``(pixels, takes)``: ``takes`` marks those away from the stamps with pending changes.
+    """
+    n = next_step.size
+    pixels = np.empty(n, np.int64)
+    takes = np.empty(n, np.bool_)
+    m, it, ic = 0, 0, 0
+    for p in range(n):
+        under = it < touched.size and touched[it] == p
+        if under:
+            it += 1
+        own = ic < changed.size and changed[ic] == p
+        if own:
+            ic += 1
+        busy = own or next_step[p] < n_end
+        behind = (not under) and applied[p] < end
+        if behind and not busy:
+            busy = not defer or not _cannot_fire(real[p], count[p, STEP], applied[p] - base, y_high, y_low, para_high, n_end,
+                                    leak_dt, dt)
+        if busy:
+            pixels[m] = p
+            takes[m] = behind
+            m += 1
+    return pixels[:m].copy(), takes[:m].copy()
+
+
+class SharedChanges:
+    """The background's input changes not yet taken by every pixel, kept in the pixel state dict.
+
+    State entries: ``shared_step`` (k,) [steps], ``shared_input`` (k, columns) rows of the state
+    table's input columns, ``shared_base`` the global index of the first kept change, and
+    ``applied`` (pixels,) the global count of changes each pixel has taken.
+    """
+
+    def __init__(self, state: dict, columns: int):
+        n = state["real"].shape[0]
+        if "applied" not in state:                 # a state from before deferral: every pixel up to date
+            state["applied"] = np.zeros(n, np.int64)
+            state["shared_step"] = np.zeros(0, np.int64)
+            state["shared_input"] = np.zeros((0, columns))
+            state["shared_base"] = 0
+        self.s = state
+
+    @property
+    def end(self) -> int:
+        """Global count of changes so far."""
+        return int(self.s["shared_base"]) + self.s["shared_step"].size
+
+    def append(self, steps: np.ndarray, rows: np.ndarray) -> None:
+        self.s["shared_step"] = np.concatenate([self.s["shared_step"], np.asarray(steps, np.int64)])
+        self.s["shared_input"] = np.concatenate([self.s["shared_input"], rows])
+
+    def behind(self, pixels: np.ndarray) -> np.ndarray:
+        """Those of ``pixels`` (sorted) with changes not yet taken."""
+        return pixels[self.s["applied"][pixels] < self.end]
+
+    def ranges(self, pixels: np.ndarray, offset: int) -> tuple[np.ndarray, np.ndarray]:
+        """Each pixel's pending changes as ``lo, hi`` rows of the kept changes placed at ``offset``."""
+        lo = offset + self.s["applied"][pixels] - int(self.s["shared_base"])
+        return lo, np.full(pixels.size, offset + self.s["shared_step"].size, np.int64)
+
+    def suffix_bounds(self, y: int, para: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Largest and smallest ``Y`` and largest parasitic rate of the kept changes from each index on
+        (columns ``y``, ``para`` of their rows); one more entry for none pending (neutral values)."""
+        rows = self.s["shared_input"]
+        y_high = np.r_[np.maximum.accumulate(rows[::-1, y])[::-1], -np.inf]
+        y_low = np.r_[np.minimum.accumulate(rows[::-1, y])[::-1], np.inf]
+        para_high = np.r_[np.maximum.accumulate(rows[::-1, para])[::-1], -np.inf]
+        return y_high, y_low, para_high
+
+    def taken(self, pixels: np.ndarray) -> None:
+        """``pixels`` have taken every kept change."""
+        self.s["applied"][pixels] = self.end
+
+    def prune(self) -> None:
+        """Forget the changes every pixel has taken."""
+        first = int(self.s["applied"].min()) if self.s["applied"].size else self.end
+        drop = first - int(self.s["shared_base"])
+        if drop > 0:
+            self.s["shared_step"] = self.s["shared_step"][drop:].copy()
+            self.s["shared_input"] = self.s["shared_input"][drop:].copy()
+            self.s["shared_base"] = first

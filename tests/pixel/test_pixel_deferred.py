@@ -1,0 +1,75 @@
+"""Background changes left out of pixels they cannot make fire (blocks/pixel/deferred.py) change no event.
+
+A uniform background that drifts changes every pixel's input at each of its samples. The fast
+implementation gives such a change only to the pixels it could make fire before the window's end
+(a bound on the comparator input) and lets the others take it later, in order. The reference gives
+every change to every pixel at once. Events, lost-event counts and the pixels' final state must be
+identical, whatever the windows and the threads, also when the background jumps far enough to make
+pixels fire by itself.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.eventdriven import EventDrivenPixels
+from evsda.blocks.ports import FocalPlane, Irradiance
+from evsda.graph import RunInfo, Window
+
+FP = FocalPlane(64, 48, 10e-6, 0.5)
+NOISY = dict(leak_rate_hz=2.0, shot_noise_rate_hz=2.0, parasitic_rate_per_lux_hz=1e-3)
+
+
+def sky(t_ns: np.ndarray) -> np.ndarray:
+    """A sky brightening by 3e-4 every 10 ms sample, with a 30 % jump at 0.13 s and a 20 % drop at 0.21 s."""
+    step = np.floor(t_ns / 1e7)
+    return 2e5 * (1 + 3e-4 * step) * np.where(t_ns >= 130_000_000, 1.3, 1.0) * np.where(t_ns >= 210_000_000, 0.8, 1.0)
+
+
+def irradiance(window: Window) -> Irradiance:
+    """Sky samples every 10 ms, a 5 x 5 stamp crossing the field at 1 kHz."""
+    t = np.arange(-(-window.start_ns // 10**6) * 10**6, window.stop_ns, 10**6, dtype=np.int64)
+    x = 5 + 150 * t * 1e-9
+    origin = np.stack([np.round(x).astype(np.int32), np.full(t.size, 20, np.int32)], axis=-1)[:, None]
+    stamp = np.full((t.size, 1, 5, 5), 3e6)
+    return Irradiance(FP, 550e-9, t, sky(t), origin, stamp)
+
+
+def run(window_s: float, defer: bool, monkeypatch, threads: str = "1", duration_s: float = 0.3):
+    monkeypatch.setenv("EVSDA_THREADS", threads)
+    monkeypatch.setattr(EventDrivenPixels, "defer_background", defer)
+    block = DvsPixel(seed=11, **NOISY)
+    block.setup(RunInfo(duration_ns=round(duration_s * 1e9)))
+    out, lost, left_behind = [], 0, 0
+    for i in range(int(round(duration_s / window_s))):
+        window = Window.from_seconds(i * window_s, (i + 1) * window_s, index=i)
+        e = block.step(window, irradiance=irradiance(window))["events"]
+        out.append((e.t_ns, e.x, e.y, e.p, e.cause))
+        lost += e.n_loss
+        applied = block.pixels["applied"]
+        left_behind = max(left_behind, int(np.sum(applied < applied.max())))
+    state = {name: block.pixel_field(name) for name in ("flux", "filtered", "memorised", "theta_on", "step", "ready")}
+    return [np.concatenate(parts) for parts in zip(*out)], lost, left_behind, state
+
+
+@pytest.mark.parametrize("window_s, threads", [(0.02, "1"), (0.05, "2")])
+def test_left_out_background_changes_change_no_event(monkeypatch, window_s, threads):
+    reference, lost, behind, _ = run(0.03, False, monkeypatch)
+    assert behind == 0
+    events, lost_fast, behind_fast, _ = run(window_s, True, monkeypatch, threads)
+    assert behind_fast > FP.width_px * FP.height_px // 2          # most pixels left the drift for later
+    t, x, y, p, cause = reference
+    jump = (t >= 130_000_000) & (t < 131_000_000)
+    assert np.sum(jump & (p > 0)) > 100                           # the jump itself makes many pixels fire
+    for a, b in zip(reference, events):
+        np.testing.assert_array_equal(a, b)
+    assert lost == lost_fast
+
+
+def test_pixels_read_the_same_state(monkeypatch):
+    *_, reference = run(0.03, False, monkeypatch, duration_s=0.12)
+    *_, fast = run(0.04, True, monkeypatch, duration_s=0.12)      # pixel_field gives them their pending changes
+    for key in reference:
+        np.testing.assert_array_equal(reference[key], fast[key])
