@@ -25,7 +25,7 @@ import numpy as np
 from evsda.graph import Block, Input, Output, PortValue, Window, registry
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import graph_from_dict
-from evsda.graph.store import EVENT_FIELDS, RunStore
+from evsda.graph.store import RunStore, event_fields
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,7 +87,7 @@ def event_append_throughput(n_events=40_000_000, batch=2_000_000) -> tuple[float
         "x": rng.integers(0, 1280, batch).astype(np.uint16), "y": rng.integers(0, 720, batch).astype(np.uint16),
         "p": rng.choice(np.array([-1, 1], np.int8), batch), "cause": rng.integers(0, 4, batch).astype(np.uint8),
     }
-    nbytes = sum(np.dtype(d).itemsize for d in EVENT_FIELDS.values()) * n_events
+    nbytes = sum(np.dtype(d).itemsize for d in event_fields().values()) * n_events
     tmp = tempfile.mkdtemp()
     try:
         store = RunStore.create(Path(tmp) / "events.zarr")

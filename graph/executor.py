@@ -31,14 +31,12 @@ from .errors import Interrupted, StoreError
 from .files import os_reason
 from .graphfile import Graph
 from .lock import StoreLock
-from .ports import PortValue
+from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
 from .threads import limit_blas
 
-EVENTS_TYPE = "Events"      # outputs of this port type are recorded under events/
-METRICS_TYPE = "Metrics"    # outputs of this port type are recorded under metrics/
-TRUTH_TYPE = "Truth"        # outputs of this port type are recorded under truth/ (unless run.store_truth is false)
+STORE = "(store)"           # the timing entry of the run store's writes
 log = logging.getLogger("evsda.executor")
 
 
@@ -57,16 +55,21 @@ class RunResult:
 
 def requested_outputs(graph: Graph) -> list[tuple[str, str]]:
     """The graph's requested outputs; by default every output of every sink block (or of every
-    leaf) plus the event streams (``Events`` outputs) upstream of them, which the store records."""
+    leaf) plus the event streams (outputs whose port type records as EVENT_STREAM) upstream of them,
+    which the store records."""
     if graph.outputs:
         return list(graph.outputs)
-    sinks = [n for n, node in graph.nodes.items() if type(node.block).is_sink]
-    if not sinks:
-        sinks = [n for n in graph.nodes if graph.digraph.out_degree(n) == 0]
+    sinks = _sinks(graph)
     upstream = set().union(*(nx.ancestors(graph.digraph, n) for n in sinks)) - set(sinks)
     streams = [(n, port) for n in nx.topological_sort(graph.digraph) if n in upstream
-               for port, spec in type(graph.nodes[n].block).outputs.items() if spec.type.type_name() == EVENTS_TYPE]
+               for port, spec in type(graph.nodes[n].block).outputs.items() if spec.type.record == EVENT_STREAM]
     return [(n, port) for n in sinks for port in type(graph.nodes[n].block).outputs] + streams
+
+
+def _sinks(graph: Graph) -> list[str]:
+    """The blocks that declare themselves sinks, else the graph's leaves."""
+    sinks = [n for n, node in graph.nodes.items() if type(node.block).is_sink]
+    return sinks or [n for n in graph.nodes if graph.digraph.out_degree(n) == 0]
 
 
 def upstream_hashes(graph: Graph, run: RunInfo) -> dict[str, str]:
@@ -89,6 +92,19 @@ def upstream_hashes(graph: Graph, run: RunInfo) -> dict[str, str]:
     return hashes
 
 
+class Stopwatch:
+    """Wall-clock seconds spent under each name (a block's name, or :data:`STORE`)."""
+
+    def __init__(self, names: list[str]):
+        self.seconds = {name: 0.0 for name in names}
+
+    @contextmanager
+    def timing(self, name: str):
+        start = time.perf_counter()
+        yield
+        self.seconds[name] += time.perf_counter() - start
+
+
 class Executor:
     """Runs one graph; see :func:`run_graph` for the arguments."""
 
@@ -109,10 +125,22 @@ class Executor:
         self.reuse_stores = [RunStore.open(p) for p in reuse]
         self.loaded: dict[str, RunStore] = {}
         self.order = self._plan()
+        self._prepare()
         self.out = None if out is None else Path(out)
         self.resume, self.overwrite = resume, overwrite
         self.store: RunStore | None = None
         self._check_output()
+
+    def _prepare(self) -> None:
+        """What every window needs, worked out once: the blocks that step (those not loaded), their inputs,
+        the event stream the store records, and a stopwatch per block."""
+        self.blocks: dict[str, Block] = {n: self.graph.nodes[n].block for n in self.order}
+        self.running = [n for n in self.order if n not in self.loaded]
+        self.watch = Stopwatch([*self.running, STORE])
+        self.event_output = self._event_output()
+        #: each block's incoming connections as (source block, source port, input port)
+        self.inputs_of = {n: [(c.src, c.src_port, c.dst_port) for c in self.graph.connections if c.dst == n]
+                          for n in self.graph.nodes}
 
     # -- planning --------------------------------------------------------------------------------
     def _consumed_ports(self, name: str, active: set[str]) -> set[str]:
@@ -157,24 +185,28 @@ class Executor:
         if out is None:
             return
         if out.exists() or out.is_symlink():
-            if not out.is_dir() or out.is_symlink():
-                raise StoreError(f"{out} exists and is not an evsda run store (a run store is a folder); "
-                                 f"choose another output")
-            if self.resume:
-                if is_run_store(out) or store_module._is_empty(out):
-                    return
-                raise StoreError(f"cannot resume {out}: it is not an evsda run store")
-            if not self.overwrite:
-                raise StoreError(f"{out} already exists; choose another output, pass --overwrite to replace it, "
-                                 f"or --resume to continue the run it holds")
-            check_replaceable(out)
-        elif not out.parent.exists():
-            pass  # created with the store, like `mkdir -p`
-        elif not out.parent.is_dir():
+            if self._check_existing_output(out):
+                return
+        elif out.parent.exists() and not out.parent.is_dir():   # a missing parent is created, like `mkdir -p`
             raise StoreError(f"cannot create run store {out}: {out.parent} is not a folder")
         for folder in out.resolve().parents:
             if is_run_store(folder):
                 raise StoreError(f"cannot create run store {out} inside the run store {folder}")
+
+    def _check_existing_output(self, out: Path) -> bool:
+        """Refuse an existing ``out`` that may not be written; True where it is a store to resume."""
+        if not out.is_dir() or out.is_symlink():
+            raise StoreError(f"{out} exists and is not an evsda run store (a run store is a folder); "
+                             f"choose another output")
+        if self.resume:
+            if is_run_store(out) or store_module._is_empty(out):
+                return True
+            raise StoreError(f"cannot resume {out}: it is not an evsda run store")
+        if not self.overwrite:
+            raise StoreError(f"{out} already exists; choose another output, pass --overwrite to replace it, "
+                             f"or --resume to continue the run it holds")
+        check_replaceable(out)
+        return False
 
     def _take_store_folder(self) -> None:
         """Create the output folder if needed (noting that this run created it) and lock it."""
@@ -248,105 +280,112 @@ class Executor:
         return f"interrupted; {self._committed_note()}"
 
     def _execute(self) -> RunResult:
-        blocks: dict[str, Block] = {n: self.graph.nodes[n].block for n in self.order}
-        running = [n for n in self.order if n not in self.loaded]
-        timing = {n: 0.0 for n in running}
-        timing["(store)"] = 0.0
-
-        start_window = 0
-        for name in running:
-            blocks[name].setup(self.run)
+        for name in self.running:
+            self.blocks[name].setup(self.run)
         result = RunResult(store=None, reused={n: str(s.path) for n, s in self.loaded.items()})
-        if self.resume and self.out is not None:
-            store = self._open_for_resume()
-            if store is not None:
-                self._use_store(store, result, running)
-                if store.complete:
-                    log.info("%s: the run is already complete; nothing to resume", self.out)
-                    result.metrics, result.metric_units = store.metrics, store.metric_units
-                    result.timing_s = dict(store.attrs.get("timing", {}))
-                    return result
-                start_window = store.committed_windows
-                states = store.read_checkpoint()
-                if states:
-                    for name in running:
-                        blocks[name].set_state(states.get(name, {}))
-                elif start_window:
-                    raise StoreError(f"cannot resume {self.out}: it has {start_window} committed windows but no "
-                                     f"checkpoint to continue from; start again with --overwrite")
+        start_window = self._resume(result) if self.resume and self.out is not None else 0
+        if start_window is None:
+            return result
+        self._run_windows(start_window, result)
+        finished = start_window + result.windows_run == self.run.n_windows
+        finals = self._finish_blocks() if finished else {}
+        result.timing_s = self.watch.seconds
+        with self._writing():
+            for name, outputs in finals.items():
+                self._record(name, outputs, None, result)
+            self._finish_store(result, self.running, self.watch.seconds, finished)
+        return result
 
+    def _finish_blocks(self) -> dict[str, dict[str, Any]]:
+        """Each running block's final outputs (:meth:`Block.finish`) once the run's last window is done."""
+        finals = {}
+        for name in self.running:
+            with self.watch.timing(name):
+                finals[name] = self.blocks[name].finish() or {}
+        return finals
+
+    def _resume(self, result: RunResult) -> int | None:
+        """The window to continue from, the blocks' state restored; None when the run is already complete."""
+        store = self._open_for_resume()
+        if store is None:
+            return 0
+        self._use_store(store, result, self.running)
+        if store.complete:
+            log.info("%s: the run is already complete; nothing to resume", self.out)
+            result.metrics, result.metric_units = store.metrics, store.metric_units
+            result.timing_s = dict(store.attrs.get("timing", {}))
+            return None
+        start_window = store.committed_windows
+        states = store.read_checkpoint()
+        if not states and start_window:
+            raise StoreError(f"cannot resume {self.out}: it has {start_window} committed windows but no "
+                             f"checkpoint to continue from; start again with --overwrite")
+        for name in self.running if states else ():
+            self.blocks[name].set_state(states.get(name, {}))
+        return start_window
+
+    def _run_windows(self, start_window: int, result: RunResult) -> None:
+        """Step every running block over windows ``start_window`` on, recording and committing as it goes."""
         readers = {
             (name, port): self.loaded[name].product_windows(name, port, start=start_window)
             for name in self.loaded for port in self._consumed_ports(name, set(self.order))
         }
-        inputs_of = {n: [(src, sport, dport) for src, sport, dst, dport in self.graph.connections if dst == n]
-                     for n in running}
         stop_window = self.run.n_windows
         if self.max_windows is not None:
             stop_window = min(stop_window, start_window + self.max_windows)
-        last_commit = time.perf_counter()
+        self._last_commit = time.perf_counter()
         bar = progress_bar(total=self.run.n_windows, initial=start_window, enabled=self.progress,
                            desc=self.graph.name)
         try:
             for window in self.run.windows(start_window):
                 if window.index >= stop_window:
                     break
-                values: dict[tuple[str, str], Any] = {}
-                for key, reader in readers.items():
-                    values[key] = next(reader)
-                produced = []
-                for name in running:
-                    block = blocks[name]
-                    kwargs = self._gather(block, inputs_of[name], values)
-                    t0 = time.perf_counter()
-                    outputs = block.step(window, **kwargs)
-                    timing[name] += time.perf_counter() - t0
-                    self._check_outputs(name, block, outputs)
-                    for port, value in outputs.items():
-                        values[(name, port)] = value
-                    produced.append((name, outputs))
-                # The store is created once the first window has been computed in full: a scene that
-                # cannot be simulated (say, a satellite that never enters the field) leaves nothing behind.
-                t0 = time.perf_counter()
-                with self._writing():
-                    if self.out is not None and self.store is None:
-                        self._use_store(self._create_store(), result, running)
-                    for name, outputs in produced:
-                        self._record(name, outputs, window, result)
-                    if self.store is not None and self.graph.run.store_truth:
-                        for name in self._loaded_truth():
-                            self.store.copy_truth(self.loaded[name], name, window.start_ns, window.stop_ns)
-                timing["(store)"] += time.perf_counter() - t0
+                produced = self._step(window, {key: next(reader) for key, reader in readers.items()})
+                with self.watch.timing(STORE), self._writing():
+                    self._record_window(window, produced, result)
                 result.windows_run += 1
-                if self.store is not None:
-                    now = time.perf_counter()
-                    last = window.index == self.run.n_windows - 1
-                    # the run's last window is committed with the final outputs below (no checkpoint is
-                    # written only to be dropped), unless the checkpoint is kept
-                    due = now - last_commit >= self.checkpoint_every_s or window.index == stop_window - 1
-                    if (due and not last) or (last and self.keep_checkpoint):
-                        t0 = time.perf_counter()
-                        with self._writing():
-                            self._commit(window, {n: blocks[n] for n in running})
-                        timing["(store)"] += time.perf_counter() - t0
-                        last_commit = time.perf_counter()
+                self._commit_if_due(window, stop_window)
                 bar.update(1)
         finally:
             bar.close()
 
-        finished = start_window + result.windows_run == self.run.n_windows
-        finals = {}
-        if finished:
-            for name in running:
-                t0 = time.perf_counter()
-                finals[name] = blocks[name].finish() or {}
-                timing[name] += time.perf_counter() - t0
-        result.timing_s = timing
-        with self._writing():
-            for name, outputs in finals.items():
-                self._record(name, outputs, None, result)
-            self._finish_store(result, running, timing, finished)
-        return result
+    def _step(self, window: Window, values: dict[tuple[str, str], Any]) -> list[tuple[str, dict[str, Any]]]:
+        """Step each running block over ``window`` in order, feeding it the values of its inputs."""
+        produced = []
+        for name in self.running:
+            block = self.blocks[name]
+            kwargs = self._gather(block, self.inputs_of[name], values)
+            with self.watch.timing(name):
+                outputs = block.step(window, **kwargs)
+            self._check_outputs(name, block, outputs)
+            values.update({(name, port): value for port, value in outputs.items()})
+            produced.append((name, outputs))
+        return produced
+
+    def _record_window(self, window: Window, produced: list[tuple[str, dict[str, Any]]], result: RunResult) -> None:
+        # The store is created once the first window has been computed in full: a scene that
+        # cannot be simulated (say, a satellite that never enters the field) leaves nothing behind.
+        if self.out is not None and self.store is None:
+            self._use_store(self._create_store(), result, self.running)
+        for name, outputs in produced:
+            self._record(name, outputs, window, result)
+        if self.store is not None and self.graph.run.store_truth:
+            for name in self._loaded_truth():
+                self.store.copy_truth(self.loaded[name], name, window.start_ns, window.stop_ns)
+
+    def _commit_if_due(self, window: Window, stop_window: int) -> None:
+        """Commit after ``window`` every ``checkpoint_every_s`` and at the last window this call runs. The
+        run's last window is committed with the final outputs instead (no checkpoint is written only to be
+        dropped), unless the checkpoint is kept."""
+        if self.store is None:
+            return
+        last = window.index == self.run.n_windows - 1
+        due = (time.perf_counter() - self._last_commit >= self.checkpoint_every_s
+               or window.index == stop_window - 1)
+        if (due and not last) or (last and self.keep_checkpoint):
+            with self.watch.timing(STORE), self._writing():
+                self._commit(window, {n: self.blocks[n] for n in self.running})
+            self._last_commit = time.perf_counter()
 
     def _finish_store(self, result: RunResult, running: list[str], timing: dict[str, float], finished: bool) -> None:
         if self.out is not None and self.store is None:
@@ -386,43 +425,47 @@ class Executor:
                                    f"declared {spec.type.type_name()}")
 
     def _record(self, name: str, outputs: dict[str, PortValue], window: Window | None, result: RunResult) -> None:
+        """Record ``name``'s outputs as their port types say (:attr:`PortValue.record`); ``window`` is None
+        for the values a block returns when the run finishes."""
         for port, value in outputs.items():
             key = (name, port)
             requested = key in self.requested
-            kind = type(value).type_name()
-            if kind == METRICS_TYPE:
-                result.metrics.update(value.values)
-                result.metric_units.update(value.units)
-                if self.store is not None:
-                    self.store.set_metrics(value.values, value.units)
+            if type(value).record == METRICS:
+                self._record_metrics(value, result)
                 continue
             if self.keep_outputs and requested:
                 result.outputs.setdefault(key, []).append(value)
-            if self.store is None or window is None:
-                continue
-            if kind == TRUTH_TYPE:
-                if self.graph.run.store_truth:
-                    self.store.append_truth(name, value)
-                continue
-            if kind == EVENTS_TYPE and requested and key == self._event_output():
-                self.store.append_events({
-                    "t_trigger_ns": value.t_trigger_ns, "t_readout_ns": value.t_readout_ns,
-                    "x": value.x, "y": value.y, "p": value.p, "cause": value.cause,
-                }, focal_plane=value.focal_plane)
-            elif requested or self._stores_products(name):
-                self.store.append_product(name, port, value)
+            if self.store is not None and window is not None:
+                self._store_value(key, value, requested)
+
+    def _store_value(self, key: tuple[str, str], value: PortValue, requested: bool) -> None:
+        """One window's value of ``key`` into the store: truth rows, the event stream, or a product."""
+        if type(value).record == TRUTH:
+            if self.graph.run.store_truth:
+                self.store.append_truth(key[0], value)
+        elif key == self.event_output:
+            columns, geometry = value.stream()
+            self.store.append_events(columns, focal_plane=geometry)
+        elif requested or self._stores_products(key[0]):
+            self.store.append_product(*key, value)
+
+    def _record_metrics(self, value: PortValue, result: RunResult) -> None:
+        values, units = value.figures()
+        result.metrics.update(values)
+        result.metric_units.update(units)
+        if self.store is not None:
+            self.store.set_metrics(values, units)
 
     def _loaded_truth(self) -> list[str]:
-        """Blocks loaded from another store whose ground truth is copied from it (their Truth outputs)."""
-        return [name for name in self.loaded if any(spec.type.type_name() == TRUTH_TYPE
+        """Blocks loaded from another store whose ground truth is copied from it (their TRUTH outputs)."""
+        return [name for name in self.loaded if any(spec.type.record == TRUTH
                                                     for spec in type(self.graph.nodes[name].block).outputs.values())]
 
     def _event_output(self) -> tuple[str, str] | None:
-        if not hasattr(self, "_event_key"):
-            candidates = [(b, p) for b, p in self.requested
-                          if type(self.graph.nodes[b].block).outputs[p].type.type_name() == EVENTS_TYPE]
-            self._event_key = candidates[0] if candidates else None
-        return self._event_key
+        """The output the store records as its event stream: the first requested EVENT_STREAM output."""
+        candidates = [(b, p) for b, p in self.requested
+                      if type(self.graph.nodes[b].block).outputs[p].type.record == EVENT_STREAM]
+        return candidates[0] if candidates else None
 
     def _commit(self, window: Window, blocks: dict[str, Block]) -> None:
         name = self.store.write_checkpoint(window.index, {n: b.get_state() for n, b in blocks.items()})

@@ -21,11 +21,31 @@ import numpy as np
 
 PORT_TYPES: dict[str, type["PortValue"]] = {}
 
+# How a run store records a port type's values (:attr:`PortValue.record`):
+#: each window's value under ``products/<block>/<port>/`` (when the run stores products or asks for it)
+PRODUCT = "product"
+#: the run's event stream: its columns (:attr:`PortValue.stream_columns`) appended under ``events/``
+EVENT_STREAM = "events"
+#: named figures with units (:meth:`PortValue.figures`) merged into ``metrics/``
+METRICS = "metrics"
+#: rows of ground truth (``table()``) appended under ``truth/``
+TRUTH = "truth"
+
 
 class PortValue:
-    """Base class of all port types (use as a frozen dataclass)."""
+    """Base class of all port types (use as a frozen dataclass).
+
+    A port type says how a run store records its values (:attr:`record`), so the framework names no
+    port type and no field of one.
+    """
 
     unit: ClassVar[str] = ""
+    #: how a run store records values of this type: PRODUCT, EVENT_STREAM, METRICS or TRUTH
+    record: ClassVar[str] = PRODUCT
+    #: EVENT_STREAM types: each column's field name -> (dtype, CF attributes: units, long_name, flags)
+    stream_columns: ClassVar[dict[str, tuple[np.dtype, dict[str, Any]]]] = {}
+    #: EVENT_STREAM types: the field holding the geometry the events lie on (recorded once, as attributes)
+    stream_geometry: ClassVar[str | None] = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -34,6 +54,22 @@ class PortValue:
     @classmethod
     def type_name(cls) -> str:
         return cls.__name__
+
+    # -- recording ---------------------------------------------------------------------------
+    def stream(self) -> tuple[dict[str, np.ndarray], "PortValue | None"]:
+        """EVENT_STREAM types: ``(columns, geometry)``, the arrays of :attr:`stream_columns` and the value of
+        :attr:`stream_geometry`."""
+        geometry = getattr(self, self.stream_geometry) if self.stream_geometry else None
+        return {name: getattr(self, name) for name in self.stream_columns}, geometry
+
+    @classmethod
+    def geometry_type(cls) -> type["PortValue"] | None:
+        """EVENT_STREAM types: the port type of :attr:`stream_geometry`."""
+        return typing.get_type_hints(cls).get(cls.stream_geometry) if cls.stream_geometry else None
+
+    def figures(self) -> tuple[dict[str, Any], dict[str, str]]:
+        """METRICS types: ``(values, units)``, each by the figure's name."""
+        raise NotImplementedError(f"{self.type_name()} records no metrics")
 
     # -- serialisation -------------------------------------------------------------
     def to_arrays(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

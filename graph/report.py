@@ -10,7 +10,6 @@ from pydantic_core import PydanticUndefined
 
 from .block import NS_PER_S, Block
 from .ports import port_type_label
-from .store import EVENT_ATTRS
 
 UNIT_RE = re.compile(r"\s*\[([^\[\]]*)\]\s*$")
 
@@ -142,7 +141,7 @@ def store_info(store) -> dict:
         "reused": attrs.get("reused", {}),
     }
     if store.n_events and not status.problems:
-        labels = store.group["events/cause"].attrs.get("flag_meanings", EVENT_ATTRS["cause"]["flag_meanings"]).split()
+        labels = store.group["events/cause"].attrs.get("flag_meanings", "").split()
         counts = np.zeros(256, np.int64)
         for chunk in store.iter_events():
             counts += np.bincount(chunk["cause"], minlength=256)

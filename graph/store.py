@@ -56,16 +56,8 @@ from . import registry
 from .errors import StoreError
 from .files import os_reason
 from .lock import LOCK_NAME, describe_holder, read_holder
-from .ports import PORT_TYPES, PortValue
+from .ports import EVENT_STREAM, PORT_TYPES, PortValue
 
-EVENT_FIELDS: dict[str, np.dtype] = {
-    "t_trigger_ns": np.dtype(np.int64),
-    "t_readout_ns": np.dtype(np.int64),
-    "x": np.dtype(np.uint16),
-    "y": np.dtype(np.uint16),
-    "p": np.dtype(np.int8),
-    "cause": np.dtype(np.uint8),
-}
 EVENT_CHUNK_BYTES = 4 << 20     # events/ arrays are chunked by size: few files, fast appends
 PRODUCT_CHUNK_BYTES = 256 << 10
 EVENT_CHUNK = 1 << 20           # default number of events per chunk yielded by iter_events
@@ -81,18 +73,6 @@ CHECKPOINT_CHUNK_BYTES = 1 << 24   # checkpoint archives are written and read in
 #: every chunk is written, even one of zeros, so that a missing chunk file means damage
 ARRAY_CONFIG = {"write_empty_chunks": True}
 FORMAT = "evsda-run/1"
-
-#: CF-style attributes of the event arrays (units, meaning; flag_values/flag_meanings label the codes)
-EVENT_ATTRS: dict[str, dict[str, Any]] = {
-    "t_trigger_ns": {"units": "ns", "long_name": "trigger time since start_epoch (t_t, paper Eq. 22)"},
-    "t_readout_ns": {"units": "ns", "long_name": "readout time since start_epoch (t_a, paper Eq. 22)"},
-    "x": {"units": "pixel", "long_name": "column"},
-    "y": {"units": "pixel", "long_name": "row"},
-    "p": {"units": "1", "long_name": "polarity", "flag_values": [-1, 1], "flag_meanings": "OFF ON"},
-    "cause": {"units": "1", "long_name": "why the pixel fired (simulation truth)",
-              "flag_values": [0, 1, 2, 3], "flag_meanings": "signal leak parasitic shot"},
-}
-
 
 @dataclass
 class StoreStatus:
@@ -352,13 +332,14 @@ class RunStore:
 
     # -- events -----------------------------------------------------------------------------
     def append_events(self, events: dict[str, np.ndarray], focal_plane: PortValue | None = None) -> None:
-        """Append recorded events (a dict with the :data:`EVENT_FIELDS`); durable after :meth:`commit`."""
-        sizes = {len(np.asarray(events[name])) for name in EVENT_FIELDS}
+        """Append recorded events (a dict with the :func:`event_fields`); durable after :meth:`commit`."""
+        columns = event_stream_type().stream_columns
+        sizes = {len(np.asarray(events[name])) for name in columns}
         if len(sizes) != 1:
             raise ValueError(f"event fields have different lengths: {sizes}")
-        for name, dtype in EVENT_FIELDS.items():
+        for name, (dtype, attrs) in columns.items():
             self._append(f"events/{name}", np.asarray(events[name]).astype(dtype, copy=False),
-                         EVENT_CHUNK_BYTES // dtype.itemsize, ("event",), EVENT_ATTRS[name])
+                         EVENT_CHUNK_BYTES // dtype.itemsize, ("event",), attrs)
         if focal_plane is not None and "focal_plane" not in self.group["events"].attrs:
             self.group["events"].attrs["focal_plane"] = focal_plane.to_arrays()[1]
 
@@ -398,7 +379,7 @@ class RunStore:
     def focal_plane(self):
         if "events" not in self.group or "focal_plane" not in self.group["events"].attrs:
             return None
-        return port_type("FocalPlane")(**self.group["events"].attrs["focal_plane"])
+        return event_stream_type().geometry_type()(**self.group["events"].attrs["focal_plane"])
 
     def iter_events(self, chunk_size: int = EVENT_CHUNK, start: int = 0, stop: int | None = None
                     ) -> Iterator[dict[str, np.ndarray]]:
@@ -408,7 +389,7 @@ class RunStore:
         stop = self.n_events if stop is None else min(stop, self.n_events)
         if stop > start:
             self.check_readable()
-        arrays = {name: self.group[f"events/{name}"] for name in EVENT_FIELDS} if stop > start else {}
+        arrays = {name: self.group[f"events/{name}"] for name in event_fields()} if stop > start else {}
         for lo in range(start, stop, chunk_size):
             hi = min(lo + chunk_size, stop)
             yield {name: self._read(array, f"events/{name}", lo, hi) for name, array in arrays.items()}
@@ -417,8 +398,8 @@ class RunStore:
         """All committed events at once (for small runs; prefer :meth:`iter_events`)."""
         chunks = list(self.iter_events())
         if not chunks:
-            return {name: np.zeros(0, dtype) for name, dtype in EVENT_FIELDS.items()}
-        return {name: np.concatenate([c[name] for c in chunks]) for name in EVENT_FIELDS}
+            return {name: np.zeros(0, dtype) for name, dtype in event_fields().items()}
+        return {name: np.concatenate([c[name] for c in chunks]) for name in chunks[0]}
 
     # -- products -------------------------------------------------------------------------
     def append_product(self, block: str, port: str, value: PortValue) -> None:
@@ -758,6 +739,22 @@ def _files_under(root: Path, prefix: str = "") -> set[str]:
 def _short(text: str, limit: int = 80) -> str:
     text = " ".join(text.split())
     return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
+def event_stream_type() -> type[PortValue]:
+    """The port type that declares itself the run's event stream (``record = EVENT_STREAM``): its
+    ``stream_columns`` are the arrays of ``events/``, its ``stream_geometry`` the focal plane recorded with them."""
+    if not any(t.record == EVENT_STREAM for t in PORT_TYPES.values()):
+        registry.load_entry_points()
+    for candidate in PORT_TYPES.values():
+        if candidate.record == EVENT_STREAM:
+            return candidate
+    raise StoreError("no installed block defines an event stream port type")
+
+
+def event_fields() -> dict[str, np.dtype]:
+    """The columns of ``events/`` and their dtypes (those of :func:`event_stream_type`)."""
+    return {name: dtype for name, (dtype, _) in event_stream_type().stream_columns.items()}
 
 
 def port_type(name: str) -> type[PortValue]:

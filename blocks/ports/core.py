@@ -18,7 +18,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from evsda.graph.ports import PortValue
+from evsda.graph.ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,6 +96,7 @@ class Truth(PortValue):
     """
 
     unit = "pixel"
+    record = TRUTH
     #: per column: unit and meaning, written as the stored arrays' attributes
     COLUMNS: ClassVar[dict[str, tuple[str, str]]] = {
         "t_ns": ("ns", "render time since the run's start epoch"),
@@ -220,10 +221,26 @@ class TriggeredEvents(PortValue):
 class Events(PortValue):
     """Events as recorded by the readout: the paper's Eq. 22 record ``{t_a, x, y, p, t_t}``.
 
-    Sorted by readout time ``t_readout_ns``.
+    Sorted by readout time ``t_readout_ns``. A run store records them as its event stream (``events/``):
+    one array per column with the dtype and CF attributes below, the focal plane once as attributes.
     """
 
     unit = "event"
+    record = EVENT_STREAM
+    stream_columns = {
+        "t_trigger_ns": (np.dtype(np.int64), {"units": "ns",
+                                              "long_name": "trigger time since start_epoch (t_t, paper Eq. 22)"}),
+        "t_readout_ns": (np.dtype(np.int64), {"units": "ns",
+                                              "long_name": "readout time since start_epoch (t_a, paper Eq. 22)"}),
+        "x": (np.dtype(np.uint16), {"units": "pixel", "long_name": "column"}),
+        "y": (np.dtype(np.uint16), {"units": "pixel", "long_name": "row"}),
+        "p": (np.dtype(np.int8), {"units": "1", "long_name": "polarity", "flag_values": [-1, 1],
+                                  "flag_meanings": "OFF ON"}),
+        "cause": (np.dtype(np.uint8), {"units": "1", "long_name": "why the pixel fired (simulation truth)",
+                                       "flag_values": [int(c) for c in EventCause],
+                                       "flag_meanings": " ".join(c.name.lower() for c in EventCause)}),
+    }
+    stream_geometry = "focal_plane"
     focal_plane: FocalPlane
     t_trigger_ns: np.ndarray                 # int64 [n] t_t, when the pixel fired
     t_readout_ns: np.ndarray                 # int64 [n] t_a, when the arbiter recorded it
@@ -253,5 +270,9 @@ class Metrics(PortValue):
     """Named scalar figures of a run (paper Section 3), with their units."""
 
     unit = "mixed"
+    record = METRICS
     values: dict = field(default_factory=dict)   # name -> number
     units: dict = field(default_factory=dict)    # name -> unit string
+
+    def figures(self) -> tuple[dict, dict]:
+        return self.values, self.units

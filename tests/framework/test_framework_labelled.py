@@ -12,9 +12,12 @@ import xarray as xr
 
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
-from evsda.graph.store import EVENT_ATTRS, RunStore
+from evsda.blocks.ports import Events
+from evsda.graph.store import RunStore
 
 from .conftest import write
+
+EVENT_ATTRS = {name: attrs for name, (_, attrs) in Events.stream_columns.items()}   # events/ columns, CF attributes
 
 
 def counted(tmp_path):
