@@ -1,10 +1,13 @@
 """The block registry: built-in blocks and third-party blocks from entry points.
 
 Blocks are found through the entry-point group ``evsda.blocks``. An entry point
-names either one :class:`~evsda.graph.block.Block` subclass or a collection
-(list, tuple or dict values) of them. evsda registers its own blocks the same
-way (``builtin = "evsda.blocks.catalog:BLOCKS"``), so a third-party package adds
-blocks by declaring, in its pyproject.toml::
+names either one :class:`~evsda.graph.block.Block` subclass, a collection
+(list, tuple or dict values) of them, or a mapping of type names to
+``"module:Class"`` strings, whose modules are imported only when a block of theirs
+is asked for (:func:`get`). evsda registers its own blocks that last way
+(``builtin = "evsda.blocks.catalog:BLOCKS"``), so that loading a graph imports only
+the block packages it names; a third-party package adds blocks by declaring, in its
+pyproject.toml::
 
     [project.entry-points."evsda.blocks"]
     my_arbiter = "mypackage.arbiter:MyArbiter"
@@ -15,7 +18,8 @@ and shown where its blocks would be asked for (:func:`unknown_block`, ``evsda bl
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from importlib import import_module
 from importlib.metadata import entry_points
 
 from .block import Block
@@ -25,8 +29,14 @@ ENTRY_POINT_GROUP = "evsda.blocks"
 
 _registered: dict[str, type[Block]] = {}
 _origin: dict[str, str] = {}
-_broken: dict[str, str] = {}   # entry-point name -> why it failed to import
-_loaded = False
+_lazy: dict[str, str] = {}     # type name -> "module:Class", not imported yet (its origin is in _origin)
+_broken: dict[str, str] = {}   # entry-point name (or lazy type name) -> why it failed to import
+_scanned = False               # the entry points have been read
+_loaded = False                # every lazily declared block has been imported
+
+
+def _spec(block_class: type[Block]) -> str:
+    return f"{block_class.__module__}:{block_class.__qualname__}"
 
 
 def register(block_class: type[Block], origin: str = "python") -> type[Block]:
@@ -37,16 +47,29 @@ def register(block_class: type[Block], origin: str = "python") -> type[Block]:
     if not name:
         raise TypeError(f"{block_class.__name__} has no type_name")
     existing = _registered.get(name)
-    if existing is not None and existing is not block_class:
+    if (existing is not None and existing is not block_class) or _lazy.get(name, _spec(block_class)) != _spec(block_class):
         raise UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+    _lazy.pop(name, None)
     _registered[name] = block_class
-    _origin[name] = origin
+    _origin.setdefault(name, origin)
     return block_class
+
+
+def _declare(name: str, spec: str, origin: str) -> None:
+    """Register type ``name`` as ``"module:Class"``, to be imported when first asked for."""
+    if name in _registered:
+        if _spec(_registered[name]) != spec:
+            raise UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+        return
+    if _lazy.get(name, spec) != spec:
+        raise UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+    _lazy[name], _origin[name] = spec, origin
 
 
 def unregister(name: str) -> None:
     """Remove a block type (for tests and plugin reloading)."""
     _registered.pop(name, None)
+    _lazy.pop(name, None)
     _origin.pop(name, None)
 
 
@@ -58,12 +81,12 @@ def _as_classes(obj) -> Iterable[type[Block]]:
     return list(obj)
 
 
-def load_entry_points() -> None:
-    """Import every block advertised in the ``evsda.blocks`` entry-point group (once)."""
-    global _loaded
-    if _loaded:
+def _scan() -> None:
+    """Read the ``evsda.blocks`` entry points (once): import plugins that name classes, note the lazy ones."""
+    global _scanned
+    if _scanned:
         return
-    _loaded = True
+    _scanned = True
     _broken.clear()
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
@@ -74,26 +97,80 @@ def load_entry_points() -> None:
             continue
         dist = getattr(ep, "dist", None)
         origin = f"entry point '{ep.name}'" + (f" of {dist.name}" if dist is not None else "")
+        if isinstance(obj, Mapping) and obj and all(isinstance(v, str) for v in obj.values()):
+            for name, spec in obj.items():
+                _declare(name, spec, origin)
+            continue
         for block_class in _as_classes(obj):
             register(block_class, origin)
 
 
+def _resolve(name: str) -> type[Block] | None:
+    """Import a lazily declared block; a failure is kept like a broken plugin's (None returned)."""
+    spec = _lazy[name]
+    module, _, attr = spec.partition(":")
+    try:
+        block_class = getattr(import_module(module), attr)
+    except Exception as exc:  # kept, not raised, as for a plugin that fails to import
+        why = " ".join(str(exc).split()) or type(exc).__name__
+        _broken[name] = f"block '{name}' ({spec}, {_origin[name]}) failed to import: {why}"
+        return None
+    if not (isinstance(block_class, type) and issubclass(block_class, Block)) or block_class.type_name != name:
+        raise TypeError(f"{spec} ({_origin[name]}) is not the Block subclass of type '{name}'")
+    return register(block_class, _origin[name])
+
+
+def load_entry_points() -> None:
+    """Import every block advertised in the ``evsda.blocks`` entry-point group (once)."""
+    global _loaded
+    _scan()
+    if _loaded:
+        return
+    _loaded = True
+    for name in list(_lazy):
+        if name in _lazy:
+            _resolve(name)
+
+
 def refresh() -> None:
     """Look for entry points again (after installing a plugin into a running process)."""
-    global _loaded
-    _loaded = False
+    global _scanned, _loaded
+    _scanned = _loaded = False
+    _lazy.clear()
     load_entry_points()
 
 
-def available() -> dict[str, type[Block]]:
-    """All registered block types, by name."""
-    load_entry_points()
-    return dict(sorted(_registered.items()))
+class _Available(Mapping):
+    """Every block type by name; a lazily declared block is imported when its class is looked up."""
+
+    def __init__(self, names: list[str]):
+        self._names = names
+
+    def __getitem__(self, name: str) -> type[Block]:
+        block_class = get(name) if name in self._names else None
+        if block_class is None:
+            raise KeyError(name)
+        return block_class
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def __contains__(self, name) -> bool:
+        return name in self._names
+
+
+def available() -> Mapping[str, type[Block]]:
+    """All registered block types, by name (sorted); only the classes looked up are imported."""
+    _scan()
+    return _Available(sorted({*_registered, *_lazy}))
 
 
 def broken() -> list[str]:
     """One line per block plugin that failed to import (its blocks are missing from :func:`available`)."""
-    load_entry_points()
+    _scan()
     return list(_broken.values())
 
 
@@ -104,12 +181,15 @@ def unknown_block(name: str) -> str:
 
 
 def origin(name: str) -> str:
-    load_entry_points()
+    _scan()
     return _origin.get(name, "")
 
 
 def get(name: str) -> type[Block] | None:
-    load_entry_points()
+    """The block class of type ``name`` (importing its module if it was declared lazily), or None."""
+    _scan()
+    if name in _lazy:
+        return _resolve(name)
     return _registered.get(name)
 
 

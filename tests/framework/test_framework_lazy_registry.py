@@ -1,0 +1,45 @@
+"""Loading a graph imports only the block packages it names; the built-in index matches the blocks."""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import json
+import pkgutil
+import subprocess
+import sys
+
+import evsda.blocks
+from evsda.blocks.catalog import BLOCKS
+from evsda.graph import Block, registry
+
+SCENE_ONLY = """
+import json, sys
+from evsda.graph import registry
+from evsda.graph.graphfile import graph_from_dict
+graph_from_dict({"evsda": 1, "run": {"start": "2024-03-01T02:15:00Z", "duration_s": 0.1, "window_s": 0.1},
+                 "blocks": {"site": {"type": "ground_site", "params": {"latitude_deg": 47.0, "longitude_deg": 15.4}}}})
+names = list(registry.available())
+print(json.dumps({"modules": sorted(m for m in sys.modules if m.startswith("evsda.blocks")), "names": names}))
+"""
+
+
+def test_a_graph_imports_only_the_blocks_it_names():
+    out = subprocess.run([sys.executable, "-c", SCENE_ONLY], capture_output=True, text=True, check=True)
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert "evsda.blocks.scene.sources" in seen["modules"]
+    for package in ("optics", "pixel", "readout", "detection"):
+        assert not any(m.startswith(f"evsda.blocks.{package}") for m in seen["modules"]), package
+    assert set(BLOCKS) <= set(seen["names"])                 # every type is still listed, unimported
+
+
+def test_the_index_names_every_builtin_block_by_its_type():
+    found = {}
+    for info in pkgutil.walk_packages(evsda.blocks.__path__, "evsda.blocks."):
+        module = importlib.import_module(info.name)
+        for _, cls in inspect.getmembers(module, inspect.isclass):
+            if issubclass(cls, Block) and cls.type_name and cls.__module__ == info.name:
+                found[cls.type_name] = f"{cls.__module__}:{cls.__qualname__}"
+    assert found == BLOCKS
+    for name in BLOCKS:
+        assert registry.get(name).type_name == name and registry.is_builtin(name)
