@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 from . import __version__, registry
@@ -261,7 +262,8 @@ def main(argv: list[str] | None = None) -> int:
                         format="evsda: %(name)s: %(message)s")
     previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
     try:
-        with limit_blas():      # see evsda.graph.threads
+        with limit_blas(), warnings.catch_warnings():      # see evsda.graph.threads
+            warnings.showwarning = _show_warning
             status = int(args.func(args) or 0)
         sys.stdout.flush()      # here, so that a closed pipe is caught below rather than at exit
         return status
@@ -284,6 +286,12 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning of a block (skipped catalogue entries, old element sets) as one ``evsda: warning:`` line,
+    without the source file and line of the code that raised it."""
+    print(f"evsda: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
 def _terminate(signum, frame) -> None:

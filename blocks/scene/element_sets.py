@@ -35,6 +35,7 @@ from sgp4 import omm
 from sgp4.api import Satrec
 
 from evsda.graph import ParameterError
+from evsda.graph.errors import clip
 
 from .tle import LINE_LENGTH, tle_checksum
 
@@ -44,6 +45,8 @@ OMM_DEFAULTS = {"CLASSIFICATION_TYPE": "U", "OBJECT_ID": "", "EPHEMERIS_TYPE": "
                 "REV_AT_EPOCH": "0"}
 PROPERTY_COLUMNS = {"AREA_M2": "area_m2", "ALBEDO": "albedo"}
 FORMATS = ("tle", "omm_csv", "omm_json", "omm_xml")
+#: the most characters of a file's line an error message quotes (an object's name, a field)
+NAME_QUOTED = 40
 
 
 @dataclass
@@ -99,6 +102,9 @@ def read_catalog(text: str, fmt: str, source: str, skip_bad: bool) -> Catalog:
     otherwise the first one raises a :class:`ParameterError` naming ``source`` and its line
     (and how many more there are).
     """
+    if fmt == "tle" and not any(line.lstrip().startswith(("1 ", "2 ")) for line in text.splitlines()):
+        # not a TLE file at all: quote nothing from it (it may be any file its user can read)
+        raise ParameterError(f"{source}: no two-line element set found (no line starts with '1 ' or '2 ')")
     reader = {"tle": _tle_entries, "omm_csv": _omm_csv_entries, "omm_json": _omm_json_entries,
               "omm_xml": _omm_xml_entries}[fmt]
     objects: list[CatalogObject] = []
@@ -143,7 +149,7 @@ def _tle_entries(text: str):
             i += 2
             continue
         if name_line is not None:
-            yield name_line, BadEntry(f"'{name}' is not followed by a two-line element set")
+            yield name_line, BadEntry(f"'{clip(name, NAME_QUOTED)}' is not followed by a two-line element set")
         if line.startswith("1 "):
             yield number, BadEntry("TLE line 1 is not followed by a line 2")
             name, name_line = "", None
@@ -154,7 +160,7 @@ def _tle_entries(text: str):
             name, name_line = (line[2:].strip() if line.startswith("0 ") else line.strip()), number
         i += 1
     if name_line is not None:
-        yield name_line, BadEntry(f"'{name}' is not followed by a two-line element set")
+        yield name_line, BadEntry(f"'{clip(name, NAME_QUOTED)}' is not followed by a two-line element set")
 
 
 def _check_tle_line(line: str, kind: str, number: int) -> None:
@@ -196,8 +202,7 @@ def _omm_csv_entries(text: str):
     header = [h.strip().upper() for h in (reader.fieldnames or [])]
     missing = [name for name in ("NORAD_CAT_ID",) + OMM_ELEMENTS if name not in header]
     if missing:
-        yield 1, BadEntry(f"the CSV header lacks the OMM column(s) {', '.join(missing)} (found: "
-                          f"{', '.join(header) or 'nothing'})")
+        yield 1, BadEntry(f"the CSV header lacks the OMM column(s) {', '.join(missing)}")
         return
     for row in reader:
         number = reader.line_num
@@ -269,7 +274,7 @@ def _omm_epoch(text: str) -> str:
     try:
         when = datetime.fromisoformat(text.strip().rstrip("Z"))
     except ValueError:
-        raise BadEntry(f"EPOCH {text!r} is not an ISO 8601 date and time") from None
+        raise BadEntry(f"EPOCH '{clip(text, NAME_QUOTED)}' is not an ISO 8601 date and time") from None
     return when.strftime("%Y-%m-%dT%H:%M:%S.%f")
 
 
@@ -281,7 +286,7 @@ def _set_properties(obj: CatalogObject, fields: dict) -> None:
         try:
             value = float(text)
         except ValueError:
-            raise BadEntry(f"{column} {text!r} is not a number") from None
+            raise BadEntry(f"{column} '{clip(text, NAME_QUOTED)}' is not a number") from None
         if not value > 0 or (column == "ALBEDO" and value > 1):
             raise BadEntry(f"{column} {value:g} is not physical (area > 0 m^2, 0 < albedo <= 1)")
         setattr(obj, attribute, value)
@@ -295,8 +300,8 @@ def apply_properties(catalog: Catalog, text: str, source: str) -> int:
     reader = csv.DictReader(io.StringIO(text))
     header = [h.strip().upper() for h in (reader.fieldnames or [])]
     if "NORAD_CAT_ID" not in header or not set(PROPERTY_COLUMNS) & set(header):
-        raise ParameterError(f"{source}: a properties file needs a NORAD_CAT_ID column and AREA_M2 and/or ALBEDO "
-                             f"(found: {', '.join(header) or 'nothing'})")
+        raise ParameterError(f"{source}: a properties file is a CSV file whose header (line 1) names a NORAD_CAT_ID "
+                             f"column and AREA_M2 and/or ALBEDO")
     by_id = {obj.object_id: obj for obj in catalog.objects}
     matched = 0
     for row in reader:
@@ -304,8 +309,8 @@ def apply_properties(catalog: Catalog, text: str, source: str) -> int:
         try:
             object_id = f"{int(fields['NORAD_CAT_ID']):05d}"
         except ValueError:
-            raise ParameterError(f"{source}: line {reader.line_num}: NORAD_CAT_ID {fields['NORAD_CAT_ID']!r} is "
-                                 f"not a number") from None
+            raise ParameterError(f"{source}: line {reader.line_num}: NORAD_CAT_ID "
+                                 f"'{clip(fields['NORAD_CAT_ID'], NAME_QUOTED)}' is not a number") from None
         obj = by_id.get(object_id)
         if obj is None:
             continue

@@ -6,13 +6,13 @@ import logging
 from typing import Literal
 
 import numpy as np
-import yaml
 from pydantic import Field, ValidationError, model_validator
 
 from evsda import library
 from evsda.blocks.ports import FocalPlane, PointSources, SourceKind
 from evsda.blocks.ports.scene import Observer, Orbit, Pointing
-from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, GraphError, Input, Output, ParameterError, Window
+from evsda.graph.graphfile import read_yaml
 from evsda.graph.params import DataFile, describe_validation_error
 
 from . import facets, radiometry
@@ -143,12 +143,13 @@ class Satellite(Block):
         if p.facet_model is not None:
             return p.facet_model
         who = f"{self.type_name} '{self.name}' parameter 'facet_model_file'"
-        try:
-            data = yaml.safe_load(library.resolve(p.facet_model_file).read_text())
-        except OSError as exc:
-            raise ParameterError(f"{who}: cannot read {p.facet_model_file!r} ({exc.strerror or exc})") from None
-        except yaml.YAMLError as exc:
-            raise ParameterError(f"{who}: {p.facet_model_file} is not valid YAML ({exc})") from None
+        try:     # bounded like a graph file: a regular UTF-8 file, no alias bomb, nothing of it quoted
+            data = read_yaml(library.resolve(p.facet_model_file), what="facet model file")
+        except GraphError as exc:
+            raise ParameterError(f"{who}: {exc}") from None
+        if not isinstance(data, dict) or not set(data) & set(facets.FacetModelSpec.model_fields):
+            raise ParameterError(f"{who}: {p.facet_model_file}: not a facet model file (expected a YAML mapping "
+                                 f"with a cylinder, a box and/or plates)")
         try:
             return facets.FacetModelSpec.model_validate(data)
         except ValidationError as exc:

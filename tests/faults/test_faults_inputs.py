@@ -76,6 +76,24 @@ def test_file_contents_never_reach_a_message(capsys, tmp_path):
     assert "secrets.env: not an evsda graph file" in only_line(capsys, tmp_path / "inc2.yaml")
 
 
+@pytest.mark.parametrize("params,expected", [
+    ("{{type: satellite_catalog, params: {{catalog_file: {f}}}}}", "no two-line element set found"),
+    ("{{type: satellite_catalog, params: {{catalog_file: 'library:tle/iss.tle', properties_file: {f}}}}}",
+     "a properties file is a CSV file whose header (line 1) names a NORAD_CAT_ID column"),
+    ("{{type: satellite, params: {{shape: facets, facet_model_file: {f}}}}}", "not a facet model file"),
+])
+@pytest.mark.parametrize("content", [f"API_TOKEN={SECRET}\nDB_PASSWORD={SECRET}\n", f"api_token: {SECRET}\n",
+                                     f"NORAD,{SECRET}\n1,2\n"])
+def test_data_files_of_scene_blocks_never_reach_a_message(capsys, tmp_path, params, expected, content):
+    """A catalogue, a properties file or a facet model that is some other file is named, never quoted."""
+    secrets = tmp_path / "secrets.txt"
+    secrets.write_text(content)
+    (tmp_path / "g.yaml").write_text(graph_text("  data: " + params.format(f=secrets) + "\n"))
+    status, lines = cli(capsys, "validate", tmp_path / "g.yaml")     # (its inputs are left unconnected)
+    assert status == 2 and expected in lines[0] and str(secrets) in lines[0], lines
+    assert not any(SECRET in line for line in lines)
+
+
 def test_values_quoted_in_errors_are_cut(capsys, tmp_path):
     (tmp_path / "g.yaml").write_text(graph_text().replace("{type: test_ramp}",
                                                           "{type: test_ramp, params: {noise: '" + "9" * 5000 + "'}}"))
@@ -157,3 +175,20 @@ def test_the_python_api_is_as_strict_as_the_command_line(tmp_path):
     (tmp_path / "g.yaml").write_text(graph_text())
     with pytest.raises(Exception, match="windows .* more than the limit of 3"):
         load_graph(tmp_path / "g.yaml", limits=Limits(windows=3))
+
+
+def test_a_blocks_warning_is_one_line_without_the_code_that_raised_it(capsys, tmp_path):
+    """A catalogue entry skipped with on_bad_entry: skip is named in one ``evsda: warning:`` line (Python's
+    default format added the source file and a line of evsda's code)."""
+    from evsda import library
+
+    lines = library.resolve("library:tle/iss.tle").read_text().splitlines()[:3]
+    broken = lines[2][:-1] + str((int(lines[2][-1]) + 1) % 10)                  # a wrong checksum
+    (tmp_path / "two.tle").write_text("\n".join([*lines, "ISS AGAIN", lines[1], broken]) + "\n")
+    block = "  data: {type: satellite_catalog, params: {catalog_file: two.tle, on_bad_entry: skip}}\n"
+    (tmp_path / "g.yaml").write_text(graph_text(block))
+    status, lines = cli(capsys, "validate", tmp_path / "g.yaml")
+    warned = [line for line in lines if not line.startswith("evsda: error:")]    # (inputs left unconnected)
+    assert len(warned) == 1 and not any(".py:" in line or "self." in line for line in lines), lines
+    assert warned[0].startswith(f"evsda: warning: satellite_catalog 'data' catalog_file {tmp_path / 'two.tle'}: "
+                               f"skipped 1 malformed entries (line 4: line 6 fails its checksum")

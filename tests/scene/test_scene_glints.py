@@ -275,7 +275,7 @@ def test_facet_model_file_errors_name_the_file(tmp_path):
     bad.write_text("cylinder: {radius_m: 2, length_m: 10}\nplates:\n  - {area_m2: 3, normal: [1, 1, 0]}\n")
     with pytest.raises(ParameterError, match=r"shape\.yaml: plates\.0\.normal: .*unit vector"):
         Satellite(shape="facets", facet_model_file=str(bad))
-    with pytest.raises(ParameterError, match="cannot read"):
+    with pytest.raises(ParameterError, match=r"missing\.yaml: facet model file not found"):
         Satellite(shape="facets", facet_model_file=str(tmp_path / "missing.yaml"))
 
 
