@@ -588,6 +588,25 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     return SweepResult(rows, failed, table.csv, table.parquet)
 
 
+def _quiet_resource_tracker() -> None:
+    """Start Python's multiprocessing resource tracker (shared by the local cluster's worker processes) with
+    its 'leaked semaphore objects' warning silenced. A sweep stopped while points run ends its workers
+    mid-point; the tracker then frees their semaphores at exit, as it should, but says so in two lines
+    after the sweep's own one-line message. Nothing else of the tracker's output is silenced."""
+    from multiprocessing import resource_tracker
+
+    rule = "ignore:resource_tracker:UserWarning"
+    previous = os.environ.get("PYTHONWARNINGS")
+    os.environ["PYTHONWARNINGS"] = ",".join(filter(None, [previous, rule]))
+    try:
+        resource_tracker.ensure_running()       # inherits the environment now (a no-op if already running)
+    finally:
+        if previous is None:
+            del os.environ["PYTHONWARNINGS"]
+        else:
+            os.environ["PYTHONWARNINGS"] = previous
+
+
 def _run_on_dask(tasks: dict[int, PointTask], providers: dict[int, int], workers: int, scheduler: str | None,
                  finished: Callable[[int, dict], None]) -> None:
     """Submit every point as a task (after its provider) and report each as it finishes."""
@@ -596,6 +615,7 @@ def _run_on_dask(tasks: dict[int, PointTask], providers: dict[int, int], workers
     logging.getLogger("distributed").setLevel(logging.ERROR)
     cluster = None
     if scheduler is None:
+        _quiet_resource_tracker()
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                silence_logs=logging.ERROR)
         client = Client(cluster)

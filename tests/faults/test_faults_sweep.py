@@ -56,7 +56,7 @@ def test_an_interrupted_sweep_reruns_to_completion_and_its_workers_end(evsda, tm
     sweep.wait(timeout=60)
     stderr = sweep.stderr.read()
     if how == signal.SIGINT:
-        assert sweep.returncode == 130 and "Traceback" not in stderr
+        assert sweep.returncode == 130 and "Traceback" not in stderr and "Warning" not in stderr
         assert "sweep interrupted after" in stderr.splitlines()[-1] and "re-run the same command" in stderr
     else:
         assert sweep.returncode == -signal.SIGKILL
@@ -81,3 +81,18 @@ def test_an_interrupted_sweep_reruns_to_completion_and_its_workers_end(evsda, tm
             events = np.concatenate([e.t_readout_ns for e in alone.outputs[("spikes", "events")]])
             assert np.array_equal(store.read_events()["t_readout_ns"], events)
             assert store.metrics == alone.metrics
+
+
+def test_sigterm_while_points_run_is_one_line(evsda, tmp_path):
+    """SIGTERM (as SIGINT) in the middle of long points: exit 143 and the sweep's one line, with nothing after
+    it (the workers, ended mid-point, made Python's resource tracker warn about leaked semaphores)."""
+    graph, out = graph_file(tmp_path, duration_s=2.0, sleep_s=0.1), tmp_path / "sweep"
+    sweep = evsda.start("sweep", graph, "--vary", "spikes.step=[2.0, 3.0, 4.0]", "-j", "2", "-o", out)
+    wait_for(lambda: (out / "point_000.zarr" / "zarr.json").exists(), 120, "the first point to start writing")
+    time.sleep(1.0)
+    sweep.send_signal(signal.SIGTERM)
+    sweep.wait(timeout=60)
+    lines = sweep.stderr.read().strip().splitlines()
+    assert sweep.returncode == 143 and lines[0].startswith("sweep: 3 points into"), lines
+    assert lines[1:] == ["evsda: sweep interrupted after 0 of 3 points; finished points are kept and unfinished ones "
+                         "resume: re-run the same command"]
