@@ -83,12 +83,12 @@ print(json.dumps({"import_s": imported, "pixel_s": pixel, "screens_s": optics}))
 """
 
 
-def run_cli(duration: float, store: Path, settings=()) -> dict:
-    """``evsda run`` the benchmark graph in a child process (``settings``: more ``--set`` values): wall, CPU,
-    peak RSS and its summary."""
+def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH) -> dict:
+    """``evsda run`` the benchmark graph (or ``graph``) in a child process (``settings``: more ``--set``
+    values): wall, CPU, peak RSS and its summary."""
     t = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-c", "import sys; from evsda.graph.cli import main; sys.exit(main())",
-                              "run", str(GRAPH), "-o", str(store), "--overwrite",
+                              "run", str(graph), "-o", str(store), "--overwrite",
                               "--no-progress", "--set", f"run.duration_s={duration}",
                               *(arg for setting in settings for arg in ("--set", setting))],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -1,6 +1,7 @@
 """Speed against error end to end (issue 13 item 5; the paper's proposed time-step sensitivity study).
 
-Runs the tracked LEO pass of benchmarks/end_to_end.yaml (first ``--duration`` seconds) with
+Runs the tracked LEO pass of benchmarks/end_to_end.yaml (first ``--duration`` seconds; through
+benchmarks/speed_vs_error.yaml, which adds an event detector and its scoring) with
 the fidelity knobs turned one at a time from the most faithful combination this machine can
 afford, and prints each run's wall and CPU time beside its errors against that combination:
 
@@ -14,10 +15,12 @@ afford, and prints each run's wall and CPU time beside its errors against that c
   distance between the two runs' 50 ms centroids of those events [pixel]), the event-timing
   error (median |difference| between each of the faithful run's track events and the nearest
   event of the same pixel and polarity, within 5 ms [us]), the background
-  rate (events not caused by the signal, per pixel and second, relative difference).
-  Detection probability waits for the detection blocks (issue 11).
+  rate (events not caused by the signal, per pixel and second, relative difference), and the
+  detection probability of the satellite in the events alone (``event_detector``, looks of 0.1 s,
+  scored by ``detection_scoring``: the fraction of looks in which it was found; an absolute figure,
+  printed beside the faithful run's).
 
-Saves a Pareto plot (CPU time against centroid error and track-count error) next to the
+Saves a Pareto plot (CPU time against centroid error, track-count error and detection probability) next to the
 printed table. The seed is fixed, so differences are the knobs' (plus the noise drawn
 differently where the knob changes the random streams: compare with the repeat of the
 faithful run at another seed, printed as ``seed 2``).
@@ -36,11 +39,12 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from end_to_end import GRAPH, run_cli                                   # noqa: E402
+from end_to_end import run_cli                                          # noqa: E402
 
 from evsda.blocks.ports import EventCause, SourceKind                    # noqa: E402
 from evsda.graph.store import RunStore                                   # noqa: E402
 
+GRAPH = Path(__file__).with_name("speed_vs_error.yaml")    # end_to_end.yaml as 'scene', plus detector and scoring
 FAITHFUL = {"sensor/pixel.time_step_s": 1e-6, "telescope/optics.render_rate_hz": 2000,
             "telescope/optics.psf_path": "pupil_fft", "telescope/optics.screen_update": "extend",
             "sat.knot_step_s": 1.0}
@@ -83,7 +87,8 @@ def statistics(store_path: Path, duration_s: float, pixels: int = 1280 * 720) ->
     stamp = key << 40 | t                                       # t < 2^40 ns (18 minutes)
     background = np.count_nonzero(events["cause"] != EventCause.SIGNAL) / (pixels * duration_s)
     return {"track": int(track.sum()), "centroids": centroids, "stamps": np.sort(stamp), "background": background,
-            "events": int(events["t_trigger_ns"].size)}
+            "events": int(events["t_trigger_ns"].size),
+            "detection_probability": float(store.metrics.get("detection_probability", np.nan))}
 
 
 def errors(run: dict, faithful: dict) -> dict:
@@ -100,7 +105,13 @@ def errors(run: dict, faithful: dict) -> dict:
         matched = nearest < 5_000_000                           # same key: otherwise the difference is >= 2^40
         timing = float(np.median(nearest[matched])) * 1e-3 if matched.any() else np.nan
     return {"track": run["track"] / max(faithful["track"], 1) - 1, "centroid_px": centroid, "timing_us": timing,
-            "background": run["background"] / faithful["background"] - 1 if faithful["background"] else np.nan}
+            "background": run["background"] / faithful["background"] - 1 if faithful["background"] else np.nan,
+            "p_d": run["detection_probability"]}
+
+
+def scene(settings: dict) -> list[str]:
+    """``--set`` values for the scene's blocks (included as ``scene``); ``run.*`` stays as it is."""
+    return [f"{k if k.startswith('run.') else 'scene/' + k}={v}" for k, v in settings.items()]
 
 
 def main() -> None:
@@ -113,19 +124,19 @@ def main() -> None:
           f"{args.duration:g} s simulated per run; faithful: {FAITHFUL}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        run_cli(0.1, Path(tmp) / "warm.zarr", [f"{k}={v}" for k, v in FAITHFUL.items()])     # compiled caches
+        run_cli(0.1, Path(tmp) / "warm.zarr", scene(FAITHFUL), GRAPH)                          # compiled caches
         faithful = None
         for name, change in VARIANTS[:args.only]:
             settings = {**FAITHFUL, **change}
             store = Path(tmp) / f"{len(rows)}.zarr"
-            timing = run_cli(args.duration, store, [f"{k}={v}" for k, v in settings.items()])
+            timing = run_cli(args.duration, store, scene(settings), GRAPH)
             stats = statistics(store, args.duration)
             faithful = faithful or stats
             rows.append((name, timing, stats, errors(stats, faithful)))
             e = rows[-1][3]
             print(f"  {name:14s} wall {timing['wall_s']:6.1f} s  CPU {timing['cpu_s']:6.1f} s  "
                   f"track events {stats['track']:6d} ({e['track']:+6.1%})  centroid {e['centroid_px']:5.2f} px  "
-                  f"timing {e['timing_us']:7.1f} us  background {e['background']:+6.1%}", flush=True)
+                  f"timing {e['timing_us']:7.1f} us  background {e['background']:+6.1%}  P_d {e['p_d']:.2f}", flush=True)
     print(f"load average at the end: {os.getloadavg()[0]:.2f}")
     pareto(rows, args.plot)
 
@@ -134,11 +145,12 @@ def pareto(rows, path: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, key, label in ((axes[0], "centroid_px", "centroid error vs faithful [pixel]"),
-                           (axes[1], "track", "|track event count error| vs faithful [1]")):
+                           (axes[1], "track", "|track event count error| vs faithful [1]"),
+                           (axes[2], "p_d", "detection probability in the events alone [1]")):
         for name, timing, _, e in rows:
-            value = abs(e[key])
+            value = e[key] if key == "p_d" else abs(e[key])
             ax.scatter(timing["cpu_s"], value, color="C3" if name == "seed 2" else "C0")
             ax.annotate(name, (timing["cpu_s"], value), fontsize=7, xytext=(3, 3), textcoords="offset points")
         ax.set_xlabel("CPU time [s]")
