@@ -13,7 +13,7 @@ costs are in benchmarks/end_to_end.py) so that the axes show the rest of the pip
 
 Cost should follow events and sources, not pixels x time.
 
-    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/scaling.py [--long]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/scaling.py [--long] [--axes duration,pixels]
 """
 
 from __future__ import annotations
@@ -48,13 +48,18 @@ def axes(long: bool) -> list[tuple[str, float, dict]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--long", action="store_true", help="add a 60 s run")
+    parser.add_argument("--axes", default="pixels,duration,stars,leak",
+                        help="comma-separated axes to run (pixels, duration, stars, leak)")
     args = parser.parse_args()
+    chosen = tuple(a.strip() for a in args.axes.split(","))
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; base: {BASE}, {BASE_DURATION_S:g} s")
     print(f"  {'run':22s} {'wall':>8s} {'CPU':>8s} {'CPU/sim s':>10s} {'peak':>8s} {'events':>10s} "
           f"{'CPU/M events':>13s}")
     with tempfile.TemporaryDirectory() as tmp:
         run_cli(0.1, Path(tmp) / "warm.zarr", [f"{k}={v}" for k, v in BASE.items()])
         for name, duration, change in axes(args.long):
+            if not name.startswith(chosen):
+                continue
             r = run_cli(duration, Path(tmp) / "run.zarr", [f"{k}={v}" for k, v in {**BASE, **change}.items()])
             per_event = r["cpu_s"] / max(r["events"], 1) * 1e6
             print(f"  {name:22s} {r['wall_s']:7.1f}s {r['cpu_s']:7.1f}s {r['cpu_s'] / duration:9.2f}s "

@@ -12,8 +12,10 @@ pyproject.toml::
     [project.entry-points."evsda.blocks"]
     my_arbiter = "mypackage.arbiter:MyArbiter"
 
-A plugin that fails to import hides none of the others: its failure is kept (:func:`broken`)
-and shown where its blocks would be asked for (:func:`unknown_block`, ``evsda blocks``).
+A plugin that fails to import, or whose block type clashes with one already registered, hides
+none of the others: its failure is kept (:func:`broken`) and shown where its blocks would be
+asked for (:func:`unknown_block`, ``evsda blocks``). :func:`register` called directly raises on
+a clash.
 """
 
 from __future__ import annotations
@@ -97,12 +99,16 @@ def _scan() -> None:
             continue
         dist = getattr(ep, "dist", None)
         origin = f"entry point '{ep.name}'" + (f" of {dist.name}" if dist is not None else "")
-        if isinstance(obj, Mapping) and obj and all(isinstance(v, str) for v in obj.values()):
-            for name, spec in obj.items():
-                _declare(name, spec, origin)
-            continue
-        for block_class in _as_classes(obj):
-            register(block_class, origin)
+        lazy = isinstance(obj, Mapping) and obj and all(isinstance(v, str) for v in obj.values())
+        for item in (obj.items() if lazy else _as_classes(obj)):
+            try:
+                if lazy:
+                    _declare(*item, origin)
+                else:
+                    register(item, origin)
+            except (UserError, TypeError) as exc:   # kept, not raised, like an import failure
+                _broken[f"{ep.name}:{item[0] if lazy else getattr(item, '__name__', item)}"] = (
+                    f"block plugin '{ep.name}' ({ep.value}): {exc}")
 
 
 def _resolve(name: str) -> type[Block] | None:
@@ -113,10 +119,13 @@ def _resolve(name: str) -> type[Block] | None:
         block_class = getattr(import_module(module), attr)
     except Exception as exc:  # kept, not raised, as for a plugin that fails to import
         why = " ".join(str(exc).split()) or type(exc).__name__
+        _lazy.pop(name)
         _broken[name] = f"block '{name}' ({spec}, {_origin[name]}) failed to import: {why}"
         return None
     if not (isinstance(block_class, type) and issubclass(block_class, Block)) or block_class.type_name != name:
-        raise TypeError(f"{spec} ({_origin[name]}) is not the Block subclass of type '{name}'")
+        _lazy.pop(name)
+        _broken[name] = f"block '{name}' ({spec}, {_origin[name]}) is not a Block subclass of that type"
+        return None
     return register(block_class, _origin[name])
 
 
@@ -160,6 +169,15 @@ class _Available(Mapping):
 
     def __contains__(self, name) -> bool:
         return name in self._names
+
+    def items(self) -> list[tuple[str, type[Block]]]:
+        """Every block type and its class (importing them all); one that fails to import is left out
+        (and kept in :func:`broken`)."""
+        found = ((name, get(name)) for name in self._names)
+        return [(name, block_class) for name, block_class in found if block_class is not None]
+
+    def values(self) -> list[type[Block]]:
+        return [block_class for _, block_class in self.items()]
 
 
 def available() -> Mapping[str, type[Block]]:

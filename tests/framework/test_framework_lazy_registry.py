@@ -43,3 +43,21 @@ def test_the_index_names_every_builtin_block_by_its_type():
     assert found == BLOCKS
     for name in BLOCKS:
         assert registry.get(name).type_name == name and registry.is_builtin(name)
+
+
+def test_a_clashing_plugin_hides_no_other_block(tmp_path):
+    """A plugin declaring a built-in type name is reported; every block stays listed (issue 16.4)."""
+    (tmp_path / "evsda_clash.py").write_text("BLOCKS = {'dvs_pixel': 'evsda_clash:Other', 'clash_extra': 'x:Y'}\n")
+    dist = tmp_path / "evsda_clash-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: evsda-clash\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[evsda.blocks]\nclash = evsda_clash:BLOCKS\n")
+    env = {"PYTHONPATH": str(tmp_path)}
+    import os
+    proc = subprocess.run([sys.executable, "-m", "evsda.graph.cli", "blocks"], capture_output=True, text=True,
+                          env={**os.environ, **env})
+    assert proc.returncode == 0, proc.stderr
+    assert "dvs_pixel" in proc.stdout and "optics" in proc.stdout
+    assert "block plugin 'clash' (evsda_clash:BLOCKS): block type 'dvs_pixel'" in proc.stderr
+    assert "clashes with the one from entry point 'builtin'" in proc.stderr
+    assert "Traceback" not in proc.stderr
