@@ -32,7 +32,8 @@ import logging
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,10 +41,11 @@ from typing import Any
 import networkx as nx
 import numpy as np
 
-from .errors import GraphError, Interrupted, Problem, UserError, clip
+from .errors import GraphError, Interrupted, Problem, StoreError, UserError, clip
 from .executor import requested_outputs, run_graph
 from .graphfile import Graph, check_override, load_graph, parse_value, read_yaml
 from .limits import Limits
+from .lock import StoreLock, describe_holder, read_holder
 from .store import RunStore, is_run_store
 from .threads import limit_blas
 
@@ -490,6 +492,26 @@ def _check_plan_file(out_dir: Path, document: dict, overwrite: bool) -> None:
     os.replace(temporary, path)
 
 
+@contextmanager
+def _sweep_lock(out_dir: Path) -> Iterator[None]:
+    """Hold the sweep folder's lock (the run stores' lock file and rules, :mod:`.lock`) while the sweep runs:
+    a second sweep into the folder is refused with one line naming the first, instead of both failing
+    each other's points and truncating each other's results table."""
+    lock = StoreLock(out_dir)
+    try:
+        lock.acquire()
+    except StoreError as exc:
+        holder = read_holder(out_dir)
+        if holder is None:          # not held: the folder cannot be written (the reason ends the message)
+            raise UserError(f"cannot lock the sweep folder {out_dir}: {str(exc).rpartition(': ')[2]}") from None
+        raise UserError(f"{out_dir} is being written by another evsda sweep ({describe_holder(holder)}); wait "
+                        f"for it to end or stop it") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
 def default_jobs() -> int:
     """Worker processes of a local cluster: one per core this process may use."""
     try:
@@ -529,63 +551,65 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"cannot create the sweep folder {out_dir}: {exc.strerror or exc}") from None
-    _check_plan_file(out_dir, {"graph": graph_path, "overrides": list(overrides), "sampling": method,
-                               "seed": seed if method != "grid" else None,
-                               "points": [p.values for p in sweep_points]}, overwrite)
-    workers = 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
-    threads = None if scheduler else max(1, default_jobs() // workers)
-    base = _overrides_dict(list(overrides))
-    choice = base_graph.run.store_products
-    tasks = {}
-    for point in sweep_points:
-        chain, q = [], providers.get(point.index)
-        while q is not None:
-            chain.append(str(sweep_points[q].store))
-            q = providers.get(q)
-        if scheduler:       # remote workers need paths that do not depend on this process's folder
-            point, chain = SweepPoint(point.index, point.values, point.store.absolute()), [str(Path(c).absolute()) for c in chain]
-        needed = stored.get(point.index)
-        store_products = None if not needed or choice is True else sorted(set(needed) | set(choice or []))
-        tasks[point.index] = PointTask(graph_path, base, point, chain, store_products, overwrite, threads, limits)
-    where = f"the Dask scheduler at {scheduler}" if scheduler else (
-        "this process" if workers == 1 else f"a local Dask cluster of {workers} workers")
-    report(f"sweep: {len(sweep_points)} points into {out_dir}, on {where}")
-    earlier = _earlier_times(out_dir / RESULTS_CSV)
-    table = ResultsTable(out_dir, list(grid))
-    failed = 0
+    with _sweep_lock(out_dir):     # one sweep per folder: its plan file and results table are shared
+        _check_plan_file(out_dir, {"graph": graph_path, "overrides": list(overrides), "sampling": method,
+                                   "seed": seed if method != "grid" else None,
+                                   "points": [p.values for p in sweep_points]}, overwrite)
+        workers = 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
+        threads = None if scheduler else max(1, default_jobs() // workers)
+        base = _overrides_dict(list(overrides))
+        choice = base_graph.run.store_products
+        tasks = {}
+        for point in sweep_points:
+            chain, q = [], providers.get(point.index)
+            while q is not None:
+                chain.append(str(sweep_points[q].store))
+                q = providers.get(q)
+            if scheduler:       # remote workers need paths that do not depend on this process's folder
+                point = SweepPoint(point.index, point.values, point.store.absolute())
+                chain = [str(Path(c).absolute()) for c in chain]
+            needed = stored.get(point.index)
+            store_products = None if not needed or choice is True else sorted(set(needed) | set(choice or []))
+            tasks[point.index] = PointTask(graph_path, base, point, chain, store_products, overwrite, threads, limits)
+        where = f"the Dask scheduler at {scheduler}" if scheduler else (
+            "this process" if workers == 1 else f"a local Dask cluster of {workers} workers")
+        report(f"sweep: {len(sweep_points)} points into {out_dir}, on {where}")
+        earlier = _earlier_times(out_dir / RESULTS_CSV)
+        table = ResultsTable(out_dir, list(grid))
+        failed = 0
 
-    def finished(index: int, outcome: dict) -> None:
-        nonlocal failed
-        point = sweep_points[index]
-        if outcome["status"] == "done" and index in earlier:    # the time it took when it ran
-            outcome["wall_s"], outcome["cpu_s"], outcome["run_s"] = earlier[index]
-        failed += outcome["status"] == "failed"
-        table.add(_row(point, outcome))
-        report(_describe(point, outcome))
+        def finished(index: int, outcome: dict) -> None:
+            nonlocal failed
+            point = sweep_points[index]
+            if outcome["status"] == "done" and index in earlier:    # the time it took when it ran
+                outcome["wall_s"], outcome["cpu_s"], outcome["run_s"] = earlier[index]
+            failed += outcome["status"] == "failed"
+            table.add(_row(point, outcome))
+            report(_describe(point, outcome))
 
-    try:
-        if scheduler is None and workers == 1:
-            outcomes: dict[int, dict] = {}
-            for point in sweep_points:
-                q = providers.get(point.index)
-                outcomes[point.index] = run_point(tasks[point.index], outcomes.get(q))
-                finished(point.index, outcomes[point.index])
+        try:
+            if scheduler is None and workers == 1:
+                outcomes: dict[int, dict] = {}
+                for point in sweep_points:
+                    q = providers.get(point.index)
+                    outcomes[point.index] = run_point(tasks[point.index], outcomes.get(q))
+                    finished(point.index, outcomes[point.index])
+            else:
+                _run_on_dask(tasks, providers, workers, scheduler, finished)
+        except KeyboardInterrupt as exc:
+            raise Interrupted(getattr(exc, "signal_name", "SIGINT"),
+                              f"sweep interrupted after {len(table.rows)} of {len(sweep_points)} points; finished "
+                              f"points are kept and unfinished ones resume: re-run the same command") from None
+        finally:
+            if table.rows:
+                table.write_parquet()
+        rows = sorted(table.rows, key=lambda r: r["point"])
+        if failed:
+            report(f"sweep: {failed} of {len(sweep_points)} points failed (see the error column of {table.csv}); "
+                   f"re-run the same command to retry them")
         else:
-            _run_on_dask(tasks, providers, workers, scheduler, finished)
-    except KeyboardInterrupt as exc:
-        raise Interrupted(getattr(exc, "signal_name", "SIGINT"),
-                          f"sweep interrupted after {len(table.rows)} of {len(sweep_points)} points; finished points "
-                          f"are kept and unfinished ones resume: re-run the same command") from None
-    finally:
-        if table.rows:
-            table.write_parquet()
-    rows = sorted(table.rows, key=lambda r: r["point"])
-    if failed:
-        report(f"sweep: {failed} of {len(sweep_points)} points failed (see the error column of {table.csv}); "
-               f"re-run the same command to retry them")
-    else:
-        report(f"sweep: all {len(sweep_points)} points done; results in {table.csv} and {table.parquet}")
-    return SweepResult(rows, failed, table.csv, table.parquet)
+            report(f"sweep: all {len(sweep_points)} points done; results in {table.csv} and {table.parquet}")
+        return SweepResult(rows, failed, table.csv, table.parquet)
 
 
 def _quiet_resource_tracker() -> None:

@@ -218,8 +218,25 @@ def test_the_sweep_size_and_each_points_size_are_limited_and_the_limits_can_be_r
     status, lines = sweep("--vary", "run.window_s=[0.01, 0.001]", "--limit", "windows=5", "-o", tmp_path / "w")
     error = read_results(tmp_path / "w").set_index("point").error
     assert status == 3 and lines[-1].startswith("evsda: sweep: 1 of 2 points failed")
-    assert "30 windows (duration_s / window_s) is more than the limit of 5" in error[1] and "--limit windows=30" in error[1]
+    assert "30 windows (duration_s / window_s) is more than the limit of 5" in error[1]
+    assert "--limit windows=30" in error[1]
     status, lines = sweep("--vary", "run.window_s=[0.01, 0.001]", "--limit", "windows=30", "-o", tmp_path / "w")
     assert status == 0 and lines == []
     assert sweep("--vary", "spikes.step=[1]", "--limit", "points=0", "-o", tmp_path / "p")[1] == [
         "evsda: error: --limit points: expected a finite number >= 1, got 0"]
+
+
+def test_a_second_sweep_into_the_same_folder_is_refused_naming_the_first(plugin, tmp_path):
+    """Two sweeps into one folder failed each other's points and truncated each other's results table;
+    the folder's lock refuses the second with one line, and the first's table stays whole."""
+    from evsda.graph.lock import StoreLock
+
+    out = tmp_path / "s"
+    out.mkdir()
+    grid = {"spikes.step": [2.0, 3.0]}
+    with StoreLock(out):            # as a running sweep holds it
+        with pytest.raises(UserError, match=rf"{out} is being written by another evsda sweep \(pid \d+ on host"):
+            run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lambda line: None)
+    assert not (out / "sweep.csv").exists() and not (out / "sweep-plan.json").exists()
+    result = run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lambda line: None)
+    assert result.ok and not (out / ".evsda-lock").exists()
