@@ -9,6 +9,7 @@ import numpy as np
 from pydantic_core import PydanticUndefined
 
 from .block import NS_PER_S, Block
+from .errors import StoreError
 from .ports import port_type_label
 
 UNIT_RE = re.compile(r"\s*\[([^\[\]]*)\]\s*$")
@@ -143,10 +144,15 @@ def store_info(store) -> dict:
     if store.n_events and not status.problems:
         labels = store.group["events/cause"].attrs.get("flag_meanings", "").split()
         counts = np.zeros(256, np.int64)
-        for chunk in store.iter_events():
-            counts += np.bincount(chunk["cause"], minlength=256)
-        info["events_by_cause"] = {(labels[code] if code < len(labels) else f"cause_{code}"): int(counts[code])
-                                   for code in np.flatnonzero(counts)}
+        try:
+            for chunk in store.iter_events():
+                counts += np.bincount(chunk["cause"], minlength=256)
+        except StoreError as exc:       # a damaged chunk: say so, and show the rest of what the store holds
+            info.update(status=f"damaged: {str(exc).removeprefix(f'{store.path}: ')}", complete=False,
+                        resumable=False)
+        else:
+            info["events_by_cause"] = {(labels[code] if code < len(labels) else f"cause_{code}"): int(counts[code])
+                                       for code in np.flatnonzero(counts)}
     lengths = store._committed().get("lengths", {})
     for key, length in sorted(lengths.items()):
         parts = key.split("/")

@@ -38,6 +38,12 @@ def test_a_damaged_event_chunk_is_an_error_naming_the_array(capsys, tmp_path, da
     with pytest.raises(StoreError, match=array):
         RunStore.open(store).read_events()
     assert any(array in problem for problem in RunStore.open(store).verify())
+    from evsda.graph.cli import main
+
+    capsys.readouterr()
+    assert main(["info", str(store)]) == 0           # says so, and shows the rest of what the store holds
+    shown = capsys.readouterr().out.splitlines()
+    assert shown[0].startswith(f"{store}: damaged: array {array} ") and shown[1] == "graph        chain"
 
 
 def test_a_damaged_product_chunk_is_an_error_naming_the_array(tmp_path):
