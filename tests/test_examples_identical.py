@@ -56,6 +56,10 @@ SHORT: dict[str, dict] = {
                                        "sensor/frames.frame_rate_hz": 2.0, "sensor/frames.exposure_s": 0.5},
     "onsky_scan_200mm.yaml": {"run.duration_s": 0.5, "sensor/camera.width_px": 64, "sensor/camera.height_px": 64,
                               "inject.n_sources": 4},
+    "onsky_stare_85mm_hvga.yaml": {**LIMITING, "sensor/camera.width_px": 64, "sensor/camera.height_px": 64,
+                                   "detector.look_s": 0.5},
+    "onsky_stare_85mm_vga.yaml": {**LIMITING, "sensor/camera.width_px": 64, "sensor/camera.height_px": 64,
+                                  "detector.look_s": 0.5},
     "scan_star_streaks.yaml": {**_small("sensor/", *GEN4), "run.duration_s": 0.1, "stars.faint_limit_mag": 9.0},
     "scene_pass.yaml": {"run.start": "2023-03-20T19:19:59.8Z", "run.duration_s": 0.2, "camera.width_px": 320,
                         "camera.height_px": 180, "camera.pixel_pitch_m": 1.944e-5, "stars.faint_limit_mag": 10.0},
@@ -67,7 +71,8 @@ SHORT: dict[str, dict] = {
 #: sub-graphs that cannot run on their own (no run section, or inputs left to the including graph): each runs
 #: inside the scenes that include it
 SUBGRAPHS = {"limiting_magnitude_cmos.yaml": "limiting_magnitude_frames.yaml",
-             "limiting_magnitude_scene.yaml": "limiting_magnitude_events.yaml"}
+             "limiting_magnitude_scene.yaml": "limiting_magnitude_events.yaml",
+             "onsky_stare_scene.yaml": "onsky_stare_85mm_vga.yaml"}
 
 # scene: (digest of its resolved graph, SHA-256 of its run store); written by running this file
 EXPECTED: dict[str, tuple[str, str]] = {
@@ -79,20 +84,24 @@ EXPECTED: dict[str, tuple[str, str]] = {
                                     "0dc9610eb961474c8c7f7c44b1f25f2e7f80e1d8b84b3fb50dc91cddf9c6dcaa"),
     "iss_pass_low_noise.yaml": ("57e3db027d394166a1275a7429f160d0a825bcd6c9696d65fbbf06718e58e4a3",
                                 "8e2664fd76d06f35980b313fbff85210b3092bf13592a23620cae71f3c89bbf3"),
-    "limiting_magnitude_events.yaml": ("195e8f90f23da835fdc4db288a8e36c0bd794eb860a2f0933bc90435c518273b",
-                                       "adecb6245ddf91fcba54e1a7beb460e5753d33ab689f47aac47d6c6684904329"),
+    "limiting_magnitude_events.yaml": ("600f0cfb82eb96af30f406080a70b830a08fe415a846bfeb9a3879e758b5feed",
+                                       "7743e66d386481c6c8c24d0005d370097079497c6e0fab0968ca6ce284b01aa8"),
     "limiting_magnitude_frames.yaml": ("8475b2e5ea0d83cde0be825baa49845b3d03e5ebf4b7548239d172201168cab2",
                                        "a057660e09196284d3b6c1dfa729867917fda97a693ff12b958b9af3128d3859"),
-    "onsky_scan_200mm.yaml": ("486f71b9106bffe4cc9f1fd54bb1bae12c0be0c7ba2301a821785c3de9b83446",
-                              "0334dbdd5b4f4c4be779a13f102255fd0465e72510cc2edc67a72b44d5337b7e"),
+    "onsky_scan_200mm.yaml": ("cd87c9a431fa140a4b25c69e6deb33a2b516692a8f427062918cd8d107ade10e",
+                              "10bf98c58130aa22c1675e3fad155dc5f07474dc67b87a0baee80073bf077f6e"),
+    "onsky_stare_85mm_hvga.yaml": ("6f299a4c7ea606876543586516fee02094f3a93917f0a9435fe9c3bc00d55b1b",
+                                   "61adcd555d79764fd2bd4f4c581707e81fbc102c95a9caeda53c3bf31375ac23"),
+    "onsky_stare_85mm_vga.yaml": ("6da30d0949f25621b904c238b369a7f10f21683819168ad1265a924e2a022ff2",
+                                  "7743e66d386481c6c8c24d0005d370097079497c6e0fab0968ca6ce284b01aa8"),
     "scan_star_streaks.yaml": ("97cdb63c6d0e86a42cbd4e262329ae8b011c047018a0be57653a64d3e33520ed",
                                "6a7d1b3e64817fcd025f45c43d5614c88554f7f9d2694a859fd09c07b07bb8c1"),
     "scene_pass.yaml": ("edb56c2b63484c3ab742a99cfe5fcb978144de9981bdf3b7b12415e13000c83c",
                         "8566a623e4547ddc0cf27b03d8061786147086d9af05342e5483c66e56aa559f"),
-    "sl-16-rb.yaml": ("5bb3c24e85b6b497d683b6a7d5ce2e9989221f6917a7fad27fc0ac3ca1575888",
-                      "f7b074c1e467fc5af973e9e58812bc3b2ab4762f57f731962b860a4dd7b8c682"),
-    "space_based.yaml": ("d195b251c057b59153b66b2a808056d583d3c5adde224a06866ff38ae064be59",
-                         "78155e427f334226bfcd239c68be06de4212a03389f78dc8adbebba5833f84ae"),
+    "sl-16-rb.yaml": ("e194a79f47ed1aaa11431506dd983e8462f949e5f136d44ae4e1ad5c8c60fdff",
+                      "ff7ff331d346c26c0169a5aa663c4c59e31eb6ba8e17e075d1327c474e4f8b83"),
+    "space_based.yaml": ("fb3f6782908e18865e676fffbe19ce75e30608e8005fe0d077978f07b5f026e2",
+                         "bccce637d4122891c76e6dd6b8abdb7431aa33139513e8945f0ebef8d98d23f1"),
     "starlink_field.yaml": ("2cfd173d82887cb2aeaa20e264ee387cdb34de2a4f0a46f4163b55056646a119",
                             "75155ac6356ebfaa4a7fc7f5dfcdd97506a1d495214f997d9f600b28d2f2b39c"),
 }

@@ -10,8 +10,12 @@ the dark current. Paper Eqs. 12-15 turn it into the lin-log level ``Y(t)``, Eq. 
 junction leak (Eq. 18) walks the comparator's distance to its ON threshold through one threshold
 at a steady pace, so at a random moment it is uniform over ``[0, theta_ON)``; a rise ``Delta L``
 then gives on average exactly ``Delta L / theta_ON`` ON events (a rise smaller than a threshold
-fires with that probability), and the fall back ``max(0, Delta L / theta_OFF - 1)`` OFF events,
-averaged over the per-pixel threshold spread. Over a look of ``T`` seconds the track passes
+fires with that probability), and the fall back ``max(0, c Delta L / theta_OFF - 1)`` OFF events,
+averaged over the per-pixel threshold spread. The fall follows the source's passage with the pixel's
+time constant under the sky, ``tau`` (Eq. 16): of a pixel crossed at a uniformly random moment of a
+look of ``T`` seconds, the fraction ``c = 1 - (tau / T)(1 - exp(-T / tau))`` of the fall lies inside
+the look (``c`` -> 1 for a fast pixel, -> ``T / (2 tau)`` for one much slower than the look, whose OFF
+events come looks later); a detector that reads ON events only counts none of them. Over a look of ``T`` seconds the track passes
 ``omega T`` pixel centres per unit width of the band around it; the event detector's best box
 (:mod:`.event_detector`) collects the events of the pixels within its reach, each moved back to
 the look's middle, where they pile at the perpendicular offset of their pixel: the expected
@@ -90,6 +94,7 @@ class EventDesign:
     n_velocities: int               # detector trial velocities [1]
     false_alarm_rate_per_hour_per_mpx: float
     n_pixels: int                   # detector pixels (the trials' count cancels; kept for the threshold formula)
+    polarity: str = "both"          # events the detector reads: "both", "on" or "off"
 
 
 def background_rate_hz(pixel: PixelModel, sky_photon_s: float) -> float:
@@ -169,7 +174,9 @@ class EventLimit:
     def expected_events(self, magnitude: float) -> float:
         """Expected signal events ``S(m)`` in the detector's best box over one look [event]."""
         rise = self.rises(magnitude)
-        per_pixel = rise * self.inv_theta_on + np.maximum(0.0, rise * self.inv_theta_off - 1.0)
+        on = rise * self.inv_theta_on
+        off = np.maximum(0.0, self.fall_fraction_in_look() * rise * self.inv_theta_off - 1.0)
+        per_pixel = {"both": on + off, "on": on, "off": off}[self.d.polarity]
         step = 1.0 / OFFSETS_PER_PIXEL
         # the box reaches across the track over its extent along the direction perpendicular to the motion
         reach = self.d.box_px / max(abs(self.across[0]), abs(self.across[1]))
@@ -177,6 +184,15 @@ class EventLimit:
         window = np.convolve(per_pixel, np.ones(width), mode="valid") * step
         crossed = self.d.rate_px_s * self.d.look_s                     # pixel centres passed per unit width
         return float(crossed * window.max())
+
+    def fall_fraction_in_look(self) -> float:
+        """``c = 1 - (tau / T)(1 - exp(-T / tau))``: the mean fraction of a pixel's fall back to the sky (time
+        constant ``tau`` under the sky, Eq. 16) completed within the look ``T`` it was crossed in [1]."""
+        drive = self.d.pixel.drive(np.array([self.d.sky_photon_s]))
+        x = float(-drive.log_a[0]) / self.d.pixel.dt_s * self.d.look_s          # T / tau [1]
+        if x <= 0.0:
+            return 0.0                                                        # no bandwidth: the level never falls
+        return 1.0 if math.isinf(x) else float(1.0 + math.expm1(-x) / x)    # inf: no low-pass
 
     def detection_probability(self, magnitude: float) -> float:
         return float(poisson_p_value(self.k_threshold, self.mu + self.expected_events(magnitude)))

@@ -268,7 +268,7 @@ def event_limit(design: GraphDesign, sources: PointSources, sky: SkyBackground |
     dp = detector.params
     return EventLimit(EventDesign(pixel, table, flux0, sky_photons, rate, direction, detector.look_ns / NS_PER_S,
                                   dp.box_px, detector.velocities.shape[0], dp.false_alarm_rate_per_hour_per_mpx,
-                                  fp.width_px * fp.height_px))
+                                  fp.width_px * fp.height_px, dp.polarity))
 
 
 def frame_limit(design: GraphDesign, sources: PointSources, sky: SkyBackground | None) -> FrameLimit:

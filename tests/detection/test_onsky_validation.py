@@ -1,0 +1,131 @@
+"""The on-sky validation's machinery on small cases: the contrast criterion against the closed form of
+McMahon-Crabtree & Monet's (2021) limiting-magnitude condition, the graph files against the setups the paper
+describes, the fitted preset against the measurement it was fitted to, and the fit itself."""
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import constants
+
+from evsda.blocks.detection.analytic import EventDesign, EventLimit, PsfTable
+from evsda.blocks.detection.study import design_limit
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.model import PixelModel
+from evsda.graph.graphfile import load_graph
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "examples"
+ARCSEC_PER_RAD = 180 / math.pi * 3600
+
+
+def _benchmark():
+    spec = importlib.util.spec_from_file_location("onsky_validation", ROOT / "benchmarks" / "onsky_validation.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module               # its dataclasses look their module up while being built
+    spec.loader.exec_module(module)
+    return module
+
+
+def _gaussian_psf(sigma_px: float) -> PsfTable:
+    """Fraction of a Gaussian PSF (pixel-integrated, by erf) in a pixel at each offset of a 1/8-pixel grid."""
+    from scipy.special import erf
+
+    grid = np.arange(-4, 4 + 1e-9, 0.125)
+
+    def band(c):
+        s = sigma_px * math.sqrt(2)
+        return 0.5 * (erf((c + 0.5) / s) - erf((c - 0.5) / s))
+
+    return PsfTable(grid, band(grid)[:, None] * band(grid)[None, :])
+
+
+def test_contrast_limit_is_the_papers_condition_without_bandwidth():
+    # With the photoreceptor logarithmic down to the dark current and no low-pass (cutoff 0), the best-centred
+    # pixel's rise is ln(1 + f_peak F_m / (F_sky + I_dark / (eta q))): it reaches theta at
+    # F_m = (e^theta - 1) (F_sky + I_dark / (eta q)) / f_peak, the condition of McMahon-Crabtree & Monet (2021,
+    # Appl. Opt. 60(25), G144): the star's change of the photocurrent equals the contrast threshold.
+    eta, theta, j_dark, pitch, wavelength = 0.2, 0.2, 2e-7, 15e-6, 550e-9
+    params = DvsPixel(quantum_efficiency=eta, knee_at_dark_current=True, dark_current_density_A_m2=j_dark,
+                      cutoff_max_hz=0.0, threshold_on=theta, threshold_off=theta, threshold_sigma=0.0).params
+    pixel = PixelModel(params, pitch**2, wavelength)
+    psf = _gaussian_psf(0.6)
+    flux0, sky = 3.0e7, 150.0                       # photons/s from V 0 and from the sky on a pixel
+    limit = EventLimit(EventDesign(pixel, psf, flux0, sky, 0.01, 0.0, 5.0, 2, 5, 1.0, 65536))
+    dark_photons = pixel.dark_current_A / (eta * constants.e)
+    f_lim = (math.exp(theta) - 1) * (sky + dark_photons) / psf.peak
+    expected = -2.5 * math.log10(f_lim / flux0)
+    assert limit.contrast_limit(5.0, 15.0) == pytest.approx(expected, abs=0.005)
+    # the same design with the dark current 50x higher (the preset's prior) is limited 2.5 log10 of the ratio of
+    # the (sky + dark) currents brighter
+    params_hot = params.model_copy(update={"dark_current_density_A_m2": 50 * j_dark})
+    hot = EventLimit(EventDesign(PixelModel(params_hot, pitch**2, wavelength), psf, flux0, sky, 0.01, 0.0, 5.0, 2, 5,
+                                 1.0, 65536))
+    ratio = (sky + 50 * dark_photons) / (sky + dark_photons)
+    assert limit.contrast_limit(5.0, 15.0) - hot.contrast_limit(3.0, 13.0) == pytest.approx(2.5 * math.log10(ratio), abs=0.01)
+
+
+@pytest.mark.parametrize("graph, pixel_arcsec, aperture_m, rate_arcsec_s", [
+    ("onsky_stare_85mm_vga.yaml", 36.4, 0.0607, 15.0),     # 15 um at 85 mm, f/1.4, the sidereal rate
+    ("onsky_stare_85mm_hvga.yaml", 48.5, 0.0607, 15.0),    # 20 um at 85 mm
+    ("onsky_scan_200mm.yaml", 15.5, 0.1, 1800.0),          # 15 um at 200 mm, f/2.0, scanning at 0.5 deg/s
+])
+def test_graph_files_hold_the_papers_setups(graph, pixel_arcsec, aperture_m, rate_arcsec_s):
+    g = load_graph(str(EXAMPLES / graph))
+    by_type = {node.block.type_name: node.block for node in g.nodes.values()}
+    cam = by_type["camera"].params
+    assert cam.pixel_pitch_m / cam.focal_length_m * ARCSEC_PER_RAD == pytest.approx(pixel_arcsec, rel=0.002)
+    assert by_type["optics"].params.aperture_m == pytest.approx(aperture_m, rel=0.002)
+    assert by_type["sky_background"].params.surface_brightness_mag_arcsec2 == 20.3
+    assert by_type["injected_sources"].params.rate_arcsec_s == rate_arcsec_s
+    # the bandwidth's saturation current is a photocurrent at a given illuminance on the pixel: it scales with the
+    # pixel area from the Gen3 VGA preset's (15 um)
+    vga = load_graph("library:sensors/prophesee_gen3_vga.yaml", ["camera.focal_length_m=0.1"]).nodes["pixel"]
+    vga = vga.block.params.cutoff_saturation
+    assert by_type["dvs_pixel"].params.cutoff_saturation == pytest.approx(vga * (cam.pixel_pitch_m / 15e-6) ** 2,
+                                                                         rel=0.001)
+
+
+def test_fitted_gen3_dark_current_reproduces_the_measurement_it_was_fitted_to():
+    # The preset's dark current was fitted so that setup 1's contrast limit is McMahon-Crabtree & Monet's V 9.8;
+    # a change of the Gen3 preset (QE, thresholds, bandwidth) that moves it needs a new fit.
+    assert design_limit(str(EXAMPLES / "onsky_stare_85mm_vga.yaml")).contrast_limit() == pytest.approx(9.8, abs=0.05)
+
+
+def test_fit_inverts_a_known_limit_against_dark_current(monkeypatch):
+    # The fit finds the dark current at which the criterion equals the measured limit, on a log scale over
+    # six decades: a stand-in criterion m(J) = 2 - 1.25 log10(J) is inverted exactly.
+    bench = _benchmark()
+    monkeypatch.setattr(bench, "contrast_limit",
+                        lambda path, overrides: 2.0 - 1.25 * math.log10(float(overrides[0].split("=")[1])))
+    setup = bench.SETUPS[0]
+    fitted = bench.fit_dark_current(setup, report=lambda *a: None)
+    assert math.log10(fitted) == pytest.approx((2.0 - setup.measured) / 1.25, abs=0.01)
+
+
+def test_off_events_count_only_the_fall_completed_within_the_look():
+    # After a source has passed, a pixel falls back with its time constant under the sky (Eq. 16). Crossed at a
+    # uniformly random moment of a look of T seconds, it completes on average 1 - (tau/T)(1 - exp(-T/tau)) of its
+    # fall inside the look: all of it without a low-pass, T / (2 tau) when tau >> T (the mean of u/tau over u
+    # uniform on [0, T]). A detector that reads ON events only counts none of the OFF events.
+    psf, pitch, wavelength = _gaussian_psf(0.6), 15e-6, 550e-9
+
+    def limit(polarity="both", **pixel):
+        params = DvsPixel(quantum_efficiency=0.2, knee_at_dark_current=True, threshold_sigma=0.0, **pixel).params
+        return EventLimit(EventDesign(PixelModel(params, pitch**2, wavelength), psf, 3.0e7, 150.0, 0.4, 0.0, 5.0, 2,
+                                      5, 1.0, 65536, polarity))
+
+    fast = limit(cutoff_max_hz=0.0, dark_current_density_A_m2=2e-7)
+    assert fast.fall_fraction_in_look() == 1.0
+    rise = fast.rises(8.0)
+    on_only = limit("on", cutoff_max_hz=0.0, dark_current_density_A_m2=2e-7)
+    assert fast.expected_events(8.0) > on_only.expected_events(8.0) > 0
+    assert rise.max() / 0.2 > 1                       # the best pixel rises by more than a threshold: OFF events exist
+    slow = limit(cutoff_max_hz=3000.0, cutoff_model="proportional", cutoff_saturation=2.9e6,
+                 dark_current_density_A_m2=2e-7)
+    tau = slow.time_constant_s()
+    assert tau > 100 * 5.0
+    assert slow.fall_fraction_in_look() == pytest.approx(5.0 / (2 * tau), rel=0.01)
