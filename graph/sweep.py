@@ -646,7 +646,7 @@ def _run_on_dask(tasks: dict[int, PointTask], providers: dict[int, int], workers
     else:
         try:
             client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:        # ValueError: not an address
             raise UserError(f"cannot reach the Dask scheduler at {clip(scheduler)}: {clip(str(exc))}") from None
     try:
         futures = {}

@@ -240,3 +240,9 @@ def test_a_second_sweep_into_the_same_folder_is_refused_naming_the_first(plugin,
     assert not (out / "sweep.csv").exists() and not (out / "sweep-plan.json").exists()
     result = run_sweep(str(chain(tmp_path)), grid, out, jobs=1, report=lambda line: None)
     assert result.ok and not (out / ".evsda-lock").exists()
+
+
+def test_a_scheduler_address_that_is_no_address_is_one_line(plugin, tmp_path):
+    with pytest.raises(UserError, match="cannot reach the Dask scheduler at not an address: missing port number"):
+        run_sweep(str(chain(tmp_path)), {"spikes.step": [2.0]}, tmp_path / "s", scheduler="not an address",
+                  report=lambda line: None)
