@@ -547,6 +547,9 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
         sweep_points = plan(graph_path, values, out_dir, overrides, base_graph)
         providers, stored = reuse_plan(graph_path, sweep_points, overrides, base_graph)
     log.info("planned %d points in %.2f s", len(sweep_points), time.perf_counter() - t0)
+    for folder in (out_dir.absolute(), *out_dir.absolute().parents):
+        if is_run_store(folder):
+            raise UserError(f"{out_dir}: cannot write a sweep inside the run store {folder}; choose another folder")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -246,3 +246,14 @@ def test_a_scheduler_address_that_is_no_address_is_one_line(plugin, tmp_path):
     with pytest.raises(UserError, match="cannot reach the Dask scheduler at not an address: missing port number"):
         run_sweep(str(chain(tmp_path)), {"spikes.step": [2.0]}, tmp_path / "s", scheduler="not an address",
                   report=lambda line: None)
+
+
+def test_a_sweep_is_never_written_inside_a_run_store(plugin, tmp_path):
+    """A sweep folder inside a run store (or the store itself) is refused before anything is written."""
+    store = tmp_path / "run.zarr"
+    run_graph(load_graph(chain(tmp_path)), store, progress=False)
+    before = sorted(p.relative_to(store) for p in store.rglob("*"))
+    for out in (store, store / "events" / "study"):
+        with pytest.raises(UserError, match=f"cannot write a sweep inside the run store {store}"):
+            run_sweep(str(chain(tmp_path)), {"spikes.step": [2.0]}, out, jobs=1, report=lambda line: None)
+    assert sorted(p.relative_to(store) for p in store.rglob("*")) == before
