@@ -67,6 +67,7 @@ SETUPS = (
           "PREDICTION", None, "no star above 0.5 deg/s", "9.5:14.5:0.5"),
 )
 SCAN_RATES_DEG_S = (0.5, 1.0, 2.0, 4.0)      # rates at which the scan setup's contrast limit is printed [deg/s]
+BANDWIDTH_SLOWER = (10.0, 100.0, 1000.0)     # factors by which the sensitivity lines slow the photoreceptor [1]
 SCAN_PIXEL_ARCSEC = 15.47                    # 15 um at 200 mm [arcsec]
 SCAN_SWATH_DEG = 480 * SCAN_PIXEL_ARCSEC / 3600.0   # the VGA's short side swept across the sky [deg]
 SKY_DEG2 = 41252.96                          # the whole sky [deg^2]
@@ -112,6 +113,21 @@ def scan_rate_overrides(rate_deg_s: float) -> list[str]:
     return [f"inject.rate_arcsec_s={rate_deg_s * 3600.0:g}", f"inject.cadence_s={0.5 / rate_px_s:.6g}",
             f"detector.min_rate_px_s={0.95 * rate_px_s:.6g}", f"detector.max_rate_px_s={1.05 * rate_px_s:.6g}",
             "detector.look_s=0.1", "detector.max_trial_velocities=200000"]
+
+
+def print_sensitivities(stare: Setup, scan: Setup) -> None:
+    """What the fit and the scan's prediction hang on: the stare's limit with the preset's prior dark current and
+    without a low-pass, and both setups with the bandwidth law slowed (``cutoff_saturation`` x k^2: with the
+    square-root law a k times slower photoreceptor at every current)."""
+    prior = contrast_limit(stare.path, [f"{DARK_PARAM}=1e-5"])
+    static = contrast_limit(stare.path, ["sensor/pixel.cutoff_max_hz=0"])
+    print(f"{stare.graph}: predicted limit with the prior dark current (1e-5 A/m^2) V {prior:.2f}; with the fitted one "
+          f"and no low-pass V {static:.2f}")
+    saturation = design_limit(stare.path).d.pixel.params.cutoff_saturation
+    for slower in BANDWIDTH_SLOWER:
+        override = [f"sensor/pixel.cutoff_saturation={saturation * slower ** 2:.6g}"]
+        print(f"  bandwidth {slower:g}x slower: {stare.graph} V {contrast_limit(stare.path, override):.2f}, "
+              f"{scan.graph} at 1 deg/s V {contrast_limit(scan.path, override + scan_rate_overrides(1.0)):.2f}")
 
 
 def run(argv: list[str] | None = None) -> int:
@@ -166,6 +182,7 @@ def run(argv: list[str] | None = None) -> int:
         density = stars_brighter_per_deg2(min(m, CATALOG_COMPLETE_MAG))
         print(f"  {r:g} deg/s: V {m:.2f}; {'>= ' if bound else ''}{density:.3f} per deg^2; one every "
               f"{'<= ' if bound else ''}{1.0 / (density * SCAN_SWATH_DEG * r):.1f} s")
+    print_sensitivities(fitted, scan)
     print(f"all: {time.perf_counter() - start:.0f} s wall, {cpu_s() - cpu0:.0f} CPU s; load average {load0:.1f} "
           f"before, {os.getloadavg()[0]:.1f} after; {os.cpu_count()} cores")
     return 0
