@@ -193,7 +193,7 @@ class Block:
         self.params = params
         self.name = name or self.type_name
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ParameterError(f"block '{name or self.type_name}': the seed must be a non-negative integer, "
+            raise ParameterError(f"{self.label}: the seed must be a non-negative integer, "
                                  f"got {excerpt(seed)}")
         self.seed = int(seed)
         self.rng = block_rng(self.seed, self.name)
@@ -206,9 +206,24 @@ class Block:
 
     @property
     def run(self) -> RunInfo:
+        """The run this block was set up for; RuntimeError before :meth:`setup`."""
         if self._run is None:
-            raise RuntimeError(f"block '{self.name}' needs setup(RunInfo(...)) before step()")
+            raise RuntimeError(f"{self.label} needs setup(RunInfo(...)) before step()")
         return self._run
+
+    @property
+    def run_info(self) -> RunInfo | None:
+        """The run this block was set up for (read-only), or None when it runs on its own without setup."""
+        return self._run
+
+    def run_span_ns(self, window: Window) -> tuple[int, int]:
+        """``[start, stop)`` of the whole run [ns], or of ``window`` when the block runs without setup."""
+        return (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+
+    @property
+    def label(self) -> str:
+        """How messages name this block: its type and name (``satellite 'sat'``)."""
+        return f"{self.type_name} '{self.name}'"
 
     def step(self, window: Window, **inputs) -> dict[str, PortValue]:
         """Advance over ``window`` and return a value for every output port."""
@@ -242,12 +257,12 @@ class Block:
         for port_name, value in inputs.items():
             spec = self.inputs.get(port_name)
             if spec is None:
-                raise InputError(f"block '{self.name}' has no input port '{port_name}'; "
+                raise InputError(f"{self.label} has no input port '{port_name}'; "
                                  f"it has {sorted(self.inputs) or 'none'}")
             values = value if spec.multi else [value]
             for item in values:
                 if item is not None and not isinstance(item, spec.type):
-                    raise InputError(f"block '{self.name}' input '{port_name}' expects "
+                    raise InputError(f"{self.label} input '{port_name}' expects "
                                      f"{port_type_label(spec.type)}, got {type(item).__name__}")
 
     def __repr__(self) -> str:
@@ -266,20 +281,20 @@ def _checked_step(step):
             if names is None:
                 names = [n for n in inspect.signature(step).parameters][2:]
             if len(args) > len(names):
-                raise InputError(f"block '{self.name}' step() takes {len(names)} inputs, got {len(args)}")
+                raise InputError(f"{self.label} step() takes {len(names)} inputs, got {len(args)}")
             for name, value in zip(names, args):
                 if name in inputs:
-                    raise InputError(f"block '{self.name}' input '{name}' is given twice")
+                    raise InputError(f"{self.label} input '{name}' is given twice")
                 inputs[name] = value
         if not isinstance(window, Window):
-            raise InputError(f"block '{self.name}' step() needs a Window first, got {excerpt(window)}")
+            raise InputError(f"{self.label} step() needs a Window first, got {excerpt(window)}")
         for port, spec in type(self).inputs.items():
             value = inputs.get(port)
             if spec.required and (value is None or (spec.multi and not value)):
-                raise InputError(f"block '{self.name}' is missing its required input '{port}' "
+                raise InputError(f"{self.label} is missing its required input '{port}' "
                                  f"({port_type_label(spec.type)})")
             if spec.multi and value is not None and not isinstance(value, (list, tuple)):
-                raise InputError(f"block '{self.name}' input '{port}' takes a list of "
+                raise InputError(f"{self.label} input '{port}' takes a list of "
                                  f"{port_type_label(spec.type)} values, got {type(value).__name__}")
         self.check_inputs(inputs)
         return step(self, window, **inputs)

@@ -357,7 +357,7 @@ class Executor:
             kwargs = self._gather(block, self.inputs_of[name], values)
             with self.watch.timing(name):
                 outputs = block.step(window, **kwargs)
-            self._check_outputs(name, block, outputs)
+            self._check_outputs(block, outputs)
             values.update({(name, port): value for port, value in outputs.items()})
             produced.append((name, outputs))
         return produced
@@ -415,13 +415,13 @@ class Executor:
                 kwargs[port] = found[0] if found else None
         return kwargs
 
-    def _check_outputs(self, name: str, block: Block, outputs: dict[str, Any]) -> None:
+    def _check_outputs(self, block: Block, outputs: dict[str, Any]) -> None:
         declared = type(block).outputs
         for port, spec in declared.items():
             if port not in outputs:
-                raise RuntimeError(f"block '{name}' ({block.type_name}) returned no value for output '{port}'")
+                raise RuntimeError(f"{block.label} returned no value for output '{port}'")
             if not isinstance(outputs[port], spec.type):
-                raise RuntimeError(f"block '{name}' output '{port}' returned {type(outputs[port]).__name__}, "
+                raise RuntimeError(f"{block.label} output '{port}' returned {type(outputs[port]).__name__}, "
                                    f"declared {spec.type.type_name()}")
 
     def _record(self, name: str, outputs: dict[str, PortValue], window: Window | None, result: RunResult) -> None:

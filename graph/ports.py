@@ -13,6 +13,8 @@ module only holds the mechanism.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import typing
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -85,8 +87,19 @@ class PortValue:
             elif isinstance(value, np.ndarray):
                 arrays[field.name] = value
             else:
-                attrs[field.name] = _jsonable(value)
+                attrs[field.name] = jsonable(value, mark_nonfinite=False)
         return arrays, attrs
+
+    def fingerprint(self) -> str:
+        """A SHA-256 of every field (each array's dtype, shape and bytes; the other fields as JSON), for cache
+        keys: equal values have equal fingerprints, whatever the size of their arrays."""
+        arrays, attrs = self.to_arrays()
+        digest = hashlib.sha256(json.dumps(attrs, sort_keys=True, default=repr).encode())
+        for name in sorted(arrays):
+            data = np.ascontiguousarray(arrays[name])
+            digest.update(f"\0{name} {data.dtype.str} {data.shape}\0".encode())
+            digest.update(repr(data.tolist()).encode() if data.dtype.kind == "O" else data.tobytes())
+        return digest.hexdigest()
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]):
@@ -96,11 +109,7 @@ class PortValue:
         for field in dataclasses.fields(cls):
             hint = hints.get(field.name)
             if isinstance(hint, type) and issubclass(hint, PortValue):
-                prefix = field.name + "."
-                kwargs[field.name] = hint.from_arrays(
-                    {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)},
-                    {k[len(prefix):]: v for k, v in attrs.items() if k.startswith(prefix)},
-                )
+                kwargs[field.name] = hint.from_arrays(*(_under(field.name, d) for d in (arrays, attrs)))
             elif field.name in arrays:
                 kwargs[field.name] = np.asarray(arrays[field.name])
             elif field.name in attrs:
@@ -109,13 +118,45 @@ class PortValue:
         return cls(**kwargs)
 
 
-def _jsonable(value):
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, (tuple, list)):
-        return [_jsonable(v) for v in value]
+def _under(name: str, values: dict[str, Any]) -> dict[str, Any]:
+    """The entries of a nested value ``name`` (keys ``name.x``), by their inner names."""
+    prefix = name + "."
+    return {k[len(prefix):]: v for k, v in values.items() if k.startswith(prefix)}
+
+
+def jsonable(value: Any, mark_nonfinite: bool = True) -> Any:
+    """``value`` as JSON can hold it: numpy scalars as numbers, tuples as lists, arrays as lists (string
+    arrays marked), dict keys as strings; with ``mark_nonfinite``, inf and NaN marked too (strict JSON has
+    neither). :func:`from_json` restores the marked values."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v, mark_nonfinite) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v, mark_nonfinite) for v in value]
+    value = _plain(value)
+    if mark_nonfinite and isinstance(value, float) and not np.isfinite(value):
+        return {"__float__": repr(value)}
+    return value
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars as Python numbers, arrays as lists (string arrays marked); anything else as it is."""
+    if isinstance(value, np.ndarray):
+        return {"__strarray__": value.tolist()} if value.dtype.kind in "USO" else value.tolist()
+    if isinstance(value, (np.integer, np.floating, np.bool_)):
+        return value.item()
+    return value
+
+
+def from_json(value: Any) -> Any:
+    """Inverse of :func:`jsonable` for the values it marks."""
+    if isinstance(value, dict):
+        if "__strarray__" in value:
+            return np.asarray(value["__strarray__"], dtype=str)
+        if "__float__" in value:
+            return float(value["__float__"])
+        return {k: from_json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [from_json(v) for v in value]
     return value
 
 

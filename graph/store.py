@@ -56,7 +56,7 @@ from . import registry
 from .errors import StoreError
 from .files import os_reason
 from .lock import LOCK_NAME, describe_holder, read_holder
-from .ports import EVENT_STREAM, PORT_TYPES, PortValue
+from .ports import EVENT_STREAM, PORT_TYPES, PortValue, from_json, jsonable
 
 EVENT_CHUNK_BYTES = 4 << 20     # events/ arrays are chunked by size: few files, fast appends
 PRODUCT_CHUNK_BYTES = 256 << 10
@@ -437,19 +437,20 @@ class RunStore:
         documents = self.group[f"{base}/_attrs"]
         n = min(self._lengths.get(f"{base}/_attrs", 0), documents.shape[0])
         stop = n if stop is None else min(stop, n)
+        shapes, offsets = self._product_layout(base, stop)
+        for w in range(start, stop):
+            attrs = json.loads(str(self._read(documents, f"{base}/_attrs", w, w + 1)[0]))
+            arrays = {f: self._read(self.group[f"{base}/{f}"], f"{base}/{f}", offsets[f][w], offsets[f][w + 1]
+                                    ).reshape(tuple(shapes[f][w])) for f in shapes}
+            yield value_type.from_arrays({**arrays, **_string_fields(attrs)}, attrs)
+
+    def _product_layout(self, base: str, stop: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Each numeric field of the product ``base``: its values' shapes in windows ``[0, stop)`` and where each
+        window's values start in the flattened array."""
         fields = sorted(k for k in self.group[base].array_keys() if not k.endswith(".shape") and k != "_attrs")
         shapes = {f: self._read(self.group[f"{base}/{f}.shape"], f"{base}/{f}.shape", 0, stop) for f in fields}
         offsets = {f: np.concatenate([[0], np.cumsum(np.prod(shapes[f], axis=1))]).astype(np.int64) for f in fields}
-        for w in range(start, stop):
-            attrs = json.loads(str(self._read(documents, f"{base}/_attrs", w, w + 1)[0]))
-            arrays = {}
-            for f in fields:
-                flat = self._read(self.group[f"{base}/{f}"], f"{base}/{f}", offsets[f][w], offsets[f][w + 1])
-                arrays[f] = flat.reshape(tuple(shapes[f][w]))
-            for key in [k for k, v in attrs.items() if isinstance(v, dict) and "__strings__" in v]:
-                doc = attrs.pop(key)
-                arrays[key] = np.asarray(doc["__strings__"], dtype=str).reshape(doc["shape"])
-            yield value_type.from_arrays(arrays, attrs)
+        return shapes, offsets
 
     def product_hash(self, block: str) -> str | None:
         key = f"products/{block}"
@@ -557,7 +558,7 @@ class RunStore:
         group = self.group.require_group("metrics")
         merged_values = {**group.attrs.get("values", {}), **values}
         merged_units = {**group.attrs.get("units", {}), **units}
-        group.attrs.update({"values": _jsonable(merged_values), "units": merged_units})
+        group.attrs.update({"values": jsonable(merged_values), "units": merged_units})
         names = [k for k, v in merged_values.items() if isinstance(v, (int, float, np.number, type(None)))]
         numbers = np.array([np.nan if merged_values[k] is None else float(merged_values[k]) for k in names], np.float64)
         columns = {"metric": (np.array(names, dtype=np.dtypes.StringDType()), {"long_name": "metric name"}),
@@ -741,6 +742,13 @@ def _short(text: str, limit: int = 80) -> str:
     return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
+def _string_fields(attrs: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The string arrays a product's JSON document holds (taken out of ``attrs``), by field name."""
+    keys = [k for k, v in attrs.items() if isinstance(v, dict) and "__strings__" in v]
+    return {key: np.asarray(doc["__strings__"], dtype=str).reshape(doc["shape"])
+            for key, doc in ((k, attrs.pop(k)) for k in keys)}
+
+
 def event_stream_type() -> type[PortValue]:
     """The port type that declares itself the run's event stream (``record = EVENT_STREAM``): its
     ``stream_columns`` are the arrays of ``events/``, its ``stream_geometry`` the focal plane recorded with them."""
@@ -827,13 +835,13 @@ def _encode_state(value: Any, arrays: dict[str, np.ndarray]) -> Any:
         return {"__array__": key}
     if isinstance(value, PortValue):
         fields, attrs = value.to_arrays()
-        return {"__port__": type(value).type_name(), "__attrs__": _jsonable(attrs),
+        return {"__port__": type(value).type_name(), "__attrs__": jsonable(attrs),
                 "__fields__": {k: _encode_state(v, arrays) for k, v in fields.items()}}
     if isinstance(value, dict):
         return {"__dict__": {str(k): _encode_state(v, arrays) for k, v in value.items()}}
     if isinstance(value, (list, tuple)):
         return {"__list__": [_encode_state(v, arrays) for v in value]}
-    return _jsonable(value)
+    return jsonable(value)
 
 
 def _decode_state(entry: Any, arrays: dict[str, np.ndarray]) -> Any:
@@ -843,42 +851,9 @@ def _decode_state(entry: Any, arrays: dict[str, np.ndarray]) -> Any:
             return arrays[entry["__array__"]]
         if "__port__" in entry:
             fields = {k: _decode_state(v, arrays) for k, v in entry["__fields__"].items()}
-            return port_type(entry["__port__"]).from_arrays(fields, _from_json(entry["__attrs__"]))
+            return port_type(entry["__port__"]).from_arrays(fields, from_json(entry["__attrs__"]))
         if "__dict__" in entry:
             return {k: _decode_state(v, arrays) for k, v in entry["__dict__"].items()}
         if "__list__" in entry:
             return [_decode_state(v, arrays) for v in entry["__list__"]]
-    return _from_json(entry)
-
-
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind in "USO":
-            return {"__strarray__": value.tolist()}
-        return value.tolist()
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, float) and not np.isfinite(value):
-        return {"__float__": repr(value)}
-    return value
-
-
-def _from_json(value):
-    """Inverse of :func:`_jsonable` for the markers it writes."""
-    if isinstance(value, dict):
-        if "__strarray__" in value:
-            return np.asarray(value["__strarray__"], dtype=str)
-        if "__float__" in value:
-            return float(value["__float__"])
-        return {k: _from_json(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_from_json(v) for v in value]
-    return value
+    return from_json(entry)

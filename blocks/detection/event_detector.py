@@ -41,12 +41,11 @@ from pydantic import Field, model_validator
 from scipy.spatial import cKDTree
 
 from evsda.blocks.ports import Detections, Events, FocalPlane
-from evsda.graph import Block, BlockParams, Footprint, Input, Output, RunInfo, SceneError, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Footprint, Input, Output, RunInfo, SceneError, Window
 
 from . import matched_filter as mf
 from .significance import gaussian_sigma, local_p_threshold, poisson_count_threshold, poisson_p_value
 
-NS_PER_S = 1_000_000_000
 ZERO_COUNT_UPPER_LIMIT = 1.841      # Gehrels 1986, Table 1: 84.13 % one-sided upper limit for 0 observed events
 log = logging.getLogger(__name__)
 

@@ -19,9 +19,8 @@ from pydantic import Field
 
 from evsda.blocks.ports import FocalPlane, PointSources, SourceKind
 from evsda.blocks.scene.radiometry import V_BAND, photon_flux_of_magnitude
-from evsda.graph import Block, BlockParams, Input, Output, ParameterError, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, Window
 
-NS_PER_S = 1_000_000_000
 ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
 MAX_STEP_PX = 1.0          # largest jump of a sampled source between samples [pixel] (as the scene blocks)
 MIN_SPACING_PX = 12.0      # closest two injected sources may be [pixel]
@@ -68,7 +67,7 @@ class InjectedSources(Block):
         return m, m, focal_plane.width_px - 1 - 2 * m, focal_plane.height_px - 1 - 2 * m
 
     def _place(self, focal_plane: FocalPlane) -> np.ndarray:
-        who = f"{self.type_name} '{self.name}'"
+        who = self.label
         x0, y0, width, height = self._inner(focal_plane)
         n = self.params.n_sources
         if width <= 0 or height <= 0:

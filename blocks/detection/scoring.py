@@ -32,9 +32,8 @@ import numpy as np
 from pydantic import Field
 
 from evsda.blocks.ports import Detections, Metrics, PointSources
-from evsda.graph import Block, BlockParams, Input, InputError, Output, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Input, InputError, Output, Window
 
-NS_PER_S = 1_000_000_000
 ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
 SAMPLES_PER_LOOK = 64          # source samples kept per look (positions interpolated in between)
 
@@ -92,11 +91,11 @@ class DetectionScoring(Block):
     # -- the truth ---------------------------------------------------------------------------------
     def _remember(self, sources: list[PointSources], fp, look_ns: int) -> None:
         if not sources:
-            raise InputError(f"block '{self.name}' needs at least one PointSources input")
+            raise InputError(f"{self.label} needs at least one PointSources input")
         ids = np.concatenate([s.source_id.astype(str) for s in sources])
         t = sources[0].t_ns
         if any(s.t_ns.shape != t.shape or np.any(s.t_ns != t) for s in sources[1:]):
-            raise InputError(f"block '{self.name}': its source inputs are sampled at different times; give them "
+            raise InputError(f"{self.label}: its source inputs are sampled at different times; give them "
                              f"the same cadence_s")
         x = np.concatenate([s.x_px for s in sources], axis=1)
         y = np.concatenate([s.y_px for s in sources], axis=1)
@@ -111,7 +110,7 @@ class DetectionScoring(Block):
             self.history_x = np.zeros((0, n), np.float32)
             self.history_y = np.zeros((0, n), np.float32)
         elif ids.shape != self.source_ids.shape or np.any(ids != self.source_ids):
-            raise InputError(f"block '{self.name}': the sources changed between windows ({self.source_ids.size} "
+            raise InputError(f"{self.label}: the sources changed between windows ({self.source_ids.size} "
                              f"then {ids.size}); scoring needs the same sources in every window")
         if t.size == 0:
             return

@@ -126,7 +126,7 @@ class PointSourceOptics(Block):
             try:
                 atmosphere = Atmosphere.from_table(path, p.outer_scale_m)
             except (OSError, ValueError, UserError) as exc:
-                raise ParameterError(f"block '{self.name}' parameter 'profile_file': {exc}") from None
+                raise ParameterError(f"{self.label} parameter 'profile_file': {exc}") from None
         if atmosphere.total_cn2_dh <= 0:
             return None
         if p.r0_500nm_m is not None:
@@ -169,16 +169,16 @@ class PointSourceOptics(Block):
     # -- work -----------------------------------------------------------------------------------
     def _common(self, sources: list[PointSources]) -> tuple[FocalPlane, float]:
         if not sources:
-            raise InputError(f"block '{self.name}' input 'sources' received no PointSources")
+            raise InputError(f"{self.label} input 'sources' received no PointSources")
         first = sources[0]
         for other in sources[1:]:
             a, b = first.focal_plane, other.focal_plane
             if (a.width_px, a.height_px, a.pixel_pitch_m, a.focal_length_m) != \
                     (b.width_px, b.height_px, b.pixel_pitch_m, b.focal_length_m):
-                raise InputError(f"block '{self.name}' input 'sources': connected PointSources disagree on the "
+                raise InputError(f"{self.label} input 'sources': connected PointSources disagree on the "
                                  f"focal plane ({a} vs {b})")
             if not np.isclose(first.wavelength_m, other.wavelength_m, rtol=1e-9):
-                raise InputError(f"block '{self.name}' input 'sources': connected PointSources disagree on the "
+                raise InputError(f"{self.label} input 'sources': connected PointSources disagree on the "
                                  f"wavelength ({first.wavelength_m} m vs {other.wavelength_m} m)")
         return first.focal_plane, float(first.wavelength_m)
 

@@ -107,7 +107,7 @@ class DvsPixel(Block):
         ``theta_on``, ``theta_off`` [1], ``ready`` (first step the pixel may fire again).
         """
         if self.pixels is None:
-            raise RuntimeError(f"block '{self.name}' has no pixel state before its first step")
+            raise RuntimeError(f"{self.label} has no pixel state before its first step")
         if self.params.implementation == "reference":
             return np.array(self.pixels[name], copy=True)
         if self._engine is not None:
@@ -120,10 +120,10 @@ class DvsPixel(Block):
         sensor = {"width_px": int(fp.width_px), "height_px": int(fp.height_px),
                   "pixel_pitch_m": float(fp.pixel_pitch_m), "wavelength_m": float(irradiance.wavelength_m)}
         if self.sensor is not None and self.sensor != sensor:
-            raise InputError(f"block '{self.name}' input 'irradiance' changed focal plane or band during the run "
+            raise InputError(f"{self.label} input 'irradiance' changed focal plane or band during the run "
                              f"(was {self.sensor}, now {sensor}); a pixel array cannot change its geometry")
         if not (sensor["pixel_pitch_m"] > 0 and sensor["wavelength_m"] > 0):
-            raise InputError(f"block '{self.name}' input 'irradiance' needs a positive pixel pitch and wavelength, "
+            raise InputError(f"{self.label} input 'irradiance' needs a positive pixel pitch and wavelength, "
                              f"got {sensor['pixel_pitch_m']} m and {sensor['wavelength_m']} m")
         self.sensor = sensor
         if self._model is None:
@@ -132,12 +132,12 @@ class DvsPixel(Block):
 
     def _start(self, model: PixelModel, irradiance: Irradiance, samples: np.ndarray, n_start: int) -> None:
         if len(irradiance.t_ns) == 0:
-            raise InputError(f"block '{self.name}' input 'irradiance' has no samples in its first window; "
+            raise InputError(f"{self.label} input 'irradiance' has no samples in its first window; "
                              f"the pixels need an initial photon flux")
         first = samples[:1] if samples.size else np.array([0])
         flux = dense_frames(irradiance, first)[0]
         if not np.all(np.isfinite(flux)) or np.any(flux < 0):
-            raise InputError(f"block '{self.name}' input 'irradiance' has negative or non-finite photon flux")
+            raise InputError(f"{self.label} input 'irradiance' has negative or non-finite photon flux")
         if self.params.implementation == "reference":
             self.pixels = reference.new_state(model, flux, self.rng)
         else:

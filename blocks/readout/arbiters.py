@@ -158,7 +158,7 @@ class _ScanningArbiter(Block):
         fp = events.focal_plane
         new = {name: np.asarray(getattr(events, name), _DTYPES[name]) for name in EVENT_FIELDS}
         pending = _concat(self.pending, new) if self.pending["t_ns"].size else new
-        last = self._run is not None and window.stop_ns >= self.run.duration_ns
+        last = self.run_info is not None and window.stop_ns >= self.run.duration_ns
         flush = last and self.params.flush_at_end
         horizon = None if flush else int(ceil_tick(window.stop_ns, self.clock))   # first tick not in this window
 

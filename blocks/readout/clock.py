@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-NS_PER_S = 1_000_000_000
+from evsda.graph import NS_PER_S
+
 MAX_CLOCK_HZ = 5_000_000_000   # keeps r * f < 2**63 in the conversions below [Hz]
 
 

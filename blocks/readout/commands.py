@@ -18,7 +18,7 @@ import argparse
 import sys
 
 from evsda.blocks.ports import EventCause
-from evsda.graph import UserError
+from evsda.graph import NS_PER_S, UserError
 from evsda.graph.commands import Command, add_figure_options
 from evsda.graph.files import (atomic_output, check_figure_output, check_free_space, check_output_path,
                                save_figure)
@@ -27,8 +27,6 @@ from .exporters import BYTES_PER_EVENT, WRITERS, export_events, extension_warnin
 from .render import render_gif, render_png
 from .truth_export import FORMATS as TRUTH_FORMATS
 from .truth_export import truth_path, write_truth_csv, write_truth_hdf5
-
-NS_PER_S = 1_000_000_000
 
 
 def _open(path: str):

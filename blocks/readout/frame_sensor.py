@@ -32,9 +32,8 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from evsda.blocks.ports import FocalPlane, Frame, Irradiance, add_stamp
-from evsda.graph import Block, BlockParams, Input, Output, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
 
-NS_PER_S = 1_000_000_000
 ELEMENTARY_CHARGE_C = 1.602176634e-19      # q [C]
 BOLTZMANN_EV_PER_K = 8.617333262e-5        # k [eV K^-1]
 CM2_PER_M2 = 1e4

@@ -38,9 +38,8 @@ import numpy as np
 from pydantic import Field
 
 from evsda.blocks.ports import Events, EventCause, Metrics, PointSources, SourceKind, TriggeredEvents
-from evsda.graph import Block, BlockParams, Input, Output, Window
+from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
 
-NS_PER_S = 1_000_000_000
 DELAY_DECADES = 14            # delays from 1 ns to 1e14 ns (~28 h) [decade]
 SOURCE_BIT, SATELLITE_BIT = 1, 2
 
@@ -143,7 +142,7 @@ class EventMetrics(Block):
         self.last_xy = seen[-1].copy()          # NaN if the source was lost: the next window starts afresh
         for s in range(xy.shape[1]):
             bit = SOURCE_BIT | (SATELLITE_BIT if sources.kind[s] == SourceKind.SATELLITE else 0)
-            points = _densify(seen[:, s])
+            points = densify(seen[:, s])
             if points.size:
                 self._stamp(points, bit)
 
@@ -236,7 +235,7 @@ def _box_offsets(radius: float) -> np.ndarray:
     return np.stack([dx.ravel(), dy.ravel()], axis=-1).astype(np.int64)
 
 
-def _densify(xy: np.ndarray, step_px: float = 0.5) -> np.ndarray:
+def densify(xy: np.ndarray, step_px: float = 0.5) -> np.ndarray:
     """Points every ``step_px`` along the straight segments between consecutive finite samples."""
     finite = np.isfinite(xy).all(axis=1)
     pts = xy[finite]

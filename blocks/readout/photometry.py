@@ -29,7 +29,7 @@ from pydantic import Field, model_validator
 from evsda.blocks.ports import Frame, Metrics, PointSources
 from evsda.graph import Block, BlockParams, Input, Output, Window
 
-from .metrics import _densify
+from .metrics import densify
 
 MAD_TO_SIGMA = 1.4826      # sigma of a normal distribution per median absolute deviation [1]
 
@@ -168,7 +168,7 @@ def _path(t, x, y, mag, t0: int, t1: int):
     ys = np.interp(times, t[span].astype(float), y[span])
     finite_mag = mag[span][np.isfinite(mag[span])]
     m = float(finite_mag.mean()) if finite_mag.size else np.nan
-    return _densify(np.stack([xs, ys], axis=1)), m
+    return densify(np.stack([xs, ys], axis=1)), m
 
 
 def _distance_to_points(xx: np.ndarray, yy: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -18,12 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from evsda.blocks.ports import EventCause, SourceKind
-from evsda.graph import UserError
+from evsda.graph import NS_PER_S, UserError
 
 from .object_metrics import passages
 from .render import accumulate, event_figure
 
-NS_PER_S = 1_000_000_000
 TIME_FIELDS = {"readout": "t_readout_ns", "trigger": "t_trigger_ns"}
 CAUSE_COLOURS = {EventCause.SIGNAL: "tab:blue", EventCause.LEAK: "tab:orange", EventCause.PARASITIC: "tab:purple",
                  EventCause.SHOT: "tab:gray"}

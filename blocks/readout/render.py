@@ -12,8 +12,9 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
+from evsda.graph import NS_PER_S
+
 Chunk = dict[str, np.ndarray]
-NS_PER_S = 1_000_000_000
 
 
 def _in_span(chunks: Iterable[Chunk], start_ns: int | None, stop_ns: int | None) -> Iterator[Chunk]:

@@ -26,12 +26,11 @@ from skyfield.errors import EphemerisRangeError
 from skyfield.framelib import itrs
 
 from evsda.blocks.ports.scene import Observer
-from evsda.graph import SceneError
+from evsda.graph import NS_PER_S, SceneError
 
 from .ephemeris import planets, skyfield_time, timescale
 from .tle import earth_satellite
 
-NS_PER_S = 1_000_000_000
 C_M_PER_S = 299_792_458.0                      # speed of light [m/s]
 #: Earth rotation rate [rad per UT1 second]: d(ERA)/dt = 2 pi * 1.00273781191135448 / 86400
 #: (IERS Conventions 2010, Eq. 5.15)

@@ -163,7 +163,7 @@ class Satellite(Block):
     def view(self, window: Window, orbit: Orbit, observer: Observer, pointing: Pointing,
              focal_plane: FocalPlane) -> SatelliteView:
         """The :class:`SatelliteView` of these inputs (built once; a cache derived from the inputs)."""
-        key = (window.epoch, *(repr(v.to_arrays()) for v in (orbit, observer, pointing, focal_plane)))
+        key = (window.epoch, *(v.fingerprint() for v in (orbit, observer, pointing, focal_plane)))
         if key != self._view_key:
             p = self.params
             self._view = SatelliteView(orbit, observer, pointing, focal_plane, window.epoch,
@@ -176,15 +176,15 @@ class Satellite(Block):
 
     def find_passes(self, view: SatelliteView, window: Window) -> PassReport:
         """Passes over the whole run (or this window when the block runs without ``setup``)."""
-        start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+        start, stop = self.run_span_ns(window)
         return find_passes(view, start, stop, resolution_ns=self.cadence_ns)
 
     def step(self, window: Window, orbit: Orbit, observer: Observer, pointing: Pointing,
              focal_plane: FocalPlane) -> dict:
         view = self.view(window, orbit, observer, pointing, focal_plane)
         if self.passes is None:
-            who = f"{self.type_name} '{self.name}'"
-            start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+            who = self.label
+            start, stop = self.run_span_ns(window)
             check_sampling(view.pointing_model, focal_plane, self.cadence_ns, start, stop, who)
             self.passes = self.find_passes(view, window)
             if self.params.require_pass:

@@ -121,7 +121,7 @@ class SatelliteCatalog(Block):
     # -- the catalogue --------------------------------------------------------------------------------
     @property
     def who(self) -> str:
-        return f"{self.type_name} '{self.name}'"
+        return self.label
 
     def _load(self) -> Catalog:
         p = self.params
@@ -175,12 +175,12 @@ class SatelliteCatalog(Block):
 
     def prepare(self, window: Window, observer: Observer, pointing: Pointing, focal_plane: FocalPlane) -> None:
         """Screen the catalogue and find every crossing over the run (once per set of inputs)."""
-        key = (window.epoch, *(repr(v.to_arrays()) for v in (observer, pointing, focal_plane)))
+        key = (window.epoch, *(v.fingerprint() for v in (observer, pointing, focal_plane)))
         if key == self._key:
             return
         p = self.params
         knot_ns = round(p.knot_step_s * NS_PER_S)
-        start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+        start, stop = self.run_span_ns(window)
         shared = SharedGeometry(observer, pointing, window.epoch, knot_ns)
         check_sampling(shared.pointing_model, focal_plane, self.cadence_ns, start, stop, self.who)
         objects = self.catalog.objects

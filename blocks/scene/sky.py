@@ -104,7 +104,7 @@ class SkyBackgroundBlock(Block):
         return p.moonlight or p.twilight or p.moon_exclusion_deg > 0
 
     def _pointing_model(self, window: Window, observer: Observer, pointing: Pointing) -> PointingModel:
-        key = (window.epoch, repr(observer.to_arrays()), repr(pointing.to_arrays()))
+        key = (window.epoch, observer.fingerprint(), pointing.fingerprint())
         if key != self._model_key:
             knot_ns = 10 * NS_PER_S
             observer_model = ObserverModel(observer, window.epoch, knot_ns)
@@ -157,12 +157,12 @@ class SkyBackgroundBlock(Block):
     def _check_run(self, window: Window, observer: Observer, cadence_ns: int) -> None:
         """Refuse, before any work, a run the Moon and twilight models cannot describe."""
         p = self.params
-        who = f"{self.type_name} '{self.name}'"
+        who = self.label
         if (p.moonlight or p.twilight) and not observer.is_ground:
             raise ParameterError(f"{who}: moonlight and twilight are light scattered by the atmosphere, which a "
                                  f"space observer ({observer.name}) does not look through; set moonlight and "
                                  f"twilight to false (moon_exclusion_deg still applies)")
-        start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
+        start, stop = self.run_span_ns(window)
         require_ephemeris(window.epoch, start, stop, who)
         t_ns = np.arange(start // cadence_ns * cadence_ns, max(stop, start + 1), cadence_ns, dtype=np.int64)
         for chunk in np.array_split(t_ns, max(1, len(t_ns) // 20_000)):

@@ -89,7 +89,7 @@ class TleSource(Block):
 
     def setup(self, run: RunInfo) -> None:
         super().setup(run)
-        who = f"{self.type_name} '{self.name}'"
+        who = self.label
         self.tle_age_days = epoch_age_days(self.orbit, run.epoch)
         log.info("%s: %s (%s) TLE epoch %s is %.2f days from the run start", who, self.orbit.name,
                  self.orbit.catalog_number, self.orbit.epoch_utc, self.tle_age_days)

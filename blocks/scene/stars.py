@@ -90,15 +90,15 @@ class StarField(Block):
 
     # -- the stars of this run ------------------------------------------------------------------
     def _prepare(self, window: Window, observer: Observer, pointing: Pointing, focal_plane: FocalPlane):
-        key = (window.epoch, *(repr(v.to_arrays()) for v in (observer, pointing, focal_plane)))
+        key = (window.epoch, *(v.fingerprint() for v in (observer, pointing, focal_plane)))
         if key == self._key:
             return
         knot_ns = round(self.params.knot_step_s * NS_PER_S)
         self._observer = ObserverModel(observer, window.epoch, knot_ns)
         self._pointing = PointingModel(pointing, self._observer, window.epoch, knot_ns)
         self._focal_plane = focal_plane
-        start, stop = (0, self._run.duration_ns) if self._run is not None else (window.start_ns, window.stop_ns)
-        check_sampling(self._pointing, focal_plane, self.cadence_ns, start, stop, f"{self.type_name} '{self.name}'")
+        start, stop = self.run_span_ns(window)
+        check_sampling(self._pointing, focal_plane, self.cadence_ns, start, stop, self.label)
         boresights, reach = self._swept(start, stop, focal_plane)
         catalog = load_hipparcos(str(library.resolve(self.params.catalog)))
         bright = catalog.select(catalog.vmag <= self.params.catalog_limit_mag)

@@ -163,8 +163,8 @@ def test_trailed_satellite_is_measured_along_its_path():
     for k in range(frames.image.shape[0]):
         t0 = int(frames.t_start_ns[k])
         path = np.stack([8.0 + 400.0 * np.array([t0, t0 + 30_000_000]) / 1e9, [40.0, 40.0]], axis=1)
-        from evsda.blocks.readout.metrics import _densify
-        signal, snr, _ = phot.measure(frames.image[k].astype(float), _densify(path))
+        from evsda.blocks.readout.metrics import densify
+        signal, snr, _ = phot.measure(frames.image[k].astype(float), densify(path))
         signals.append(signal)
     expected = 0.6 * 5e5 * 0.03
     assert np.mean(signals) == pytest.approx(expected, rel=4 * np.sqrt(expected) / expected / np.sqrt(len(signals)) + 0.01)
