@@ -3,11 +3,13 @@
 Layout (every array carries Zarr 3 ``dimension_names`` and its units in ``attrs["units"]``, so
 ``xarray.open_zarr(path, group="events")`` and ``xarray.open_datatree(path, engine="zarr")`` read it)::
 
-    root attrs      evsda_version, graph (resolved), graph_hash, seed, start_epoch,
-                    window_ns, duration_ns, n_windows, timing, committed
-    events/         (event) t_trigger_ns, t_readout_ns [ns since start_epoch] (int64), x, y [pixel]
-                    (uint16), p (int8, flag_values -1 1 = OFF ON), cause (uint8, CF flag_values /
-                    flag_meanings: signal leak parasitic shot)
+    root attrs      format, evsda_version, graph (resolved), graph_hash, seed, start_epoch,
+                    window_ns, duration_ns, n_windows, timing, reused, committed
+    events/         (event) the columns the event stream's port type declares (``stream_columns`` of the
+                    port type whose ``record`` is EVENT_STREAM; :func:`event_fields`): t_trigger_ns,
+                    t_readout_ns [ns since start_epoch] (int64), x, y [pixel] (uint16), p (int8, flag_values
+                    -1 1 = OFF ON), cause (uint8, CF flag_values / flag_meanings: signal leak parasitic shot);
+                    attrs: focal_plane (its ``stream_geometry``)
     products/<block>/<port>/<field>         (<field>_value) every window's value, flattened and appended
     products/<block>/<port>/<field>.shape   (window, <field>_axis) shape of each window's value
     products/<block>/<port>/_attrs          (window) one JSON document per window (scalars, strings)
@@ -15,7 +17,9 @@ Layout (every array carries Zarr 3 ``dimension_names`` and its units in ``attrs[
     <table>/        (<dim>) columns appended with :meth:`RunStore.append_table` (e.g. truth/)
     truth/          (sample) t_ns, source_index, x_px, y_px, magnitude, photon_flux, range_m; (source) source_id,
                     kind, block: the sources' true state at the optics' render times (:meth:`RunStore.append_truth`)
-    checkpoint/w<k>                         every block's state and RNG state after window k
+    checkpoint/w<k>                         one uint8 array: an .npz archive of every block's state and RNG
+                                            arrays after window k, the rest as JSON in attrs["states"]; only the
+                                            last committed one is kept
     .evsda-lock     while a run writes: its pid and host (see :mod:`evsda.graph.lock`)
 
 Crash safety: zarr >= 3.1.3 writes every chunk and metadata document atomically
