@@ -49,3 +49,12 @@ def contributed_commands() -> list[Command]:
         items = obj if isinstance(obj, Iterable) else [obj]
         commands.extend(items)
     return sorted(commands, key=lambda c: c.name)
+
+
+def check_seconds(option: str, value: float | None, bound_s: float = 1e9) -> None:
+    """Refuse a time option (``--start-s``, ``--time-s`` ...) that is not a finite number of seconds within
+    ``bound_s`` of the run's start (NaN or 1e300 would overflow the nanosecond clock)."""
+    from .errors import UserError
+
+    if value is not None and not abs(value) < bound_s:
+        raise UserError(f"{option} must be a finite time in seconds (within {bound_s:g} s), got {value}")

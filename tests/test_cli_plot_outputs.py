@@ -56,3 +56,18 @@ def test_overwrite_and_dpi_reach_the_saved_figure(capsys, tmp_path):
     assert Image.open(output).size == (2 * small[0], 2 * small[1])
     assert run(capsys, *args, "-o", tmp_path / "screen.svg")[0] == 0
     assert (tmp_path / "screen.svg").read_text().lstrip().startswith("<?xml")
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["plot-spacetime", "missing.zarr", "--start-s", "nan"], "--start-s must be a finite time in seconds"),
+    (["plot-spacetime", "missing.zarr", "--stop-s", "1e300"], "--stop-s must be a finite time in seconds"),
+    (["plot-psf", "missing.yaml", "--time-s", "nan"], "--time-s must be a finite time in seconds"),
+    (["plot-psf", "missing.yaml", "--time-s=-1e300"], "--time-s must be a finite time in seconds"),
+    (["render", "missing.zarr", "--gif", "out.gif", "--frames", "100000000"], "--frames must be at most 10000"),
+])
+def test_times_and_frame_counts_out_of_range_are_one_line(capsys, tmp_path, monkeypatch, args, expected):
+    """NaN or 1e300 seconds overflowed the nanosecond clock (a traceback); 10^8 GIF frames never ended.
+    Checked before any work, so the inputs named need not exist."""
+    monkeypatch.chdir(tmp_path)
+    status, lines = run(capsys, *args, *([] if args[0] == "render" else ["-o", "out.png"]))
+    assert status == 2 and len(lines) == 1 and expected in lines[0], lines

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 
 from evsda.graph import UserError
-from evsda.graph.commands import Command, add_figure_options
+from evsda.graph.commands import Command, add_figure_options, check_seconds
 from evsda.graph.files import check_figure_output, save_figure
 
 from .zernike import noll_to_nm
@@ -123,6 +123,7 @@ class PlotPsf(Command):
         from .plots import plot_psf_stamp, psf_stamp
 
         check_figure_output(args.output, args.overwrite, args.dpi)
+        check_seconds("--time-s", args.time_s)
         stamp = psf_stamp(load_graph(args.graph, args.set), args.optics, args.time_s, args.source)
         save_figure(plot_psf_stamp(stamp, dpi=args.dpi), args.output, args.overwrite, args.dpi)
         cx, cy = stamp.centroid

@@ -19,7 +19,7 @@ import sys
 
 from evsda.blocks.ports import EventCause
 from evsda.graph import NS_PER_S, UserError
-from evsda.graph.commands import Command, add_figure_options
+from evsda.graph.commands import Command, add_figure_options, check_seconds
 from evsda.graph.files import (atomic_output, check_figure_output, check_free_space, check_output_path,
                                save_figure)
 
@@ -27,6 +27,9 @@ from .exporters import BYTES_PER_EVENT, WRITERS, export_events, extension_warnin
 from .render import render_gif, render_png
 from .truth_export import FORMATS as TRUTH_FORMATS
 from .truth_export import truth_path, write_truth_csv, write_truth_hdf5
+
+#: the most frames ``render --gif`` draws (1000 s of animation at 10 frames per second)
+MAX_FRAMES = 10_000
 
 
 def _open(path: str):
@@ -153,9 +156,10 @@ class RenderCommand(Command):
             raise UserError(f"--frames must be at least 1 and --fps positive, got {args.frames} and {args.fps}")
         if args.chunk_size < 1:
             raise UserError(f"--chunk-size must be at least 1, got {args.chunk_size}")
-        for name, value in (("--start-s", args.start_s), ("--stop-s", args.stop_s)):
-            if value is not None and not abs(value) < 1e9:
-                raise UserError(f"{name} must be a finite time in seconds, got {value}")
+        if args.gif and args.frames > MAX_FRAMES:
+            raise UserError(f"--frames must be at most {MAX_FRAMES}, got {args.frames}")
+        check_seconds("--start-s", args.start_s)
+        check_seconds("--stop-s", args.stop_s)
         for output in filter(None, (args.png, args.gif)):
             check_output_path(output, args.overwrite, "image")
         store, fp = _open(args.store)
@@ -209,6 +213,9 @@ class _StorePlot(Command):
     def options(self, parser: argparse.ArgumentParser) -> None:
         """This plot's own arguments."""
 
+    def check(self, args: argparse.Namespace) -> None:
+        """Refuse this plot's own bad arguments before any work."""
+
     def figure(self, store, args: argparse.Namespace):
         """The Figure, and one line saying what it shows."""
         raise NotImplementedError
@@ -217,6 +224,7 @@ class _StorePlot(Command):
         from evsda.graph.store import RunStore
 
         check_figure_output(args.output, args.overwrite, args.dpi)
+        self.check(args)
         store = RunStore.open(args.store)
         if store.focal_plane is None:
             raise UserError(f"{args.store} holds no recorded events (no focal-plane geometry)")
@@ -284,11 +292,15 @@ class PlotSpaceTime(_StorePlot):
         parser.add_argument("--stars", action="store_true", help="draw the stars' true tracks too")
         parser.add_argument("--max-events", type=int, default=200_000, help="events drawn at most (every k-th)")
 
+    def check(self, args):
+        if args.max_events < 1:
+            raise UserError(f"--max-events must be at least 1, got {args.max_events}")
+        check_seconds("--start-s", args.start_s)
+        check_seconds("--stop-s", args.stop_s)
+
     def figure(self, store, args):
         from .plots import plot_space_time
 
-        if args.max_events < 1:
-            raise UserError(f"--max-events must be at least 1, got {args.max_events}")
         fig = plot_space_time(store, args.axis, args.start_s, args.stop_s, args.stars, args.max_events, dpi=args.dpi)
         return fig, f"{args.axis}-t space-time plot"
 
