@@ -196,7 +196,8 @@ def prefilter_band(values, taps, low, high):
     """The coefficients of :func:`prefilter` in rows ``low[c] .. high[c] - 1`` of each column ``c`` only (0 elsewhere).
 
     Each coefficient is the same sum, in the same order, as over the whole array, so a frame
-    reads identical values whatever part of its canvas was prefiltered.
+    reads identical values whatever part of its canvas was prefiltered. Both passes run along
+    the rows of ``values`` (contiguous), each coefficient's terms still added in tap order.
     """
     height, width = values.shape
     half = taps.shape[0] // 2
@@ -208,22 +209,29 @@ def prefilter_band(values, taps, low, high):
             for k in range(max(0, j - half), min(width, j + half + 1)):
                 need_low[k] = min(need_low[k], low[j])
                 need_high[k] = max(need_high[k], high[j])
-    rows = np.zeros((height, width))
+    first, last = height, 0
     for k in range(width):
-        for i in range(max(0, need_low[k]), min(height, need_high[k])):
-            lo, hi = max(0, i - half), min(height, i + half + 1)
-            acc = 0.0
-            for m in range(lo, hi):
-                acc += taps[m - i + half] * values[m, k]
-            rows[i, k] = acc
+        if need_high[k] > need_low[k]:
+            first, last = min(first, need_low[k]), max(last, need_high[k])
+    first, last = max(first, 0), min(last, height)
+    # vertical pass over whole rows first..last-1 (a superset of every column's need; the rest is never read)
+    rows = np.empty((height, width))
+    for i in range(first, last):
+        line = rows[i]
+        line[:] = 0.0
+        for m in range(max(0, i - half), min(height, i + half + 1)):
+            t = taps[m - i + half]
+            source = values[m]
+            for k in range(width):
+                line[k] += t * source[k]
     out = np.zeros((height, width))
-    for j in range(width):
-        lo, hi = max(0, j - half), min(width, j + half + 1)
-        for i in range(max(0, low[j]), min(height, high[j])):
-            acc = 0.0
-            for k in range(lo, hi):
-                acc += taps[k - j + half] * rows[i, k]
-            out[i, j] = acc
+    for i in range(first, last):
+        for j in range(width):
+            if low[j] <= i < high[j]:
+                acc = 0.0
+                for k in range(max(0, j - half), min(width, j + half + 1)):
+                    acc += taps[k - j + half] * rows[i, k]
+                out[i, j] = acc
     return out
 
 
@@ -268,7 +276,8 @@ def sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
 
     ``rows`` (F, ny) and ``cols`` (F, nx) are increasing absolute positions [samples]; the
     coefficient array's first sample is at (``top``, ``left``). Each frame is read on its own
-    (the same result in any batch). Returns False (and stops) when a grid reaches outside the array.
+    (the same result in any batch): every output row combines 4 coefficient rows along y, then
+    4 of those values along x. Returns False (and stops) when a grid reaches outside the array.
     """
     height, width = coefficients.shape
     ny, nx = rows.shape[1], cols.shape[1]
@@ -276,27 +285,23 @@ def sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
     ix = np.empty(nx, np.int64)
     wy = np.empty((ny, 4))
     wx = np.empty((nx, 4))
-    along_rows = np.empty((width, ny))          # column c of the patch, combined along the rows: [c, i]
-    along_both = np.empty((nx, ny))             # [j, i]: inner loops run over i, contiguous
+    line = np.empty(width)                      # one output row's patch, combined along y: contiguous in x
     for f in range(first, stop):
         _taps(rows[f] - top, iy, wy)
         _taps(cols[f] - left, ix, wx)
         if iy[0] < 0 or iy[ny - 1] + 3 >= height or ix[0] < 0 or ix[nx - 1] + 3 >= width:
             return False
-        c0 = ix[0]
-        for c in range(c0, ix[nx - 1] + 4):
-            for i in range(ny):
-                r = iy[i]
-                along_rows[c - c0, i] = (wy[i, 0] * coefficients[r, c] + wy[i, 1] * coefficients[r + 1, c]
-                                         + wy[i, 2] * coefficients[r + 2, c] + wy[i, 3] * coefficients[r + 3, c])
-        for j in range(nx):
-            c = ix[j] - c0
-            w0, w1, w2, w3 = wx[j, 0], wx[j, 1], wx[j, 2], wx[j, 3]
-            for i in range(ny):
-                along_both[j, i] = (w0 * along_rows[c, i] + w1 * along_rows[c + 1, i]
-                                    + w2 * along_rows[c + 2, i] + w3 * along_rows[c + 3, i])
+        c0, c1 = ix[0], ix[nx - 1] + 4
         g = weight[f]
         for i in range(ny):
+            r = iy[i]
+            w0, w1, w2, w3 = wy[i, 0], wy[i, 1], wy[i, 2], wy[i, 3]
+            for c in range(c0, c1):
+                line[c - c0] = (w0 * coefficients[r, c] + w1 * coefficients[r + 1, c]
+                                + w2 * coefficients[r + 2, c] + w3 * coefficients[r + 3, c])
+            target = out[f, i]
             for j in range(nx):
-                out[f, i, j] += g * along_both[j, i]
+                c = ix[j] - c0
+                target[j] += g * (wx[j, 0] * line[c] + wx[j, 1] * line[c + 1]
+                                  + wx[j, 2] * line[c + 2] + wx[j, 3] * line[c + 3])
     return True

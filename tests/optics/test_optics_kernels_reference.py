@@ -1,0 +1,75 @@
+"""The compiled screen kernels are, bit for bit, the sums they document, added in their order.
+
+Reordering a kernel's loops for speed (rows of the canvas in the inner loop, one output row at
+a time) must not change a single coefficient or sample: events downstream are compared byte for
+byte across versions. The references are plain Python loops over Python floats (IEEE doubles,
+no reassociation), in the documented order of the terms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from evsda.blocks.optics.screen_kernels import _taps, prefilter_band, prefilter_taps, sample_grids
+
+
+def reference_prefilter(values, taps, low, high):
+    """Vertical taps in order over the whole column, then horizontal taps in order, rows low[j]..high[j]-1."""
+    height, width = values.shape
+    half = len(taps) // 2
+    vertical = [[sum_in_order(taps[m - i + half] * values[m, k] for m in range(max(0, i - half), min(height, i + half + 1)))
+                 for k in range(width)] for i in range(height)]
+    out = np.zeros((height, width))
+    for j in range(width):
+        for i in range(low[j], high[j]):
+            out[i, j] = sum_in_order(taps[k - j + half] * vertical[i][k]
+                                     for k in range(max(0, j - half), min(width, j + half + 1)))
+    return out
+
+
+def sum_in_order(terms) -> float:
+    acc = 0.0
+    for term in terms:
+        acc += float(term)
+    return acc
+
+
+def reference_sample(coefficients, top, left, rows, cols, weight, out):
+    """4 coefficient rows combined along y, then 4 of those along x, with the kernels' B-spline weights
+    (:func:`_taps`, Unser 1999 Eq. 4; the weights themselves are checked against scipy elsewhere)."""
+    def taps(u):
+        index, weights = np.empty(u.size, np.int64), np.empty((u.size, 4))
+        _taps(np.asarray(u, dtype=float), index, weights)
+        return index, weights
+    for f in range(rows.shape[0]):
+        iy, wy = taps(rows[f] - top)
+        ix, wx = taps(cols[f] - left)
+        for i, r in enumerate(iy):
+            for j, c in enumerate(ix):
+                along = [wy[i, 0] * coefficients[r, cc] + wy[i, 1] * coefficients[r + 1, cc]
+                         + wy[i, 2] * coefficients[r + 2, cc] + wy[i, 3] * coefficients[r + 3, cc]
+                         for cc in range(c, c + 4)]
+                out[f, i, j] += weight[f] * (wx[j, 0] * along[0] + wx[j, 1] * along[1] + wx[j, 2] * along[2]
+                                             + wx[j, 3] * along[3])
+
+
+def test_prefilter_band_is_its_sums_in_order():
+    rng = np.random.default_rng(7)
+    taps = prefilter_taps()
+    values = rng.standard_normal((30, 44))
+    low = rng.integers(0, 30, 44)
+    high = np.minimum(low + rng.integers(0, 30, 44), 30)
+    high[::5] = 0                                              # columns no frame reads
+    np.testing.assert_array_equal(prefilter_band(values, taps, low, high), reference_prefilter(values, taps, low, high))
+
+
+def test_sample_grids_is_its_sums_in_order():
+    rng = np.random.default_rng(8)
+    coefficients = rng.standard_normal((40, 60))
+    rows = 5 + rng.uniform(0, 3, (3, 1)) + 0.9 * np.arange(7)[None]
+    cols = 8 + rng.uniform(0, 30, (3, 1)) + 0.8 * np.arange(9)[None]
+    weight = rng.uniform(0.5, 2.0, 3)
+    fast, slow = np.ones((3, 7, 9)), np.ones((3, 7, 9))
+    assert sample_grids(coefficients, 2, 3, rows, cols, weight, 0, 3, fast)
+    reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
+    np.testing.assert_array_equal(fast, slow)
