@@ -55,8 +55,9 @@ class Satellite(Block):
     type_name = "satellite"
 
     class Params(BlockParams):
-        cadence_s: float = Field(1e-3, gt=0, le=10, description="Sample spacing of the positions and fluxes [s]")
-        knot_step_s: float = Field(10.0, gt=0, le=600, description="Spacing of the Skyfield evaluations that "
+        cadence_s: float = Field(1e-3, ge=1e-6, le=10, description="Sample spacing of the positions and fluxes "
+                                  "(at least 1 us, the events' time resolution) [s]")
+        knot_step_s: float = Field(10.0, ge=0.1, le=600, description="Spacing of the Skyfield evaluations that "
                                    "are interpolated to the cadence [s]")
         shape: Literal["sphere", "plate", "facets"] = Field("sphere", description="Reflector model: Lambertian "
                                                             "sphere, diffuse flat plate, or a facet model [-]")

@@ -90,12 +90,13 @@ class SatelliteCatalog(Block):
         plate_normal: Literal["nadir", "sun", "observer", "bisector"] = Field(
             "nadir", description="Orientation of the plates' normals (shape 'plate') [-]")
         band: Literal["V"] = Field("V", description="Photometric band of fluxes and magnitudes [-]")
-        cadence_s: float = Field(1e-3, gt=0, le=10, description="Sample spacing of positions and fluxes [s]")
-        knot_step_s: float = Field(10.0, gt=0, le=600, description="Spacing of the Skyfield evaluations that "
+        cadence_s: float = Field(1e-3, ge=1e-6, le=10, description="Sample spacing of positions and fluxes "
+                                  "(at least 1 us, the events' time resolution) [s]")
+        knot_step_s: float = Field(10.0, ge=0.1, le=600, description="Spacing of the Skyfield evaluations that "
                                    "are interpolated to the cadence [s]")
-        screen_step_s: float = Field(10.0, gt=0, le=600, description="Coarse step of the screen over the whole "
+        screen_step_s: float = Field(10.0, ge=0.1, le=600, description="Coarse step of the screen over the whole "
                                      "catalogue [s]")
-        screen_fine_step_s: float = Field(0.5, gt=0, le=60, description="Step at which the screen's candidates "
+        screen_fine_step_s: float = Field(0.5, ge=0.01, le=60, description="Step at which the screen's candidates "
                                           "are screened again [s]")
         max_tle_age_days: float = Field(14.0, gt=0, description="Warn (once, with a count) about element sets "
                                         "further than this from the simulated time [d]")

@@ -77,8 +77,8 @@ class SkyBackgroundBlock(Block):
                                                       "(dark site ~21.5-22, suburban ~19-20) [mag]")
         follow_zenith_angle: bool = Field(True, description="Brighten the sky away from the zenith "
                                           "(ground observers) [-]")
-        cadence_s: float = Field(0.1, gt=0, le=3600, description="Sample spacing (the sky changes slowly; "
-                                 "values hold until the next sample) [s]")
+        cadence_s: float = Field(0.1, ge=1e-3, le=3600, description="Sample spacing (the sky changes slowly; "
+                                 "values hold until the next sample; at least 1 ms) [s]")
         moonlight: bool = Field(False, description="Add moonlight scattered by the atmosphere (Krisciunas & "
                                 "Schaefer 1991; ground observers) [-]")
         twilight: bool = Field(False, description="Add twilight (Patat et al. 2006, valid with the Sun 5 deg or "

@@ -56,8 +56,9 @@ class StarField(Block):
                                          "bundled excerpt is complete to V 6.5) [mag]")
         faint_limit_mag: float = Field(12.0, le=22, description="Faintest synthetic star drawn from the star "
                                        "counts; at or below catalog_limit_mag for none [mag]")
-        cadence_s: float = Field(1e-3, gt=0, le=10, description="Sample spacing of the positions [s]")
-        knot_step_s: float = Field(10.0, gt=0, le=600, description="Spacing of the Skyfield apparent-place "
+        cadence_s: float = Field(1e-3, ge=1e-6, le=10, description="Sample spacing of the positions (at least 1 "
+                              "us, the events' time resolution) [s]")
+        knot_step_s: float = Field(10.0, ge=0.1, le=600, description="Spacing of the Skyfield apparent-place "
                                    "evaluations [s]")
         margin_px: float = Field(0.0, ge=0, description="Keep positions of stars this far outside the detector "
                                  "(their image can spill in) [pixel]")

@@ -63,3 +63,21 @@ def test_plot_pass_writes_a_png(tmp_path, monkeypatch):
     png = tmp_path / "pass.png"
     assert command.run(parser.parse_args([EXAMPLE, "--png", str(png), "--pad", "5"])) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
+@pytest.mark.parametrize("block,param,lowest", [
+    ("satellite", "cadence_s", 1e-6), ("satellite", "knot_step_s", 0.1), ("star_field", "cadence_s", 1e-6),
+    ("star_field", "knot_step_s", 0.1), ("sky_background", "cadence_s", 1e-3),
+    ("satellite_catalog", "cadence_s", 1e-6), ("satellite_catalog", "knot_step_s", 0.1),
+    ("satellite_catalog", "screen_step_s", 0.1), ("satellite_catalog", "screen_fine_step_s", 0.01),
+])
+def test_sample_steps_have_a_floor(block, param, lowest):
+    """A 1 ns step passed validate and allocated 10^8-10^10 samples per window or run (a MemoryError
+    traceback); each sampling step now has a stated floor, checked with the other parameters."""
+    from evsda.graph import registry
+
+    params = {"catalog_file": "library:tle/iss.tle"} if block == "satellite_catalog" else {}
+    cls = registry.get(block)
+    with pytest.raises(ParameterError, match=f"{param}.*greater than or equal to"):
+        cls(**params, **{param: lowest / 1000})
+    assert cls(**params, **{param: lowest}).params.model_dump()[param] == lowest
