@@ -12,8 +12,8 @@ from .eventdriven import EventDrivenPixels
 from .eventlog import EventLog
 from .model import PixelModel
 from .params import DvsPixelParams
-from .sampling import (DENSE_FRACTION, dense_frames, dense_rows, sample_steps, stamp_coverage, stamp_pixels,
-                       window_steps)
+from .sampling import (DENSE_FRACTION, dense_block_rows, dense_frames, dense_stamps, sample_steps, stamp_coverage,
+                       stamp_pixels, window_steps)
 
 #: memory the pixel block holds per sensor pixel, for the limits checked before a run [byte]
 STATE_BYTES_PER_PIXEL = 400
@@ -153,8 +153,8 @@ class DvsPixel(Block):
         background = np.asarray(irradiance.background, dtype=float)[samples]
         if self._dense(irradiance, samples):
             height, width = irradiance.focal_plane.shape
-            self._engine.run_dense_window(background, steps, lambda r0, r1: dense_rows(irradiance, samples, r0, r1),
-                                          n_end, log, height, width)
+            self._engine.run_dense_window(background, steps, lambda r0, r1: dense_stamps(irradiance, samples, r0, r1),
+                                          dense_block_rows(irradiance, samples), n_end, log, height, width)
         else:
             self._engine.run_window(self.held_background, background, steps, stamp_pixels(irradiance, samples),
                                     n_end, log)

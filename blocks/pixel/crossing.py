@@ -11,7 +11,11 @@ memorised value drifts down linearly by the leak and parasitic currents (Eqs. 18
 which is monotone when ``D <= 0`` and convex with a single minimum when ``D > 0``. The
 first ``j >= j0`` with ``g(j) >= theta_ON`` or ``g(j) <= -theta_OFF`` is therefore found
 without stepping: in closed form when ``g`` is linear, by Newton's method (settled on the
-integers, bisection as the fallback) on a monotone stretch otherwise. This is the
+integers, bisection as the fallback) on a monotone stretch otherwise. Most searches end
+sooner: ``D a^j`` lies between ``min(D, 0)`` and ``max(D, 0)`` and ``delta j`` between 0 and
+``delta J``, so ``g`` stays within ``[C + min(D, 0), C + max(D, 0) + delta J]`` up to the horizon
+``J``; when that range (widened far beyond the rounding of ``g``) stays inside the band there
+is no crossing and nothing is solved. This is the
 recursion the dense reference steps through, so the two agree to floating-point rounding.
 
 The functions are compiled (Numba) scalar functions, called per pixel by the event-driven
@@ -25,23 +29,28 @@ import math
 import numba
 import numpy as np
 
+from .fastmath import exp_
+
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
 J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
 _NEWTON_STEPS = 12
+_ROUNDING = 1e-12                          # relative widening of the range of g against its rounding [1]
 
 jit = numba.njit(cache=True, error_model="numpy")      # IEEE division (inf, nan) as in NumPy
+inline = numba.njit(cache=True, error_model="numpy", inline="always")    # so that loops over pixels vectorise
 
 
-@jit
+@inline
 def power(log_a, j):
     """``a^j`` as ``exp(j ln a)`` (``a = 0`` gives 0), flushed to 0 below 1e-307.
 
-    The flush skips the C library's slow path for results that underflow: the pixels'
-    filters have long settled at the horizons searched, and 1e-307 of a log-current is
-    far below the comparator's rounding tolerance.
+    The flush skips the range where the result underflows: the pixels' filters have long
+    settled at the horizons searched, and 1e-307 of a log-current is far below the
+    comparator's rounding tolerance. ``exp`` is :func:`.fastmath.exp_`, so that loops over
+    pixels vectorise and give the same bits as scalar code.
     """
     x = j * log_a
-    return math.exp(x) if x > -707.0 else 0.0
+    return exp_(x) if x > -707.0 else 0.0
 
 
 @jit
@@ -96,6 +105,21 @@ def _ceil_steps(x):
     return np.int64(min(max(math.ceil(x), 0.0), float(J_LIMIT)))
 
 
+@inline
+def stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off):
+    """Whether ``g`` stays strictly inside ``(-theta_off, theta_on)`` for ``0 <= j <= j_max``, from a bound.
+
+    ``retention`` is ``a^j_max`` or less (0 will do). With ``0 <= a <= 1``, ``D a^j`` lies
+    between ``D`` and ``D retention`` and ``delta j`` between 0 and ``delta j_max``; the range
+    is widened far beyond the rounding of ``g``. False means "not shown", not "crosses".
+    """
+    span = delta * float(j_max)
+    margin = _ROUNDING * (abs(c) + abs(d) + span)
+    relaxed = d * retention
+    return ((delta >= 0.0) & (log_a <= 0.0) & (retention >= 0.0) & (c + max(d, relaxed) + span + margin < theta_on)
+            & (c + min(d, relaxed) - margin > -theta_off))
+
+
 @jit
 def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
     """First ``j`` in ``[j0, horizon]`` at which ``g`` reaches ``theta_on`` (polarity +1) or ``-theta_off`` (-1).
@@ -105,6 +129,9 @@ def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
     tested. Returns ``(j, polarity)``, ``(NEVER, 0)`` where there is none.
     """
     horizon = min(horizon, J_LIMIT)
+    j_max = max(horizon, j0)
+    if stays_in_band(j_max, power(log_a, j_max), c, d, log_a, delta, theta_on, theta_off):
+        return NEVER, 0
     g0 = comparator_input(j0, c, d, log_a, delta)
     if g0 >= theta_on:
         return j0, 1

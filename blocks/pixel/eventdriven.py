@@ -18,22 +18,25 @@ This module turns a window's irradiance into per-pixel input changes and hands t
 pixels that have something to do to the compiled per-pixel loop (:mod:`.pixel_loop`).
 Cost: proportional to the number of events plus the number of (pixel, input change)
 pairs; quiet pixels cost nothing until their next noise event. A change of the uniform
-background is one input change shared by every pixel away from the stamps.
+background is one input change shared by every pixel away from the stamps. Input that changes
+nearly every pixel at every sample (video) goes through :mod:`.dense_loop` instead, with
+identical events.
 """
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from evsda.blocks.threads import worker_threads
 
-from .deferred import SharedChanges, select_pixels
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
+from .deferred import SharedChanges, select_pixels
+from .dense_loop import run_dense_chunk
+from .drive_kernel import drive_constants, drive_rows
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, COUNT, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, READY, REAL,
                          STEP, TH_OFF, TH_ON, Y, run_chunk, start_pixels)
 
@@ -41,7 +44,6 @@ NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on",
          "step": "step", "ready": "ready"}                                     # public names of some fields
 _CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
 _FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
-_DENSE_BLOCK_CHANGES = 1 << 20         # (pixel, sample) values per block of rows on the dense path (~100 MB of inputs)
 
 
 class EventDrivenPixels:
@@ -55,20 +57,20 @@ class EventDrivenPixels:
         self.s = state
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
+        self._drive = drive_constants(model)
         self._constants = (p.leak_rate_hz, model.dt_s, np.int64(model.refractory_steps), q,
                            np.int64(state["key"]), p.threshold_redraw,
                            p.threshold_on, p.threshold_off, p.threshold_sigma, p.threshold_floor)
 
-    def _inputs(self, flux: np.ndarray, distinct: bool = False) -> np.ndarray:
+    def _inputs(self, flux: np.ndarray) -> np.ndarray:
         """Rows of the state table's input columns for photon fluxes ``flux`` (Eqs. 12-16, 19-20).
 
         Only the input columns (``FLUX``, ``Y``, ``LOG_A``, ``PARA``, ``ACCEPT``), all the compiled
-        loop reads, are set. ``distinct``: the fluxes hardly repeat (dense input).
+        loop reads, are set (:func:`.drive_kernel.drive_rows`, shared with the dense path).
         """
-        drive = self.model.drive(flux, distinct)
+        flux = np.ascontiguousarray(flux, dtype=float)
         rows = np.empty((flux.size, len(REAL)))
-        rows[:, FLUX], rows[:, Y], rows[:, LOG_A], rows[:, PARA] = flux, drive.y, drive.log_a, drive.parasitic_hz
-        rows[:, ACCEPT] = drive.shot_p / self.model.shot_p_max if self.model.shot_p_max > 0 else 0.0
+        drive_rows(flux, self._drive, rows)
         return rows
 
     @staticmethod
@@ -148,7 +150,7 @@ class EventDrivenPixels:
         lo[where], hi[where] = first, first + counts
         change_step = np.concatenate([own_step, s["shared_step"]])
         change_input = np.concatenate([self._inputs(own_flux), s["shared_input"]])
-        self._run(pixels, lo, hi, change_step, change_input, n_end, log)
+        self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log)
         history.taken(taking)
         history.taken(touched)
         history.prune()
@@ -170,64 +172,73 @@ class EventDrivenPixels:
         lo, hi = history.ranges(pixels, 0)
         steps = self.s["shared_step"]
         scratch = EventLog()
-        self._run(pixels, lo, hi, steps, self.s["shared_input"], int(steps[-1]) + 1, scratch)
+        self._run_changes(pixels, lo, hi, steps, self.s["shared_input"], int(steps[-1]) + 1, scratch)
         if scratch._chunks or scratch.n_loss:
             raise RuntimeError("a pixel left out of a background change would have fired (deferral bound violated)")
         history.taken(pixels)
         history.prune()
 
-    def run_dense_window(self, background: np.ndarray, steps: np.ndarray, rows_of, n_end: int, log: EventLog,
-                         height: int, width: int) -> None:
+    def run_dense_window(self, background: np.ndarray, steps: np.ndarray, stamps_of, block_rows: int, n_end: int,
+                         log: EventLog, height: int, width: int) -> None:
         """Process a window whose input changes almost everywhere each sample (video frames, noise upstream).
 
-        ``rows_of(row0, row1)`` gives the flux ``[pixel, sample]`` of image rows ``row0 .. row1 - 1``
-        (:func:`.sampling.dense_rows`). Rows are taken a block at a time: every pixel's changes
-        are read off its whole-frame values (no sorting or scattering of per-pixel change lists)
-        and the block's pixels go through the same compiled loop, so the events are exactly those
-        :meth:`run_window` makes from the same input (tested), in bounded memory.
+        ``stamps_of(row0, row1)`` gives the summed stamp flux ``[sample, pixel]`` of image rows
+        ``row0 .. row1 - 1`` (:func:`.sampling.dense_stamps`), to which ``background[k]`` adds.
+        Rows are taken ``block_rows`` at a time (the whole sensor at once when the frames are a
+        view); each pixel reads its own samples off them in the compiled loop (:mod:`.dense_loop`) and
+        goes through the same per-pixel event loop as :meth:`run_window`, so the events are
+        exactly those :meth:`run_window` makes from the same input (tested).
         """
         s = self.s
         self.take_pending()                                   # background changes left out before
-        rows_per_block = max(1, _DENSE_BLOCK_CHANGES // max(1, steps.size * width))
-        off_background = []
-        for row0 in range(0, height, rows_per_block):
-            row1 = min(height, row0 + rows_per_block)
-            values = rows_of(row0, row1)                                              # [pixel, sample]
-            block = np.arange(row0 * width, row1 * width, dtype=np.int64)
-            before = np.concatenate([s["real"][block, FLUX, None], values[:, :-1]], axis=1)
-            row, col = np.nonzero(values != before)                                  # sorted by pixel, then step
-            off_background.append(block[values[:, -1] != background[-1]])
-            first = np.flatnonzero(np.r_[True, row[1:] != row[:-1]]) if row.size else np.zeros(0, np.int64)
-            busy = s["next"][block] < n_end
-            busy[row[first]] = True
-            local = np.flatnonzero(busy)
-            lo, hi = np.zeros(local.size, np.int64), np.zeros(local.size, np.int64)
-            where = np.searchsorted(local, row[first])
-            lo[where], hi[where] = first, np.r_[first[1:], row.size]
-            self._run(block[local], lo, hi, steps[col].astype(np.int64), self._inputs(values[row, col], True), n_end,
-                      log)
-        s["off_background"] = np.concatenate(off_background)
+        background = np.ascontiguousarray(background, dtype=float)
+        steps = np.ascontiguousarray(steps, dtype=np.int64)
+        off_background = np.zeros(height * width, np.uint8)
+        for row0 in range(0, height, block_rows):
+            row1 = min(height, row0 + block_rows)
+            stamps = stamps_of(row0, row1)
+            first, off = row0 * width, off_background[row0 * width:row1 * width]
 
-    def _run(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
-        """The compiled loop (:func:`.pixel_loop.run_chunk`) over chunks of ``pixels``, in threads.
+            def kernel(index, buffers):
+                return run_dense_chunk(s["real"], s["count"], s["next"], np.int64(first), index, stamps, background,
+                                       steps, self._drive, np.int64(n_end), *self._constants, *buffers, off)
 
-        Pixels are independent, so chunks run concurrently (:func:`worker_threads` of them). A
-        chunk that runs out of room for events leaves its remaining pixels untouched; those
-        run again with twice the room.
+            self._run(off.size, kernel, log)
+        s["off_background"] = np.flatnonzero(off_background)
+
+    def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
+        """The event-driven loop (:func:`.pixel_loop.run_chunk`) over ``pixels``, pixel ``pixels[i]`` with the
+        changes ``lo[i]:hi[i]`` of ``change_step``/``change_input``."""
+        s = self.s
+
+        def kernel(index, buffers):
+            return run_chunk(s["real"], s["count"], s["next"], pixels[index], lo[index], hi[index], change_step,
+                             change_input, np.int64(n_end), *self._constants, *buffers)
+
+        self._run(pixels.size, kernel, log)
+
+    def _run(self, n_items: int, kernel, log: EventLog) -> None:
+        """``kernel(index, buffers)`` over chunks of the items ``0 .. n_items - 1``, in threads.
+
+        ``kernel`` is a compiled loop (:func:`.pixel_loop.run_chunk`, :func:`.dense_loop.run_dense_chunk`)
+        over the pixels of ``index``, writing events into the buffers (step, pixel, polarity,
+        cause) and returning ``(events written, items done, events lost)``. Pixels are
+        independent, so chunks run concurrently (:func:`worker_threads` of them). A chunk that
+        runs out of room for events leaves its remaining items untouched; those run again with
+        twice the room.
         """
         capacity = _FIRST_CAPACITY
         threads = worker_threads()
-        while pixels.size:
-            n_chunks = min(_CHUNKS_PER_THREAD * threads, pixels.size)
-            bounds = np.linspace(0, pixels.size, n_chunks + 1).astype(np.int64)
+        items = np.arange(n_items, dtype=np.int64)
+        while items.size:
+            n_chunks = min(_CHUNKS_PER_THREAD * threads, items.size)
+            bounds = np.linspace(0, items.size, n_chunks + 1).astype(np.int64)
             capacity = max(capacity, 2 * int(bounds[1] - bounds[0]))
 
             def chunk(a, b):
                 buffers = (np.empty(capacity, np.int64), np.empty(capacity, np.int64), np.empty(capacity, np.int8),
                            np.empty(capacity, np.uint8))
-                n_events, n_done, lost = run_chunk(self.s["real"], self.s["count"], self.s["next"], pixels[a:b],
-                                                   lo[a:b], hi[a:b], change_step, change_input, np.int64(n_end),
-                                                   *self._constants, *buffers)
+                n_events, n_done, lost = kernel(items[a:b], buffers)
                 return [v[:n_events] for v in buffers], a + n_done, b, lost
 
             if threads > 1 and n_chunks > 1:
@@ -238,6 +249,5 @@ class EventDrivenPixels:
             for events, *_ in done:
                 log.add(*events)
             log.lose(sum(lost for *_, lost in done))
-            left = np.concatenate([np.arange(a, b) for _, a, b, _ in done])
-            pixels, lo, hi = pixels[left], lo[left], hi[left]
+            items = items[np.concatenate([np.arange(a, b) for _, a, b, _ in done])]
             capacity *= 2

@@ -46,6 +46,7 @@ GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
 jit = numba.njit(cache=True, error_model="numpy")
+inline = numba.njit(cache=True, error_model="numpy", inline="always")    # so that loops over pixels vectorise
 
 
 @jit
@@ -76,31 +77,50 @@ def _settle_step(c):
 
 
 @jit
-def _schedule(r, c, t_change, leak_dt, dt):
-    """Next comparator event of a pixel before its next input change ``t_change`` (``NEVER``: none)."""
-    step = c[STEP]
-    y, th_on = r[Y], r[TH_ON]
-    drift = (leak_dt * r[NOISE_SCALE] + r[PARA] * dt) * th_on
-    j0 = max(c[READY] - step, np.int64(1))
+def next_crossing(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change, leak_dt, dt):
+    """Step of a pixel's next comparator event before its next input change ``t_change`` (``NEVER``: none).
+
+    The pixel is at ``step`` with the given state and input and may fire from ``ready`` on.
+    """
+    drift = (leak_dt * noise_scale + para * dt) * th_on
+    j0 = max(ready - step, np.int64(1))
     horizon = NEVER if t_change >= NEVER else t_change - 1 - step
-    j, _ = first_crossing_one(j0, y - r[M_], r[L_] - y, r[LOG_A], drift, th_on - TOLERANCE,
-                              r[TH_OFF] - TOLERANCE, horizon)
+    j, _ = first_crossing_one(j0, y - memorised, filtered - y, log_a, drift, th_on - TOLERANCE, th_off - TOLERANCE,
+                              horizon)
     return NEVER if j >= NEVER else step + j
 
 
 @jit
+def _schedule(r, c, t_change, leak_dt, dt):
+    """:func:`next_crossing` of the pixel with state rows ``r``, ``c``."""
+    return next_crossing(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
+                         r[NOISE_SCALE], t_change, leak_dt, dt)
+
+
+@inline
+def relaxed(filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j, leak_hz, dt):
+    """``(L, M, c_leak, c_para)`` after ``j > 0`` steps at constant input (Eqs. 16, 18, 19)."""
+    return relaxed_by(power(log_a, j), filtered, memorised, c_leak, c_para, y, para, th_on, noise_scale, j, leak_hz,
+                      dt)
+
+
+@inline
+def relaxed_by(retention, filtered, memorised, c_leak, c_para, y, para, th_on, noise_scale, j, leak_hz, dt):
+    """:func:`relaxed` with the filter's ``retention = a^j`` given (``power(log_a, j)``)."""
+    filtered = y + (filtered - y) * retention
+    scale = th_on * j * dt
+    leak = leak_hz * noise_scale * scale
+    para = para * scale
+    return filtered, memorised - (leak + para), c_leak + leak, c_para + para
+
+
+@jit
 def _advance(r, c, t, leak_hz, dt):
-    """Move a pixel from its last step to step ``t`` at constant input (Eqs. 16, 18, 19)."""
+    """Move a pixel from its last step to step ``t`` at constant input (:func:`relaxed`)."""
     j = t - c[STEP]
     if j > 0:
-        y = r[Y]
-        r[L_] = y + (r[L_] - y) * power(r[LOG_A], j)
-        scale = r[TH_ON] * j * dt
-        leak = leak_hz * r[NOISE_SCALE] * scale
-        para = r[PARA] * scale
-        r[M_] -= leak + para
-        r[C_LEAK] += leak
-        r[C_PARA] += para
+        r[L_], r[M_], r[C_LEAK], r[C_PARA] = relaxed(r[L_], r[M_], r[C_LEAK], r[C_PARA], r[Y], r[LOG_A], r[PARA],
+                                                     r[TH_ON], r[NOISE_SCALE], j, leak_hz, dt)
     c[STEP] = t
 
 
@@ -153,78 +173,101 @@ def _record(r, c, pixel, t, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_c
     return n_events + 1
 
 
+@jit
+def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_hz, dt, k_refr, q, key, redraw,
+              th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost,
+              saved_r, saved_c):
+    """Every event of one pixel (state rows ``r``, ``c``) before step ``n_end``, through its input changes ``lo:hi``.
+
+    From ``change_step[k]`` on the pixel's input is row ``k`` of ``change_input`` (columns
+    ``FLUX`` and ``Y`` to ``ACCEPT`` of :data:`REAL`). With ``stop <= hi`` the pixel stops
+    after the change ``stop - 1`` and its comparator's schedule (up to the next change), its
+    later events and changes left for another call. Events go to the ``ev_*`` buffers from
+    position ``n_events``; ``lost`` accumulates the events lost. Returns ``(n_events, lost,
+    done)``: a pixel whose events would overflow the buffers is put back as it was
+    (``saved_r``, ``saved_c`` are scratch rows) and ``done`` is False.
+    """
+    capacity = ev_step.size
+    leak_dt = leak_hz * dt
+    saved_r[:], saved_c[:] = r, c
+    first_event, lost_before = n_events, lost
+    ptr, end = lo, hi
+    t_change = change_step[ptr] if ptr < end else NEVER
+    cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
+    while True:
+        t_settle = _settle_step(c)
+        t_event = min(cmp_next, c[SHOT_NEXT], t_settle)
+        if t_event < t_change and t_event < n_end:
+            if n_events + 2 > capacity:                       # no room: undo this pixel
+                r[:], c[:] = saved_r, saved_c
+                return first_event, lost_before, False
+            _advance(r, c, t_event, leak_hz, dt)
+            awake = c[READY] <= t_event
+            fires = cmp_next == t_event
+            sign, cause, total = 0, SIGNAL, 0.0
+            if fires:
+                sign, cause, total = _fire(r, c)
+            if t_settle == t_event:                           # first comparison after an event (Eq. 17)
+                owed = c[OWED]
+                kept = min(float(abs(owed)), total) if (owed > 0) == (sign > 0) else 0.0
+                lost += abs(owed) - kept
+                c[OWED] = 0
+            if fires:
+                c[OWED] = sign * np.int64(total - 1.0)
+                n_events = _record(r, c, pixel, t_event, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_cause,
+                                   n_events, redraw, key, th_mean_on, th_mean_off, th_sigma, th_floor)
+                awake = False
+            if c[SHOT_NEXT] == t_event:                       # shot noise (Eq. 20)
+                bits = hash64_one(key, ACCEPT_STREAM, pixel, c[SHOT_COUNT])
+                if unit_interval(bits) < r[ACCEPT]:
+                    if awake:
+                        sign = 1 if (bits & np.uint64(1)) == 1 else -1
+                        n_events = _record(r, c, pixel, t_event, sign, SHOT, k_refr, ev_step, ev_pixel, ev_pol,
+                                           ev_cause, n_events, redraw, key, th_mean_on, th_mean_off, th_sigma,
+                                           th_floor)
+                    else:
+                        lost += 1.0
+                c[SHOT_COUNT] += 1
+                c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q * r[NOISE_SCALE])
+        elif ptr < end:                                       # the next input takes over
+            _advance(r, c, t_change - 1, leak_hz, dt)
+            row = change_input[ptr]
+            r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
+            ptr += 1
+            t_change = change_step[ptr] if ptr < end else NEVER
+        else:
+            break
+        cmp_next = _schedule(r, c, t_change, leak_dt, dt)
+        if ptr == stop:
+            break
+    c[CMP_NEXT] = cmp_next
+    return n_events, lost, True
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
               leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
               ev_step, ev_pixel, ev_pol, ev_cause):
-    """Process every event of ``pixels`` before step ``n_end`` and their input changes, one pixel after the other.
+    """:func:`run_pixel` for each of ``pixels``, one after the other; pixel ``pixels[i]`` has the changes
+    ``change_lo[i]:change_hi[i]`` (rows of ``change_input`` may be shared by many pixels).
 
-    Pixel ``pixels[i]`` has the changes ``change_lo[i]:change_hi[i]`` (sorted by step):
-    from ``change_step[k]`` on its input is row ``k`` of ``change_input`` (columns ``FLUX``
-    and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many pixels). Updates
-    the state tables and ``next_step`` (each pixel's next event) in place and writes the
-    events (step, pixel, polarity, cause) into the ``ev_*`` buffers. Returns ``(events
-    written, pixels done, events lost in the pixels)``: a pixel whose events would overflow
-    the buffers is put back as it was and the chunk stops before it.
+    Updates the state tables and ``next_step`` (each pixel's next event) in place and writes
+    the events (step, pixel, polarity, cause) into the ``ev_*`` buffers. Returns ``(events
+    written, pixels done, events lost in the pixels)``: the chunk stops before a pixel whose
+    events would overflow the buffers.
     """
-    capacity = ev_step.size
     n_events = 0
     lost = 0.0
-    leak_dt = leak_hz * dt
     saved_r = np.empty(real.shape[1])
     saved_c = np.empty(count.shape[1], np.int64)
     for i in range(pixels.size):
         pixel = pixels[i]
         r, c = real[pixel], count[pixel]
-        saved_r[:], saved_c[:] = r, c
-        first_event, lost_before = n_events, lost
-        ptr, end = change_lo[i], change_hi[i]
-        t_change = change_step[ptr] if ptr < end else NEVER
-        cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
-        while True:
-            t_settle = _settle_step(c)
-            t_event = min(cmp_next, c[SHOT_NEXT], t_settle)
-            if t_event < t_change and t_event < n_end:
-                if n_events + 2 > capacity:                       # no room: undo this pixel, stop here
-                    r[:], c[:] = saved_r, saved_c
-                    return first_event, i, lost_before
-                _advance(r, c, t_event, leak_hz, dt)
-                awake = c[READY] <= t_event
-                fires = cmp_next == t_event
-                sign, cause, total = 0, SIGNAL, 0.0
-                if fires:
-                    sign, cause, total = _fire(r, c)
-                if t_settle == t_event:                           # first comparison after an event (Eq. 17)
-                    owed = c[OWED]
-                    kept = min(float(abs(owed)), total) if (owed > 0) == (sign > 0) else 0.0
-                    lost += abs(owed) - kept
-                    c[OWED] = 0
-                if fires:
-                    c[OWED] = sign * np.int64(total - 1.0)
-                    n_events = _record(r, c, pixel, t_event, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_cause,
-                                       n_events, redraw, key, th_mean_on, th_mean_off, th_sigma, th_floor)
-                    awake = False
-                if c[SHOT_NEXT] == t_event:                       # shot noise (Eq. 20)
-                    bits = hash64_one(key, ACCEPT_STREAM, pixel, c[SHOT_COUNT])
-                    if unit_interval(bits) < r[ACCEPT]:
-                        if awake:
-                            sign = 1 if (bits & np.uint64(1)) == 1 else -1
-                            n_events = _record(r, c, pixel, t_event, sign, SHOT, k_refr, ev_step, ev_pixel, ev_pol,
-                                               ev_cause, n_events, redraw, key, th_mean_on, th_mean_off, th_sigma,
-                                               th_floor)
-                        else:
-                            lost += 1.0
-                    c[SHOT_COUNT] += 1
-                    c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q * r[NOISE_SCALE])
-            elif ptr < end:                                       # the next input takes over
-                _advance(r, c, t_change - 1, leak_hz, dt)
-                row = change_input[ptr]
-                r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
-                ptr += 1
-                t_change = change_step[ptr] if ptr < end else NEVER
-            else:
-                break
-            cmp_next = _schedule(r, c, t_change, leak_dt, dt)
-        c[CMP_NEXT] = cmp_next
-        next_step[pixel] = min(cmp_next, c[SHOT_NEXT], _settle_step(c))
+        n_events, lost, done = run_pixel(r, c, pixel, change_lo[i], change_hi[i], change_hi[i] + 1, change_step,
+                                         change_input, n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on,
+                                         th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
+                                         n_events, lost, saved_r, saved_c)
+        if not done:
+            return n_events, i, lost
+        next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
     return n_events, pixels.size, lost

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from evsda.blocks.ports import Irradiance
@@ -93,25 +94,60 @@ def stamp_coverage(irradiance: Irradiance, samples: np.ndarray) -> float:
     return float((cols * rows).sum() / (samples.size * height * width))
 
 
-def dense_rows(irradiance: Irradiance, samples: np.ndarray, row0: int, row1: int) -> np.ndarray:
-    """Photon flux ``[pixel, sample]`` of image rows ``row0 .. row1 - 1`` (pixels in row-major order) at ``samples``.
+#: (sample, pixel) values per block of rows the dense path sums its stamps into (8 MB)
+DENSE_BLOCK_VALUES = 1 << 20
 
-    The stamps are summed first, in their order, then added to the background: the same
-    additions, in the same order, as :func:`stamp_pixels` and the event-driven path make, so
-    both give bit-identical inputs.
+
+def video_frames(irradiance: Irradiance, samples: np.ndarray) -> np.ndarray | None:
+    """The frames ``[sample, pixel]`` as a view, without a copy, where the input is a video: a single stamp
+    covering the sensor at every sample of a contiguous run of ``samples``; else ``None``."""
+    height, width = irradiance.focal_plane.shape
+    flux = np.asarray(irradiance.stamp_flux)
+    if samples.size == 0 or flux.ndim != 4 or flux.shape[1:] != (1, height, width):
+        return None
+    first, last = int(samples[0]), int(samples[-1])
+    if last - first != samples.size - 1 or np.any(np.asarray(irradiance.stamp_origin)[first:last + 1]):
+        return None
+    return flux[first:last + 1, 0].reshape(samples.size, height * width)
+
+
+def dense_block_rows(irradiance: Irradiance, samples: np.ndarray) -> int:
+    """Image rows per block of :func:`dense_stamps`: the whole sensor for a video (a view), else ~8 MB of sums."""
+    height, width = irradiance.focal_plane.shape
+    if video_frames(irradiance, samples) is not None:
+        return height
+    return max(1, DENSE_BLOCK_VALUES // max(1, samples.size * width))
+
+
+def dense_stamps(irradiance: Irradiance, samples: np.ndarray, row0: int, row1: int) -> np.ndarray:
+    """Summed stamp flux ``[sample, pixel]`` of image rows ``row0 .. row1 - 1`` (pixels in row-major order).
+
+    Frame-major, as the frames come. The stamps of a pixel are summed from 0 in their order:
+    the additions, in the same order, that :func:`stamp_pixels` makes, so that the background
+    added to it gives the event-driven path's input bit for bit (a video's single stamp plus 0
+    is itself, so :func:`video_frames` serves it without a copy).
     """
     width = irradiance.focal_plane.width_px
+    video = video_frames(irradiance, samples)
+    if video is not None:
+        return video[:, row0 * width:row1 * width]
+    summed = np.zeros((samples.size, (row1 - row0) * width))
     flux = np.asarray(irradiance.stamp_flux)
-    origin = np.asarray(irradiance.stamp_origin, dtype=np.int64)
-    summed = np.zeros((samples.size, row1 - row0, width))
-    if flux.ndim == 4 and flux.shape[1] and flux.shape[2] * flux.shape[3]:
-        h, w = flux.shape[2:]
-        for i, k in enumerate(samples):
-            for s in range(flux.shape[1]):
-                x0, y0 = int(origin[k, s, 0]), int(origin[k, s, 1])
-                r0, r1 = max(y0, row0), min(y0 + h, row1)
-                c0, c1 = max(x0, 0), min(x0 + w, width)
-                if r0 < r1 and c0 < c1:
-                    summed[i, r0 - row0:r1 - row0, c0:c1] += flux[k, s, r0 - y0:r1 - y0, c0 - x0:c1 - x0]
-    background = np.asarray(irradiance.background, dtype=float)[samples]
-    return (background[:, None, None] + summed).reshape(samples.size, -1).T
+    if flux.ndim == 4 and flux.shape[1] * flux.shape[2] * flux.shape[3] and samples.size:
+        _sum_stamps(flux, np.asarray(irradiance.stamp_origin, dtype=np.int64), np.asarray(samples, dtype=np.int64),
+                    row0, row1, width, summed)
+    return summed
+
+
+@numba.njit(cache=True)
+def _sum_stamps(flux, origin, samples, row0, row1, width, out):
+    """Add the stamps of ``samples`` (clipped to rows ``row0 .. row1 - 1`` and the sensor) into ``out[sample, pixel]``."""
+    h, w = flux.shape[2], flux.shape[3]
+    for i in range(samples.size):
+        k = samples[i]
+        for s in range(flux.shape[1]):
+            x0, y0 = origin[k, s, 0], origin[k, s, 1]
+            for row in range(max(y0, row0), min(y0 + h, row1)):
+                base = (row - row0) * width
+                for column in range(max(x0, 0), min(x0 + w, width)):
+                    out[i, base + column] += flux[k, s, row - y0, column - x0]

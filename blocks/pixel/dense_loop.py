@@ -1,0 +1,245 @@
+"""The compiled loop of the dense input path: pixels walk their samples straight from the frames, many at a time.
+
+Video frames, or noise added upstream, change nearly every pixel at every sample. Instead
+of listing (pixel, change) pairs, the pixels of a tile read their photon flux at each sample
+of the window off the frame-major input (``background[k] + stamps[k, pixel]``: the additions,
+in the same order, that the sparse path makes) and take the input change as the
+event-driven loop (:func:`.pixel_loop.run_pixel`) would, in a loop over the tile that the
+compiler vectorises:
+
+* a change is *quiet* when the pixel has no event due before it and the next sample
+  changes its flux again: the pixel then relaxes to the change (:func:`.pixel_loop.relaxed`),
+  takes its new drive (:func:`.drive_kernel.drive_one`) and, in the common case where the
+  comparator input provably stays inside its band until the next sample
+  (:func:`.crossing.stays_in_band`), has no crossing to solve; otherwise the crossing is
+  solved exactly (:func:`.pixel_loop.next_crossing`), as ``run_pixel`` does;
+* at its first change that is not quiet (an event is due, or the flux holds still) a pixel
+  leaves the sweep and ``run_pixel`` takes it from there, through its remaining samples and
+  events, as does every pixel with an event due after its last change.
+
+Every step is the arithmetic ``run_pixel`` performs, in the same order, with the same
+functions (:mod:`.fastmath` vectorises to the same bits), so the events are those of the
+sparse path (tested). Nothing of size pixels x samples is allocated.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .crossing import J_LIMIT, NEVER, power, stays_in_band
+from .comparator import TOLERANCE
+from .drive_kernel import drive_into, drive_one
+from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
+                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, next_crossing, relaxed_by, run_pixel)
+
+TILE = 64                    # pixels swept together
+_SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
+_STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
+# per-pixel fields of a tile (rows of the sweep's tables)
+(F_FLUX, F_L, F_M, F_LEAK, F_PARA_C, F_Y, F_LOG_A, F_PARA, F_ACCEPT, F_TH_ON, F_TH_OFF, F_SCALE, F_RETAIN, F_NOW,
+ F_NEXT, N_FLOAT) = range(16)
+(I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
+jit = numba.njit(cache=True, error_model="numpy")
+
+
+@jit
+def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k):
+    """Take the sample at ``t_now`` for the active pixels ``0 .. n - 1`` of a tile, where it is quiet.
+
+    ``fs``/``js``: the tile's float and integer tables (flattened ``[field, TILE]``);
+    ``F_NOW``/``F_NEXT`` hold this and the next sample's flux (``last``: there is none).
+    ``F_RETAIN`` is the filter's retention ``a^j`` over the ``I_SPAN = j`` steps from the
+    pixel's last step to this sample. A pixel whose flux holds still while its comparator
+    is scheduled without a horizon (``I_OPEN``) waits; one with an event due before its
+    change is marked ``_STEPPED`` in ``I_ACTIVE`` (:func:`run_pixel` takes the sample); one
+    whose next sample does not change it leaves (``I_LEAVE``). Returns the numbers of pixels
+    whose crossing is left to solve (``_SOLVE`` in ``I_CMP``) and of pixels stepped.
+    """
+    leak_dt = leak_hz * dt
+    n_solve = n_stepped = 0
+    step = t_now - 1
+    for i in range(n):      # all loads first, then no branches: every pixel computes, the quiet ones keep the result
+        flux, held, following = fs[F_NOW * TILE + i], fs[F_FLUX * TILE + i], fs[F_NEXT * TILE + i]
+        filtered, memorised = fs[F_L * TILE + i], fs[F_M * TILE + i]
+        c_leak, c_para = fs[F_LEAK * TILE + i], fs[F_PARA_C * TILE + i]
+        y, log_a, para, accept = fs[F_Y * TILE + i], fs[F_LOG_A * TILE + i], fs[F_PARA * TILE + i], \
+            fs[F_ACCEPT * TILE + i]
+        th_on, th_off, scale, retain = fs[F_TH_ON * TILE + i], fs[F_TH_OFF * TILE + i], fs[F_SCALE * TILE + i], \
+            fs[F_RETAIN * TILE + i]
+        last_step, ready, cmp_next = js[I_STEP * TILE + i], js[I_READY * TILE + i], js[I_CMP * TILE + i]
+        due, active, leave = js[I_DUE * TILE + i], js[I_ACTIVE * TILE + i] != 0, js[I_LEAVE * TILE + i]
+        span, is_open = js[I_SPAN * TILE + i], js[I_OPEN * TILE + i] != 0
+
+        j = step - last_step
+        waits = active & (flux == held) & is_open
+        quiet = (active & (flux != held) & (min(cmp_next, due) >= t_now) & (last | (following != flux))
+                 & ((j <= 0) | (j == span)))
+        moved_l, moved_m, moved_leak, moved_para = relaxed_by(retain, filtered, memorised, c_leak, c_para, y, para,
+                                                              th_on, scale, j, leak_hz, dt)
+        moved = j > 0                         # run_pixel's _advance moves only forward
+        new_l = moved_l if moved else filtered
+        new_m = moved_m if moved else memorised
+        new_y, new_log_a, new_para, new_accept = drive_one(flux, drive_k)
+        # the retention to the next sample, for the bound of first_crossing_one now and the relaxation then
+        horizon = J_LIMIT if last else min(t_next - 1 - step, J_LIMIT)
+        next_span = horizon if quiet else t_next - 1 - last_step           # waiting: from its last step
+        next_retain = power(new_log_a if quiet else log_a, next_span)
+        j0 = max(ready - step, np.int64(1))
+        inside = stays_in_band(max(horizon, j0), next_retain if j0 <= horizon else 0.0, new_y - new_m,
+                               new_l - new_y, new_log_a, (leak_dt * scale + new_para * dt) * th_on,
+                               th_on - TOLERANCE, th_off - TOLERANCE)
+
+        fs[F_FLUX * TILE + i] = flux if quiet else held
+        fs[F_L * TILE + i] = new_l if quiet else filtered
+        fs[F_M * TILE + i] = new_m if quiet else memorised
+        fs[F_LEAK * TILE + i] = (moved_leak if moved else c_leak) if quiet else c_leak
+        fs[F_PARA_C * TILE + i] = (moved_para if moved else c_para) if quiet else c_para
+        fs[F_Y * TILE + i] = new_y if quiet else y
+        fs[F_LOG_A * TILE + i] = new_log_a if quiet else log_a
+        fs[F_PARA * TILE + i] = new_para if quiet else para
+        fs[F_ACCEPT * TILE + i] = new_accept if quiet else accept
+        fs[F_RETAIN * TILE + i] = next_retain if quiet | waits else retain
+        js[I_SPAN * TILE + i] = next_span if quiet | waits else span
+        js[I_STEP * TILE + i] = step if quiet else last_step
+        js[I_CMP * TILE + i] = (NEVER if inside else _SOLVE) if quiet else cmp_next
+        js[I_OPEN * TILE + i] = (1 if last else 0) if quiet else js[I_OPEN * TILE + i]
+        # a change with an event due first: run_pixel takes this sample, the pixel stays
+        stepped = active & (flux != held) & (last | (following != flux)) & (quiet == False)   # noqa: E712
+        stays = quiet | waits | stepped
+        js[I_LEAVE * TILE + i] = t_now if active != stays else leave        # those that stay are active
+        js[I_ACTIVE * TILE + i] = _STEPPED if stepped else (1 if stays else 0)
+        n_solve += 1 if quiet != (quiet & inside) else 0
+        n_stepped += 1 if stepped else 0
+    return n_solve, n_stepped
+
+
+@jit
+def _solve(fs, js, n, t_next, last, leak_hz, dt):
+    """The exact next crossing (:func:`.pixel_loop.next_crossing`) of the tile's pixels marked ``_SOLVE``."""
+    for i in range(n):
+        if js[I_CMP * TILE + i] == _SOLVE:
+            js[I_CMP * TILE + i] = next_crossing(
+                js[I_STEP * TILE + i], js[I_READY * TILE + i], fs[F_Y * TILE + i], fs[F_M * TILE + i],
+                fs[F_L * TILE + i], fs[F_LOG_A * TILE + i], fs[F_PARA * TILE + i], fs[F_TH_ON * TILE + i],
+                fs[F_TH_OFF * TILE + i], fs[F_SCALE * TILE + i], NEVER if last else t_next, leak_hz * dt, dt)
+
+
+@jit
+def _to_state(fs, js, i, r, c):
+    """The sweep's fields of tile pixel ``i`` back into its state rows (the others the sweep only reads)."""
+    for field, column in ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y),
+                          (F_LOG_A, LOG_A), (F_PARA, PARA), (F_ACCEPT, ACCEPT)):
+        r[column] = fs[field * TILE + i]
+    c[STEP], c[CMP_NEXT] = js[I_STEP * TILE + i], js[I_CMP * TILE + i]
+
+
+@jit
+def _from_state(fs, js, i, r, c, t_next):
+    """Tile pixel ``i`` from its state rows, active, its comparator scheduled up to ``t_next`` (``NEVER``: open)."""
+    for field, column in ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y),
+                          (F_LOG_A, LOG_A), (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON),
+                          (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE)):
+        fs[field * TILE + i] = r[column]
+    js[I_STEP * TILE + i], js[I_READY * TILE + i], js[I_CMP * TILE + i] = c[STEP], c[READY], c[CMP_NEXT]
+    js[I_DUE * TILE + i] = min(c[SHOT_NEXT], _settle_step(c))
+    js[I_ACTIVE * TILE + i], js[I_LEAVE * TILE + i], js[I_OPEN * TILE + i] = 1, NEVER, 1 if t_next >= NEVER else 0
+    span = t_next - 1 - c[STEP] if t_next < NEVER else J_LIMIT
+    js[I_SPAN * TILE + i], fs[F_RETAIN * TILE + i] = span, power(r[LOG_A], span)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
+def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, background, steps, drive_k, n_end,
+                    leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+                    ev_step, ev_pixel, ev_pol, ev_cause, off_background):
+    """Every event before step ``n_end`` of the pixels ``first_pixel + columns[i]``, their inputs read off the frames.
+
+    ``stamps[k, column]`` is the summed stamp flux of sample ``k`` and ``background[k]`` its
+    uniform flux [photon s^-1]; sample ``k`` holds from step ``steps[k]``. Sets
+    ``off_background[column]`` where the pixel's last flux differs from the last
+    background. Returns ``(events written, pixels done, events lost)`` as
+    :func:`.pixel_loop.run_chunk` does: a tile whose events overflow the buffers is put
+    back as it was, with its events, and the chunk stops before it.
+    """
+    n_samples = steps.size
+    n_real, n_count = real.shape[1], count.shape[1]
+    fs = np.zeros(N_FLOAT * TILE)
+    js = np.zeros(N_INT * TILE, np.int64)
+    start_r = np.empty((TILE, n_real))
+    start_c = np.empty((TILE, n_count), np.int64)
+    change_step = np.empty(max(n_samples, 2), np.int64)
+    change_input = np.empty((max(n_samples, 2), n_real))
+    saved_r = np.empty(n_real)
+    saved_c = np.empty(n_count, np.int64)
+    n_events = 0
+    lost = 0.0
+    for t0 in range(0, columns.size, TILE):
+        n = min(TILE, columns.size - t0)
+        tile_events, tile_lost = n_events, lost
+        for i in range(n):                                    # the tile's state into the sweep's tables
+            pixel = first_pixel + columns[t0 + i]
+            r, c = real[pixel], count[pixel]
+            start_r[i], start_c[i] = r, c
+            _from_state(fs, js, i, r, c, NEVER)               # scheduled without a horizon at the end of a window
+            js[I_SPAN * TILE + i] = steps[0] - 1 - c[STEP]
+            fs[F_RETAIN * TILE + i] = power(r[LOG_A], steps[0] - 1 - c[STEP])
+        done = True
+        for k in range(n_samples):
+            last = k + 1 == n_samples
+            for i in range(n):                                # this sample's flux: the last one's next
+                column = columns[t0 + i]
+                fs[F_NOW * TILE + i] = background[k] + stamps[k, column] if k == 0 else fs[F_NEXT * TILE + i]
+                if not last:
+                    fs[F_NEXT * TILE + i] = background[k + 1] + stamps[k + 1, column]
+            t_next = NEVER if last else steps[k + 1]
+            n_solve, n_stepped = _sweep(fs, js, n, steps[k], t_next, last, leak_hz, dt, drive_k)
+            if n_solve:
+                _solve(fs, js, n, t_next, last, leak_hz, dt)
+            for i in range(n if n_stepped else 0):            # run_pixel takes this sample: its events, the change
+                if js[I_ACTIVE * TILE + i] == _STEPPED:
+                    pixel = first_pixel + columns[t0 + i]
+                    r, c = real[pixel], count[pixel]
+                    _to_state(fs, js, i, r, c)
+                    change_step[0], change_step[1] = steps[k], t_next
+                    drive_into(change_input[0], fs[F_NOW * TILE + i], drive_k)
+                    n_events, lost, done = run_pixel(r, c, pixel, 0, 1 if last else 2, 1, change_step, change_input,
+                                                     n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on,
+                                                     th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
+                                                     ev_cause, n_events, lost, saved_r, saved_c)
+                    if not done:
+                        break
+                    _from_state(fs, js, i, r, c, t_next)
+            if not done:
+                break
+        for i in range(n if done else 0):                     # back to the state tables; the rest by run_pixel
+            column = columns[t0 + i]
+            pixel = first_pixel + column
+            r, c = real[pixel], count[pixel]
+            _to_state(fs, js, i, r, c)
+            leave = js[I_LEAVE * TILE + i]
+            held = r[FLUX]
+            n_changes = 0
+            if leave < NEVER:                                 # its samples from the one it left the sweep at
+                for k in range(n_samples):
+                    if steps[k] >= leave:
+                        flux = background[k] + stamps[k, column]
+                        if flux != held:
+                            change_step[n_changes] = steps[k]
+                            drive_into(change_input[n_changes], flux, drive_k)
+                            n_changes += 1
+                            held = flux
+            if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c)) < n_end:
+                n_events, lost, done = run_pixel(r, c, pixel, 0, n_changes, n_changes + 1, change_step, change_input,
+                                                 n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off,
+                                                 th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events,
+                                                 lost, saved_r, saved_c)
+                if not done:
+                    break
+            off_background[column] = held != background[n_samples - 1]
+            next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
+        if not done:                                          # no room: the tile as it was, without its events
+            for i in range(n):
+                pixel = first_pixel + columns[t0 + i]
+                real[pixel], count[pixel] = start_r[i], start_c[i]
+            return tile_events, t0, tile_lost
+    return n_events, columns.size, lost

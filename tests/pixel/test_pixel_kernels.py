@@ -1,0 +1,77 @@
+"""The compiled arithmetic of the fast implementation against NumPy: elementary functions and Eqs. 12-20."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numba
+import numpy as np
+import pytest
+import yaml
+
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.drive_kernel import drive_constants, drive_rows
+from evsda.blocks.pixel.fastmath import exp_, log1p_, log_
+from evsda.blocks.pixel.model import PixelModel
+from evsda.blocks.pixel.pixel_loop import ACCEPT, FLUX, LOG_A, PARA, REAL, Y
+
+
+@numba.njit
+def _apply(f, x):
+    out = np.empty_like(x)
+    for i in range(x.size):
+        out[i] = f(x[i])
+    return out
+
+
+def _ulps(a, b):
+    return np.abs(a - b) / np.spacing(np.abs(b))
+
+
+def test_elementary_functions_match_numpy_to_an_ulp():
+    rng = np.random.default_rng(0)
+    x = np.concatenate([-rng.random(200_000) * 708.0, rng.random(100_000) * 709.0, [0.0, -1e-300, 1e-17]])
+    assert _ulps(_apply(exp_, x), np.exp(x)).max() <= 1.0
+    y = np.concatenate([np.exp(rng.normal(0, 50, 200_000)), [1.0, 2.0, 0.5, 1e-310, 5e-324, 1.7e308]])
+    assert _ulps(_apply(log_, y), np.log(y)).max() <= 1.0
+    w = np.concatenate([10.0 ** rng.uniform(-20, 3, 200_000), -rng.random(1000) * 0.9, [0.0, 1e-300]])
+    assert _ulps(_apply(log1p_, w), np.log1p(w)).max() <= 4.0
+    special = np.array([0.0, -1.0, np.inf, np.nan])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.testing.assert_array_equal(_apply(log_, special), np.log(special))
+
+
+@pytest.mark.parametrize("params", [
+    {},                                                                          # paper: knee at 5, paper cutoff
+    dict(knee_at_dark_current=True, cutoff_model="proportional", cutoff_saturation=67290.0,
+         shot_noise_intensity_factor=0.25, parasitic_rate_per_lux_hz=0.01),     # DAVIS346-like
+    dict(cutoff_max_hz=0.0, log_current_max=0.5, time_step_s=1e-4),              # no filter, flat shot noise
+    dict(knee_at_dark_current=True, cutoff_model="power", cutoff_saturation=500.0, cutoff_exponent=0.5),
+    dict(cutoff_model="power", cutoff_saturation=50.0, cutoff_exponent=1.7, dark_current_density_A_m2=0.0),
+])
+def test_compiled_drive_agrees_with_the_numpy_model(params):
+    model = PixelModel(DvsPixel.Params(**params), (10e-6) ** 2, 550e-9)
+    flux = np.concatenate([[0.0], 10.0 ** np.linspace(0, 13, 2001)])           # dark to saturating [photon/s]
+    rows = np.empty((flux.size, len(REAL)))
+    drive_rows(flux, drive_constants(model), rows)
+    drive = model.drive(flux)
+    np.testing.assert_array_equal(rows[:, FLUX], flux)
+    np.testing.assert_allclose(rows[:, Y], drive.y, rtol=1e-14, atol=1e-15)    # ln x near x = 1: absolute
+    with np.errstate(divide="ignore"):
+        np.testing.assert_allclose(rows[:, LOG_A], drive.log_a, rtol=1e-13)
+    np.testing.assert_allclose(rows[:, PARA], drive.parasitic_hz, rtol=1e-15)
+    np.testing.assert_allclose(rows[:, ACCEPT], drive.shot_p / model.shot_p_max, rtol=1e-14)
+
+
+@pytest.mark.parametrize("preset", sorted(p.name for p in (Path(__file__).parents[2] / "library" / "sensors").glob("*.yaml")))
+def test_compiled_drive_agrees_for_every_sensor_preset(preset):
+    params = yaml.safe_load((Path(__file__).parents[2] / "library" / "sensors" / preset).read_text())
+    model = PixelModel(DvsPixel.Params(**params["blocks"]["pixel"]["params"]), (10e-6) ** 2, 550e-9)
+    flux = 10.0 ** np.linspace(0, 12, 1001)
+    rows = np.empty((flux.size, len(REAL)))
+    drive_rows(flux, drive_constants(model), rows)
+    drive = model.drive(flux)
+    np.testing.assert_allclose(rows[:, Y], drive.y, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(rows[:, LOG_A], drive.log_a, rtol=1e-13)
+    np.testing.assert_allclose(rows[:, PARA], drive.parasitic_hz, rtol=1e-15)
+    np.testing.assert_allclose(rows[:, ACCEPT], drive.shot_p / model.shot_p_max, rtol=1e-14)
