@@ -26,6 +26,7 @@ import io
 import json
 import math
 import xml.etree.ElementTree as ET
+import zlib
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -47,6 +48,9 @@ PROPERTY_COLUMNS = {"AREA_M2": "area_m2", "ALBEDO": "albedo"}
 FORMATS = ("tle", "omm_csv", "omm_json", "omm_xml")
 #: the most characters of a file's line an error message quotes (an object's name, a field)
 NAME_QUOTED = 40
+#: the largest catalogue read, decompressed [bytes]: every catalogued object (~30 000) as OMM JSON is
+#: ~30 MB, so this bounds a gzip bomb without refusing any real catalogue
+MAX_CATALOG_BYTES = 256 << 20
 
 
 @dataclass
@@ -78,14 +82,21 @@ class BadEntry(ValueError):
 
 
 def read_text(path: Path, who: str) -> str:
-    """A catalogue file's text (gzip-compressed if it ends in ``.gz``)."""
+    """A catalogue file's text (gzip-compressed if it ends in ``.gz``), at most :data:`MAX_CATALOG_BYTES`
+    once decompressed; a damaged or truncated gzip stream is one error naming the file."""
     try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rt", encoding="utf-8", errors="replace") as f:
-                return f.read()
-        return path.read_text(encoding="utf-8", errors="replace")
+        with (gzip.open if path.suffix == ".gz" else open)(path, "rb") as f:
+            data = f.read(MAX_CATALOG_BYTES + 1)
+    except gzip.BadGzipFile:
+        raise ParameterError(f"{who}: {path} is not a gzip file (its name ends in .gz)") from None
+    except (EOFError, zlib.error):
+        raise ParameterError(f"{who}: {path} is a damaged or truncated gzip file") from None
     except OSError as exc:
-        raise ParameterError(f"{who}: cannot read {str(path)!r} ({exc.strerror or exc})") from None
+        raise ParameterError(f"{who}: cannot read {path} ({exc.strerror or type(exc).__name__})") from None
+    if len(data) > MAX_CATALOG_BYTES:
+        raise ParameterError(f"{who}: {path} holds more than {MAX_CATALOG_BYTES >> 20} MiB of text; a catalogue "
+                             f"may not be larger (select the objects with names: or split the file)")
+    return data.decode("utf-8", errors="replace")
 
 
 def guess_format(path: Path) -> str:

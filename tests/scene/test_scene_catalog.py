@@ -336,3 +336,20 @@ def test_object_metrics_do_not_depend_on_the_windows():
         values = split.step(Window(w, lo, hi), events=part, sources=[src])["metrics"].values
     assert values["object_00001_events"] > 1000
     assert values == expected
+
+
+def test_damaged_and_oversized_compressed_catalogues_are_one_clear_error(tmp_path, monkeypatch):
+    """A truncated .gz was an EOFError traceback; a gzip bomb was read whole. Each is one error naming the file."""
+    from evsda.blocks.scene import element_sets
+
+    whole = library.resolve(CATALOG).read_bytes()
+    truncated, not_gzip = tmp_path / "truncated.tle.gz", tmp_path / "plain.tle.gz"
+    truncated.write_bytes(whole[: len(whole) // 3])
+    not_gzip.write_text("not compressed\n")
+    with pytest.raises(ParameterError, match="truncated.tle.gz is a damaged or truncated gzip file"):
+        SatelliteCatalog(catalog_file=str(truncated))
+    with pytest.raises(ParameterError, match="plain.tle.gz is not a gzip file"):
+        SatelliteCatalog(catalog_file=str(not_gzip))
+    monkeypatch.setattr(element_sets, "MAX_CATALOG_BYTES", 1 << 20)       # the bundled one holds ~3 MB of text
+    with pytest.raises(ParameterError, match="holds more than 1 MiB of text; a catalogue may not be larger"):
+        SatelliteCatalog(catalog_file=CATALOG)
