@@ -57,15 +57,32 @@ def load_hipparcos(path: str) -> StarCatalog:
         raise ParameterError(str(exc)) from None
     try:
         with opener(path, "rt", encoding="ascii", errors="replace") as f:
-            for line in f:
+            for number, line in enumerate(f, start=1):
                 fields = line.split("|")
                 if len(fields) < 14 or not fields[8].strip() or not fields[5].strip():
                     continue
-                rows.append((fields[1].strip(), fields[5], fields[8], fields[9], fields[12], fields[13], fields[11]))
+                rows.append((fields[1].strip(), *_numbers(fields, path, number)))
     except (OSError, EOFError) as exc:      # gzip raises BadGzipFile (an OSError) or EOFError for a damaged file
         raise ParameterError(f"star catalogue {path} cannot be read ({exc.strerror or type(exc).__name__})") from None
     if not rows:
         raise ParameterError(f"star catalogue {path!r} holds no Hipparcos records")
     hip, *columns = zip(*rows)
-    values = [np.array([float(v) if v.strip() else 0.0 for v in column]) for column in columns]
-    return StarCatalog(np.array([f"HIP {h}" for h in hip]), *values)
+    return StarCatalog(np.array([f"HIP {h}" for h in hip]), *(np.array(column) for column in columns))
+
+
+#: the numeric fields read from a hip_main.dat record, by their Hipparcos field numbers H5 (Vmag), H8 (RAdeg),
+#: H9 (DEdeg), H12 (pmRA), H13 (pmDE), H11 (Plx): field Hn is the n-th '|'-separated field from 0; a blank
+#: parallax or proper motion counts as 0
+_NUMERIC_FIELDS = ((5, "Vmag"), (8, "RAdeg"), (9, "DEdeg"), (12, "pmRA"), (13, "pmDE"), (11, "Plx"))
+
+
+def _numbers(fields: list[str], path: str, number: int) -> list[float]:
+    values = []
+    for index, name in _NUMERIC_FIELDS:
+        text = fields[index].strip()
+        try:
+            values.append(float(text) if text else 0.0)
+        except ValueError:
+            raise ParameterError(f"star catalogue {path}: line {number}: field H{index} ({name}) is not a number; "
+                                 f"expected the Hipparcos main catalogue (hip_main.dat)") from None
+    return values

@@ -129,3 +129,18 @@ def test_windows_and_resume_give_identical_output(graz, gen4, quickstart_pointin
     for name in ("t_ns", "x_px", "y_px", "photon_flux"):
         np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(reference, name))
     np.testing.assert_array_equal(parts[-1].source_id, reference.source_id)
+
+
+def test_a_star_catalogue_with_a_field_that_is_no_number_is_one_clear_error(tmp_path):
+    """A record with a non-numeric magnitude was a ValueError traceback in the first window of a run."""
+    from evsda.blocks.scene.catalog import load_hipparcos
+    from evsda.graph import ParameterError
+
+    bad = tmp_path / "hip.dat"
+    bad.write_text("H|1| |00 00 00.22|+01 05 20.4| 9.10| |H|0.00091185|1.08901332| |3.54|-5.20|-1.88|\n"
+                   "H|2| |00 00 00.91|-19 29 55.8| abc| |G|0.00379737|-19.49883745| |21.90|181.21|-0.93|\n")
+    with pytest.raises(ParameterError, match=r"hip\.dat: line 2: field H5 \(Vmag\) is not a number"):
+        load_hipparcos(str(bad))
+    bad.write_text(bad.read_text().replace(" abc", " 9.27"))
+    stars = load_hipparcos(str(bad))
+    assert list(stars.vmag) == [9.10, 9.27] and list(stars.parallax_mas) == [3.54, 21.90]
