@@ -75,7 +75,7 @@ def long_exposure_profile(telescope: Telescope, wavelength: float, r0: float, L0
 
 def long_exposure_encircled_energy(telescope: Telescope, wavelength: float, r0: float, L0: float,
                                    theta: np.ndarray, n_frequencies: int = 8192) -> np.ndarray:
-    """Fraction of the long-exposure PSF's power within radius ``theta`` [rad] [1]:
+    """Fraction [1] of the long-exposure PSF's power within radius ``theta`` [rad]:
     ``EE(theta) = 2 pi theta int OTF(f) J1(2 pi f theta) df`` (the Hankel pair of :func:`long_exposure_profile`)."""
     cutoff = telescope.diameter_m / wavelength
     f = (np.arange(n_frequencies) + 0.5) * cutoff / n_frequencies
