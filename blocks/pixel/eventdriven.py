@@ -37,8 +37,7 @@ from .model import PixelModel
 from .deferred import SharedChanges, select_pixels
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
-from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, COUNT, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, READY, REAL,
-                         STEP, TH_OFF, TH_ON, Y, run_chunk, start_pixels)
+from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, run_chunk, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
@@ -88,20 +87,16 @@ class EventDrivenPixels:
         """Fresh state looking at ``photon_flux`` (``background`` plus stamps); the first step is ``n_start``."""
         init = initial_pixels(model, photon_flux, rng)
         n = photon_flux.shape[0]
-        state = {"real": np.zeros((n, len(REAL))), "count": np.zeros((n, len(COUNT)), np.int64),
-                 "next": np.zeros(n, np.int64),                           # each pixel's next event step
+        state = {"real": np.empty((n, len(REAL))), "count": np.empty((n, len(COUNT)), np.int64),
+                 "next": np.empty(n, np.int64),                           # each pixel's next event step
                  "off_background": np.flatnonzero(photon_flux != background),   # pixels under stamps
                  "key": int(rng.integers(0, 2**63 - 1))}
         pixels = EventDrivenPixels(model, state)
         real, count = state["real"], state["count"]
-        real[:] = pixels._inputs(np.asarray(photon_flux, dtype=float))
-        real[:, L_], real[:, M_], real[:, TH_ON], real[:, TH_OFF] = (init.filtered, init.memorised, init.theta_on,
-                                                                     init.theta_off)
-        real[:, C_LEAK], real[:, C_PARA] = init.credit
-        real[:, NOISE_SCALE] = init.noise_scale
-        count[:, STEP], count[:, READY] = n_start - 1, n_start
+        drive_rows(np.ascontiguousarray(photon_flux, dtype=float), pixels._drive, real)      # the input columns
         leak_hz, dt, _, q, key, *_ = pixels._constants
-        start_pixels(real, count, state["next"], leak_hz, dt, key, q)
+        start_pixels(real, count, state["next"], init.filtered, init.memorised, init.theta_on, init.theta_off,
+                     np.ascontiguousarray(init.credit), init.noise_scale, np.int64(n_start), leak_hz, dt, key, q)
         return state
 
     # -- one window ---------------------------------------------------------------------------

@@ -61,10 +61,16 @@ def shot_gap(key, pixel, count, q):
 
 
 @jit
-def start_pixels(real, count, next_step, leak_hz, dt, key, q):
-    """Schedule every pixel's first shot-noise trial and comparator event after its present step."""
+def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, credit, noise_scale, n_start, leak_hz,
+                 dt, key, q):
+    """Fill every pixel's state row (its input columns already set) from its initial state, at step ``n_start - 1``,
+    and schedule its first shot-noise trial and comparator event: one pass over the tables."""
     for pixel in range(count.shape[0]):
-        c = count[pixel]
+        r, c = real[pixel], count[pixel]
+        r[L_], r[M_], r[TH_ON], r[TH_OFF] = filtered[pixel], memorised[pixel], th_on[pixel], th_off[pixel]
+        r[C_LEAK], r[C_PARA], r[NOISE_SCALE] = credit[0, pixel], credit[1, pixel], noise_scale[pixel]
+        c[:] = 0
+        c[STEP], c[READY] = n_start - 1, n_start
         c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q * real[pixel, NOISE_SCALE])
         c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
         next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
