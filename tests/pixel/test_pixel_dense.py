@@ -71,3 +71,16 @@ def test_dense_and_sparse_paths_give_identical_events(monkeypatch):
         other = events(path, window_s, threads=threads, monkeypatch=monkeypatch)
         for a, b in zip(sparse, other):
             np.testing.assert_array_equal(a, b, err_msg=f"{path}, windows of {window_s} s, {threads} threads")
+
+
+def test_dense_path_reruns_tiles_that_run_out_of_room(monkeypatch):
+    # Chunks of a few pixels with room for two events each: most tiles run out of room, are put
+    # back as they were (state and events) and run again with more room; no event may change.
+    from evsda.blocks.pixel import eventdriven
+
+    sparse = events("sparse", 0.03)
+    monkeypatch.setattr(eventdriven, "_FIRST_CAPACITY", 0)
+    monkeypatch.setattr(eventdriven, "_CHUNKS_PER_THREAD", 500)
+    dense = events("dense", 0.04, threads="2", monkeypatch=monkeypatch)
+    for a, b in zip(sparse, dense):
+        np.testing.assert_array_equal(a, b)
