@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from .comparator import TOLERANCE
-from .pixel_loop import L_, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y
+from .pixel_loop import ACCEPT, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y, _advance
 
 #: margin for rounding in the loop's closed forms [ln of current]; values are O(10), their rounding ~1e-14
 ROUNDING_MARGIN = 1e-9
@@ -82,6 +82,20 @@ def select_pixels(real, count, next_step, applied, touched, changed, n_end, base
     return pixels[:m].copy(), takes[:m].copy()
 
 
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def take_quietly(real, count, pixels, lo, hi, steps, inputs, leak_hz, dt):
+    """Give ``pixels[i]`` the changes ``lo[i] .. hi[i] - 1`` (``steps``, ``inputs`` rows) without looking
+    for comparator events between them: the compiled loop's own updates (:func:`.pixel_loop._advance`
+    to the step before each change, then the new input), less its search for the next crossing after
+    each, which finds none where the deferral bound held past the next change."""
+    for i in range(pixels.size):
+        r, c = real[pixels[i]], count[pixels[i]]
+        for k in range(lo[i], hi[i]):
+            _advance(r, c, steps[k] - 1, leak_hz, dt)
+            row = inputs[k]
+            r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
+
+
 class SharedChanges:
     """The background's input changes not yet taken by every pixel, kept in the pixel state dict.
 
@@ -125,6 +139,23 @@ class SharedChanges:
         y_low = np.r_[np.minimum.accumulate(rows[::-1, y])[::-1], np.inf]
         para_high = np.r_[np.maximum.accumulate(rows[::-1, para])[::-1], -np.inf]
         return y_high, y_low, para_high
+
+    def take_all_but_last(self, pixels: np.ndarray, kept: int, leak_hz: float, dt: float) -> None:
+        """Give ``pixels`` their pending changes among the first ``kept`` kept ones, but the last of those,
+        without the crossing searches (:func:`take_quietly`).
+
+        Exact because every one of those changes was left out of the pixel in a window after it, where
+        the bound showed no event before that window's end, which is past the last of them; the last is
+        left to the compiled loop, which looks for the pixel's next event after it.
+        """
+        lo = self.s["applied"][pixels] - int(self.s["shared_base"])
+        quiet = lo < kept - 1
+        if not quiet.any():
+            return
+        pixels, lo = pixels[quiet], lo[quiet]
+        take_quietly(self.s["real"], self.s["count"], pixels, lo, np.full(pixels.size, kept - 1, np.int64),
+                     self.s["shared_step"], self.s["shared_input"], leak_hz, dt)
+        self.s["applied"][pixels] = int(self.s["shared_base"]) + kept - 1
 
     def taken(self, pixels: np.ndarray) -> None:
         """``pixels`` have taken every kept change."""

@@ -132,6 +132,7 @@ class EventDrivenPixels:
                 s["off_background"] = touched[values[:, -1] != background[-1]]
         first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
+        kept = s["shared_step"].size                          # changes from before this window
         if shared.size:
             history.append(steps[shared], self._inputs(background[shared]))
         leak_hz, dt = self._constants[:2]
@@ -140,6 +141,7 @@ class EventDrivenPixels:
                                       *history.suffix_bounds(Y, PARA), leak_hz * dt, dt, self.defer_background)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
         taking = pixels[takes]
+        history.take_all_but_last(taking, kept, leak_hz, dt)
         lo[takes], hi[takes] = history.ranges(taking, own_pixel.size)
         where = np.searchsorted(pixels, changed)
         lo[where], hi[where] = first, first + counts
@@ -164,6 +166,7 @@ class EventDrivenPixels:
         """
         if not pixels.size:
             return
+        history.take_all_but_last(pixels, self.s["shared_step"].size, *self._constants[:2])
         lo, hi = history.ranges(pixels, 0)
         steps = self.s["shared_step"]
         scratch = EventLog()
