@@ -71,3 +71,14 @@ def test_times_and_frame_counts_out_of_range_are_one_line(capsys, tmp_path, monk
     monkeypatch.chdir(tmp_path)
     status, lines = run(capsys, *args, *([] if args[0] == "render" else ["-o", "out.png"]))
     assert status == 2 and len(lines) == 1 and expected in lines[0], lines
+
+
+def test_quiet_leaves_out_the_summary_line(capsys, tmp_path):
+    """``-q`` (before or after the command) is "only errors and warnings": the line saying what was written
+    goes too (it did not for export, render and the plot commands)."""
+    args = ["plot-screen", "--samples", "16", "--modes", "3", "--show", "2"]
+    for quiet, name in (([], "a.png"), (["-q"], "b.png")):
+        capsys.readouterr()
+        assert main([*quiet, *args, "-o", str(tmp_path / name)]) == 0
+        assert (capsys.readouterr().out != "") == (not quiet)
+    assert main([*args, "-q", "-o", str(tmp_path / "c.png")]) == 0 and capsys.readouterr().out == ""

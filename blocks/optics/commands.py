@@ -60,7 +60,8 @@ class PlotScreen(Command):
         result = zernike_screen(args.aperture, args.r0, args.modes, args.show, args.samples, args.seed)
         save_figure(plot_zernike_screen(result), args.output, args.overwrite, args.dpi)
         shown = ", ".join(f"j={j} (n={noll_to_nm(j)[0]}, m={noll_to_nm(j)[1]})" for j in args.show)
-        print(f"{args.output}: modes {shown}; screen of {args.modes} modes, D/r0 = {result.d_over_r0:.3g}")
+        if not getattr(args, "quiet", False):
+            print(f"{args.output}: modes {shown}; screen of {args.modes} modes, D/r0 = {result.d_over_r0:.3g}")
         return 0
 
 
@@ -98,8 +99,9 @@ class PlotPropagation(Command):
             raise UserError(f"plot-propagation: no valid propagation grid for this geometry: {exc}; "
                             f"try fewer --pupil-samples or a shorter --distance") from None
         save_figure(plot_propagation(demo), args.output, args.overwrite, args.dpi)
-        print(f"{args.output}: grid {demo.grid.describe()}; {demo.aperture_power_w:.3g} W of {args.power:g} W "
-              f"in the aperture; r0 = {demo.r0_m:.3g} m at {args.wavelength * 1e9:.0f} nm")
+        if not getattr(args, "quiet", False):
+            print(f"{args.output}: grid {demo.grid.describe()}; {demo.aperture_power_w:.3g} W of {args.power:g} W "
+                  f"in the aperture; r0 = {demo.r0_m:.3g} m at {args.wavelength * 1e9:.0f} nm")
         return 0
 
 
@@ -128,9 +130,10 @@ class PlotPsf(Command):
         save_figure(plot_psf_stamp(stamp, dpi=args.dpi), args.output, args.overwrite, args.dpi)
         cx, cy = stamp.centroid
         height, width = stamp.image.shape
-        print(f"{args.output}: {stamp.source_id} at {stamp.t_ns / 1e9:g} s, {height}x{width} "
-              f"stamp with {stamp.image.sum() / stamp.collected_photon_rate:.1%} of its flux, centroid "
-              f"({cx:.2f}, {cy:.2f}) vs true ({stamp.x_px:.2f}, {stamp.y_px:.2f}); {stamp.path}")
+        if not getattr(args, "quiet", False):
+            print(f"{args.output}: {stamp.source_id} at {stamp.t_ns / 1e9:g} s, {height}x{width} "
+                  f"stamp with {stamp.image.sum() / stamp.collected_photon_rate:.1%} of its flux, centroid "
+                  f"({cx:.2f}, {cy:.2f}) vs true ({stamp.x_px:.2f}, {stamp.y_px:.2f}); {stamp.path}")
         return 0
 
 

@@ -114,8 +114,9 @@ class ExportCommand(Command):
             n = export_events(chunks, temporary, args.format, fp.width_px, fp.height_px, time=args.time, epoch=epoch,
                               max_time_us=_max_time_us(store))
         note = f"; partial run: {unfinished}" if unfinished else ""
-        print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since "
-              f"{epoch or 'the run start'}{note})")
+        if not getattr(args, "quiet", False):
+            print(f"wrote {n} events to {args.output} ({args.format}, {args.time} times in µs since "
+                  f"{epoch or 'the run start'}{note})")
         if truth_output is not None:
             rows = store.read_truth()
             with atomic_output(truth_output, args.overwrite, "truth") as temporary:
@@ -123,7 +124,8 @@ class ExportCommand(Command):
                     k = write_truth_csv(rows, temporary)
                 else:
                     k = write_truth_hdf5(rows, temporary, store.truth_attrs(), epoch, fp.width_px, fp.height_px)
-            print(f"wrote {k} truth rows ({len(set(rows['source_id'].tolist()))} sources) to {truth_output}")
+            if not getattr(args, "quiet", False):
+                print(f"wrote {k} truth rows ({len(set(rows['source_id'].tolist()))} sources) to {truth_output}")
         return 0
 
 
@@ -176,7 +178,8 @@ class RenderCommand(Command):
             with atomic_output(args.png, args.overwrite, "image", suffix=".png") as temporary:
                 on, off = render_png(store.iter_events(args.chunk_size), temporary, fp.width_px, fp.height_px,
                                      start, stop, truth=truth, scale=args.scale, dpi=args.dpi)
-            print(f"wrote {args.png}: {on} ON and {off} OFF events")
+            if not getattr(args, "quiet", False):
+                print(f"wrote {args.png}: {on} ON and {off} OFF events")
         if args.gif:
             lo = 0 if start is None else start
             hi = stop if stop is not None else _end_ns(store)
@@ -185,7 +188,8 @@ class RenderCommand(Command):
             with atomic_output(args.gif, args.overwrite, "animation", suffix=".gif") as temporary:
                 n = render_gif(store.iter_events(args.chunk_size), temporary, fp.width_px, fp.height_px, lo, hi,
                                n_frames=args.frames, fps=args.fps)
-            print(f"wrote {args.gif}: {n} frames from {lo / NS_PER_S} s to {hi / NS_PER_S} s")
+            if not getattr(args, "quiet", False):
+                print(f"wrote {args.gif}: {n} frames from {lo / NS_PER_S} s to {hi / NS_PER_S} s")
         return 0
 
 
@@ -234,7 +238,8 @@ class _StorePlot(Command):
                   file=sys.stderr)
         fig, summary = self.figure(store, args)
         save_figure(fig, args.output, args.overwrite, args.dpi)
-        print(f"wrote {args.output}: {summary}")
+        if not getattr(args, "quiet", False):
+            print(f"wrote {args.output}: {summary}")
         return 0
 
 

@@ -74,8 +74,9 @@ class PlotPass(Command):
         from .plot import plot_pass
 
         save_figure(plot_pass(view, report, -pad, run.duration_ns + pad), args.output, args.overwrite, args.dpi)
-        print(f"{args.output}: {inputs['orbit'].name}; " + ("; ".join(str(p) for p in report.passes)
-                                                        or "no observable pass during the run"))
+        if not getattr(args, "quiet", False):
+            print(f"{args.output}: {inputs['orbit'].name}; " + ("; ".join(str(p) for p in report.passes)
+                                                            or "no observable pass during the run"))
         return 0
 
 
