@@ -30,7 +30,9 @@ class EventLog:
             out = TriggeredEvents.empty(focal_plane)
             return TriggeredEvents(focal_plane, out.t_ns, out.x, out.y, out.p, out.cause, self.n_loss, (0, 0, 0, 0))
         step, pixel, polarity, cause = (np.concatenate(parts) for parts in zip(*self._chunks))
-        order = np.argsort(step * np.int64(focal_plane.width_px * focal_plane.height_px) + pixel, kind="stable")
+        # the keys are unique (one event per pixel per step, Eqs. 17 and 20), so any sort gives this order;
+        # NumPy's default (SIMD) sort is 3-4x faster than the stable one
+        order = np.argsort(step * np.int64(focal_plane.width_px * focal_plane.height_px) + pixel)
         step, pixel, polarity, cause = step[order], pixel[order], polarity[order], cause[order]
         width = focal_plane.width_px
         counts = tuple(int(c) for c in np.bincount(cause, minlength=4)[:4])
