@@ -32,6 +32,7 @@ import logging
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -428,10 +429,20 @@ def read_results(out_dir: str | Path):
     import pandas as pd
 
     out_dir = Path(out_dir)
-    if (out_dir / RESULTS_PARQUET).is_file():
-        return pd.read_parquet(out_dir / RESULTS_PARQUET)
-    if (out_dir / RESULTS_CSV).is_file():
-        return pd.read_csv(out_dir / RESULTS_CSV)
+    unreadable = []
+    for name, reader in ((RESULTS_PARQUET, pd.read_parquet), (RESULTS_CSV, pd.read_csv)):
+        if (out_dir / name).is_file():
+            try:
+                table = reader(out_dir / name)
+            except (ValueError, OSError):    # damaged, truncated, not UTF-8 (pyarrow's and pandas' errors are these)
+                unreadable.append(name)      # the CSV, streamed row by row, may still be whole
+                continue
+            if unreadable:
+                warnings.warn(f"{out_dir}: {unreadable[0]} cannot be read (damaged?); the results come from {name}")
+            return table
+    if unreadable:
+        raise UserError(f"{out_dir}: the sweep results ({' and '.join(unreadable)}) cannot be read: damaged or not "
+                        f"written by evsda sweep; re-run the sweep command to write them again")
     raise UserError(f"{out_dir} holds no sweep results ({RESULTS_PARQUET} or {RESULTS_CSV})")
 
 

@@ -257,3 +257,16 @@ def test_a_sweep_is_never_written_inside_a_run_store(plugin, tmp_path):
         with pytest.raises(UserError, match=f"cannot write a sweep inside the run store {store}"):
             run_sweep(str(chain(tmp_path)), {"spikes.step": [2.0]}, out, jobs=1, report=lambda line: None)
     assert sorted(p.relative_to(store) for p in store.rglob("*")) == before
+
+
+def test_damaged_results_tables_are_one_line_or_read_from_the_other_copy(plugin, tmp_path):
+    """A damaged sweep.parquet or a sweep.csv that is not UTF-8 was a pyarrow/pandas traceback in sweep-plot."""
+    out = tmp_path / "s"
+    assert run_sweep(str(chain(tmp_path)), {"spikes.step": [2.0, 3.0]}, out, jobs=1, report=lambda line: None).ok
+    whole = read_results(out)
+    (out / "sweep.parquet").write_bytes(b"PAR1 not really")
+    with pytest.warns(UserWarning, match="sweep.parquet cannot be read .* the results come from sweep.csv"):
+        assert list(read_results(out)["point"]) == list(whole["point"])
+    (out / "sweep.csv").write_bytes(b"point,status\n\xff\xfe,1\n")
+    with pytest.raises(UserError, match=r"the sweep results \(sweep.parquet and sweep.csv\) cannot be read"):
+        read_results(out)
