@@ -148,7 +148,13 @@ def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, Axis]:
         raw.append(("--vary", key.strip(), parse_value(value.strip())))
     problems: list[Problem] = []
     grid: dict[str, Axis] = {}
+    given: dict[str, str] = {}
     for where, key, value in raw:
+        if key in given:        # a second list would silently replace the first
+            problems.append(Problem(where, f"'{clip(key)}'", f"is varied twice (also in {given[key]}); give its "
+                                                             f"values once"))
+            continue
+        given[key] = where
         axis = _axis(where, key, value, problems)
         if axis is not None:
             grid[key] = axis

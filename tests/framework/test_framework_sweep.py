@@ -270,3 +270,11 @@ def test_damaged_results_tables_are_one_line_or_read_from_the_other_copy(plugin,
     (out / "sweep.csv").write_bytes(b"point,status\n\xff\xfe,1\n")
     with pytest.raises(UserError, match=r"the sweep results \(sweep.parquet and sweep.csv\) cannot be read"):
         read_results(out)
+
+
+def test_a_parameter_varied_twice_is_refused(tmp_path):
+    """``--vary a.x=[1,2] --vary a.x=[3]`` ran one point: the second list replaced the first without a word."""
+    grid_file = write(tmp_path / "grid.yaml", "a.x: [1, 2]\n")
+    for args in ((None, ["a.x=[1, 2]", "a.x=[3]"]), (grid_file, ["a.x=[3]"])):
+        with pytest.raises(GraphError, match=r"'a.x': is varied twice \(also in"):
+            read_grid(*args)
