@@ -270,10 +270,12 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         for line in str(exc).splitlines():
             print(f"evsda: error: {line}", file=sys.stderr)
+        _quiet_abandoned_writes()
         return 2
     except KeyboardInterrupt as exc:
         name = getattr(exc, "signal_name", "SIGINT")
         print(f"evsda: {exc if isinstance(exc, Interrupted) else 'interrupted'}", file=sys.stderr)
+        _quiet_abandoned_writes()
         return 128 + getattr(signal, name, signal.SIGINT)
     except BrokenPipeError:
         # the reader went away (`evsda blocks | head`): end quietly, as command-line tools do
@@ -282,10 +284,19 @@ def main(argv: list[str] | None = None) -> int:
         return 128 + signal.SIGPIPE
     except OSError as exc:
         print(f"evsda: error: {describe_os_error(exc)}", file=sys.stderr)
+        _quiet_abandoned_writes()
         return 2
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _quiet_abandoned_writes() -> None:
+    """After a command stopped by a signal or an error: a Zarr write it left under way stays pending on
+    Zarr's event loop, and asyncio reports it ("Task was destroyed but it is pending!") when the loop is
+    dropped at exit. Such a write was never committed (``--resume`` redoes it), so the report would only
+    add lines after the one that says what happened."""
+    logging.getLogger("asyncio").disabled = True
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
