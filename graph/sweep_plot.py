@@ -53,11 +53,8 @@ def _numeric(table, column: str) -> np.ndarray:
                         f"parameters only") from None
 
 
-def plot_sweep(table, metric: str, x: str | None = None, y: str | None = None, unit: str | None = None):
-    """The Figure of ``metric`` against ``x`` (and ``y``) from a sweep's results table (a DataFrame)."""
-    from matplotlib.figure import Figure
-
-    parameters = swept_parameters(table)
+def _x_parameter(parameters: list[str], x: str | None, y: str | None) -> str:
+    """The x axis (the only swept parameter when not given), after checking that ``x`` and ``y`` are swept."""
     if x is None:
         if len(parameters) != 1:
             raise UserError(f"the sweep varies {', '.join(parameters)}; choose the x axis with --x")
@@ -65,53 +62,87 @@ def plot_sweep(table, metric: str, x: str | None = None, y: str | None = None, u
     for name in filter(None, (x, y)):
         if name not in parameters:
             raise UserError(f"{clip(name)} is not a swept parameter; the sweep varies {', '.join(parameters)}")
-    if metric not in table.columns or metric in (*FIXED_COLUMNS, *TAIL_COLUMNS, *parameters):
-        metrics = [c for c in table.columns if c not in (*FIXED_COLUMNS, *TAIL_COLUMNS, *parameters)]
+    return x
+
+
+def _check_metric(table, metric: str, parameters: list[str]) -> None:
+    not_metrics = (*FIXED_COLUMNS, *TAIL_COLUMNS, *parameters)
+    if metric not in table.columns or metric in not_metrics:
+        metrics = [c for c in table.columns if c not in not_metrics]
         raise UserError(f"{clip(metric)} is not a metric of this sweep; its metrics: {', '.join(metrics) or 'none'}")
-    unit = metric_unit(table, metric) if unit is None else unit
-    label = f"{metric} [{unit}]" if unit and unit != "1" else metric
+
+
+def _group_name(others: list[str], key) -> str:
+    """``"b = 2, c = red"``: the values of the other swept parameters that one line holds."""
+    key = key if isinstance(key, tuple) else (key,)
+    return ", ".join(f"{p} = {v:g}" if isinstance(v, float) else f"{p} = {v}" for p, v in zip(others, key))
+
+
+def _plot_groups(axes, good, x: str, metric: str, others: list[str]) -> None:
+    """One line per combination of ``others`` (at most :data:`MAX_LINES`, with a legend), else points."""
+    groups = good.groupby(others, dropna=False) if others else [((), good)]
+    n_groups = good[others].drop_duplicates().shape[0] if others else 1
+    for key, group in groups:
+        group = group.sort_values(x)
+        values = group[metric].astype(float)
+        if n_groups <= MAX_LINES:
+            axes.plot(group[x].astype(float), values, "o-", label=_group_name(others, key) or None)
+        else:
+            axes.plot(group[x].astype(float), values, "o", color="C0", ms=3)
+    if n_groups <= MAX_LINES and others:
+        axes.legend(fontsize="small")
+
+
+def _plot_against_x(axes, table, xs, x: str, metric: str, parameters: list[str], label: str) -> None:
+    """The metric against ``x``; failed points as red crosses on the x axis."""
     failed = table.status == "failed"
     good = table[~failed]
+    _plot_groups(axes, good, x, metric, [p for p in parameters if p != x])
+    if failed.any():
+        axes.plot(xs[failed.to_numpy()], np.zeros(int(failed.sum())), "x", color="red", ms=9, mew=2,
+                  transform=axes.get_xaxis_transform(), clip_on=False,
+                  label=f"failed ({int(failed.sum())})")
+        axes.legend(fontsize="small")
+    axes.set_ylabel(label)
+    if _log_scale(good[metric].astype(float).to_numpy()):
+        axes.set_yscale("log")
+
+
+def _plot_plane(figure, axes, table, xs, y: str, metric: str, label: str) -> None:
+    """The (x, y) points coloured by the metric, with a colour bar; failed points as red crosses."""
+    failed = table.status == "failed"
+    ys = _numeric(table, y)
+    ok = ~failed.to_numpy()
+    points = axes.scatter(xs[ok], ys[ok], c=table[~failed][metric].astype(float), cmap="viridis", s=40)
+    figure.colorbar(points, ax=axes, label=label)
+    if failed.any():
+        axes.plot(xs[~ok], ys[~ok], "x", color="red", ms=9, mew=2, label=f"failed ({int(failed.sum())})")
+        axes.legend(fontsize="small")
+    axes.set_ylabel(y)
+    if _log_scale(ys):
+        axes.set_yscale("log")
+
+
+def plot_sweep(table, metric: str, x: str | None = None, y: str | None = None, unit: str | None = None):
+    """The Figure of ``metric`` against ``x`` (and ``y``) from a sweep's results table (a DataFrame)."""
+    from matplotlib.figure import Figure
+
+    parameters = swept_parameters(table)
+    x = _x_parameter(parameters, x, y)
+    _check_metric(table, metric, parameters)
+    unit = metric_unit(table, metric) if unit is None else unit
+    label = f"{metric} [{unit}]" if unit and unit != "1" else metric
     figure = Figure(figsize=(7, 4.5), layout="constrained")
     axes = figure.add_subplot()
     xs = _numeric(table, x)
     if y is None:
-        others = [p for p in parameters if p != x]
-        groups = good.groupby(others, dropna=False) if others else [((), good)]
-        n_groups = good[others].drop_duplicates().shape[0] if others else 1
-        for key, group in groups:
-            group = group.sort_values(x)
-            values = group[metric].astype(float)
-            key = key if isinstance(key, tuple) else (key,)
-            name = ", ".join(f"{p} = {v:g}" if isinstance(v, float) else f"{p} = {v}" for p, v in zip(others, key))
-            if n_groups <= MAX_LINES:
-                axes.plot(group[x].astype(float), values, "o-", label=name or None)
-            else:
-                axes.plot(group[x].astype(float), values, "o", color="C0", ms=3)
-        if n_groups <= MAX_LINES and others:
-            axes.legend(fontsize="small")
-        if failed.any():
-            axes.plot(xs[failed.to_numpy()], np.zeros(int(failed.sum())), "x", color="red", ms=9, mew=2,
-                      transform=axes.get_xaxis_transform(), clip_on=False,
-                      label=f"failed ({int(failed.sum())})")
-            axes.legend(fontsize="small")
-        axes.set_ylabel(label)
-        if _log_scale(good[metric].astype(float).to_numpy()):
-            axes.set_yscale("log")
+        _plot_against_x(axes, table, xs, x, metric, parameters, label)
     else:
-        ys = _numeric(table, y)
-        ok = ~failed.to_numpy()
-        points = axes.scatter(xs[ok], ys[ok], c=good[metric].astype(float), cmap="viridis", s=40)
-        figure.colorbar(points, ax=axes, label=label)
-        if failed.any():
-            axes.plot(xs[~ok], ys[~ok], "x", color="red", ms=9, mew=2, label=f"failed ({int(failed.sum())})")
-            axes.legend(fontsize="small")
-        axes.set_ylabel(y)
-        if _log_scale(ys):
-            axes.set_yscale("log")
+        _plot_plane(figure, axes, table, xs, y, metric, label)
     axes.set_xlabel(x)
     if _log_scale(xs):
         axes.set_xscale("log")
+    failed = table.status == "failed"
     done = int((~failed).sum())
     axes.set_title(f"{metric}: {done} points" + (f", {int(failed.sum())} failed" if failed.any() else ""),
                    fontsize="medium")
