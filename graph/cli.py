@@ -143,38 +143,35 @@ def cmd_schema(args) -> int:
     return 0
 
 
-def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
-    # -v and -q are accepted before or after the command: every parser knows them, and SUPPRESS keeps a
-    # sub-command's parser from resetting what was given before it
+def _common_options() -> argparse.ArgumentParser:
+    """-v and -q, accepted before or after the command: every parser knows them, and SUPPRESS keeps a
+    sub-command's parser from resetting what was given before it."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
                         help="log what blocks decide (paths taken, reuse)")
     common.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                         help="only errors and warnings: no summaries or progress lines")
-    parser = argparse.ArgumentParser(prog="evsda", parents=[common],
-                                     description="Event-based sensor simulator for space domain awareness.")
-    parser.add_argument("--version", action="version", version=f"evsda {__version__}")
-    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    return common
 
-    def add(name: str, **kwargs) -> argparse.ArgumentParser:
-        return subparsers.add_parser(name, parents=[common], **kwargs)
 
-    def graph_args(p):
-        p.add_argument("graph", help="graph file (a path or library:...), or a run store to re-run")
-        p.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
-                       help="override a parameter (repeatable); included blocks are named include/block")
+def _graph_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("graph", help="graph file (a path or library:...), or a run store to re-run")
+    p.add_argument("--set", action="append", default=[], metavar="BLOCK.PARAM=VALUE",
+                   help="override a parameter (repeatable); included blocks are named include/block")
 
-    def limit_arg(p, sweep: bool = False):
-        defaults = Limits()
-        p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
-                       help=f"raise a size limit checked before any work (repeatable): windows "
-                            f"({defaults.windows:.0e}), pixels ({defaults.pixels:.3g}), window_bytes "
-                            f"({defaults.window_bytes:.3g} bytes held per window)"
-                            + (f" of each point, points ({MAX_POINTS:.0e}) in the sweep" if sweep else ""))
 
-    p = add("run", help="run a graph file")
-    graph_args(p)
-    limit_arg(p)
+def _limit_arg(p: argparse.ArgumentParser, sweep: bool = False) -> None:
+    defaults = Limits()
+    p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
+                   help=f"raise a size limit checked before any work (repeatable): windows "
+                        f"({defaults.windows:.0e}), pixels ({defaults.pixels:.3g}), window_bytes "
+                        f"({defaults.window_bytes:.3g} bytes held per window)"
+                        + (f" of each point, points ({MAX_POINTS:.0e}) in the sweep" if sweep else ""))
+
+
+def _configure_run(p: argparse.ArgumentParser) -> None:
+    _graph_args(p)
+    _limit_arg(p)
     p.add_argument("-o", "--output", help="run store to write (default: NAME.zarr)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in OUTPUT from its last checkpoint (from the start if nothing was committed)")
@@ -189,11 +186,11 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
                    help="show a progress bar (default: when stderr is a terminal)")
     p.add_argument("--json", action="store_true",
                    help="print the store, event count, metrics (with units) and timing as JSON on stdout")
-    p.set_defaults(func=cmd_run)
 
-    p = add("sweep", help="run a graph over a grid of parameter values (a trade study)")
-    graph_args(p)
-    limit_arg(p, sweep=True)
+
+def _configure_sweep(p: argparse.ArgumentParser) -> None:
+    _graph_args(p)
+    _limit_arg(p, sweep=True)
     p.add_argument("--grid", help="YAML file mapping block.param to a list of values or a range {min:, max:}")
     p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=VALUES",
                    help="a parameter and its values, [v1, v2] or {min: a, max: b, log: true} (repeatable; "
@@ -212,42 +209,120 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
                    help="run the points on a running Dask cluster (e.g. tcp://host:8786); its workers must reach "
                         "the output folder and have evsda installed")
     p.add_argument("--overwrite", action="store_true", help="recompute every point, replacing their stores")
-    p.set_defaults(func=cmd_sweep)
 
-    p = add("sweep-plot", help="draw a metric of a sweep against one or two swept parameters, failed points "
-                               "marked")
+
+def _configure_sweep_plot(p: argparse.ArgumentParser) -> None:
     p.add_argument("sweep", help="sweep folder (holding sweep.parquet or sweep.csv)")
     p.add_argument("metric", help="metric to draw (a column of the results table)")
     p.add_argument("--x", default=None, help="swept parameter on the x axis (default: the only one)")
     p.add_argument("--y", default=None, help="second swept parameter: points in the (x, y) plane coloured by the metric")
     add_figure_options(p, dpi=120.0)
-    p.set_defaults(func=cmd_sweep_plot)
 
-    p = add("info", help="what a run store holds: graph, seed, epoch, events by cause, metrics, "
-                                    "products, complete or resumable")
+
+def _configure_info(p: argparse.ArgumentParser) -> None:
     p.add_argument("store", help="run store (.zarr)")
     p.add_argument("--json", action="store_true", help="print it as JSON")
-    p.set_defaults(func=cmd_info)
 
-    p = add("validate", help="check a graph file without running it")
-    graph_args(p)
-    limit_arg(p)
-    p.set_defaults(func=cmd_validate)
 
-    p = add("blocks", help="list block types, or describe one")
+def _configure_validate(p: argparse.ArgumentParser) -> None:
+    _graph_args(p)
+    _limit_arg(p)
+
+
+def _configure_blocks(p: argparse.ArgumentParser) -> None:
     p.add_argument("name", nargs="?", help="block type to describe")
-    p.set_defaults(func=cmd_blocks)
 
-    p = add("schema", help="regenerate the JSON Schemas (or check that they are current)")
+
+def _configure_schema(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true", help="fail if the files on disk are stale")
     p.add_argument("--dir", default="schema", help="schema folder (default: ./schema)")
-    p.set_defaults(func=cmd_schema)
 
-    for command in extra:
-        p = add(command.name, help=command.help)
-        command.configure(p)
-        p.set_defaults(func=command.run)
+
+#: the built-in commands in the order ``evsda --help`` lists them: name, help, options, function
+BUILT_IN_COMMANDS = (
+    ("run", "run a graph file", _configure_run, cmd_run),
+    ("sweep", "run a graph over a grid of parameter values (a trade study)", _configure_sweep, cmd_sweep),
+    ("sweep-plot", "draw a metric of a sweep against one or two swept parameters, failed points marked",
+     _configure_sweep_plot, cmd_sweep_plot),
+    ("info", "what a run store holds: graph, seed, epoch, events by cause, metrics, products, complete or "
+             "resumable", _configure_info, cmd_info),
+    ("validate", "check a graph file without running it", _configure_validate, cmd_validate),
+    ("blocks", "list block types, or describe one", _configure_blocks, cmd_blocks),
+    ("schema", "regenerate the JSON Schemas (or check that they are current)", _configure_schema, cmd_schema),
+)
+
+
+def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
+    common = _common_options()
+    parser = argparse.ArgumentParser(prog="evsda", parents=[common],
+                                     description="Event-based sensor simulator for space domain awareness.")
+    parser.add_argument("--version", action="version", version=f"evsda {__version__}")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    commands = [*BUILT_IN_COMMANDS, *((c.name, c.help, c.configure, c.run) for c in extra)]
+    for name, help_text, configure, func in commands:
+        p = subparsers.add_parser(name, parents=[common], help=help_text)
+        configure(p)
+        p.set_defaults(func=func)
     return parser
+
+
+def _configure_logging(args) -> None:
+    args.verbose, args.quiet = getattr(args, "verbose", False), getattr(args, "quiet", False)
+    logging.basicConfig(level=logging.INFO if args.verbose and not args.quiet else logging.WARNING,
+                        format="evsda: %(name)s: %(message)s")
+
+
+def _catch_sigterm():
+    """Let SIGTERM end the command like Ctrl-C (main thread only); returns the handler to put back, or None."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _terminate)
+
+
+def _run_command(args) -> int:
+    with limit_blas(), warnings.catch_warnings():      # see evsda.graph.threads
+        warnings.showwarning = _show_warning
+        status = int(args.func(args) or 0)
+    sys.stdout.flush()      # here, so that a closed pipe is caught in main rather than at exit
+    return status
+
+
+def _user_error_status(exc: UserError) -> int:
+    for line in str(exc).splitlines():
+        print(f"evsda: error: {line}", file=sys.stderr)
+    _quiet_abandoned_writes()
+    return 2
+
+
+def _interrupted_status(exc: KeyboardInterrupt) -> int:
+    name = getattr(exc, "signal_name", "SIGINT")
+    print(f"evsda: {exc if isinstance(exc, Interrupted) else 'interrupted'}", file=sys.stderr)
+    _quiet_abandoned_writes()
+    return 128 + getattr(signal, name, signal.SIGINT)
+
+
+def _broken_pipe_status() -> int:
+    """The reader went away (`evsda blocks | head`): end quietly, as command-line tools do."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return 128 + signal.SIGPIPE
+
+
+def _os_error_status(exc: OSError) -> int:
+    print(f"evsda: error: {describe_os_error(exc)}", file=sys.stderr)
+    _quiet_abandoned_writes()
+    return 2
+
+
+def _failure_status(exc: BaseException) -> int:
+    """The one line (or none, for a closed pipe) and the exit status of a command that raised ``exc``."""
+    if isinstance(exc, UserError):
+        return _user_error_status(exc)
+    if isinstance(exc, KeyboardInterrupt):
+        return _interrupted_status(exc)
+    if isinstance(exc, BrokenPipeError):
+        return _broken_pipe_status()
+    return _os_error_status(exc)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -257,35 +332,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"evsda: error: {exc}", file=sys.stderr)
         return 2
     args = parser.parse_args(argv)
-    args.verbose, args.quiet = getattr(args, "verbose", False), getattr(args, "quiet", False)
-    logging.basicConfig(level=logging.INFO if args.verbose and not args.quiet else logging.WARNING,
-                        format="evsda: %(name)s: %(message)s")
-    previous = signal.signal(signal.SIGTERM, _terminate) if threading.current_thread() is threading.main_thread() else None
+    _configure_logging(args)
+    previous = _catch_sigterm()
     try:
-        with limit_blas(), warnings.catch_warnings():      # see evsda.graph.threads
-            warnings.showwarning = _show_warning
-            status = int(args.func(args) or 0)
-        sys.stdout.flush()      # here, so that a closed pipe is caught below rather than at exit
-        return status
-    except UserError as exc:
-        for line in str(exc).splitlines():
-            print(f"evsda: error: {line}", file=sys.stderr)
-        _quiet_abandoned_writes()
-        return 2
-    except KeyboardInterrupt as exc:
-        name = getattr(exc, "signal_name", "SIGINT")
-        print(f"evsda: {exc if isinstance(exc, Interrupted) else 'interrupted'}", file=sys.stderr)
-        _quiet_abandoned_writes()
-        return 128 + getattr(signal, name, signal.SIGINT)
-    except BrokenPipeError:
-        # the reader went away (`evsda blocks | head`): end quietly, as command-line tools do
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return 128 + signal.SIGPIPE
-    except OSError as exc:
-        print(f"evsda: error: {describe_os_error(exc)}", file=sys.stderr)
-        _quiet_abandoned_writes()
-        return 2
+        return _run_command(args)
+    except (UserError, KeyboardInterrupt, OSError) as exc:     # BrokenPipeError is an OSError
+        return _failure_status(exc)
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
