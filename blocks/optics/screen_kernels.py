@@ -209,24 +209,27 @@ def prefilter_band(values, taps, low, high):
             for k in range(max(0, j - half), min(width, j + half + 1)):
                 need_low[k] = min(need_low[k], low[j])
                 need_high[k] = max(need_high[k], high[j])
-    first, last = height, 0
+    # each row's span of columns that need it (a superset of those columns; the rest is never read)
+    k0 = np.full(height, width, np.int64)
+    k1 = np.zeros(height, np.int64)
     for k in range(width):
-        if need_high[k] > need_low[k]:
-            first, last = min(first, need_low[k]), max(last, need_high[k])
-    first, last = max(first, 0), min(last, height)
-    # vertical pass over whole rows first..last-1 (a superset of every column's need; the rest is never read)
+        for i in range(max(0, need_low[k]), min(height, need_high[k])):
+            k0[i] = min(k0[i], k)
+            k1[i] = k + 1
     rows = np.empty((height, width))
-    for i in range(first, last):
+    for i in range(height):
+        if k1[i] <= k0[i]:
+            continue
         line = rows[i]
-        line[:] = 0.0
+        line[k0[i]:k1[i]] = 0.0
         for m in range(max(0, i - half), min(height, i + half + 1)):
             t = taps[m - i + half]
             source = values[m]
-            for k in range(width):
+            for k in range(k0[i], k1[i]):
                 line[k] += t * source[k]
     out = np.zeros((height, width))
-    for i in range(first, last):
-        for j in range(width):
+    for i in range(height):
+        for j in range(k0[i], k1[i]):
             if low[j] <= i < high[j]:
                 acc = 0.0
                 for k in range(max(0, j - half), min(width, j + half + 1)):
