@@ -83,6 +83,27 @@ def _as_classes(obj) -> Iterable[type[Block]]:
     return list(obj)
 
 
+def _why(exc: Exception) -> str:
+    """An import failure's message on one line (its type when it has none)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _register_entry_point(ep, obj) -> None:
+    """Register what one loaded entry point names: classes, or a mapping of type names to "module:Class"."""
+    dist = getattr(ep, "dist", None)
+    origin = f"entry point '{ep.name}'" + (f" of {dist.name}" if dist is not None else "")
+    lazy = isinstance(obj, Mapping) and obj and all(isinstance(v, str) for v in obj.values())
+    for item in (obj.items() if lazy else _as_classes(obj)):
+        try:
+            if lazy:
+                _declare(*item, origin)
+            else:
+                register(item, origin)
+        except (UserError, TypeError) as exc:   # kept, not raised, like an import failure
+            _broken[f"{ep.name}:{item[0] if lazy else getattr(item, '__name__', item)}"] = (
+                f"block plugin '{ep.name}' ({ep.value}): {exc}")
+
+
 def _scan() -> None:
     """Read the ``evsda.blocks`` entry points (once): import plugins that name classes, note the lazy ones."""
     global _scanned
@@ -94,21 +115,9 @@ def _scan() -> None:
         try:
             obj = ep.load()
         except Exception as exc:  # kept, not raised: a broken plugin must not hide the others
-            why = " ".join(str(exc).split()) or type(exc).__name__
-            _broken[ep.name] = f"block plugin '{ep.name}' ({ep.value}) failed to import: {why}"
+            _broken[ep.name] = f"block plugin '{ep.name}' ({ep.value}) failed to import: {_why(exc)}"
             continue
-        dist = getattr(ep, "dist", None)
-        origin = f"entry point '{ep.name}'" + (f" of {dist.name}" if dist is not None else "")
-        lazy = isinstance(obj, Mapping) and obj and all(isinstance(v, str) for v in obj.values())
-        for item in (obj.items() if lazy else _as_classes(obj)):
-            try:
-                if lazy:
-                    _declare(*item, origin)
-                else:
-                    register(item, origin)
-            except (UserError, TypeError) as exc:   # kept, not raised, like an import failure
-                _broken[f"{ep.name}:{item[0] if lazy else getattr(item, '__name__', item)}"] = (
-                    f"block plugin '{ep.name}' ({ep.value}): {exc}")
+        _register_entry_point(ep, obj)
 
 
 def _resolve(name: str) -> type[Block] | None:
@@ -118,9 +127,8 @@ def _resolve(name: str) -> type[Block] | None:
     try:
         block_class = getattr(import_module(module), attr)
     except Exception as exc:  # kept, not raised, as for a plugin that fails to import
-        why = " ".join(str(exc).split()) or type(exc).__name__
         _lazy.pop(name)
-        _broken[name] = f"block '{name}' ({spec}, {_origin[name]}) failed to import: {why}"
+        _broken[name] = f"block '{name}' ({spec}, {_origin[name]}) failed to import: {_why(exc)}"
         return None
     if not (isinstance(block_class, type) and issubclass(block_class, Block)) or block_class.type_name != name:
         _lazy.pop(name)
