@@ -274,6 +274,32 @@ def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides
     return [SweepPoint(i, v, out_dir / f"point_{i:0{width}d}.zarr") for i, v in enumerate(values)]
 
 
+def _keys_reaching(graph: Graph, keys: list[str]) -> dict[str, list[str]]:
+    """For each block, the swept keys its outputs depend on: its own, its ancestors', and every ``run.`` key."""
+    reached: dict[str, list[str]] = {}
+    for key in keys:
+        if key.startswith("run."):
+            touched = set(graph.nodes)
+        else:
+            block = key.partition(".")[0]
+            touched = {block} | nx.descendants(graph.digraph, block) if block in graph.nodes else set(graph.nodes)
+        for name in touched:
+            reached.setdefault(name, []).append(key)
+    return reached
+
+
+def _best_provider(point: SweepPoint, candidates: set[int], points: list[SweepPoint], shareable: list[str],
+                   reached: dict[str, list[str]]) -> tuple[int | None, set[str]]:
+    """The earliest candidate sharing the swept values of the most shareable blocks, and those blocks."""
+    best, best_shared = None, set()
+    for q in sorted(candidates):
+        other = points[q].values
+        shared = {b for b in shareable if all(_key(other[k]) == _key(point.values[k]) for k in reached.get(b, []))}
+        if len(shared) > len(best_shared):
+            best, best_shared = q, shared
+    return best, best_shared
+
+
 def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] = (),
                graph: Graph | None = None) -> tuple[dict[int, int], dict[int, list[str]]]:
     """Which earlier point each point reuses upstream outputs from, and which blocks each provider must store.
@@ -286,37 +312,33 @@ def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] =
     graph = graph or load_graph(graph_path, list(overrides))
     requested = {block for block, _ in requested_outputs(graph)}
     active = set(requested).union(*(nx.ancestors(graph.digraph, b) for b in requested))
-    keys = list(points[0].values) if points else []
-    reached: dict[str, list[str]] = {}
-    for key in keys:
-        if key.startswith("run."):
-            touched = set(graph.nodes)
-        else:
-            block = key.partition(".")[0]
-            touched = {block} | nx.descendants(graph.digraph, block) if block in graph.nodes else set(graph.nodes)
-        for name in touched:
-            reached.setdefault(name, []).append(key)
+    reached = _keys_reaching(graph, list(points[0].values) if points else [])
     shareable = [b for b in nx.topological_sort(graph.digraph) if b in active and b not in requested]
-    first: dict[str, dict[str, int]] = {b: {} for b in shareable}
+    providers, stores = _assign_providers(graph, points, shareable, active, reached)
+    return providers, {q: sorted(blocks) for q, blocks in stores.items()}
+
+
+def _shared_edge(graph: Graph, active: set[str], shared: set[str]) -> set[str]:
+    """The shared blocks feeding an active block that is not shared: what a provider must store."""
+    return {b for b in shared if any(c in active and c not in shared for c in graph.digraph.successors(b))}
+
+
+def _assign_providers(graph: Graph, points: list[SweepPoint], shareable: list[str], active: set[str],
+                      reached: dict[str, list[str]]) -> tuple[dict[int, int], dict[int, set[str]]]:
+    """:func:`reuse_plan`'s providers (point -> earlier point) and the blocks each provider stores."""
+    first: dict[str, dict[str, int]] = {b: {} for b in shareable}    # block -> its values' key -> first point
     providers: dict[int, int] = {}
     stores: dict[int, set[str]] = {}
     for point in points:
         signature = {b: _key([point.values[k] for k in reached.get(b, [])]) for b in shareable}
         candidates = {first[b][signature[b]] for b in shareable if signature[b] in first[b]}
-        best, best_shared = None, set()
-        for q in sorted(candidates):
-            other = points[q].values
-            shared = {b for b in shareable if all(_key(other[k]) == _key(point.values[k]) for k in reached.get(b, []))}
-            if len(shared) > len(best_shared):
-                best, best_shared = q, shared
+        best, best_shared = _best_provider(point, candidates, points, shareable, reached)
         for b in shareable:
             first[b].setdefault(signature[b], point.index)
-        if best is None:
-            continue
-        providers[point.index] = best
-        edge = {b for b in best_shared if any(c in active and c not in best_shared for c in graph.digraph.successors(b))}
-        stores.setdefault(best, set()).update(edge)
-    return providers, {q: sorted(blocks) for q, blocks in stores.items()}
+        if best is not None:
+            providers[point.index] = best
+            stores.setdefault(best, set()).update(_shared_edge(graph, active, best_shared))
+    return providers, stores
 
 
 # -- one point -----------------------------------------------------------------------------------------
@@ -537,6 +559,132 @@ def default_jobs() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _sweep_folder(out_dir: str | Path) -> Path:
+    """``out_dir`` as a local folder: URLs are refused (stores take file locks and rename files atomically)."""
+    if "://" in str(out_dir):
+        raise UserError(f"{clip(str(out_dir))}: a sweep writes run stores to a folder every worker mounts (a local "
+                        f"disk, or a shared file system such as NFS or Lustre); URLs such as s3:// are not "
+                        f"supported (stores take file locks and rename files atomically)")
+    return Path(out_dir)
+
+
+def _make_sweep_folder(out_dir: Path) -> None:
+    """Create ``out_dir``, refusing a folder inside a run store (or the store itself)."""
+    for folder in (out_dir.absolute(), *out_dir.absolute().parents):
+        if is_run_store(folder):
+            raise UserError(f"{out_dir}: cannot write a sweep inside the run store {folder}; choose another folder")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create the sweep folder {out_dir}: {exc.strerror or exc}") from None
+
+
+def _provider_chain(index: int, providers: dict[int, int], sweep_points: list[SweepPoint]) -> list[str]:
+    """The stores point ``index`` may reuse from: its provider's, that one's provider's, ... nearest first."""
+    chain, q = [], providers.get(index)
+    while q is not None:
+        chain.append(str(sweep_points[q].store))
+        q = providers.get(q)
+    return chain
+
+
+@dataclass
+class _TaskSettings:
+    """What every point's :class:`PointTask` shares."""
+
+    graph_path: str
+    overrides: dict[str, Any]
+    store_products: Any             # the graph's run.store_products: True, or a list of blocks, or None
+    overwrite: bool
+    threads: int | None
+    limits: Limits
+    absolute: bool                  # remote workers need paths that do not depend on this process's folder
+
+
+def _point_task(point: SweepPoint, chain: list[str], needed: list[str] | None, settings: _TaskSettings) -> PointTask:
+    if settings.absolute:
+        point = SweepPoint(point.index, point.values, point.store.absolute())
+        chain = [str(Path(c).absolute()) for c in chain]
+    choice = settings.store_products
+    store_products = None if not needed or choice is True else sorted(set(needed) | set(choice or []))
+    return PointTask(settings.graph_path, settings.overrides, point, chain, store_products, settings.overwrite,
+                     settings.threads, settings.limits)
+
+
+def _workers(jobs: int | None, scheduler: str | None) -> int:
+    """Worker processes: 1 runs the points in this process; default one per core."""
+    return 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
+
+
+def _where(scheduler: str | None, workers: int) -> str:
+    if scheduler:
+        return f"the Dask scheduler at {scheduler}"
+    return "this process" if workers == 1 else f"a local Dask cluster of {workers} workers"
+
+
+class _Finished:
+    """Called as each point finishes: records its row (with the times of an earlier run for a point done
+    then), reports it, and counts the failures."""
+
+    def __init__(self, sweep_points: list[SweepPoint], earlier: dict, table: ResultsTable,
+                 report: Callable[[str], None]):
+        self.sweep_points, self.earlier, self.table, self.report = sweep_points, earlier, table, report
+        self.failed = 0
+
+    def __call__(self, index: int, outcome: dict) -> None:
+        point = self.sweep_points[index]
+        if outcome["status"] == "done" and index in self.earlier:    # the time it took when it ran
+            outcome["wall_s"], outcome["cpu_s"], outcome["run_s"] = self.earlier[index]
+        self.failed += outcome["status"] == "failed"
+        self.table.add(_row(point, outcome))
+        self.report(_describe(point, outcome))
+
+
+def _run_in_process(tasks: dict[int, PointTask], providers: dict[int, int], sweep_points: list[SweepPoint],
+                    finished: _Finished) -> None:
+    outcomes: dict[int, dict] = {}
+    for point in sweep_points:
+        q = providers.get(point.index)
+        outcomes[point.index] = run_point(tasks[point.index], outcomes.get(q))
+        finished(point.index, outcomes[point.index])
+
+
+def _run_points(tasks, providers, sweep_points, workers: int, scheduler: str | None, finished: _Finished) -> None:
+    """Run the tasks here or on Dask; an interrupt keeps what finished and says how to resume."""
+    table = finished.table
+    try:
+        if scheduler is None and workers == 1:
+            _run_in_process(tasks, providers, sweep_points, finished)
+        else:
+            _run_on_dask(tasks, providers, workers, scheduler, finished)
+    except KeyboardInterrupt as exc:
+        raise Interrupted(getattr(exc, "signal_name", "SIGINT"),
+                          f"sweep interrupted after {len(table.rows)} of {len(sweep_points)} points; finished "
+                          f"points are kept and unfinished ones resume: re-run the same command") from None
+    finally:
+        if table.rows:
+            table.write_parquet()
+
+
+def _plan_sweep(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides: list[str],
+                limits: Limits) -> tuple[Graph, list[SweepPoint], dict[int, int], dict[int, list[str]]]:
+    """The base graph, the points (checked), and :func:`reuse_plan`'s providers and stored blocks."""
+    t0 = time.perf_counter()
+    with limit_blas():
+        base_graph = load_graph(graph_path, list(overrides), limits=limits)
+        sweep_points = plan(graph_path, values, out_dir, overrides, base_graph)
+        providers, stored = reuse_plan(graph_path, sweep_points, overrides, base_graph)
+    log.info("planned %d points in %.2f s", len(sweep_points), time.perf_counter() - t0)
+    return base_graph, sweep_points, providers, stored
+
+
+def _last_line(failed: int, n_points: int, table: ResultsTable) -> str:
+    if failed:
+        return (f"sweep: {failed} of {n_points} points failed (see the error column of {table.csv}); "
+                f"re-run the same command to retry them")
+    return f"sweep: all {n_points} points done; results in {table.csv} and {table.parquet}"
+
+
 def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overrides: list[str] = (),
               jobs: int | None = None, scheduler: str | None = None, overwrite: bool = False,
               method: str = "grid", points: int | None = None, seed: int = 0,
@@ -549,87 +697,30 @@ def run_sweep(graph_path: str, grid: dict[str, Axis], out_dir: str | Path, overr
     limits each point's graph is checked against; ``max_points``: the most points the sweep may have.
     """
     limits = limits or Limits()
-    if "://" in str(out_dir):
-        raise UserError(f"{clip(str(out_dir))}: a sweep writes run stores to a folder every worker mounts (a local "
-                        f"disk, or a shared file system such as NFS or Lustre); URLs such as s3:// are not "
-                        f"supported (stores take file locks and rename files atomically)")
-    out_dir = Path(out_dir)
+    out_dir = _sweep_folder(out_dir)
     if jobs is not None and jobs < 1:
         raise UserError(f"--jobs must be at least 1, got {jobs}")
     graph_path = str(graph_path)
     values = sample(grid, method, points, seed, max_points)
-    t0 = time.perf_counter()
-    with limit_blas():
-        base_graph = load_graph(graph_path, list(overrides), limits=limits)
-        sweep_points = plan(graph_path, values, out_dir, overrides, base_graph)
-        providers, stored = reuse_plan(graph_path, sweep_points, overrides, base_graph)
-    log.info("planned %d points in %.2f s", len(sweep_points), time.perf_counter() - t0)
-    for folder in (out_dir.absolute(), *out_dir.absolute().parents):
-        if is_run_store(folder):
-            raise UserError(f"{out_dir}: cannot write a sweep inside the run store {folder}; choose another folder")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise UserError(f"cannot create the sweep folder {out_dir}: {exc.strerror or exc}") from None
+    base_graph, sweep_points, providers, stored = _plan_sweep(graph_path, values, out_dir, overrides, limits)
+    _make_sweep_folder(out_dir)
     with _sweep_lock(out_dir):     # one sweep per folder: its plan file and results table are shared
         _check_plan_file(out_dir, {"graph": graph_path, "overrides": list(overrides), "sampling": method,
                                    "seed": seed if method != "grid" else None,
                                    "points": [p.values for p in sweep_points]}, overwrite)
-        workers = 1 if scheduler is None and jobs == 1 else (jobs or default_jobs())
-        threads = None if scheduler else max(1, default_jobs() // workers)
-        base = _overrides_dict(list(overrides))
-        choice = base_graph.run.store_products
-        tasks = {}
-        for point in sweep_points:
-            chain, q = [], providers.get(point.index)
-            while q is not None:
-                chain.append(str(sweep_points[q].store))
-                q = providers.get(q)
-            if scheduler:       # remote workers need paths that do not depend on this process's folder
-                point = SweepPoint(point.index, point.values, point.store.absolute())
-                chain = [str(Path(c).absolute()) for c in chain]
-            needed = stored.get(point.index)
-            store_products = None if not needed or choice is True else sorted(set(needed) | set(choice or []))
-            tasks[point.index] = PointTask(graph_path, base, point, chain, store_products, overwrite, threads, limits)
-        where = f"the Dask scheduler at {scheduler}" if scheduler else (
-            "this process" if workers == 1 else f"a local Dask cluster of {workers} workers")
-        report(f"sweep: {len(sweep_points)} points into {out_dir}, on {where}")
+        workers = _workers(jobs, scheduler)
+        settings = _TaskSettings(graph_path, _overrides_dict(list(overrides)), base_graph.run.store_products,
+                                 overwrite, None if scheduler else max(1, default_jobs() // workers), limits,
+                                 absolute=bool(scheduler))
+        tasks = {p.index: _point_task(p, _provider_chain(p.index, providers, sweep_points), stored.get(p.index),
+                                      settings) for p in sweep_points}
+        report(f"sweep: {len(sweep_points)} points into {out_dir}, on {_where(scheduler, workers)}")
         earlier = _earlier_times(out_dir / RESULTS_CSV)
         table = ResultsTable(out_dir, list(grid))
-        failed = 0
-
-        def finished(index: int, outcome: dict) -> None:
-            nonlocal failed
-            point = sweep_points[index]
-            if outcome["status"] == "done" and index in earlier:    # the time it took when it ran
-                outcome["wall_s"], outcome["cpu_s"], outcome["run_s"] = earlier[index]
-            failed += outcome["status"] == "failed"
-            table.add(_row(point, outcome))
-            report(_describe(point, outcome))
-
-        try:
-            if scheduler is None and workers == 1:
-                outcomes: dict[int, dict] = {}
-                for point in sweep_points:
-                    q = providers.get(point.index)
-                    outcomes[point.index] = run_point(tasks[point.index], outcomes.get(q))
-                    finished(point.index, outcomes[point.index])
-            else:
-                _run_on_dask(tasks, providers, workers, scheduler, finished)
-        except KeyboardInterrupt as exc:
-            raise Interrupted(getattr(exc, "signal_name", "SIGINT"),
-                              f"sweep interrupted after {len(table.rows)} of {len(sweep_points)} points; finished "
-                              f"points are kept and unfinished ones resume: re-run the same command") from None
-        finally:
-            if table.rows:
-                table.write_parquet()
-        rows = sorted(table.rows, key=lambda r: r["point"])
-        if failed:
-            report(f"sweep: {failed} of {len(sweep_points)} points failed (see the error column of {table.csv}); "
-                   f"re-run the same command to retry them")
-        else:
-            report(f"sweep: all {len(sweep_points)} points done; results in {table.csv} and {table.parquet}")
-        return SweepResult(rows, failed, table.csv, table.parquet)
+        finished = _Finished(sweep_points, earlier, table, report)
+        _run_points(tasks, providers, sweep_points, workers, scheduler, finished)
+        report(_last_line(finished.failed, len(sweep_points), table))
+        return SweepResult(sorted(table.rows, key=lambda r: r["point"]), finished.failed, table.csv, table.parquet)
 
 
 def _quiet_resource_tracker() -> None:
