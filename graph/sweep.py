@@ -108,6 +108,23 @@ class SweepResult:
 
 
 # -- the grid ------------------------------------------------------------------------------------------
+def _range_axis(where: str, key: str, value: dict, problems: list[Problem]) -> Range | None:
+    """``{min:, max:, log:, integer:}`` as a :class:`Range`, or None with its problem added."""
+    unknown = set(value) - {"min", "max", "log", "integer"}
+    low, high = value.get("min"), value.get("max")
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in (low, high))
+    if unknown or not numbers or not low <= high:
+        problems.append(Problem(where, f"'{key}'", "expected a range {min: LOW, max: HIGH} with finite "
+                                                   "LOW <= HIGH (and optional log: true, integer: true)"
+                                + (f"; unknown keys {sorted(unknown)}" if unknown else "")))
+        return None
+    log_scale, integer = bool(value.get("log", False)), bool(value.get("integer", False))
+    if log_scale and low <= 0:
+        problems.append(Problem(where, f"'{key}'", f"a log range needs min > 0, got {clip(repr(low))}"))
+        return None
+    return Range(float(low), float(high), log_scale, integer)
+
+
 def _axis(where: str, key: str, value: Any, problems: list[Problem]) -> Axis | None:
     if isinstance(value, list):
         if not value:
@@ -115,37 +132,36 @@ def _axis(where: str, key: str, value: Any, problems: list[Problem]) -> Axis | N
             return None
         return value
     if isinstance(value, dict):
-        unknown = set(value) - {"min", "max", "log", "integer"}
-        low, high = value.get("min"), value.get("max")
-        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in (low, high))
-        if unknown or not numbers or not low <= high:
-            problems.append(Problem(where, f"'{key}'", "expected a range {min: LOW, max: HIGH} with finite "
-                                                       "LOW <= HIGH (and optional log: true, integer: true)"
-                                    + (f"; unknown keys {sorted(unknown)}" if unknown else "")))
-            return None
-        log_scale, integer = bool(value.get("log", False)), bool(value.get("integer", False))
-        if log_scale and low <= 0:
-            problems.append(Problem(where, f"'{key}'", f"a log range needs min > 0, got {clip(repr(low))}"))
-            return None
-        return Range(float(low), float(high), log_scale, integer)
+        return _range_axis(where, key, value, problems)
     problems.append(Problem(where, f"'{key}'", "expected a non-empty list of values or a range {min:, max:}"))
     return None
 
 
-def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, Axis]:
-    """The swept parameters from a YAML file and/or ``--vary block.param=[v1, v2]`` (or ``={min: a, max: b}``)
-    strings: each a list of values or a :class:`Range`."""
-    raw: list[tuple[str, str, Any]] = []
-    if path is not None:
-        data = read_yaml(Path(path), what="sweep grid")
-        if not isinstance(data, dict) or not data:
-            raise GraphError([Problem(str(path), "", "expected a mapping of block.param to a list of values or a range")])
-        raw.extend((str(path), str(k), v) for k, v in data.items())
+def _grid_file_entries(path: str | Path | None) -> list[tuple[str, str, Any]]:
+    """(where, key, value) of each parameter in the grid file (none without one)."""
+    if path is None:
+        return []
+    data = read_yaml(Path(path), what="sweep grid")
+    if not isinstance(data, dict) or not data:
+        raise GraphError([Problem(str(path), "", "expected a mapping of block.param to a list of values or a range")])
+    return [(str(path), str(k), v) for k, v in data.items()]
+
+
+def _vary_entries(vary: list[str]) -> list[tuple[str, str, Any]]:
+    """(where, key, value) of each ``--vary block.param=VALUES``."""
+    raw = []
     for text in vary:
         key, sep, value = text.partition("=")
         if not sep:
             raise UserError(f"--vary '{clip(text)}': expected block.param=[v1, v2, ...] or block.param={{min: a, max: b}}")
         raw.append(("--vary", key.strip(), parse_value(value.strip())))
+    return raw
+
+
+def read_grid(path: str | Path | None, vary: list[str] = ()) -> dict[str, Axis]:
+    """The swept parameters from a YAML file and/or ``--vary block.param=[v1, v2]`` (or ``={min: a, max: b}``)
+    strings: each a list of values or a :class:`Range`."""
+    raw = _grid_file_entries(path) + _vary_entries(vary)
     problems: list[Problem] = []
     grid: dict[str, Axis] = {}
     given: dict[str, str] = {}
@@ -194,22 +210,20 @@ def _check_size(n_points: int, max_points: int, how: str) -> None:
                         f"--limit points={n_points:.4g}")
 
 
-def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = None, seed: int = 0,
-           max_points: int = MAX_POINTS) -> list[dict[str, Any]]:
-    """The points' values: the Cartesian product of the lists (``grid``), or ``points`` draws from every
-    list and range, independent (``random``) or stratified so that each axis is cut into ``points``
-    equal slices each sampled once (``lhs``, McKay, Beckman & Conover 1979), with ``seed``. More than
-    ``max_points`` points are refused before any is built."""
+def _grid_points(grid: dict[str, Axis], points: int | None, max_points: int) -> list[dict[str, Any]]:
+    """Every combination of the lists (ranges refused: they have no finite set of values)."""
     keys = list(grid)
-    if method == "grid":
-        ranges = [k for k in keys if isinstance(grid[k], Range)]
-        if ranges:
-            raise UserError(f"{ranges[0]} is a range: ranges need --sample random or lhs with --points N")
-        if points is not None:
-            raise UserError("--points goes with --sample random or lhs; a grid runs every combination")
-        _check_size(math.prod(len(grid[k]) for k in keys), max_points,
-                    " x ".join(str(len(grid[k])) for k in keys) + " values")
-        return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
+    ranges = [k for k in keys if isinstance(grid[k], Range)]
+    if ranges:
+        raise UserError(f"{ranges[0]} is a range: ranges need --sample random or lhs with --points N")
+    if points is not None:
+        raise UserError("--points goes with --sample random or lhs; a grid runs every combination")
+    _check_size(math.prod(len(grid[k]) for k in keys), max_points,
+                " x ".join(str(len(grid[k])) for k in keys) + " values")
+    return [dict(zip(keys, combo)) for combo in itertools.product(*(grid[k] for k in keys))]
+
+
+def _check_draws(method: str, points: int | None, seed: int, max_points: int) -> None:
     if method not in SAMPLING:
         raise UserError(f"--sample must be one of {', '.join(SAMPLING)}, got {clip(method)!r}")
     if points is None or points < 1:
@@ -217,20 +231,29 @@ def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = Non
     _check_size(points, max_points, f"--points {points}")
     if seed < 0:
         raise UserError(f"--seed must be >= 0, got {seed}")
+
+
+def _value_at(axis: Axis, fraction: float) -> Any:
+    """The value of ``axis`` at ``fraction`` in [0, 1): a point of a range, or the list item of that slice."""
+    return axis.at(fraction) if isinstance(axis, Range) else axis[min(int(fraction * len(axis)), len(axis) - 1)]
+
+
+def sample(grid: dict[str, Axis], method: str = "grid", points: int | None = None, seed: int = 0,
+           max_points: int = MAX_POINTS) -> list[dict[str, Any]]:
+    """The points' values: the Cartesian product of the lists (``grid``), or ``points`` draws from every
+    list and range, independent (``random``) or stratified so that each axis is cut into ``points``
+    equal slices each sampled once (``lhs``, McKay, Beckman & Conover 1979), with ``seed``. More than
+    ``max_points`` points are refused before any is built."""
+    if method == "grid":
+        return _grid_points(grid, points, max_points)
+    _check_draws(method, points, seed, max_points)
+    keys = list(grid)
     if method == "random":
         u = np.random.default_rng(seed).random((points, len(keys)))
     else:
         from scipy.stats import qmc
         u = qmc.LatinHypercube(d=len(keys), rng=np.random.default_rng(seed)).random(points)
-    out = []
-    for row in u:
-        values = {}
-        for key, fraction in zip(keys, row):
-            axis = grid[key]
-            values[key] = axis.at(float(fraction)) if isinstance(axis, Range) else \
-                axis[min(int(fraction * len(axis)), len(axis) - 1)]
-        out.append(values)
-    return out
+    return [{key: _value_at(grid[key], float(fraction)) for key, fraction in zip(keys, row)} for row in u]
 
 
 def _overrides_dict(overrides: list[str]) -> dict[str, Any]:
@@ -247,11 +270,9 @@ def _key(value: Any) -> str:
     return json.dumps(value, sort_keys=True, default=str)
 
 
-def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides: list[str] = (),
-         base: Graph | None = None) -> list[SweepPoint]:
-    """The points, each distinct value checked once against its block (every problem reported together);
-    ``base`` is the graph with ``overrides`` if already loaded."""
-    base = base or load_graph(graph_path, list(overrides))
+def _value_problems(base: Graph, graph_path: str, values: list[dict[str, Any]]) -> list[Problem]:
+    """Each distinct value checked once against its block: the first refused value's problems of each
+    parameter, then how many more of its values were refused."""
     problems: list[Problem] = []
     refused: dict[str, int] = {}        # values of each parameter refused (the first one's problems are listed)
     checked: set[tuple[str, str]] = set()
@@ -268,6 +289,15 @@ def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides
                     problems.extend(p for p in found if p not in problems)
     problems.extend(Problem(graph_path, f"'{key}'", f"{n - 1} more of its values refused")
                     for key, n in refused.items() if n > 1)
+    return problems
+
+
+def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides: list[str] = (),
+         base: Graph | None = None) -> list[SweepPoint]:
+    """The points, each distinct value checked once against its block (every problem reported together);
+    ``base`` is the graph with ``overrides`` if already loaded."""
+    base = base or load_graph(graph_path, list(overrides))
+    problems = _value_problems(base, graph_path, values)
     if problems:
         raise GraphError(problems)
     width = max(3, len(str(len(values) - 1)))
@@ -365,6 +395,22 @@ def _one_line(exc: BaseException) -> str:
     return clip(text if isinstance(exc, UserError) else f"{type(exc).__name__}: {text}", 300)
 
 
+def _point_graph(task: PointTask) -> Graph:
+    """The graph of one point: the sweep's overrides, the point's values, and which products to store."""
+    overrides = {**task.overrides, **task.point.values}
+    if task.store_products is not None:
+        overrides["run.store_products"] = task.store_products
+    return load_graph(task.graph_path, overrides, limits=task.limits)
+
+
+def _done_store(path: Path, graph: Graph) -> RunStore | None:
+    """The run store at ``path`` if it is complete and made by this very graph (the point is done), else None."""
+    if not is_run_store(path):
+        return None
+    store = RunStore.open(path)
+    return store if store.complete and store.attrs.get("graph_hash") == graph.digest() else None
+
+
 def run_point(task: PointTask, provider: dict | None = None) -> dict:
     """Run (or skip, or resume) one point; never raises for the point's own failure: the outcome says it.
 
@@ -377,18 +423,14 @@ def run_point(task: PointTask, provider: dict | None = None) -> dict:
     outcome: dict[str, Any] = {"point": point.index, "status": "ok", "metrics": {}, "units": {}, "reused": {},
                                "error": ""}
     try:
-        overrides = {**task.overrides, **point.values}
-        if task.store_products is not None:
-            overrides["run.store_products"] = task.store_products
-        graph = load_graph(task.graph_path, overrides, limits=task.limits)
+        graph = _point_graph(task)
         reuse = [p for p in task.reuse if is_run_store(p)]
         if point.store.exists() and not task.overwrite:
-            if is_run_store(point.store):
-                store = RunStore.open(point.store)
-                if store.complete and store.attrs.get("graph_hash") == graph.digest():
-                    outcome.update(status="done", metrics=store.metrics, units=store.metric_units,
-                                   reused=dict(store.attrs.get("reused", {})))
-                    return outcome
+            store = _done_store(point.store, graph)
+            if store is not None:
+                outcome.update(status="done", metrics=store.metrics, units=store.metric_units,
+                               reused=dict(store.attrs.get("reused", {})))
+                return outcome
             run0 = time.perf_counter()
             result = run_graph(graph, point.store, resume=True, reuse=reuse, progress=False)
         else:
