@@ -17,6 +17,7 @@ import os
 from pathlib import Path
 
 from mkdocs.config.defaults import MkDocsConfig
+from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File, Files, InclusionLevel
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,6 +37,7 @@ API_PAGES = {
 }
 
 
+@event_priority(100)  # before mkdocstrings reads its search paths (it drops one that does not exist yet)
 def on_config(config: MkDocsConfig) -> MkDocsConfig:
     API_SOURCE.mkdir(parents=True, exist_ok=True)
     for name, source in PACKAGES.items():
