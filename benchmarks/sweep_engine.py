@@ -13,8 +13,8 @@ Prints
   whole sweep's idle share (workers x wall time not spent in points: cluster start, the provider point
   that the others wait for, scheduling).
 
-Targets (issue 14). ``--points 200`` is the issue's size; the figures in the README come from the
-command below (a smaller sweep on the shared 2-core machine).
+Targets (issue 14). ``--points 200`` is the issue's size; the figures in docs/sweeps.md and
+docs/speed.md come from the command below (a smaller sweep on the shared 2-core machine).
 
     python benchmarks/sweep_engine.py --points 200 --workers 2
 """

@@ -1,4 +1,4 @@
-"""The README quick-start pass: the ISS crossing a staring 0.5 m telescope's field over Graz.
+"""The scene quick-start pass (docs/scene.md): the ISS crossing a staring 0.5 m telescope's field over Graz.
 
 Builds the scene blocks from Python (no graph file), finds the pass with the pass
 finder, and prints a few samples of the satellite's PointSources.

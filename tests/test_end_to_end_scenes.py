@@ -385,8 +385,8 @@ def test_space_track_events_follow_the_target(space_run):
 
 FIELD = EXAMPLES / "starlink_field.yaml"
 # The attribution check needs the Starlinks' events: with the IMX636's measured dark current at 300 K (5.5 fA,
-# x4 on this run's doubled pitch) V 7.3-8.2 objects behind the 36 mm aperture stay below one threshold (README,
-# Pixel: the Gen4 static-star limit), so the small run cools the die to 253 K (dark current / 56, Eq. 15).
+# x4 on this run's doubled pitch) V 7.3-8.2 objects behind the 36 mm aperture stay below one threshold (docs/validation.md,
+# the Gen4 static-star limit), so the small run cools the die to 253 K (dark current / 56, Eq. 15).
 FIELD_SMALL = {"run.duration_s": 2.0, "run.store_products": ["starlinks", "stars"], "stars.faint_limit_mag": 7.0,
                **half_size_sensor(1280, 720, 4.86e-6), **FAST_PHOTORECEPTOR, "sensor/pixel.temperature_K": 253.0,
                "per_object.latency_s": 3.0}     # a faint object's OFF trail can outlast 1 s

@@ -151,7 +151,7 @@ def test_faint_limit_script_agrees_with_the_simulated_pixel(scenes):
     spec.loader.exec_module(script)
     pixel = script.star_and_sky("prophesee_gen3_vga", 0.06, 0.1, 19.5, 0.5)
     limit = script.faintest_v(pixel)
-    assert 8.9 < limit < 9.4                        # V 9.14 with the on-sky fitted 2 460 e-/s (README)
+    assert 8.9 < limit < 9.4                        # V 9.14 with the on-sky fitted 2 460 e-/s (docs/validation.md)
     fp = FocalPlane(1, 1, pixel["pitch_m"], 0.1)
     qe = pixel["params"].quantum_efficiency
     for v_mag, want in ((limit - 0.3, 1), (limit + 0.3, 0)):

@@ -10,7 +10,7 @@ from evsda.blocks.ports.scene import GROUND, Observer, Pointing
 from evsda.blocks.scene.tle import parse_tles
 
 GRAZ = dict(latitude_deg=47.0671, longitude_deg=15.4934, altitude_m=493.0)
-PASS_START = datetime(2023, 3, 20, 19, 19, 57, tzinfo=timezone.utc)   # the README quick-start run
+PASS_START = datetime(2023, 3, 20, 19, 19, 57, tzinfo=timezone.utc)   # the scene quick-start run (docs/scene.md)
 
 
 def load_tle(name: str):
