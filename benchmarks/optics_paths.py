@@ -63,9 +63,9 @@ def ms(seconds: float) -> str:
 def reference_speed(sizes) -> None:
     """The paper's path on N x N grids: a LEO point source through HV5/7 layers (4 layers, D = 0.3 m)."""
     atmosphere = Atmosphere.hufnagel_valley(4).scaled_to_r0(0.1)
-    imager = Imager(Telescope(0.3), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(1,))
+    imager = Imager(Telescope(0.3), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(), seed=(1,))
     imager.ensure_geometry(ZENITH)
-    geometry, smallest, index = imager.reference_grid(ZENITH, RANGE)
+    geometry, smallest, index = imager.reference.grid(ZENITH, RANGE)
     layer_planes = [smallest.planes_m[i - 1] for i in index.values()]
     layer_r0 = atmosphere.layer_r0(WAVELENGTH, ZENITH)
     print(f"reference path (paper Eq. 3-4): D = 0.3 m, r0 = {geometry.r0_m * 100:.1f} cm at 550 nm, range "
@@ -127,7 +127,7 @@ def stamp_speed(frames: int) -> None:
     print(f"stamps as the block renders them (per frame, batches of {frames}):")
     for d, r0 in ((0.35, 0.05), (0.3, 0.1)):
         atmosphere = Atmosphere.hufnagel_valley(4).scaled_to_r0(r0)
-        imager = Imager(Telescope(d), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(1,))
+        imager = Imager(Telescope(d), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(), seed=(1,))
         g = imager.ensure_geometry(ZENITH)
         offsets = rng.uniform(-0.5, 0.5, (frames, 2))
         phase = np.stack([fft_phase_screens(rng, g.n_pupil, g.delta_m, imager.r0(ZENITH))[0] for _ in range(frames)])
@@ -148,17 +148,17 @@ def path_errors(frames: int) -> None:
     cases = (("vacuum", 0.3, None), ("HV5/7", 0.1, 0.05), ("HV r0 = 10 cm", 0.3, 0.1), ("HV5/7", 0.35, 0.05))
     for label, d, r0 in cases:
         atmosphere = None if r0 is None else Atmosphere.hufnagel_valley(4).scaled_to_r0(r0)
-        imager = Imager(Telescope(d), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(3,))
+        imager = Imager(Telescope(d), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(), seed=(3,))
         imager.ensure_geometry(ZENITH)
-        _, grid, _ = imager.reference_grid(ZENITH, RANGE)
+        _, grid, _ = imager.reference.grid(ZENITH, RANGE)
         rng = np.random.default_rng(2)
         errors = {"pupil_fft": [], "airy": [], "long_exposure": []}
         t0 = time.perf_counter()
         for k in range(frames):
             t, xy = 0.05 * k, FOCAL_PLANE.width_px / 2 + rng.uniform(-0.5, 0.5, 2)
             offset = xy[None] - np.round(xy[None])
-            field = imager.reference_field("s", t, *xy, ZENITH, RANGE)
-            phase = imager.reference_pupil_phase("s", t, *xy, ZENITH, RANGE)
+            field = imager.reference.field("s", t, *xy, ZENITH, RANGE)
+            phase = imager.reference.pupil_phase("s", t, *xy, ZENITH, RANGE)
             reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
             flux = reference.sum()
             stamps = {"pupil_fft": imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset),

@@ -145,11 +145,8 @@ class PointSourceOptics(Block):
                 self._atmosphere, self._atmosphere_ready = self.build_atmosphere(), True
             p = self.params
             seed = tuple(int(w) for w in self.rng.bit_generator.seed_seq.generate_state(2))
-            self._imager = Imager(
-                self.telescope, focal_plane, wavelength, self._atmosphere, tolerance=p.tolerance, path=p.psf_path,
-                focus=p.focus, screen_method=p.screen_method, screen_update=p.screen_update,
-                n_zernike_modes=p.n_zernike_modes, revisit_s=p.screen_revisit_s, pupil_samples=p.pupil_samples,
-                stamp_size_px=p.stamp_size_px, grid_size=p.grid_size, seed=seed, name=self.name)
+            self._imager = Imager(self.telescope, focal_plane, wavelength, self._atmosphere, p, seed=seed,
+                                  name=self.name)
             if self.optics_state:
                 self._imager.set_state(self.optics_state)
         return self._imager

@@ -2,9 +2,10 @@
 
 :class:`Imager` is the optics stage as a plain Python object (the ``optics`` block wraps
 it): give it the telescope, the focal plane, the band's wavelength and an atmosphere
-(or ``None`` above it), then ask for stamps of a source along its track::
+(or ``None`` above it) and the block's ``Params``, then ask for stamps of a source along its track::
 
-    imager = Imager(Telescope(0.35, 0.3), focal_plane, 550e-9, Atmosphere.hufnagel_valley())
+    imager = Imager(Telescope(0.35, 0.3), focal_plane, 550e-9, Atmosphere.hufnagel_valley(),
+                    PointSourceOptics.Params())
     origin, stamps, paths = imager.render("sat", t_s, x_px, y_px, zenith_rad, range_m)
 
 ``stamps[k]`` holds the fraction of the power incident on the collecting area that lands
@@ -26,27 +27,24 @@ import threading
 import zlib
 from collections import Counter
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.special import erf
 
 from evsda.blocks.ports import FocalPlane
 from evsda.graph import ParameterError
 
 from .atmosphere import Atmosphere
 from .fft_screens import fft_phase_screens
-from .layer_screen import LayerScreen
-from .screen_kernels import MARGIN
-from .modal_screen import ModalScreen, pupil_modes
 from .paths import LOG, PATHS, PROBE_FRAMES, PathChoice, pick, scintillation_error, total_variation
-from .propagation import plane_spacings, point_source_field, propagate
 from .psf import long_exposure_encircled_energy, long_exposure_profile
+from .pupil_path import PupilPath
+from .reference_path import FAR_RANGE_M, ReferencePath
 from .render import PupilRenderer, RadialRenderer, StampSampler, oversampling_for, stamp_placement
-from .sampling import PropagationGeometry, PropagationGrid, check_grid, choose_grid, planes_for
+from .screen_kernels import MARGIN
 
-#: a source farther than this is propagated from this range (its wavefront curvature over any
-#: aperture, Fresnel number D^2 / (lambda R) < 1e-3, is negligible) [m]
-FAR_RANGE_M = 1e9
+if TYPE_CHECKING:
+    from .block import PointSourceOptics
 #: zenith-angle bin of path decisions [rad] and range bin (ratio) [1]
 ZENITH_BIN_RAD = np.deg2rad(1.0)
 RANGE_BIN_RATIO = 1.05
@@ -73,27 +71,25 @@ class PupilGeometry:
 
 
 class Imager:
-    """Point-source imaging through turbulence with a choice of PSF paths (:mod:`.paths`)."""
+    """Point-source imaging through turbulence with a choice of PSF paths (:mod:`.paths`).
+
+    The coordinator: it sizes the sampling, chooses each frame's path, renders the analytic
+    paths and hands the others to :class:`.PupilPath` and :class:`.ReferencePath`, which
+    keep their own screens. ``params`` is the ``optics`` block's ``Params``.
+    """
 
     def __init__(self, telescope, focal_plane: FocalPlane, wavelength_m: float, atmosphere: Atmosphere | None,
-                 *, tolerance: float = 0.1, path: str = "auto", focus: str = "source",
-                 screen_method: str = "fft", screen_update: str = "extend", n_zernike_modes: int = 66,
-                 revisit_s: float | None = None, pupil_samples: int | None = None,
-                 stamp_size_px: int | None = None, grid_size: int | None = None, seed: tuple = (0,),
-                 name: str = "optics"):
+                 params: PointSourceOptics.Params, *, seed: tuple = (0,), name: str = "optics"):
         self.telescope, self.focal_plane, self.wavelength = telescope, focal_plane, float(wavelength_m)
         self.atmosphere = atmosphere if atmosphere is not None and atmosphere.layers else None
-        self.tolerance, self.forced_path, self.focus = float(tolerance), path, focus
-        self.screen_method, self.screen_update, self.n_zernike_modes = screen_method, screen_update, n_zernike_modes
-        self.revisit_s, self.pupil_samples, self.stamp_size_px = revisit_s, pupil_samples, stamp_size_px
-        self.grid_size, self.seed, self.name = grid_size, tuple(int(s) for s in seed), name
+        self.tolerance, self.forced_path, self.focus = float(params.tolerance), params.psf_path, params.focus
+        self.revisit_s, self.pupil_samples = params.screen_revisit_s, params.pupil_samples
+        self.stamp_size_px, self.seed, self.name = params.stamp_size_px, tuple(int(s) for s in seed), name
         self.pixel_scale = focal_plane.pixel_scale_rad
         self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
         self.geometry: PupilGeometry | None = None
-        self.screens: dict[str, list[LayerScreen]] = {}
-        self.modal_screens: dict[str, list[ModalScreen]] = {}
-        self._modes: np.ndarray | None = None
-        self.reference_screens: dict[str, list[LayerScreen]] = {}
+        self.pupil = PupilPath(self, params.screen_method, params.screen_update, params.n_zernike_modes)
+        self.reference = ReferencePath(self, params.grid_size)
         self._choices: dict[tuple, PathChoice] = {}
         self._pupil_errors: dict[tuple, float] = {}
         self._profiles: dict[tuple, RadialRenderer] = {}
@@ -123,7 +119,7 @@ class Imager:
         else:
             # enclose all but half the tolerance of the long-exposure (or Airy) PSF's power
             theta = np.arange(1, 1025) * p / 4
-            enclosed = long_exposure_encircled_energy(self.telescope, lam, r0, self._L0, theta)
+            enclosed = long_exposure_encircled_energy(self.telescope, lam, r0, self.outer_scale_m, theta)
             radius = theta[min(np.searchsorted(enclosed, 1 - tol / 2), theta.size - 1)]
             size = int(np.clip(2 * np.ceil(radius / p) + 1, 3, 129))
         # midpoint-rule error ~ 0.03 (sub-pixels per lambda/2D)^-2 (tests/optics), a quarter of the tolerance
@@ -163,7 +159,8 @@ class Imager:
         return self.geometry
 
     @property
-    def _L0(self) -> float:
+    def outer_scale_m(self) -> float:
+        """Von Karman outer scale L0 of the atmosphere [m] (inf without one)."""
         return self.atmosphere.L0 if self.atmosphere is not None else np.inf
 
     @property
@@ -246,7 +243,7 @@ class Imager:
 
         The larger of the scintillation term ``sigma_I / sqrt(2 pi)`` and the mean distance
         between the two paths over independent screens at the bin's conditions (each path fed
-        the same screens, :meth:`reference_pupil_phase`): ``REFERENCE_PROBE_FRAMES[0]`` of them,
+        the same screens, :meth:`.ReferencePath.pupil_phase`): ``REFERENCE_PROBE_FRAMES[0]`` of them,
         and more, up to ``REFERENCE_PROBE_FRAMES[1]``, while the tolerance lies within two
         standard errors of their mean. A scintillation term above the tolerance settles it alone.
         """
@@ -265,9 +262,9 @@ class Imager:
             least, most = REFERENCE_PROBE_FRAMES
             while scintillation <= self.tolerance and len(measured) < most:
                 probe = f"__probe {key} {len(measured)}"
-                field = self.reference_field(probe, 0.0, *self.boresight, zenith, distance, slack=1.0)
-                phase = self.reference_pupil_phase(probe, 0.0, *self.boresight, zenith, distance)
-                del self.reference_screens[probe]
+                field = self.reference.field(probe, 0.0, *self.boresight, zenith, distance, slack=1.0)
+                phase = self.reference.pupil_phase(probe, 0.0, *self.boresight, zenith, distance)
+                del self.reference.screens[probe]
                 reference = self.pupil_renderer.stamps_from_field(field[None], offset)
                 fast = self.pupil_renderer.stamps(self.pupil_amplitude, phase[None], offset)
                 measured.append(float(total_variation(fast, reference, reference.sum())[0]))
@@ -284,11 +281,11 @@ class Imager:
     def _probe_phase(self, rng, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
         g = self.geometry
         phase = np.zeros((frames, g.n_pupil, g.n_pupil))
-        phase += self._defocus(np.full(frames, range_m))
+        phase += self.defocus(np.full(frames, range_m))
         if self.turbulent(zenith_rad):
             r0 = self.r0(zenith_rad)
             for k in range(0, frames, 2):
-                pair = fft_phase_screens(rng, 2 * g.n_pupil, g.delta_m, r0, self._L0)
+                pair = fft_phase_screens(rng, 2 * g.n_pupil, g.delta_m, r0, self.outer_scale_m)
                 for j, screen in enumerate(pair[: min(2, frames - k)]):
                     phase[k + j] += screen[: g.n_pupil, : g.n_pupil]
         return phase
@@ -303,13 +300,13 @@ class Imager:
             s = self.sampler
             theta = np.linspace(0.0, (s.size / 2 + 2) * np.sqrt(2) * self.pixel_scale, 2048)
             if np.isfinite(r0):
-                profile = long_exposure_profile(self.telescope, self.wavelength, r0, self._L0, theta, 2048)
+                profile = long_exposure_profile(self.telescope, self.wavelength, r0, self.outer_scale_m, theta, 2048)
             else:
                 profile = self.telescope.airy(theta, self.wavelength)
             self._profiles[key] = RadialRenderer(s, theta, profile)
         return self._profiles[key]
 
-    def _defocus(self, range_m: np.ndarray) -> np.ndarray:
+    def defocus(self, range_m: np.ndarray) -> np.ndarray:
         """Pupil phase [rad] of a finite-range source for a telescope focused at infinity, ``pi r^2/(lambda R)``."""
         g = self.geometry
         x = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
@@ -331,8 +328,8 @@ class Imager:
                 path = self.choose(z, r, source).path
                 if path in ("airy", "long_exposure"):
                     self.radial_renderer(path, z)
-        if self.screen_method == "zernike" and self.atmosphere:
-            self.pupil_modes
+        if self.pupil.screen_method == "zernike" and self.atmosphere:
+            self.pupil.pupil_modes
 
     def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
                zenith_rad: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -356,46 +353,24 @@ class Imager:
                     sub = idx[[self.conditions_key(z, np.inf) == key for z in zenith_rad[idx]]]
                     stamps[sub] = self.radial_renderer(path, zenith_rad[sub[0]]).stamps(offset[sub])
             elif path == "pupil_fft":
-                stamps[idx] = self._render_pupil(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
-                                                 range_m[idx], offset[idx])
+                stamps[idx] = self.pupil.render(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
+                                                range_m[idx], offset[idx])
             else:
-                stamps[idx] = self._render_reference(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
-                                                     range_m[idx], offset[idx])
+                stamps[idx] = self.reference.render(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
+                                                    range_m[idx], offset[idx])
         return origin, stamps, paths
 
-    def _source_seed(self, source: str, family: int) -> tuple:
+    def source_seed(self, source: str, family: int) -> tuple:
+        """Seed of a source's screens: family 0 the pupil path's, 1 the reference path's."""
         return (*self.seed, zlib.crc32(source.encode()), family)
 
-    def _layer_screens(self, source: str) -> list[LayerScreen]:
-        if source not in self.screens:
-            g = self.geometry
-            self.screens[source] = [
-                LayerScreen(n, step, (*self._source_seed(source, 0), i), L0=self._L0, update=self.screen_update)
-                for i, (n, step) in enumerate(zip(g.layer_n, g.layer_delta_m))]
-        return self.screens[source]
-
-    def _modal_screens(self, source: str) -> list[ModalScreen]:
-        if source not in self.modal_screens:
-            self.modal_screens[source] = [
-                ModalScreen((*self._source_seed(source, 0), i), self.telescope.diameter_m, self.n_zernike_modes)
-                for i in range(len(self.atmosphere.layers))]
-        return self.modal_screens[source]
-
-    @property
-    def pupil_modes(self) -> np.ndarray:
-        """Zernike modes of modal screens on the pupil grid, flattened ``(n_modes, n_pupil^2)`` [1]."""
-        if self._modes is None:
-            g = self.geometry
-            modes = pupil_modes(self.n_zernike_modes, g.n_pupil, g.delta_m, self.telescope.diameter_m)
-            self._modes = modes.reshape(self.n_zernike_modes, -1)
-        return self._modes
-
-    def _epochs(self, t_s: np.ndarray) -> np.ndarray:
+    def epochs_of(self, t_s: np.ndarray) -> np.ndarray:
+        """Screen epoch of each time [1]: all screens are redrawn every ``screen_revisit_s``."""
         if not self.revisit_s:
             return np.zeros(t_s.shape, dtype=np.int64)
         return np.floor(t_s / self.revisit_s + 1e-9).astype(np.int64)
 
-    def _footprints(self, layer, t_s, x_px, y_px, zenith_rad, range_m):
+    def footprints(self, layer, t_s, x_px, y_px, zenith_rad, range_m):
         """Footprint centre on a layer (F, 2) (x, y) [m] and its scale (F,) [1]."""
         slant = layer.altitude_m / np.cos(zenith_rad)
         theta = (np.stack([x_px, y_px], axis=-1) - self.boresight) * self.pixel_scale
@@ -403,168 +378,13 @@ class Imager:
         scale = np.where(np.isfinite(range_m), 1.0 - slant / np.where(np.isfinite(range_m), range_m, 1.0), 1.0)
         return centre, scale
 
-    def turbulent_phase(self, source: str, t_s, x_px, y_px, zenith_rad, range_m) -> np.ndarray:
-        """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight."""
-        g = self.geometry
-        frames = len(t_s)
-        phase = np.zeros((frames, g.n_pupil, g.n_pupil))
-        if not self.atmosphere:
-            return phase
-        turbulent = np.isfinite(zenith_rad)
-        xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
-        k2 = (2 * np.pi / self.wavelength) ** 2
-        epochs = self._epochs(t_s)
-        if self.screen_method == "zernike":
-            return self._modal_phase(source, t_s, x_px, y_px, zenith_rad, range_m, epochs)
-        for layer, screen in zip(self.atmosphere.layers, self._layer_screens(source)):
-            if layer.cn2_dh <= 0:
-                continue
-            centre, scale = self._footprints(layer, t_s, x_px, y_px, np.where(turbulent, zenith_rad, 0.0), range_m)
-            rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
-            cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
-            # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
-            weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
-            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase)
-        return phase
-
-    def _modal_phase(self, source, t_s, x_px, y_px, zenith_rad, range_m, epochs) -> np.ndarray:
-        """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
-        g = self.geometry
-        turbulent = np.isfinite(zenith_rad)
-        zenith = np.where(turbulent, zenith_rad, 0.0)
-        k2 = (2 * np.pi / self.wavelength) ** 2
-        coefficients = np.zeros((len(t_s), self.n_zernike_modes))
-        for layer, screen in zip(self.atmosphere.layers, self._modal_screens(source)):
-            if layer.cn2_dh <= 0:
-                continue
-            centre, scale = self._footprints(layer, t_s, x_px, y_px, zenith, range_m)
-            # r0^(-5/6) of this layer times (footprint diameter s D)^(5/6): Noll's covariance for s D / r0
-            weight = np.sqrt(0.423 * k2 / np.cos(zenith) * layer.cn2_dh) * (scale * self.telescope.diameter_m) ** (5 / 6)
-            coefficients += np.where(turbulent, weight, 0.0)[:, None] * screen.coefficients(centre, epochs)
-        return (coefficients @ self.pupil_modes).reshape(len(t_s), g.n_pupil, g.n_pupil)
-
-    def _render_pupil(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
-        phase = self.turbulent_phase(source, t_s, x_px, y_px, zenith_rad, range_m)
-        phase += self._defocus(range_m)
-        out = np.empty((len(t_s), self.geometry.stamp_size, self.geometry.stamp_size))
-        for start in range(0, len(t_s), 256):                       # bounded memory
-            sl = slice(start, start + 256)
-            out[sl] = self.pupil_renderer.stamps(self.pupil_amplitude, phase[sl], offset[sl])
-        return out
-
-    # -- reference path ---------------------------------------------------------------------------
-    def reference_grid(self, zenith_rad: float, range_m: float) -> tuple[PropagationGeometry, PropagationGrid, dict]:
-        """The propagation grid for a source at ``range_m`` and the plane index of each layer."""
-        g = self.geometry
-        distance = min(range_m, FAR_RANGE_M)
-        layers = self.atmosphere.layers if self.turbulent(zenith_rad) else ()
-        slant = {i: layer.altitude_m / np.cos(zenith_rad) for i, layer in enumerate(layers) if layer.cn2_dh > 0}
-        slant = {i: s for i, s in slant.items() if s < distance}
-        geometry = PropagationGeometry(self.wavelength, distance, self.telescope.diameter_m, r0_m=self.r0(zenith_rad),
-                                       turbulence_length_m=max(slant.values(), default=0.0))
-        layer_planes = {i: distance - s for i, s in slant.items()}
-        if self.grid_size is None:
-            grid = choose_grid(geometry, g.delta_m, tuple(layer_planes.values()))
-        else:
-            free = choose_grid(geometry, g.delta_m, tuple(layer_planes.values()))
-            grid = PropagationGrid(int(self.grid_size), free.delta1_m, g.delta_m,
-                                   planes_for(geometry, int(self.grid_size), free.delta1_m, g.delta_m,
-                                           tuple(layer_planes.values())))
-            check_grid(geometry, grid, f"block '{self.name}' parameter 'grid_size'")
-        index = {i: grid.planes_m.index(z) + 1 for i, z in layer_planes.items()}
-        return geometry, grid, index
-
-    def reference_field(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
-                        range_m: float, slack: float = 1.3) -> np.ndarray:
-        """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude.
-
-        New screens are ``slack`` times the grid wide (:meth:`_reference_screens`)."""
-        g = self.geometry
-        geometry, grid, index = self.reference_grid(zenith_rad, range_m)
-        distance = geometry.distance_m
-        spacing = grid.spacings_m
-        screens = {}
-        if index:
-            per_layer = self._reference_screens(source, grid, index, slack)
-            k2 = (2 * np.pi / self.wavelength) ** 2
-            for i, plane in index.items():
-                layer, screen = self.atmosphere.layers[i], per_layer[i]
-                centre, _ = self._footprints(layer, np.array([t_s]), np.array([x_px]), np.array([y_px]),
-                                             np.array([zenith_rad]), np.array([np.inf]))
-                axis = (np.arange(grid.n) - grid.n // 2) * spacing[plane]
-                rows = ((centre[0, 1] + axis) / screen.delta)[None]
-                cols = ((centre[0, 0] + axis) / screen.delta)[None]
-                screen.cover(np.array([rows[0, 0], cols[0, 0]]), np.array([rows[0, -1], cols[0, -1]]),
-                             int(self._epochs(np.array([t_s]))[0]))
-                weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
-                screens[plane] = weight * screen.sample(rows, cols)[0]
-        source_field = point_source_field(grid.n, grid.delta1_m, self.wavelength, distance, geometry.roi_m,
-                                          curvature=False)
-        field = propagate(source_field, self.wavelength, grid.delta1_m, grid.deltan_m, grid.planes_m, screens,
-                          source_curvature=-distance, collimate=distance if self.focus == "source" else np.inf)
-        start = grid.n // 2 - g.n_pupil // 2
-        pupil = field[start:start + g.n_pupil, start:start + g.n_pupil]
-        # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)
-        return pupil * (1j * self.wavelength * distance / erf(2 * np.pi) ** 2) * self.pupil_amplitude
-
-    def reference_pupil_phase(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
-                              range_m: float) -> np.ndarray:
-        """The pupil path's phase (n, n) [rad] for the screens the reference path used at this instant.
-
-        Each layer's screen is read where the straight line from the source to each pupil
-        point crosses it (``(1 - L/R)`` of the pupil coordinate): the geometric-optics
-        projection that the pupil path makes, so that the two paths can be compared frame
-        by frame (:mod:`.paths`, benchmarks/optics_paths.py). Call after :meth:`reference_field`.
-        """
-        g = self.geometry
-        phase = self._defocus(np.array([range_m]))[0] * np.ones((g.n_pupil, g.n_pupil))
-        if not self.turbulent(zenith_rad):
-            return phase
-        geometry, grid, index = self.reference_grid(zenith_rad, range_m)
-        per_layer = self.reference_screens[source]
-        k2 = (2 * np.pi / self.wavelength) ** 2
-        xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
-        for i in index:
-            layer, screen = self.atmosphere.layers[i], per_layer[i]
-            centre, scale = self._footprints(layer, np.array([t_s]), np.array([x_px]), np.array([y_px]),
-                                             np.array([zenith_rad]), np.array([geometry.distance_m]))
-            rows = ((centre[0, 1] + scale[0] * xp) / screen.delta)[None]
-            cols = ((centre[0, 0] + scale[0] * xp) / screen.delta)[None]
-            weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
-            phase = phase + weight * screen.sample(rows, cols)[0]
-        return phase
-
-    def _reference_screens(self, source: str, grid: PropagationGrid, index: dict,
-                           slack: float = 1.3) -> dict[int, LayerScreen]:
-        """Each layer's screen for the reference grid: ``slack`` times the grid and its margins wide
-        (room to move before an extension; path probes, which read one frame, take 1)."""
-        spacing = grid.spacings_m
-        screens = self.reference_screens.setdefault(source, {})
-        for i, plane in index.items():
-            step = screens[i].delta if i in screens else float(spacing[plane])
-            needed = grid.n * spacing[plane] / step + 2 * MARGIN + 4
-            if i not in screens or screens[i].n < needed:
-                n = int(np.ceil(slack * (grid.n + 2 * MARGIN + 4)))
-                n += n % 2
-                screens[i] = LayerScreen(n, float(spacing[plane]), (*self._source_seed(source, 1), i), L0=self._L0,
-                                         update="extend" if np.isfinite(self._L0) else "regenerate")
-        return screens
-
-    def _render_reference(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
-        out = np.empty((len(t_s), self.geometry.stamp_size, self.geometry.stamp_size))
-        for f in range(len(t_s)):
-            field = self.reference_field(source, t_s[f], x_px[f], y_px[f], zenith_rad[f], range_m[f])
-            out[f] = self.pupil_renderer.stamps_from_field(field[None], offset[f:f + 1])[0]
-        return out
-
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:
         return {
             "geometry": None if self.geometry is None else {k: (list(v) if isinstance(v, tuple) else v)
                                                             for k, v in asdict(self.geometry).items()},
-            "screens": {key: [s.state() for s in screens] for key, screens in self.screens.items()},
-            "reference_screens": {key: {str(i): s.state() | {"n": s.n, "delta": s.delta} for i, s in screens.items()}
-                                  for key, screens in self.reference_screens.items()},
+            "screens": self.pupil.state(),
+            "reference_screens": self.reference.state(),
         }
 
     def set_state(self, state: dict) -> None:
@@ -574,21 +394,8 @@ class Imager:
             int(geometry["oversample"]), tuple(float(v) for v in geometry["layer_delta_m"]),
             tuple(int(v) for v in geometry["layer_n"]))
         self._pupil_renderer = None
-        self._modes = None
         self._profiles.clear()
         self._choices.clear()
         self._pupil_errors.clear()
-        self.screens = {}
-        for key, states in (state.get("screens") or {}).items():
-            screens = self._layer_screens(key)
-            for screen, s in zip(screens, states):
-                screen.set_state(s)
-        self.reference_screens = {}
-        for key, per_layer in (state.get("reference_screens") or {}).items():
-            screens = {}
-            for i, s in per_layer.items():
-                screen = LayerScreen(int(s["n"]), float(s["delta"]), (*self._source_seed(key, 1), int(i)),
-                                     L0=self._L0, update="extend" if np.isfinite(self._L0) else "regenerate")
-                screen.set_state(s)
-                screens[int(i)] = screen
-            self.reference_screens[key] = screens
+        self.pupil.set_state(state.get("screens") or {})
+        self.reference.set_state(state.get("reference_screens") or {})

@@ -208,8 +208,8 @@ def test_strong_turbulence_short_exposures_resolve_r0_and_average_to_the_seeing_
     # sampled pupil's far field wrapping, and independent short exposures (a new screen every frame) spread
     # their light like the long-exposure PSF (Fried 1966): half-light radius within 20 % of its own
     atmosphere = Atmosphere.hufnagel_valley(1).scaled_to_r0(0.01)
-    imager = Imager(Telescope(0.3), FOCAL_PLANE, WAVELENGTH, atmosphere, path="pupil_fft", revisit_s=0.05,
-                    seed=(1,))
+    imager = Imager(Telescope(0.3), FOCAL_PLANE, WAVELENGTH, atmosphere,
+                    PointSourceOptics.Params(psf_path="pupil_fft", screen_revisit_s=0.05), seed=(1,))
     zenith = np.deg2rad(30)
     g = imager.ensure_geometry(zenith)
     r0 = imager.r0(zenith)
@@ -256,14 +256,14 @@ def test_reference_path_renders_and_checks_its_grid():
 
 def _paths_apart(atmosphere, diameter, frames=4, distance=5e5):
     """Distance between pupil_fft and reference stamps fed the same screens, and the block's estimate."""
-    imager = Imager(Telescope(diameter, 0.0), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(1,))
+    imager = Imager(Telescope(diameter, 0.0), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(), seed=(1,))
     zenith = np.deg2rad(20)
     imager.ensure_geometry(zenith)
     errors = []
     for k in range(frames):
         t = 0.05 * k
-        field = imager.reference_field("s", t, 320.0, 240.0, zenith, distance)
-        phase = imager.reference_pupil_phase("s", t, 320.0, 240.0, zenith, distance)
+        field = imager.reference.field("s", t, 320.0, 240.0, zenith, distance)
+        phase = imager.reference.pupil_phase("s", t, 320.0, 240.0, zenith, distance)
         offset = np.array([[0.2, -0.1]])
         reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
         fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
@@ -293,7 +293,7 @@ def test_close_calls_take_more_reference_frames(caplog):
     zenith = np.deg2rad(20)
 
     def measure(tolerance):
-        imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, atmosphere, seed=(1,))
+        imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(), seed=(1,))
         imager.ensure_geometry(zenith)
         imager.tolerance = tolerance                  # the sampling stays that of the default tolerance
         caplog.clear()

@@ -13,6 +13,7 @@ from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
 from evsda.blocks.optics.layer_screen import LayerScreen
 from evsda.blocks.optics.screen_kernels import MARGIN, prefilter, prefilter_band, prefilter_taps, read_band
+from evsda.blocks.optics import PointSourceOptics
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics.imaging import Imager
 from evsda.blocks.optics.karhunen_loeve import KarhunenLoeve
@@ -246,12 +247,13 @@ def test_zernike_screens_reproduce_noll_residuals_on_the_pupil():
     # gave 0.34 / 0.05 / 0.007 of Delta_J at J = 3 / 6 / 10)
     n_modes, frames = 65, 400
     atmosphere = Atmosphere((Layer(2000.0, 1.0, 5.0, 0.0),)).scaled_to_r0(0.1)
-    imager = Imager(Telescope(0.3), FocalPlane(640, 480, 4.86e-6, 1.2), 550e-9, atmosphere, path="pupil_fft",
-                    screen_method="zernike", screen_update="regenerate", n_zernike_modes=n_modes, seed=(3,))
+    params = PointSourceOptics.Params(psf_path="pupil_fft", screen_method="zernike", screen_update="regenerate",
+                                      n_zernike_modes=n_modes)
+    imager = Imager(Telescope(0.3), FocalPlane(640, 480, 4.86e-6, 1.2), 550e-9, atmosphere, params, seed=(3,))
     zenith = np.deg2rad(30)
     g = imager.ensure_geometry(zenith)
     t = 1.0 * np.arange(frames)                           # the wind carries each footprint 17 D from the last
-    phase = imager.turbulent_phase("s", t, np.full(frames, 320.0), np.full(frames, 240.0), np.full(frames, zenith),
+    phase = imager.pupil.turbulent_phase("s", t, np.full(frames, 320.0), np.full(frames, 240.0), np.full(frames, zenith),
                                    np.full(frames, np.inf))
     x = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
     xx, yy = np.meshgrid(x, x)

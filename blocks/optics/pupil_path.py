@@ -1,0 +1,120 @@
+"""The ``pupil_fft`` path: the far-field image of the aperture times ``exp(i phase)``.
+
+The turbulent phase is the sum of every layer's screen along the straight line of sight
+(near-field / geometric-optics approximation, :mod:`.paths`): FFT screens with
+subharmonics (:mod:`.layer_screen`) or Karhunen-Loeve Zernike modes (:mod:`.modal_screen`),
+read on each layer's footprint under frozen flow (:mod:`.imaging`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .layer_screen import LayerScreen
+from .modal_screen import ModalScreen, pupil_modes
+
+if TYPE_CHECKING:
+    from .imaging import Imager
+
+
+class PupilPath:
+    """Pupil-plane phase screens of each source and the stamps they give; sizing and sampling come from ``imager``."""
+
+    def __init__(self, imager: Imager, screen_method: str, screen_update: str, n_zernike_modes: int):
+        self.imager = imager
+        self.screen_method, self.screen_update, self.n_zernike_modes = screen_method, screen_update, n_zernike_modes
+        self.screens: dict[str, list[LayerScreen]] = {}
+        self.modal_screens: dict[str, list[ModalScreen]] = {}
+        self._modes: np.ndarray | None = None
+
+    def _layer_screens(self, source: str) -> list[LayerScreen]:
+        if source not in self.screens:
+            g = self.imager.geometry
+            self.screens[source] = [
+                LayerScreen(n, step, (*self.imager.source_seed(source, 0), i), L0=self.imager.outer_scale_m,
+                            update=self.screen_update)
+                for i, (n, step) in enumerate(zip(g.layer_n, g.layer_delta_m))]
+        return self.screens[source]
+
+    def _modal_screens(self, source: str) -> list[ModalScreen]:
+        if source not in self.modal_screens:
+            self.modal_screens[source] = [
+                ModalScreen((*self.imager.source_seed(source, 0), i), self.imager.telescope.diameter_m,
+                            self.n_zernike_modes)
+                for i in range(len(self.imager.atmosphere.layers))]
+        return self.modal_screens[source]
+
+    @property
+    def pupil_modes(self) -> np.ndarray:
+        """Zernike modes of modal screens on the pupil grid, flattened ``(n_modes, n_pupil^2)`` [1]."""
+        if self._modes is None:
+            g = self.imager.geometry
+            modes = pupil_modes(self.n_zernike_modes, g.n_pupil, g.delta_m, self.imager.telescope.diameter_m)
+            self._modes = modes.reshape(self.n_zernike_modes, -1)
+        return self._modes
+
+    def turbulent_phase(self, source: str, t_s, x_px, y_px, zenith_rad, range_m) -> np.ndarray:
+        """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight."""
+        g = self.imager.geometry
+        frames = len(t_s)
+        phase = np.zeros((frames, g.n_pupil, g.n_pupil))
+        if not self.imager.atmosphere:
+            return phase
+        turbulent = np.isfinite(zenith_rad)
+        xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
+        k2 = (2 * np.pi / self.imager.wavelength) ** 2
+        epochs = self.imager.epochs_of(t_s)
+        if self.screen_method == "zernike":
+            return self._modal_phase(source, t_s, x_px, y_px, zenith_rad, range_m, epochs)
+        for layer, screen in zip(self.imager.atmosphere.layers, self._layer_screens(source)):
+            if layer.cn2_dh <= 0:
+                continue
+            centre, scale = self.imager.footprints(layer, t_s, x_px, y_px, np.where(turbulent, zenith_rad, 0.0),
+                                                   range_m)
+            rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
+            cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
+            # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
+            weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
+            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase)
+        return phase
+
+    def _modal_phase(self, source, t_s, x_px, y_px, zenith_rad, range_m, epochs) -> np.ndarray:
+        """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
+        g = self.imager.geometry
+        turbulent = np.isfinite(zenith_rad)
+        zenith = np.where(turbulent, zenith_rad, 0.0)
+        k2 = (2 * np.pi / self.imager.wavelength) ** 2
+        coefficients = np.zeros((len(t_s), self.n_zernike_modes))
+        for layer, screen in zip(self.imager.atmosphere.layers, self._modal_screens(source)):
+            if layer.cn2_dh <= 0:
+                continue
+            centre, scale = self.imager.footprints(layer, t_s, x_px, y_px, zenith, range_m)
+            # r0^(-5/6) of this layer times (footprint diameter s D)^(5/6): Noll's covariance for s D / r0
+            weight = (np.sqrt(0.423 * k2 / np.cos(zenith) * layer.cn2_dh)
+                      * (scale * self.imager.telescope.diameter_m) ** (5 / 6))
+            coefficients += np.where(turbulent, weight, 0.0)[:, None] * screen.coefficients(centre, epochs)
+        return (coefficients @ self.pupil_modes).reshape(len(t_s), g.n_pupil, g.n_pupil)
+
+    def render(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
+        phase = self.turbulent_phase(source, t_s, x_px, y_px, zenith_rad, range_m)
+        phase += self.imager.defocus(range_m)
+        out = np.empty((len(t_s), self.imager.geometry.stamp_size, self.imager.geometry.stamp_size))
+        for start in range(0, len(t_s), 256):                       # bounded memory
+            sl = slice(start, start + 256)
+            out[sl] = self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase[sl], offset[sl])
+        return out
+
+    # -- checkpoint -------------------------------------------------------------------------------
+    def state(self) -> dict:
+        return {key: [s.state() for s in screens] for key, screens in self.screens.items()}
+
+    def set_state(self, state: dict) -> None:
+        """Restore the layer screens (call once the coordinator's geometry is set)."""
+        self._modes = None
+        self.screens = {}
+        for key, states in state.items():
+            screens = self._layer_screens(key)
+            for screen, s in zip(screens, states):
+                screen.set_state(s)
