@@ -290,14 +290,12 @@ def _run_command(args) -> int:
 def _user_error_status(exc: UserError) -> int:
     for line in str(exc).splitlines():
         print(f"evsda: error: {line}", file=sys.stderr)
-    _quiet_abandoned_writes()
     return 2
 
 
 def _interrupted_status(exc: KeyboardInterrupt) -> int:
     name = getattr(exc, "signal_name", "SIGINT")
     print(f"evsda: {exc if isinstance(exc, Interrupted) else 'interrupted'}", file=sys.stderr)
-    _quiet_abandoned_writes()
     return 128 + getattr(signal, name, signal.SIGINT)
 
 
@@ -310,7 +308,6 @@ def _broken_pipe_status() -> int:
 
 def _os_error_status(exc: OSError) -> int:
     print(f"evsda: error: {describe_os_error(exc)}", file=sys.stderr)
-    _quiet_abandoned_writes()
     return 2
 
 
@@ -337,6 +334,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _run_command(args)
     except (UserError, KeyboardInterrupt, OSError) as exc:     # BrokenPipeError is an OSError
+        _quiet_abandoned_writes()
         return _failure_status(exc)
     finally:
         if previous is not None:
