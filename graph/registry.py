@@ -41,6 +41,10 @@ def _spec(block_class: type[Block]) -> str:
     return f"{block_class.__module__}:{block_class.__qualname__}"
 
 
+def _clash(name: str, origin: str) -> UserError:
+    return UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+
+
 def register(block_class: type[Block], origin: str = "python") -> type[Block]:
     """Register a block class under its ``type_name`` (usable as a decorator)."""
     if not (isinstance(block_class, type) and issubclass(block_class, Block)):
@@ -50,7 +54,7 @@ def register(block_class: type[Block], origin: str = "python") -> type[Block]:
         raise TypeError(f"{block_class.__name__} has no type_name")
     existing = _registered.get(name)
     if (existing is not None and existing is not block_class) or _lazy.get(name, _spec(block_class)) != _spec(block_class):
-        raise UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+        raise _clash(name, origin)
     _lazy.pop(name, None)
     _registered[name] = block_class
     _origin.setdefault(name, origin)
@@ -61,10 +65,10 @@ def _declare(name: str, spec: str, origin: str) -> None:
     """Register type ``name`` as ``"module:Class"``, to be imported when first asked for."""
     if name in _registered:
         if _spec(_registered[name]) != spec:
-            raise UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+            raise _clash(name, origin)
         return
     if _lazy.get(name, spec) != spec:
-        raise UserError(f"block type '{name}' from {origin} clashes with the one from {_origin[name]}")
+        raise _clash(name, origin)
     _lazy[name], _origin[name] = spec, origin
 
 
