@@ -133,8 +133,8 @@ def stamp_speed(frames: int) -> None:
         phase = np.stack([fft_phase_screens(rng, g.n_pupil, g.delta_m, imager.r0(ZENITH))[0] for _ in range(frames)])
         renderer, amplitude = imager.pupil_renderer, imager.pupil_amplitude
         t_pupil, _ = best_of(3, lambda: renderer.stamps(amplitude, phase, offsets))
-        t_airy, _ = best_of(3, lambda: imager.radial_renderer("airy", ZENITH).stamps(offsets))
-        t_le, _ = best_of(3, lambda: imager.radial_renderer("long_exposure", ZENITH).stamps(offsets))
+        t_airy, _ = best_of(3, lambda: imager.path_named["airy"].renderer(ZENITH).stamps(offsets))
+        t_le, _ = best_of(3, lambda: imager.path_named["long_exposure"].renderer(ZENITH).stamps(offsets))
         print(f"  D = {d} m, D/r0 = {d / imager.r0(ZENITH):.2g}: pupil {g.n_pupil}^2 (FFT {renderer.padded}^2), "
               f"stamp {g.stamp_size}^2 px x {g.oversample}^2 sub-px: pupil_fft {ms(t_pupil / frames)}, "
               f"airy {ms(t_airy / frames)}, long_exposure {ms(t_le / frames)}")
@@ -162,14 +162,14 @@ def path_errors(frames: int) -> None:
             reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
             flux = reference.sum()
             stamps = {"pupil_fft": imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset),
-                      "airy": imager.radial_renderer("airy", ZENITH).stamps(offset)}
+                      "airy": imager.path_named["airy"].renderer(ZENITH).stamps(offset)}
             if atmosphere is not None:
-                stamps["long_exposure"] = imager.radial_renderer("long_exposure", ZENITH).stamps(offset)
+                stamps["long_exposure"] = imager.path_named["long_exposure"].renderer(ZENITH).stamps(offset)
             for name, stamp in stamps.items():
                 errors[name].append(float(total_variation(stamp, reference, flux)[0]))
         per_frame = (time.perf_counter() - t0) / frames
-        estimates = imager.estimate_errors(ZENITH, RANGE)
-        choice = imager.choose(ZENITH, RANGE).path
+        estimates = imager.chooser.estimate_errors(ZENITH, RANGE)
+        choice = imager.chooser.choose(ZENITH, RANGE).path
         dr0 = "" if r0 is None else f", D/r0 = {d / imager.r0(ZENITH):.2g}"
         print(f"  {label}, D = {d} m{dr0} (reference N = {grid.n}, {len(grid.planes_m)} steps, "
               f"{per_frame * 1e3:.0f} ms per frame with its screens' upkeep); auto picks '{choice}'")

@@ -3,7 +3,8 @@
 Library modules (usable without a graph): :mod:`.zernike`, :mod:`.karhunen_loeve`,
 :mod:`.kolmogorov`, :mod:`.fft_screens`, :mod:`.autoregressive`, :mod:`.layer_screen`,
 :mod:`.atmosphere`, :mod:`.propagation`, :mod:`.sampling`, :mod:`.telescope`, :mod:`.psf`,
-:mod:`.render`, :mod:`.paths`, :mod:`.imaging`. The block is :class:`.block.PointSourceOptics`.
+:mod:`.render`, :mod:`.sizing`, :mod:`.paths`, :mod:`.analytic_path`, :mod:`.pupil_path`,
+:mod:`.reference_path`, :mod:`.imaging`. The block is :class:`.block.PointSourceOptics`.
 """
 
 from .block import PointSourceOptics

@@ -1,4 +1,4 @@
-"""Which PSF path a scene needs: error estimates of the fast paths against the reference.
+"""Which PSF path a scene needs: error estimates of the fast paths against the reference, and the choice.
 
 Paths, cheapest first:
 
@@ -21,7 +21,7 @@ distance between pixel-integrated stamps of total flux ``F``).
   alone misplaces ``E|dF|/2F = sigma_I / sqrt(2 pi)`` of the flux, with the
   aperture-averaged ``sigma_I`` of :meth:`.Atmosphere.scintillation_index`; the block takes
   the larger of that and the distance measured on a few reference propagations fed the
-  same screens (:meth:`.Imager.pupil_error`). The source's own Fresnel number
+  same screens (:meth:`.PathChooser.pupil_error`). The source's own Fresnel number
   ``N_F = D^2 / (lambda R)`` only sets the defocus of a telescope focused at infinity,
   which the pupil path includes exactly (Fresnel approximation); in vacuum the two paths
   are the same physics.
@@ -29,18 +29,42 @@ distance between pixel-integrated stamps of total flux ``F``).
   over ``PROBE_FRAMES`` turbulent pupil-path stamps at random sub-pixel positions (a
   fixed-seed draw, so a choice is a pure function of the conditions); the error against
   the reference adds the pupil path's (triangle inequality).
+
+:class:`PathChooser` makes these estimates once per bin of conditions (1 degree of zenith
+angle, 5 % of range; the pupil path's error on coarser bins) and keeps each choice, so a
+choice is a pure function of the bin and of the run's seed.
 """
 
 from __future__ import annotations
 
 import logging
+import zlib
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .fft_screens import fft_phase_screens
+from .reference_path import FAR_RANGE_M
+
+if TYPE_CHECKING:
+    from .imaging import Imager
+
 PATHS = ("airy", "long_exposure", "pupil_fft", "reference")
+#: the paths rendered from a tabulated radial PSF (:mod:`.analytic_path`)
+ANALYTIC_PATHS = ("airy", "long_exposure")
+#: turbulent pupil-path frames the analytic paths are measured against [1]
 PROBE_FRAMES = 24
 LOG = logging.getLogger("evsda.blocks.optics")
+#: zenith-angle bin of path decisions [rad] and range bin (ratio) [1]
+ZENITH_BIN_RAD = np.deg2rad(1.0)
+RANGE_BIN_RATIO = 1.05
+#: the pupil path's error against the reference is measured on coarser bins: 10 degrees, factors of 2 in range
+PUPIL_ERROR_ZENITH_BIN_RAD = np.deg2rad(10.0)
+#: reference propagations per pupil-error bin: at least the first, more (up to the second) while the
+#: tolerance lies within two standard errors of their mean, so a close call is decided on the mean
+#: error rather than on the luck of three frames
+REFERENCE_PROBE_FRAMES = (3, 12)
 
 
 @dataclass(frozen=True)
@@ -71,3 +95,156 @@ def pick(estimates: dict[str, float], tolerance: float, context: str) -> PathCho
     reason = (f"path '{path}': estimated error {estimates.get(path, 0.0):.3g} <= tolerance {tolerance:g} "
               f"({context}; other paths: {others})")
     return PathChoice(path, dict(estimates), reason)
+
+
+def conditions_key(zenith_rad: float, range_m: float, turbulent: bool) -> tuple[int, int]:
+    """Bin of the conditions one path choice holds for: ``ZENITH_BIN_RAD`` of zenith angle (-1 without
+    turbulence) and ``RANGE_BIN_RATIO`` of range (-1 at or beyond ``FAR_RANGE_M``)."""
+    z = -1 if not turbulent else int(np.floor(zenith_rad / ZENITH_BIN_RAD))
+    far = not np.isfinite(range_m) or range_m >= FAR_RANGE_M
+    r = -1 if far else int(np.floor(np.log(range_m) / np.log(RANGE_BIN_RATIO)))
+    return z, r
+
+
+def representative_conditions(key: tuple[int, int]) -> tuple[float, float]:
+    """The zenith angle [rad] (NaN: no turbulence) and range [m] (inf: far) at the centre of a bin."""
+    z, r = key
+    zenith = np.nan if z < 0 else (z + 0.5) * ZENITH_BIN_RAD
+    range_m = np.inf if r < 0 else RANGE_BIN_RATIO ** (r + 0.5)
+    return zenith, range_m
+
+
+class PathChooser:
+    """The path of each bin of conditions and the error estimates behind it, each made once and kept.
+
+    Reads the telescope, atmosphere, sampling, renderers and paths of ``imager``;
+    ``forced_path`` is the block's ``psf_path`` (``auto``: the cheapest within ``imager.tolerance``).
+    """
+
+    def __init__(self, imager: Imager, forced_path: str):
+        self.imager, self.forced_path = imager, forced_path
+        self._choices: dict[tuple, PathChoice] = {}
+        self._pupil_errors: dict[tuple, float] = {}
+
+    def key(self, zenith_rad: float, range_m: float) -> tuple[int, int]:
+        """The bin of these conditions (:func:`conditions_key`)."""
+        return conditions_key(zenith_rad, range_m, self.imager.turbulent(zenith_rad))
+
+    def is_chosen(self, zenith_rad: float, range_m: float) -> bool:
+        return self.key(zenith_rad, range_m) in self._choices
+
+    def choose(self, zenith_rad: float, range_m: float, source: str = "") -> PathChoice:
+        """The path for these conditions (forced, or the cheapest within tolerance); logged once per bin."""
+        key = self.key(zenith_rad, range_m)
+        if key not in self._choices:
+            self.imager.ensure_geometry(zenith_rad)
+            zenith, range_rep = representative_conditions(key)
+            context = self._context(zenith, range_rep)
+            if self.forced_path != "auto":
+                choice = PathChoice(self.forced_path, {}, f"path '{self.forced_path}' forced by psf_path ({context})")
+            else:
+                choice = pick(self.estimate_errors(zenith, range_rep), self.imager.tolerance, context)
+            self._choices[key] = choice
+            LOG.info("%s%s: %s", self.imager.name, f" source {source}" if source else "", choice.reason)
+        return self._choices[key]
+
+    def _context(self, zenith_rad: float, range_m: float) -> str:
+        """The conditions that set the errors, in words: ``D/r0`` and the source's Fresnel number ``D^2/(lambda R)``."""
+        imager = self.imager
+        d = imager.telescope.diameter_m
+        parts = []
+        if imager.turbulent(zenith_rad):
+            parts.append(f"D/r0 = {d / imager.r0(zenith_rad):.3g} at zenith angle {np.rad2deg(zenith_rad):.1f} deg")
+        else:
+            parts.append("no atmosphere")
+        if np.isfinite(range_m):
+            parts.append(f"Fresnel number D^2/(lambda R) = {d**2 / (imager.wavelength * range_m):.3g}")
+        return ", ".join(parts)
+
+    def estimate_errors(self, zenith_rad: float, range_m: float) -> dict[str, float]:
+        """Estimated error [1] of each path against the reference (module docstring): the analytic paths'
+        mean distance from ``PROBE_FRAMES`` pupil-path stamps (one without turbulence) plus the pupil path's."""
+        imager = self.imager
+        pupil_error = self.pupil_error(zenith_rad, range_m)
+        rng = np.random.Generator(np.random.PCG64(zlib.crc32(repr((zenith_rad, range_m, imager.seed)).encode())))
+        offsets = rng.uniform(-0.5, 0.5, (PROBE_FRAMES, 2))
+        frames = PROBE_FRAMES if imager.turbulent(zenith_rad) else 1
+        offsets = offsets[:frames]
+        phase = self._probe_phase(rng, zenith_rad, range_m, frames)
+        pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, offsets)
+        flux = pupil.sum(axis=(1, 2)).mean()
+        estimates = {"reference": 0.0, "pupil_fft": pupil_error}
+        for name in ANALYTIC_PATHS:
+            analytic = imager.path_named[name].renderer(zenith_rad).stamps(offsets)
+            estimates[name] = float(total_variation(analytic, pupil, flux).mean()) + pupil_error
+        if not imager.turbulent(zenith_rad):
+            estimates.pop("long_exposure")
+        return estimates
+
+    def pupil_error(self, zenith_rad: float, range_m: float) -> float:
+        """Estimated error of ``pupil_fft`` against ``reference`` [1] (module docstring), kept per coarse bin.
+
+        The larger of the scintillation term ``sigma_I / sqrt(2 pi)`` and the mean distance
+        between the two paths over independent screens at the bin's conditions (each path fed
+        the same screens, :meth:`.ReferencePath.pupil_phase`): ``REFERENCE_PROBE_FRAMES[0]`` of them,
+        and more, up to ``REFERENCE_PROBE_FRAMES[1]``, while the tolerance lies within two
+        standard errors of their mean. A scintillation term above the tolerance settles it alone.
+        """
+        imager = self.imager
+        if not imager.turbulent(zenith_rad):
+            return 0.0
+        z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
+        r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
+        key = (z_bin, r_bin)
+        if key not in self._pupil_errors:
+            zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
+            distance = FAR_RANGE_M if r_bin < 0 else 2.0 ** (r_bin + 0.5)
+            sigma2 = imager.atmosphere.scintillation_index(imager.telescope.diameter_m, imager.wavelength, zenith,
+                                                           distance)
+            scintillation = scintillation_error(sigma2)
+            measured = [] if scintillation > imager.tolerance else self._reference_distances(key, zenith, distance)
+            self._pupil_errors[key] = max(float(np.mean(measured)) if measured else 0.0, scintillation)
+            LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g "
+                     "(%d reference frames; scintillation index %.3g)", imager.name, np.rad2deg(zenith), distance,
+                     self._pupil_errors[key], len(measured), sigma2)
+        return self._pupil_errors[key]
+
+    def _reference_distances(self, key: tuple, zenith_rad: float, range_m: float) -> list[float]:
+        """Distances [1] between pupil-path and reference stamps fed the same fresh screens, one frame each,
+        until their mean is clear of the tolerance (``REFERENCE_PROBE_FRAMES``)."""
+        imager, reference = self.imager, self.imager.reference
+        measured = []
+        offset = np.zeros((1, 2))
+        least, most = REFERENCE_PROBE_FRAMES
+        while len(measured) < most:
+            probe = f"__probe {key} {len(measured)}"
+            field = reference.field(probe, 0.0, *imager.boresight, zenith_rad, range_m, slack=1.0)
+            phase = reference.pupil_phase(probe, 0.0, *imager.boresight, zenith_rad, range_m)
+            del reference.screens[probe]
+            stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
+            fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
+            measured.append(float(total_variation(fast, stamp, stamp.sum())[0]))
+            if len(measured) >= least:
+                error = np.std(measured, ddof=1) / np.sqrt(len(measured))
+                if abs(np.mean(measured) - imager.tolerance) > 2 * error:
+                    break
+        return measured
+
+    def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
+        """Pupil phase [rad] (frames, n, n) of the probe: defocus plus independent FFT screens at the sight line's r0."""
+        imager = self.imager
+        g = imager.geometry
+        phase = np.zeros((frames, g.n_pupil, g.n_pupil))
+        phase += imager.defocus(np.full(frames, range_m))
+        if imager.turbulent(zenith_rad):
+            r0 = imager.r0(zenith_rad)
+            for k in range(0, frames, 2):
+                pair = fft_phase_screens(rng, 2 * g.n_pupil, g.delta_m, r0, imager.outer_scale_m)
+                for j, screen in enumerate(pair[: min(2, frames - k)]):
+                    phase[k + j] += screen[: g.n_pupil, : g.n_pupil]
+        return phase
+
+    def forget(self) -> None:
+        """Drop every choice and estimate (the sampling they were made with changed)."""
+        self._choices.clear()
+        self._pupil_errors.clear()

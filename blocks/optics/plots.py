@@ -292,7 +292,7 @@ def psf_stamp(graph, optics: str | None = None, time_s: float = 0.0, source_id: 
     k = max(int(np.searchsorted(src.t_ns, t_ns, side="right")) - 1, 0)
     zenith, range_m = float(src.zenith_angle_rad[k]), float(src.range_m[k, j])
     imager = getattr(block, "_imager", None)
-    path = imager.choose(zenith, range_m).reason if imager is not None else block.params.psf_path
+    path = imager.chooser.choose(zenith, range_m).reason if imager is not None else block.params.psf_path
     collected = float(src.photon_flux[k, j]) * block.telescope.collecting_area_m2 * block.params.throughput
     return PsfStamp(str(src.source_id[j]), int(t_ns), irradiance.stamp_flux[0, 0].copy(),
                     tuple(int(v) for v in irradiance.stamp_origin[0, 0]), float(truth.x_px[0]), float(truth.y_px[0]),

@@ -268,7 +268,7 @@ def _paths_apart(atmosphere, diameter, frames=4, distance=5e5):
         reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
         fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
         errors.append(total_variation(fast, reference, reference.sum())[0])
-    return np.array(errors), imager.estimate_errors(zenith, distance)["pupil_fft"]
+    return np.array(errors), imager.chooser.estimate_errors(zenith, distance)["pupil_fft"]
 
 
 @pytest.mark.parametrize("distance", [4e5, 36_000e3])          # LEO and GEO
@@ -298,7 +298,7 @@ def test_close_calls_take_more_reference_frames(caplog):
         imager.tolerance = tolerance                  # the sampling stays that of the default tolerance
         caplog.clear()
         with caplog.at_level(logging.INFO, logger="evsda.blocks.optics"):
-            error = imager.pupil_error(zenith, 5e5)
+            error = imager.chooser.pupil_error(zenith, 5e5)
         return error, int(re.search(r"\((\d+) reference frames", caplog.text).group(1))
 
     clear_error, clear_frames = measure(0.9)
