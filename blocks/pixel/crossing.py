@@ -132,6 +132,13 @@ def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
     j_max = max(horizon, j0)
     if stays_in_band(j_max, power(log_a, j_max), c, d, log_a, delta, theta_on, theta_off):
         return NEVER, 0
+    return search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon)
+
+
+@jit
+def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
+    """:func:`first_crossing_one` without its bound (``horizon <= J_LIMIT``): for callers that found the bound
+    false already."""
     g0 = comparator_input(j0, c, d, log_a, delta)
     if g0 >= theta_on:
         return j0, 1
@@ -162,9 +169,13 @@ def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
             hi = J_LIMIT
         hi = max(min(hi, horizon), j0 + 1)
         if comparator_input(hi, c, d, log_a, delta) >= theta_on:
-            # g is concave here: from a point below the root Newton's iterates climb to it monotonically.
-            # Below it: the root of the drift alone (relaxation only delays it) or, without drift, j0.
-            start = (theta_on - c) / delta if delta > 0.0 else np.nan
+            # g is concave here: from any start Newton's first iterate lies at or below the root and the
+            # next climb to it monotonically. The root without drift (drift only brings it forward) is
+            # close above it when the relaxation alone reaches theta_ON; else the root of the drift alone
+            # (relaxation only delays it), below the root; without drift, j0.
+            ratio = (theta_on - c) / d
+            start = math.log(ratio) / log_a if (ratio > 0.0) & (ratio < 1.0) else (
+                (theta_on - c) / delta if delta > 0.0 else np.nan)
             return _root(j0, hi, c, d, log_a, delta, theta_on, True, start), 1
         return NEVER, 0
 

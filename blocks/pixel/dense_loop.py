@@ -27,18 +27,18 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .crossing import J_LIMIT, NEVER, power, stays_in_band
+from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing, stays_in_band
 from .comparator import TOLERANCE
 from .drive_kernel import drive_into, drive_one
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
-                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, next_crossing, relaxed_by, run_pixel)
+                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, relaxed_by, run_pixel)
 
 TILE = 64                    # pixels swept together
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
 _STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
 # per-pixel fields of a tile (rows of the sweep's tables)
 (F_FLUX, F_L, F_M, F_LEAK, F_PARA_C, F_Y, F_LOG_A, F_PARA, F_ACCEPT, F_TH_ON, F_TH_OFF, F_SCALE, F_RETAIN, F_NOW,
- F_NEXT, N_FLOAT) = range(16)
+ F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
 (I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
 jit = numba.njit(cache=True, error_model="numpy")
 
@@ -99,6 +99,8 @@ def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k):
         fs[F_LOG_A * TILE + i] = new_log_a if quiet else log_a
         fs[F_PARA * TILE + i] = new_para if quiet else para
         fs[F_ACCEPT * TILE + i] = new_accept if quiet else accept
+        fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = new_y, new_log_a      # for run_pixel, if stepped
+        fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
         fs[F_RETAIN * TILE + i] = next_retain if quiet | waits else retain
         js[I_SPAN * TILE + i] = next_span if quiet | waits else span
         js[I_STEP * TILE + i] = step if quiet else last_step
@@ -116,13 +118,23 @@ def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k):
 
 @jit
 def _solve(fs, js, n, t_next, last, leak_hz, dt):
-    """The exact next crossing (:func:`.pixel_loop.next_crossing`) of the tile's pixels marked ``_SOLVE``."""
+    """The exact next crossing (:func:`.pixel_loop.next_crossing`) of the tile's pixels marked ``_SOLVE``.
+
+    Their bound in the sweep was :func:`.crossing.first_crossing_one`'s own (same arguments)
+    where the pixel may fire before the next sample (``j0 <= horizon``), and it failed: the
+    search starts past it there.
+    """
+    leak_dt = leak_hz * dt
     for i in range(n):
         if js[I_CMP * TILE + i] == _SOLVE:
-            js[I_CMP * TILE + i] = next_crossing(
-                js[I_STEP * TILE + i], js[I_READY * TILE + i], fs[F_Y * TILE + i], fs[F_M * TILE + i],
-                fs[F_L * TILE + i], fs[F_LOG_A * TILE + i], fs[F_PARA * TILE + i], fs[F_TH_ON * TILE + i],
-                fs[F_TH_OFF * TILE + i], fs[F_SCALE * TILE + i], NEVER if last else t_next, leak_hz * dt, dt)
+            step, ready, y = js[I_STEP * TILE + i], js[I_READY * TILE + i], fs[F_Y * TILE + i]
+            drift = (leak_dt * fs[F_SCALE * TILE + i] + fs[F_PARA * TILE + i] * dt) * fs[F_TH_ON * TILE + i]
+            j0 = max(ready - step, np.int64(1))
+            horizon = J_LIMIT if last else min(t_next - 1 - step, J_LIMIT)
+            args = (j0, y - fs[F_M * TILE + i], fs[F_L * TILE + i] - y, fs[F_LOG_A * TILE + i], drift,
+                    fs[F_TH_ON * TILE + i] - TOLERANCE, fs[F_TH_OFF * TILE + i] - TOLERANCE, horizon)
+            j, _ = search_crossing(*args) if j0 <= horizon else first_crossing_one(*args)
+            js[I_CMP * TILE + i] = NEVER if j >= NEVER else step + j
 
 
 @jit
@@ -201,7 +213,10 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                     r, c = real[pixel], count[pixel]
                     _to_state(fs, js, i, r, c)
                     change_step[0], change_step[1] = steps[k], t_next
-                    drive_into(change_input[0], fs[F_NOW * TILE + i], drive_k)
+                    row = change_input[0]                     # the sweep's drive of this sample
+                    row[FLUX], row[Y], row[LOG_A] = fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i], \
+                        fs[F_NEW_LOG_A * TILE + i]
+                    row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
                     n_events, lost, done = run_pixel(r, c, pixel, 0, 1 if last else 2, 1, change_step, change_input,
                                                      n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on,
                                                      th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
