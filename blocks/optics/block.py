@@ -146,7 +146,7 @@ class PointSourceOptics(Block):
             p = self.params
             seed = tuple(int(w) for w in self.rng.bit_generator.seed_seq.generate_state(2))
             self._imager = Imager(self.telescope, focal_plane, wavelength, self._atmosphere, p, seed=seed,
-                                  name=self.name)
+                                  label=self.label)
             if self.optics_state:
                 self._imager.set_state(self.optics_state)
         return self._imager

@@ -56,16 +56,17 @@ class Imager:
     The coordinator: it fixes the sampling at first use (:mod:`.sizing`), asks its
     :class:`.PathChooser` for each frame's path and hands the frames to that path's object
     (:class:`.AnalyticPath`, :class:`.PupilPath`, :class:`.ReferencePath`), which keep their own
-    tables and screens. ``params`` is the ``optics`` block's ``Params``.
+    tables and screens. ``params`` is the ``optics`` block's ``Params``; ``label`` names the block in
+    messages and log lines (:attr:`~evsda.graph.block.Block.label`).
     """
 
     def __init__(self, telescope, focal_plane: FocalPlane, wavelength_m: float, atmosphere: Atmosphere | None,
-                 params: PointSourceOptics.Params, *, seed: tuple = (0,), name: str = "optics"):
+                 params: PointSourceOptics.Params, *, seed: tuple = (0,), label: str = "optics"):
         self.telescope, self.focal_plane, self.wavelength = telescope, focal_plane, float(wavelength_m)
         self.atmosphere = atmosphere if atmosphere is not None and atmosphere.layers else None
         self.tolerance, self.focus = float(params.tolerance), params.focus
         self.revisit_s, self.pupil_samples = params.screen_revisit_s, params.pupil_samples
-        self.stamp_size_px, self.seed, self.name = params.stamp_size_px, tuple(int(s) for s in seed), name
+        self.stamp_size_px, self.seed, self.label = params.stamp_size_px, tuple(int(s) for s in seed), label
         self.pixel_scale = focal_plane.pixel_scale_rad
         self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
         self.geometry: PupilGeometry | None = None
@@ -101,7 +102,7 @@ class Imager:
             self.geometry = choose_geometry(self.telescope, self.wavelength, self.pixel_scale, self.atmosphere,
                                             zenith_rad, self.r0(zenith_rad), tolerance=self.tolerance,
                                             stamp_size_px=self.stamp_size_px, pupil_samples=self.pupil_samples,
-                                            name=self.name)
+                                            label=self.label)
         return self.geometry
 
     @property

@@ -145,7 +145,7 @@ class PathChooser:
             else:
                 choice = pick(self.estimate_errors(zenith, range_rep), self.imager.tolerance, context)
             self._choices[key] = choice
-            LOG.info("%s%s: %s", self.imager.name, f" source {source}" if source else "", choice.reason)
+            LOG.info("%s%s: %s", self.imager.label, f" source {source}" if source else "", choice.reason)
         return self._choices[key]
 
     def _context(self, zenith_rad: float, range_m: float) -> str:
@@ -205,7 +205,7 @@ class PathChooser:
             measured = [] if scintillation > imager.tolerance else self._reference_distances(key, zenith, distance)
             self._pupil_errors[key] = max(float(np.mean(measured)) if measured else 0.0, scintillation)
             LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g "
-                     "(%d reference frames; scintillation index %.3g)", imager.name, np.rad2deg(zenith), distance,
+                     "(%d reference frames; scintillation index %.3g)", imager.label, np.rad2deg(zenith), distance,
                      self._pupil_errors[key], len(measured), sigma2)
         return self._pupil_errors[key]
 

@@ -47,7 +47,7 @@ class ReferencePath:
             grid = PropagationGrid(int(self.grid_size), free.delta1_m, g.delta_m,
                                    planes_for(geometry, int(self.grid_size), free.delta1_m, g.delta_m,
                                            tuple(layer_planes.values())))
-            check_grid(geometry, grid, f"block '{self.imager.name}' parameter 'grid_size'")
+            check_grid(geometry, grid, f"{self.imager.label} parameter 'grid_size'")
         index = {i: grid.planes_m.index(z) + 1 for i, z in layer_planes.items()}
         return geometry, grid, index
 

@@ -100,9 +100,10 @@ def layer_grids(atmosphere: Atmosphere, wavelength_m: float, zenith_rad: float, 
 def choose_geometry(telescope: Telescope, wavelength_m: float, pixel_scale_rad: float,
                     atmosphere: Atmosphere | None, zenith_rad: float, r0_m: float, *, tolerance: float,
                     stamp_size_px: int | None = None, pupil_samples: int | None = None,
-                    name: str = "optics") -> PupilGeometry:
+                    label: str = "optics") -> PupilGeometry:
     """The run's sampling for a first line of sight at ``zenith_rad`` with Fried parameter ``r0_m`` [m]
-    (inf above the atmosphere); ``stamp_size_px`` and ``pupil_samples`` override the automatic sizes.
+    (inf above the atmosphere); ``stamp_size_px`` and ``pupil_samples`` override the automatic sizes;
+    ``label`` names the block in messages.
 
     A PSF so much smaller than a pixel that a stamp would need more than ``MAX_SUBPIXELS_PER_AXIS``
     sub-pixels across is a :class:`~evsda.graph.ParameterError` naming both widths.
@@ -116,7 +117,7 @@ def choose_geometry(telescope: Telescope, wavelength_m: float, pixel_scale_rad: 
     if size * oversample > MAX_SUBPIXELS_PER_AXIS:
         arcsec = 180 / np.pi * 3600
         raise ParameterError(
-            f"{name}: the PSF is far smaller than a pixel (diffraction width lambda/D = {lam / d * arcsec:.3g} "
+            f"{label}: the PSF is far smaller than a pixel (diffraction width lambda/D = {lam / d * arcsec:.3g} "
             f"arcsec, a pixel {p * arcsec:.3g} arcsec): rendering it would take {oversample} x {oversample} sub-pixels "
             f"per pixel, {size * oversample} across a stamp (at most {MAX_SUBPIXELS_PER_AXIS}); lengthen the focal "
             f"length or shrink the pixels")
@@ -129,6 +130,6 @@ def choose_geometry(telescope: Telescope, wavelength_m: float, pixel_scale_rad: 
         layer_delta, layer_n = layer_grids(atmosphere, lam, zenith_rad if np.isfinite(zenith_rad) else 0.0, d,
                                            delta, n_pupil * delta)
     LOG.info("%s: pupil %d x %d samples of %.3g mm, stamps %d x %d pixels with %d x %d sub-pixels, "
-             "layer screens %s samples of %s mm", name, n_pupil, n_pupil, delta * 1e3, size, size,
+             "layer screens %s samples of %s mm", label, n_pupil, n_pupil, delta * 1e3, size, size,
              oversample, oversample, list(layer_n), [round(s * 1e3, 2) for s in layer_delta])
     return PupilGeometry(n_pupil, delta, size, oversample, layer_delta, layer_n)
