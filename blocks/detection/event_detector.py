@@ -147,11 +147,12 @@ class EventDetector(Block):
             self._add(t[look == index], x[look == index], y[look == index])
         while (self.look_index + 1) * self.look_ns <= window.stop_ns:
             finished.append(self._close_look())
-        return {"detections": _concatenate(finished, fp, self.look_ns, self.params.false_alarm_rate_per_hour_per_mpx)}
+        far = self.params.false_alarm_rate_per_hour_per_mpx
+        return {"detections": concatenate_detections(finished, fp, self.look_ns, far)}
 
     def finish(self) -> dict:
         if self.events_seen == 0:
-            raise SceneError(f"{self.type_name} '{self.name}': the sensor recorded no events in the whole run, not even "
+            raise SceneError(f"{self.label}: the sensor recorded no events in the whole run, not even "
                              f"noise: there is nothing to detect and no background to set a threshold against "
                              f"(check the sensor's irradiance and its noise rates)")
         return {}
@@ -229,7 +230,7 @@ class EventDetector(Block):
         if not ok.any():
             return none, measured
         order = np.flatnonzero(ok)[np.lexsort((-counts[ok], pvalue[ok]))]
-        chosen = _merge(centre[order], v[order], look_s, p.merge_radius_px)
+        chosen = merge_candidates(centre[order], v[order], look_s, p.merge_radius_px)
         picks = order[chosen]
         dv = p.velocity_step_px / look_s
         refined = [mf.refine(t_rel, xs, ys, centre[i], v[i], p.box_px, dv) for i in picks]
@@ -243,7 +244,7 @@ class EventDetector(Block):
             np.minimum(1.0, pvalue[picks] * trials)), measured
 
 
-def _merge(centres: np.ndarray, velocities: np.ndarray, look_s: float, radius: float) -> np.ndarray:
+def merge_candidates(centres: np.ndarray, velocities: np.ndarray, look_s: float, radius: float) -> np.ndarray:
     """Indices of the candidates (in order of preference) kept when each suppresses the later ones whose
     track comes within ``radius`` of its own at some time of the look: a trial velocity near the right one
     piles a bright source's events into boxes offset along the error, which are the same source."""
@@ -266,7 +267,9 @@ def _merge(centres: np.ndarray, velocities: np.ndarray, look_s: float, radius: f
     return np.array(kept, np.int64)
 
 
-def _concatenate(parts: list[Detections], fp: FocalPlane, look_ns: int, far: float) -> Detections:
+def concatenate_detections(parts: list[Detections], fp: FocalPlane, look_ns: int, far: float) -> Detections:
+    """The detections of several looks as one table (none: an empty one), with the look length [ns] and the
+    false-alarm rate ``far`` [h^-1 Mpixel^-1] the detector was set to."""
     if not parts:
         return Detections.none(fp, look_ns, far)
     fields = ("look_start_ns", "t_ns", "t_reported_ns", "x_px", "y_px", "vx_px_s", "vy_px_s", "counts", "background",

@@ -23,7 +23,7 @@ from scipy import stats
 from evsda.blocks.ports import Detections, Frame
 from evsda.graph import Block, BlockParams, Input, Output, Window
 
-from .event_detector import _concatenate, _merge
+from .event_detector import concatenate_detections, merge_candidates
 from .significance import local_p_threshold
 
 MAD_TO_SIGMA = 1.4826            # sigma of a normal distribution per median absolute deviation [1]
@@ -52,8 +52,8 @@ class FrameDetector(Block):
         p = self.params
         looks = [self.detect(frames.image[k].astype(np.float64), int(frames.t_start_ns[k]), frames)
                  for k in range(frames.image.shape[0])]
-        return {"detections": _concatenate(looks, frames.focal_plane, frames.exposure_ns,
-                                           p.false_alarm_rate_per_hour_per_mpx)}
+        return {"detections": concatenate_detections(looks, frames.focal_plane, frames.exposure_ns,
+                                                     p.false_alarm_rate_per_hour_per_mpx)}
 
     def detect(self, image: np.ndarray, start_ns: int, frames: Frame) -> Detections:
         """The detections of one frame exposed from ``start_ns``."""
@@ -76,7 +76,7 @@ class FrameDetector(Block):
         order = np.argsort(-z[rows, cols], kind="stable")
         rows, cols = rows[order], cols[order]
         centres = np.stack([cols + (b - 1) / 2, rows + (b - 1) / 2], -1).astype(float)
-        keep = _merge(centres, np.zeros_like(centres), exposure_ns / 1e9, p.merge_radius_px)
+        keep = merge_candidates(centres, np.zeros_like(centres), exposure_ns / 1e9, p.merge_radius_px)
         positions = np.array([_centroid(excess, centres[k], b) for k in keep]).reshape(-1, 2)
         zs = z[rows[keep], cols[keep]]
         pvalue = stats.norm.sf(zs)

@@ -143,7 +143,7 @@ class Satellite(Block):
         p = self.params
         if p.facet_model is not None:
             return p.facet_model
-        who = f"{self.type_name} '{self.name}' parameter 'facet_model_file'"
+        who = f"{self.label} parameter 'facet_model_file'"
         try:     # bounded like a graph file: a regular UTF-8 file, no alias bomb, nothing of it quoted
             data = read_yaml(library.resolve(p.facet_model_file), what="facet model file")
         except GraphError as exc:

@@ -120,16 +120,12 @@ class SatelliteCatalog(Block):
         self._key = None
 
     # -- the catalogue --------------------------------------------------------------------------------
-    @property
-    def who(self) -> str:
-        return self.label
-
     def _load(self) -> Catalog:
         p = self.params
         path = library.resolve(p.catalog_file)
-        source = f"{self.who} catalog_file {p.catalog_file}"
+        source = f"{self.label} catalog_file {p.catalog_file}"
         fmt = guess_format(path) if p.format == "auto" else p.format
-        catalog = read_catalog(read_text(path, self.who), fmt, source, skip_bad=p.on_bad_entry == "skip")
+        catalog = read_catalog(read_text(path, self.label), fmt, source, skip_bad=p.on_bad_entry == "skip")
         if catalog.skipped:
             listed = "; ".join(f"line {line}: {reason}" for line, reason in catalog.skipped[:20])
             more = f"; and {len(catalog.skipped) - 20} more" if len(catalog.skipped) > 20 else ""
@@ -139,14 +135,14 @@ class SatelliteCatalog(Block):
             pattern = p.names.upper()
             catalog.objects = [o for o in catalog.objects if fnmatch.fnmatchcase(o.name.upper(), pattern)]
             if not catalog.objects:
-                raise ParameterError(f"{self.who} parameter 'names': no object of {p.catalog_file} matches "
+                raise ParameterError(f"{self.label} parameter 'names': no object of {p.catalog_file} matches "
                                      f"{p.names!r}")
         if p.properties_file is not None:
             props = library.resolve(p.properties_file)
-            matched = apply_properties(catalog, read_text(props, self.who),
-                                       f"{self.who} properties_file {p.properties_file}")
-            log.info("%s: properties for %d objects from %s", self.who, matched, p.properties_file)
-        log.info("%s: %d objects from %s", self.who, len(catalog), p.catalog_file)
+            matched = apply_properties(catalog, read_text(props, self.label),
+                                       f"{self.label} properties_file {p.properties_file}")
+            log.info("%s: properties for %d objects from %s", self.label, matched, p.properties_file)
+        log.info("%s: %d objects from %s", self.label, len(catalog), p.catalog_file)
         return catalog
 
     def setup(self, run: RunInfo) -> None:
@@ -158,7 +154,7 @@ class SatelliteCatalog(Block):
         if stale.any():
             worst = int(np.argmax(np.abs(age)))
             o = self.catalog.objects[worst]
-            warnings.warn(f"{self.who}: {int(stale.sum())} of {len(self.catalog)} element sets are more than "
+            warnings.warn(f"{self.label}: {int(stale.sum())} of {len(self.catalog)} element sets are more than "
                           f"max_tle_age_days={self.params.max_tle_age_days:g} days from the simulated time (e.g. "
                           f"{o.name} ({o.object_id}), {age[worst]:.1f} days); their positions may be off by "
                           f"kilometres", CatalogAgeWarning, stacklevel=2)
@@ -183,7 +179,7 @@ class SatelliteCatalog(Block):
         knot_ns = round(p.knot_step_s * NS_PER_S)
         start, stop = self.run_span_ns(window)
         shared = SharedGeometry(observer, pointing, window.epoch, knot_ns)
-        check_sampling(shared.pointing_model, focal_plane, self.cadence_ns, start, stop, self.who)
+        check_sampling(shared.pointing_model, focal_plane, self.cadence_ns, start, stop, self.label)
         objects = self.catalog.objects
         self.screen = Screen([o.satrec for o in objects], shared.pointing_model, focal_plane, window.epoch, start,
                              stop, coarse_step_ns=round(p.screen_step_s * NS_PER_S),
@@ -209,21 +205,21 @@ class SatelliteCatalog(Block):
                 blocked += 1
         crossings.sort(key=lambda c: (c.passes[0].start_ns, c.obj.object_id))
         log.info("%s: screened %d objects in %.2f s (%d coarse candidates, %d after the fine screen%s); %d cross "
-                 "the field observably, %d more cross it unobservable (shadow, horizon, daylight)", self.who,
+                 "the field observably, %d more cross it unobservable (shadow, horizon, daylight)", self.label,
                  len(objects), self.screen.seconds, self.screen.n_coarse_candidates, len(self.screen.intervals),
                  f", {len(self.screen.failed)} not propagated (SGP4 errors)" if self.screen.failed else "",
                  len(crossings), blocked)
         for c in crossings:
-            log.info("%s: %s (%s) observable %s", self.who, c.obj.name, c.obj.object_id,
+            log.info("%s: %s (%s) observable %s", self.label, c.obj.name, c.obj.object_id,
                      "; ".join(str(x) for x in c.passes))
         if len(crossings) > p.max_objects:
-            raise SceneError(f"{self.who}: {len(crossings)} objects cross the field during the run, more than "
+            raise SceneError(f"{self.label}: {len(crossings)} objects cross the field during the run, more than "
                              f"max_objects={p.max_objects}; narrow the catalogue ('names'), the field or the run")
         if not crossings and p.require_crossing:
             when = f"between {iso(at(window.epoch, start))} and {iso(at(window.epoch, stop))}"
             extra = f"; {blocked} cross it but are never observable (Earth's shadow, horizon or daylight)" \
                 if blocked else ""
-            raise SceneError(f"{self.who}: none of the {len(objects)} objects of {p.catalog_file} is observable in "
+            raise SceneError(f"{self.label}: none of the {len(objects)} objects of {p.catalog_file} is observable in "
                              f"the field of view {when}{extra}; change the pointing, the time or the duration, or "
                              f"set require_crossing: false")
         self.crossings = crossings

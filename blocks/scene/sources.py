@@ -71,10 +71,10 @@ class TleSource(Block):
             try:
                 text = read_text(library.resolve(p.tle_file), "TLE file")   # regular UTF-8 file, bounded
             except UserError as exc:
-                raise ParameterError(f"{self.type_name} '{self.name}' parameter 'tle_file': {exc}") from None
-            source = f"{self.type_name} '{self.name}' tle_file {p.tle_file}"
+                raise ParameterError(f"{self.label} parameter 'tle_file': {exc}") from None
+            source = f"{self.label} tle_file {p.tle_file}"
         else:
-            text, source = p.tle_text, f"{self.type_name} '{self.name}' tle_text"
+            text, source = p.tle_text, f"{self.label} tle_text"
         orbits = parse_tles(text, source)
         if p.select:
             chosen = [o for o in orbits if p.select in (o.catalog_number, o.name) or o.name.upper() == p.select.upper()]
@@ -309,19 +309,19 @@ class PointingLaw(Block):
         try:
             law = moving_law(pointing)
         except ParameterError as exc:
-            raise ParameterError(f"{self.type_name} '{self.name}': {str(exc).removeprefix('pointing: ')}") from None
+            raise ParameterError(f"{self.label}: {str(exc).removeprefix('pointing: ')}") from None
         t = np.linspace(0.0, duration_s, max(2, int(duration_s / 0.01) + 1))
         _, lat = law.coordinates(t)
         outside = np.flatnonzero(np.abs(lat) > 90.0)
         if outside.size:
             name = "elevation" if pointing.coordinates == AZEL else "declination"
             i = outside[0]
-            raise ParameterError(f"{self.type_name} '{self.name}': the {pointing.mode} reaches {name} "
+            raise ParameterError(f"{self.label}: the {pointing.mode} reaches {name} "
                                  f"{lat[i]:.3f} deg at t = {t[i]:.3f} s, beyond the pole; change the start, the "
                                  f"rates or the run's duration")
 
     def step(self, window: Window, target: Orbit | None = None) -> dict:
         if self.params.mode == TRACK and target is None:
-            raise ParameterError(f"{self.type_name} '{self.name}': mode 'track' needs a tle_source connected "
+            raise ParameterError(f"{self.label}: mode 'track' needs a tle_source connected "
                                  f"to its 'target' input")
         return {"pointing": self.pointing(target)}

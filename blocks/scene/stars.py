@@ -153,7 +153,7 @@ class StarField(Block):
                         - integrated_counts_per_deg2(p.catalog_limit_mag, l_deg, b_deg))
         expected = density * area_deg2
         if expected > MAX_SYNTHETIC_STARS:
-            raise ParameterError(f"{self.type_name} '{self.name}': the field sweeps {area_deg2:.0f} deg^2 during "
+            raise ParameterError(f"{self.label}: the field sweeps {area_deg2:.0f} deg^2 during "
                                  f"the run, {expected:.0f} stars down to faint_limit_mag={p.faint_limit_mag:g}; "
                                  f"lower faint_limit_mag or shorten the run")
         n = int(self.rng.poisson(expected))

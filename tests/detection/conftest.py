@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from evsda.blocks.ports import EventCause, Events, FocalPlane
-
-NS_PER_S = 1_000_000_000
+from evsda.graph import NS_PER_S
 
 
 def focal_plane(width: int = 64, height: int = 64) -> FocalPlane:
