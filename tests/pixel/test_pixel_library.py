@@ -164,3 +164,18 @@ def test_faint_limit_script_agrees_with_the_simulated_pixel(scenes):
                                            np.zeros((2, 0, 1, 1))), 6.0, 2.0))
         expected = int(script.contrast(pixel, v_mag) / pixel["params"].threshold_on)
         assert expected == want and ev["t"].size == want and np.all(ev["p"] > 0), (v_mag, ev["t"].size)
+
+
+#: Nominal contrast thresholds the vendor gives, as Weber contrast (L_max - L_min)/L_min (Prophesee's definition,
+#: support article "Event-Based Vision sensor characteristics"): 25 % for the Sony/Prophesee 4.86 um HD pixel
+#: (SE1-S4-USB specification, Sony IMX646, the IMX636's HD sibling; quoted second-hand). cooled_bsi keeps that pixel.
+VENDOR_NOMINAL_CONTRAST = {"prophesee_gen4": 0.25, "cooled_bsi": 0.25}
+
+
+@pytest.mark.parametrize("name", sorted(VENDOR_NOMINAL_CONTRAST))
+def test_preset_threshold_is_the_vendor_nominal_contrast(tmp_path, name):
+    # Eq. 17's theta is in ln of current: a Weber contrast C is reached at ln(1 + C), not at C (0.25 would be
+    # 12 % too high a threshold, 0.2 -- v2e's DAVIS default, the presets' value before -- 10 % too low).
+    p = include_preset(tmp_path, name).nodes["sensor/pixel"].block.params
+    theta = np.log1p(VENDOR_NOMINAL_CONTRAST[name])
+    assert p.threshold_on == pytest.approx(theta, abs=1e-4) and p.threshold_off == pytest.approx(theta, abs=1e-4)
