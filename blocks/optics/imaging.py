@@ -48,6 +48,7 @@ from .sizing import PupilGeometry, choose_geometry
 
 if TYPE_CHECKING:
     from .block import PointSourceOptics
+    from .telescope import Telescope
 
 
 class Imager:
@@ -60,15 +61,16 @@ class Imager:
     messages and log lines (:attr:`~evsda.graph.block.Block.label`).
     """
 
-    def __init__(self, telescope, focal_plane: FocalPlane, wavelength_m: float, atmosphere: Atmosphere | None,
-                 params: PointSourceOptics.Params, *, seed: tuple = (0,), label: str = "optics"):
-        self.telescope, self.focal_plane, self.wavelength = telescope, focal_plane, float(wavelength_m)
+    def __init__(self, telescope: Telescope, focal_plane: FocalPlane, wavelength_m: float,
+                 atmosphere: Atmosphere | None, params: PointSourceOptics.Params, *, seed: tuple = (0,),
+                 label: str = "optics"):
+        self.telescope, self.wavelength = telescope, float(wavelength_m)
         self.atmosphere = atmosphere if atmosphere is not None and atmosphere.layers else None
         self.tolerance, self.focus = float(params.tolerance), params.focus
         self.revisit_s, self.pupil_samples = params.screen_revisit_s, params.pupil_samples
         self.stamp_size_px, self.seed, self.label = params.stamp_size_px, tuple(int(s) for s in seed), label
-        self.pixel_scale = focal_plane.pixel_scale_rad
-        self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
+        self.pixel_scale = focal_plane.pixel_scale_rad                 # [rad]
+        self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])  # [pixel]
         self.geometry: PupilGeometry | None = None
         self.chooser = PathChooser(self, params.psf_path)
         self.pupil = PupilPath(self, params.screen_method, params.screen_update, params.n_zernike_modes)
