@@ -40,18 +40,20 @@ MEASURED = {
 HALF_PERIOD_S = 0.05
 
 
-def preset_pixel(name: str) -> tuple[DvsPixel, float]:
-    """The preset's pixel with noise and threshold spread off, and its pitch [m]."""
+def preset_pixel(name: str, saturation_scale: float = 1.0) -> tuple[DvsPixel, float]:
+    """The preset's pixel with noise and threshold spread off (cutoff_saturation times ``saturation_scale``), and its pitch [m]."""
     graph = load_graph(f"library:sensors/{name}.yaml", overrides={"camera.focal_length_m": 1.0})
     pitch_m = graph.nodes["camera"].block.params.pixel_pitch_m
-    block = DvsPixel(graph.nodes["pixel"].block.params, leak_rate_hz=0.0, shot_noise_rate_hz=0.0,
-                     parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0, noise_rate_spread_decades=0.0)
+    params = graph.nodes["pixel"].block.params
+    block = DvsPixel(params, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0,
+                     noise_rate_spread_decades=0.0, cutoff_saturation=params.cutoff_saturation * saturation_scale)
     return block, pitch_m
 
 
-def step_latencies_us(name: str, irradiance_w_m2: float, wavelength_m: float) -> tuple[float, float]:
+def step_latencies_us(name: str, irradiance_w_m2: float, wavelength_m: float,
+                      saturation_scale: float = 1.0) -> tuple[float, float]:
     """(ON, OFF) latency [us] of the preset pixel to an LED going on for 50 ms from off, then off again."""
-    block, pitch_m = preset_pixel(name)
+    block, pitch_m = preset_pixel(name, saturation_scale)
     photons_s = irradiance_w_m2 * pitch_m**2 * wavelength_m / (constants.h * constants.c)
     fp = FocalPlane(1, 1, pitch_m, 1.0)
     rise_ns, fall_ns = int(HALF_PERIOD_S * 1e9), int(2 * HALF_PERIOD_S * 1e9)
@@ -81,6 +83,20 @@ def main() -> None:
         slope = np.log(np.mean(dim) / np.mean(bright)) / np.log(IRRADIANCES_W_M2[2] / IRRADIANCES_W_M2[0])
         print(f"measured ON latency ~ E^-{slope:.2f} from 0.006 to 0.166 W/m2 (a photoreceptor-limited latency "
               f"follows 1/f: E^-0.5 for the presets' square-root law, E^-1 for a cutoff proportional to the current)")
+        scale = off_matching_scale(name, np.mean(measured["OFF"][0]))
+        print(f"cutoff_saturation x {scale:.0f} (cutoffs / {np.sqrt(scale):.1f}) makes the dim OFF latency the measured one "
+              f"(a what-if, not applied: --set sensor/pixel.cutoff_saturation=...)")
+
+
+def off_matching_scale(name: str, measured_us: float) -> float:
+    """The factor on cutoff_saturation at which the OFF latency at the dimmest level (both LEDs' mean) is ``measured_us``."""
+    def off_us(log_scale: float) -> float:
+        return np.mean([step_latencies_us(name, IRRADIANCES_W_M2[0], wl, np.exp(log_scale))[1] for wl in LED_WAVELENGTHS_M])
+    low, high = 0.0, np.log(1e6)
+    for _ in range(30):                       # bisection in ln(scale): the latency grows with the scale
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if off_us(mid) < measured_us else (low, mid)
+    return float(np.exp(0.5 * (low + high)))
 
 
 if __name__ == "__main__":
