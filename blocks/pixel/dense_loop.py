@@ -29,7 +29,7 @@ import numpy as np
 
 from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing, stays_in_band
 from .comparator import TOLERANCE
-from .drive_kernel import drive_into, drive_one
+from .drive_kernel import SQUARE_LAW, drive_into, drive_one
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
                          SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, relaxed_by, run_pixel)
 
@@ -41,10 +41,19 @@ _STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
  F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
 (I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
 jit = numba.njit(cache=True, error_model="numpy")
+inline = numba.njit(cache=True, error_model="numpy", inline="always")
 
 
 @jit
 def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k):
+    """:func:`_sweep_law` with the cutoff law's ``square_law`` a constant: one loop for each."""
+    if drive_k[SQUARE_LAW] != 0.0:
+        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, True)
+    return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, False)
+
+
+@inline
+def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law):
     """Take the sample at ``t_now`` for the active pixels ``0 .. n - 1`` of a tile, where it is quiet.
 
     ``fs``/``js``: the tile's float and integer tables (flattened ``[field, TILE]``);
@@ -80,7 +89,7 @@ def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k):
         moved = j > 0                         # run_pixel's _advance moves only forward
         new_l = moved_l if moved else filtered
         new_m = moved_m if moved else memorised
-        new_y, new_log_a, new_para, new_accept = drive_one(flux, drive_k)
+        new_y, new_log_a, new_para, new_accept = drive_one(flux, drive_k, square_law)
         # the retention to the next sample, for the bound of first_crossing_one now and the relaxation then
         horizon = J_LIMIT if last else min(t_next - 1 - step, J_LIMIT)
         next_span = horizon if quiet else t_next - 1 - last_step           # waiting: from its last step

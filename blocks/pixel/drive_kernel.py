@@ -27,8 +27,8 @@ from .pixel_loop import ACCEPT, FLUX, LOG_A, PARA, Y
 
 # entries of the constants array (see drive_constants)
 (CURRENT_PER_FLUX, DARK, LOG_TO_DARK, KNEE, KNEE_SLOPE, CUTOFF_MAX, CUTOFF_LAW, CUTOFF_PER_CURRENT, CUTOFF_PER_Y,
- CUTOFF_EXPONENT, LOG_SATURATION, W_PER_HZ, PARA_PER_FLUX, PARA_MAX, SHOT_FLOOR, SHOT_PER_Y, SHOT_SLOPE, ACCEPT_DARK,
- ACCEPT_FLAT, N_CONSTANTS) = range(20)
+ CUTOFF_EXPONENT, LOG_SATURATION, SQUARE_LAW, CUTOFF_SQUARED_PER_CURRENT, W_PER_HZ, PARA_PER_FLUX, PARA_MAX,
+ SHOT_FLOOR, SHOT_PER_Y, SHOT_SLOPE, ACCEPT_DARK, ACCEPT_FLAT, N_CONSTANTS) = range(22)
 LAWS = {"paper": 0.0, "proportional": 1.0, "power": 2.0}          # cutoff laws of Eq. 16 (:mod:`.lowpass`)
 
 jit = numba.njit(cache=True, error_model="numpy")
@@ -48,6 +48,8 @@ def drive_constants(model: PixelModel) -> np.ndarray:
     k[CUTOFF_PER_CURRENT] = p.cutoff_max_hz / p.cutoff_saturation                           # [Hz]
     k[CUTOFF_PER_Y] = p.cutoff_max_hz / lowpass.PAPER_SCALE                                 # [Hz]
     k[CUTOFF_EXPONENT], k[LOG_SATURATION] = p.cutoff_exponent, np.log(p.cutoff_saturation)  # [1], [1]
+    k[SQUARE_LAW] = float(p.cutoff_model == "power" and p.cutoff_exponent == 0.5)          # the power law is a root
+    k[CUTOFF_SQUARED_PER_CURRENT] = p.cutoff_max_hz ** 2 / p.cutoff_saturation               # [Hz^2]
     k[W_PER_HZ] = 2.0 * np.pi * model.dt_s                                                  # [s]
     k[PARA_PER_FLUX] = photon_j * p.luminous_efficacy_lm_per_W / model.pixel_area_m2 * p.parasitic_rate_per_lux_hz
     k[PARA_MAX] = model.parasitic_max_hz                                                    # [Hz]
@@ -61,8 +63,14 @@ def drive_constants(model: PixelModel) -> np.ndarray:
 
 
 @inline
-def drive_one(flux, k):
-    """``(Y, ln a, R_para, accept)`` for a photon flux [photon s^-1] (see :meth:`PixelModel.drive`)."""
+def drive_one(flux, k, square_law):
+    """``(Y, ln a, R_para, accept)`` for a photon flux [photon s^-1] (see :meth:`PixelModel.drive`).
+
+    ``square_law``: ``k[SQUARE_LAW] != 0``, the power cutoff law with exponent 1/2, whose
+    ``(x / x_sat)^(1/2) f_max`` is ``sqrt(x f_max^2 / x_sat)`` (one rounding instead of an ``exp``
+    of a logarithm); a loop over pixels passes it as a constant (two versions of the loop), so
+    that the other is not computed.
+    """
     # the constants are read first and every alternative is computed and one selected (no branches, no
     # conditional loads), so that loops over pixels vectorise
     current_per_flux, dark, log_to_dark, knee, knee_slope = (k[CURRENT_PER_FLUX], k[DARK], k[LOG_TO_DARK], k[KNEE],
@@ -76,7 +84,8 @@ def drive_one(flux, k):
     x = flux * current_per_flux + dark                                     # normalised current, Eqs. 12, 13, 15
     log_x = log_(x)
     y = log_x if (log_to_dark != 0.0) | (not x < knee) else x * knee_slope            # lin-log, Eq. 14
-    f_power = f_max * exp_(min(max(exponent * (log_x - log_saturation), -700.0), 700.0))   # (x / x_sat)^n f_max
+    f_power = (math.sqrt(x * k[CUTOFF_SQUARED_PER_CURRENT]) if square_law else
+               f_max * exp_(min(max(exponent * (log_x - log_saturation), -700.0), 700.0)))   # (x / x_sat)^n f_max
     f_power = f_power if x > 0.0 else 0.0
     f = x * per_current if law == 1.0 else (f_power if law == 2.0 else (y + lowpass.PAPER_OFFSET) * per_y)  # Eq. 16
     log_a = -log1p_(w_per_hz * min(max(f, 0.0), f_max))                    # ln(1 - eps) = -ln(1 + w)
@@ -92,7 +101,7 @@ def drive_one(flux, k):
 def drive_into(row, flux, k):
     """Set ``row[FLUX, Y, LOG_A, PARA, ACCEPT]`` for a photon flux [photon s^-1] (:func:`drive_one`)."""
     row[FLUX] = flux
-    row[Y], row[LOG_A], row[PARA], row[ACCEPT] = drive_one(flux, k)
+    row[Y], row[LOG_A], row[PARA], row[ACCEPT] = drive_one(flux, k, k[SQUARE_LAW] != 0.0)
 
 
 @jit
