@@ -8,6 +8,15 @@ McMahon-Crabtree & Monet (2021, Applied Optics 60(25), G144) measured Prophesee 
 * setup 3 (PREDICTION, other optics and motion): Gen3 VGA behind a 200 mm f/2.0 lens, scanning: no star detected
   while scanning faster than 0.5 deg/s.
 
+D. G. Monet (AFRL) stared with a Gen3 VGA and a Gen4 behind a 135 mm f/2.0 lens, cut the positive events into 5 s
+slices, found the stars in each with SExtractor and matched them to Gaia DR2 ("Limiting Magnitude Analysis - update
+14 Aug 2022", the figure in github gcohen/AMOS-Short-Course, Data/Monet/star_files): 90 % of the matched stars are
+brighter than Gaia G 9.8 (Gen3) and G 10.1 (Gen4). The figure's legend pairs the two numbers the other way round;
+its curves and their 90 % lines read as here.
+
+* setup 4 (PREDICTION, other optics): Gen3 VGA behind the 135 mm f/2.0, staring: G 9.8;
+* setup 5 (PREDICTION, another sensor with its own measured dark current, other optics): Gen4 behind it: G 10.1.
+
 Their limiting-magnitude model, which reproduced their VGA measurement within 0.1 mag, counts a star as detected
 when the change of the photocurrent it causes in a pixel reaches the contrast threshold. The same criterion in evsda
 is the *contrast limit* (:meth:`evsda.blocks.detection.analytic.EventLimit.contrast_limit`): the magnitude at which
@@ -65,7 +74,12 @@ SETUPS = (
           "PREDICTION", 6.9, "V 6.9", "4.5:9.5:0.5"),
     Setup("onsky_scan_200mm.yaml", "Gen3 VGA 15 um, 200 mm f/2.0, scan at 0.5 deg/s, 20.3 mag/arcsec^2",
           "PREDICTION", None, "no star above 0.5 deg/s", "9.5:14.5:0.5"),
+    Setup("onsky_stare_135mm_vga.yaml", "Gen3 VGA 15 um, 135 mm f/2.0, stare (15\"/s), sky 20.3 assumed",
+          "PREDICTION", 9.8, "G 9.8 (90 % of matches)", "5.5:10.5:0.5"),
+    Setup("onsky_stare_135mm_gen4.yaml", "Gen4 4.86 um, 135 mm f/2.0, stare (15\"/s), sky 20.3 assumed",
+          "PREDICTION", 10.1, "G 10.1 (90 % of matches)", "4:9:0.5"),
 )
+GEN4 = SETUPS[4]
 SCAN_RATES_DEG_S = (0.5, 1.0, 2.0, 4.0)      # rates at which the scan setup's contrast limit is printed [deg/s]
 BANDWIDTH_SLOWER = (10.0, 100.0, 1000.0)     # factors by which the sensitivity lines slow the photoreceptor [1]
 SCAN_PIXEL_ARCSEC = 15.47                    # 15 um at 200 mm [arcsec]
@@ -130,6 +144,16 @@ def print_sensitivities(stare: Setup, scan: Setup) -> None:
               f"{scan.graph} at 1 deg/s V {contrast_limit(scan.path, override + scan_rate_overrides(1.0)):.2f}")
 
 
+def print_gen4_dark_current(setup: Setup) -> None:
+    """What the Gen4 miss asks of its dark current: the value at which the setup's contrast limit would equal the
+    measured limit (a diagnostic, not applied: the preset keeps the measured 5.5 fA)."""
+    j = fit_dark_current(setup, report=lambda *a: None)
+    pixel_area_m2 = 4.86e-6 ** 2
+    print(f"{setup.graph}: the dark current at which the predicted limit would be {setup.measured_text}: "
+          f"{j:.3g} A/m^2 = {j * pixel_area_m2 * 1e15:.3g} fA = {j * pixel_area_m2 / ELECTRON_C:.0f} e-/s on a "
+          f"4.86 um pixel (preset: measured 5.5 fA = 34 300 e-/s; not applied)")
+
+
 def run(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fit", action="store_true", help="fit the Gen3 VGA dark current to setup 1 and print it")
@@ -183,6 +207,7 @@ def run(argv: list[str] | None = None) -> int:
         print(f"  {r:g} deg/s: V {m:.2f}; {'>= ' if bound else ''}{density:.3f} per deg^2; one every "
               f"{'<= ' if bound else ''}{1.0 / (density * SCAN_SWATH_DEG * r):.1f} s")
     print_sensitivities(fitted, scan)
+    print_gen4_dark_current(GEN4)
     print(f"all: {time.perf_counter() - start:.0f} s wall, {cpu_s() - cpu0:.0f} CPU s; load average {load0:.1f} "
           f"before, {os.getloadavg()[0]:.1f} after; {os.cpu_count()} cores")
     return 0

@@ -60,6 +60,10 @@ SHORT: dict[str, dict] = {
                                    "detector.look_s": 0.5},
     "onsky_stare_85mm_vga.yaml": {**LIMITING, "sensor/camera.width_px": 64, "sensor/camera.height_px": 64,
                                   "detector.look_s": 0.5},
+    "onsky_stare_135mm_gen4.yaml": {**LIMITING, "sensor/camera.width_px": 64, "sensor/camera.height_px": 64,
+                                    "detector.look_s": 0.5},
+    "onsky_stare_135mm_vga.yaml": {**LIMITING, "sensor/camera.width_px": 64, "sensor/camera.height_px": 64,
+                                   "detector.look_s": 0.5},
     "scan_star_streaks.yaml": {**_small("sensor/", *GEN4), "run.duration_s": 0.1, "stars.faint_limit_mag": 9.0},
     "scene_pass.yaml": {"run.start": "2023-03-20T19:19:59.8Z", "run.duration_s": 0.2, "camera.width_px": 320,
                         "camera.height_px": 180, "camera.pixel_pitch_m": 1.944e-5, "stars.faint_limit_mag": 10.0},
@@ -72,7 +76,8 @@ SHORT: dict[str, dict] = {
 #: inside the scenes that include it
 SUBGRAPHS = {"limiting_magnitude_cmos.yaml": "limiting_magnitude_frames.yaml",
              "limiting_magnitude_scene.yaml": "limiting_magnitude_events.yaml",
-             "onsky_stare_scene.yaml": "onsky_stare_85mm_vga.yaml"}
+             "onsky_stare_scene.yaml": "onsky_stare_85mm_vga.yaml",
+             "onsky_stare_135mm_scene.yaml": "onsky_stare_135mm_vga.yaml"}
 
 # scene: (digest of its resolved graph, SHA-256 of its run store); written by running this file
 EXPECTED: dict[str, tuple[str, str]] = {
@@ -90,6 +95,10 @@ EXPECTED: dict[str, tuple[str, str]] = {
                                        "a057660e09196284d3b6c1dfa729867917fda97a693ff12b958b9af3128d3859"),
     "onsky_scan_200mm.yaml": ("cd87c9a431fa140a4b25c69e6deb33a2b516692a8f427062918cd8d107ade10e",
                               "10bf98c58130aa22c1675e3fad155dc5f07474dc67b87a0baee80073bf077f6e"),
+    "onsky_stare_135mm_gen4.yaml": ("8b0a7b8813f045cd82e1198eb26d080a1b36134c7bf8e003192c862ee61f6dbd",
+                                    "e095ff56cba101c6a70cfb8e8aadfb2974ad90d55eb8df45cddbad28223e674c"),
+    "onsky_stare_135mm_vga.yaml": ("eb6f71d456f43a8fd94bbc402e78663336eee53ede803fc3f5a25f88a3b0b598",
+                                   "3e97ecdf060d37196787b0c1164b60f9d7c0efaae58adbb3334b0ab06d40598d"),
     "onsky_stare_85mm_hvga.yaml": ("6f299a4c7ea606876543586516fee02094f3a93917f0a9435fe9c3bc00d55b1b",
                                    "61adcd555d79764fd2bd4f4c581707e81fbc102c95a9caeda53c3bf31375ac23"),
     "onsky_stare_85mm_vga.yaml": ("6da30d0949f25621b904c238b369a7f10f21683819168ad1265a924e2a022ff2",

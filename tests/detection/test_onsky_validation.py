@@ -72,6 +72,7 @@ def test_contrast_limit_is_the_papers_condition_without_bandwidth():
     ("onsky_stare_85mm_vga.yaml", 36.4, 0.0607, 15.0),     # 15 um at 85 mm, f/1.4, the sidereal rate
     ("onsky_stare_85mm_hvga.yaml", 48.5, 0.0607, 15.0),    # 20 um at 85 mm
     ("onsky_scan_200mm.yaml", 15.5, 0.1, 1800.0),          # 15 um at 200 mm, f/2.0, scanning at 0.5 deg/s
+    ("onsky_stare_135mm_vga.yaml", 22.9, 0.0675, 15.0),    # 15 um at 135 mm, f/2.0 (Monet 2022)
 ])
 def test_graph_files_hold_the_papers_setups(graph, pixel_arcsec, aperture_m, rate_arcsec_s):
     g = load_graph(str(EXAMPLES / graph))
@@ -87,6 +88,18 @@ def test_graph_files_hold_the_papers_setups(graph, pixel_arcsec, aperture_m, rat
     vga = vga.block.params.cutoff_saturation
     assert by_type["dvs_pixel"].params.cutoff_saturation == pytest.approx(vga * (cam.pixel_pitch_m / 15e-6) ** 2,
                                                                          rel=0.001)
+
+
+def test_gen4_setup_is_the_gen4_preset_unchanged_behind_the_135mm_lens():
+    # Monet's 2022 Gen4 stare is a prediction: the graph takes every pixel number from the Gen4 preset (its measured
+    # dark current included) and sets only the camera's geometry: 4.86 um at 135 mm f/2.0 is 7.43 arcsec per pixel.
+    g = load_graph(str(EXAMPLES / "onsky_stare_135mm_gen4.yaml"))
+    by_type = {node.block.type_name: node.block for node in g.nodes.values()}
+    cam = by_type["camera"].params
+    assert cam.pixel_pitch_m / cam.focal_length_m * ARCSEC_PER_RAD == pytest.approx(7.43, rel=0.002)
+    assert by_type["optics"].params.aperture_m == pytest.approx(0.0675)
+    preset = load_graph("library:sensors/prophesee_gen4.yaml", ["camera.focal_length_m=0.135"]).nodes["pixel"]
+    assert by_type["dvs_pixel"].params == preset.block.params
 
 
 def test_fitted_gen3_dark_current_reproduces_the_measurement_it_was_fitted_to():
