@@ -5,9 +5,9 @@ appears at t = 0.5 s on a DAVIS346 (library:sensors/davis346.yaml) and stays, as
 under sidereal tracking, on a dark sky. Dark current dilutes its log contrast,
 ln(1 + I_s / I_dark), and halves about every 10 K of cooling (Arrhenius form of the paper's
 Eq. 15), so the same source gives more events on a colder sensor. The preset's photoreceptor
-is logarithmic down to its dark current and its bandwidth follows its current (3 kHz at
-1 klux, a fraction of a hertz here): the source is seen within a second or two, and the
-colder sensor, for which the same source is a larger contrast, also answers sooner.
+is logarithmic down to its dark current and its bandwidth grows as the square root of its
+current (3 kHz at 56 lx on the pixel, Lichtsteiner et al. 2008; 50-180 Hz here): the source is
+seen within milliseconds, where the colder sensor, for which it is a larger contrast, fires more.
 
     python examples/pixel_cooling_trade.py
 """
