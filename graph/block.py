@@ -269,6 +269,33 @@ class Block:
         return f"{type(self).__name__}(name={self.name!r}, {self.params!r})"
 
 
+def step_signature_problems(block_class: type[Block]) -> list[str]:
+    """Where ``block_class.step``'s parameters disagree with its ``inputs`` (empty when they agree).
+
+    A block declares each input twice, once in ``inputs`` (port type, description, required) and
+    once as a ``step()`` parameter (so it runs from Python with named arguments); this is the rule
+    that keeps the two one declaration: the same names, a required input without a default, an
+    optional one defaulting to ``None``, and no ``*args`` or ``**inputs`` catch-all.
+    :func:`~evsda.graph.registry.register` refuses a block that breaks it.
+    """
+    parameters = list(inspect.signature(inspect.unwrap(block_class.step)).parameters.values())[2:]
+    problems = [f"step() takes *{p.name}/**{p.name}" for p in parameters
+                if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
+    named = {p.name: p for p in parameters if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
+    if set(named) != set(block_class.inputs):
+        problems.append(f"step() parameters {sorted(named)} != inputs {sorted(block_class.inputs)}")
+    for port, spec in block_class.inputs.items():
+        parameter = named.get(port)
+        if parameter is None:
+            continue
+        has_default = parameter.default is not inspect.Parameter.empty
+        if spec.required and has_default:
+            problems.append(f"required input '{port}' has a default in step()")
+        if not spec.required and (not has_default or parameter.default is not None):
+            problems.append(f"optional input '{port}' must default to None in step()")
+    return problems
+
+
 def _checked_step(step):
     """``step`` with its window and inputs checked first: a missing required input, an unknown one, a
     value of the wrong port type, or a window that is not a :class:`Window` is an :class:`InputError`."""

@@ -12,10 +12,11 @@ pyproject.toml::
     [project.entry-points."evsda.blocks"]
     my_arbiter = "mypackage.arbiter:MyArbiter"
 
-A plugin that fails to import, or whose block type clashes with one already registered, hides
-none of the others: its failure is kept (:func:`broken`) and shown where its blocks would be
+A plugin that fails to import, whose block type clashes with one already registered, or whose
+block's ``step()`` parameters are not its declared inputs (:func:`~evsda.graph.block.step_signature_problems`)
+hides none of the others: its failure is kept (:func:`broken`) and shown where its blocks would be
 asked for (:func:`unknown_block`, ``evsda blocks``). :func:`register` called directly raises on
-a clash.
+either.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from importlib import import_module
 from importlib.metadata import entry_points
 
-from .block import Block
+from .block import Block, step_signature_problems
 from .errors import UserError
 
 ENTRY_POINT_GROUP = "evsda.blocks"
@@ -52,6 +53,10 @@ def register(block_class: type[Block], origin: str = "python") -> type[Block]:
     name = block_class.type_name
     if not name:
         raise TypeError(f"{block_class.__name__} has no type_name")
+    problems = step_signature_problems(block_class)
+    if problems:
+        raise TypeError(f"block '{name}' ({_spec(block_class)}): its step() must take exactly its declared "
+                        f"inputs by name: {'; '.join(problems)}")
     existing = _registered.get(name)
     if (existing is not None and existing is not block_class) or _lazy.get(name, _spec(block_class)) != _spec(block_class):
         raise _clash(name, origin)
@@ -138,7 +143,12 @@ def _resolve(name: str) -> type[Block] | None:
         _lazy.pop(name)
         _broken[name] = f"block '{name}' ({spec}, {_origin[name]}) is not a Block subclass of that type"
         return None
-    return register(block_class, _origin[name])
+    try:
+        return register(block_class, _origin[name])
+    except TypeError as exc:  # kept, not raised, as for a plugin whose block breaks the contract
+        _lazy.pop(name)
+        _broken[name] = f"{exc} ({_origin[name]})"
+        return None
 
 
 def load_entry_points() -> None:

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
-import inspect
+import os
+import subprocess
+import sys
 
 import pytest
 
 from evsda.graph import Block, Input, Output, registry
+from evsda.graph.block import step_signature_problems
 from evsda.graph.ports import PORT_TYPES
 from evsda.graph.report import describe_block, split_unit
 
@@ -35,31 +38,9 @@ def test_block_contract(name):
     assert name in describe_block(name, cls)
 
 
-def step_problems(cls: type[Block]) -> list[str]:
-    """Where ``cls.step``'s parameters disagree with ``cls.inputs`` (issue 16.5: inputs are declared
-    twice, and this is what keeps the two declarations one): the same names, a required input without
-    a default and an optional one defaulting to ``None``, no catch-all ``**inputs`` or ``*args``."""
-    parameters = list(inspect.signature(inspect.unwrap(cls.step)).parameters.values())[2:]
-    problems = [f"step() takes *{p.name}/**{p.name}" for p in parameters
-                if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD)]
-    named = {p.name: p for p in parameters if p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)}
-    if set(named) != set(cls.inputs):
-        problems.append(f"step() parameters {sorted(named)} != inputs {sorted(cls.inputs)}")
-    for port, spec in cls.inputs.items():
-        parameter = named.get(port)
-        if parameter is None:
-            continue
-        has_default = parameter.default is not inspect.Parameter.empty
-        if spec.required and has_default:
-            problems.append(f"required input '{port}' has a default in step()")
-        if not spec.required and (not has_default or parameter.default is not None):
-            problems.append(f"optional input '{port}' must default to None in step()")
-    return problems
-
-
 @pytest.mark.parametrize("name", BUILTIN)
 def test_step_parameters_are_the_declared_inputs(name):
-    assert step_problems(registry.get(name)) == []
+    assert step_signature_problems(registry.get(name)) == []
 
 
 def test_the_step_check_sees_a_disagreement():
@@ -73,7 +54,58 @@ def test_the_step_check_sees_a_disagreement():
         def step(self, window, frames=None, extras=None):
             return {}
 
-    assert step_problems(Drifted) == [
+    assert step_signature_problems(Drifted) == [
         "step() parameters ['extras', 'frames'] != inputs ['extra', 'frames']",
         "required input 'frames' has a default in step()",
     ]
+
+
+def test_registering_a_block_whose_step_disagrees_is_refused():
+    """The rule is the framework's, not only this test's: a plugin's block breaking it is not registered."""
+    port_type = registry.get("dvs_pixel").inputs["irradiance"].type
+
+    class Drifted(Block):
+        """A block whose step() renamed its input."""
+        type_name = "drifted_contract"
+        inputs = {"frames": Input(port_type)}
+        outputs = {"out": Output(port_type)}
+
+        def step(self, window, frame):
+            return {}
+
+    with pytest.raises(TypeError, match=r"block 'drifted_contract' \(.*Drifted\): its step\(\) must take exactly "
+                                        r"its declared inputs by name: step\(\) parameters \['frame'\] != "
+                                        r"inputs \['frames'\]"):
+        registry.register(Drifted)
+    assert registry.get("drifted_contract") is None
+
+
+DRIFTED_PLUGIN = '''
+from evsda.graph import Block, Input, Output, registry
+PORT = registry.get("dvs_pixel").inputs["irradiance"].type
+
+class Drifted(Block):
+    """A plugin block whose step() takes an input it never declared."""
+    type_name = "drifted_plugin"
+    inputs = {"frames": Input(PORT)}
+    outputs = {"out": Output(PORT)}
+
+    def step(self, window, frames, extra=None):
+        return {}
+'''
+
+
+def test_a_plugin_whose_step_disagrees_is_reported_and_hides_no_other_block(tmp_path):
+    (tmp_path / "evsda_drifted.py").write_text(DRIFTED_PLUGIN)
+    dist = tmp_path / "evsda_drifted-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: evsda-drifted\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[evsda.blocks]\ndrifted = evsda_drifted:Drifted\n")
+    proc = subprocess.run([sys.executable, "-m", "evsda.graph.cli", "blocks"], capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert proc.returncode == 0, proc.stderr
+    assert "dvs_pixel" in proc.stdout and "drifted_plugin" not in proc.stdout
+    assert ("block plugin 'drifted' (evsda_drifted:Drifted): block 'drifted_plugin' (evsda_drifted:Drifted): "
+            "its step() must take exactly its declared inputs by name: "
+            "step() parameters ['extra', 'frames'] != inputs ['frames']") in proc.stderr
+    assert "Traceback" not in proc.stderr
