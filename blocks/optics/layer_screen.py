@@ -34,7 +34,7 @@ import numpy as np
 from .autoregressive import extension_operator
 from .fft_screens import fft_phase_screens
 from .screen_kernels import (MARGIN, REGENERATE, extend_columns, plan_walk, prefilter, prefilter_band, prefilter_taps,
-                             read_band, sample_grids)
+                             read_band, sample_grids, sample_grids_transposed)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -147,9 +147,12 @@ class LayerScreen:
 
     # -- sampling ---------------------------------------------------------------------------------
     def accumulate(self, rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray, weight: np.ndarray,
-                   out: np.ndarray) -> None:
+                   out_t: np.ndarray) -> None:
         """Walk the footprints of separable grids ``rows`` (F, ny), ``cols`` (F, nx) [delta] and add ``weight[f]`` times
-        the phase [rad, for r0 = 1 m] to ``out`` (F, ny, nx), each frame read when the window holds it.
+        the phase [rad, for r0 = 1 m] to ``out_t`` (F, nx, ny), each frame read when the window holds it.
+
+        ``out_t`` is the phase transposed (``out_t[f, j, i]`` at ``rows[f, i]``, ``cols[f, j]``): the
+        compiled read then runs along its contiguous rows; each value is :meth:`sample`'s, bit for bit.
         """
         rows = np.ascontiguousarray(rows, dtype=float)
         cols = np.ascontiguousarray(cols, dtype=float)
@@ -162,7 +165,7 @@ class LayerScreen:
             if not inside:
                 raise ValueError("screen sampled outside its window")
             coefficients = prefilter_band(values, _TAPS, low, high)
-            if not sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
+            if not sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
                 raise ValueError("screen sampled outside its window")
 
         low = np.stack([rows[:, 0], cols[:, 0]], axis=-1)

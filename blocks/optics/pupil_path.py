@@ -59,9 +59,9 @@ class PupilPath:
         """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight."""
         g = self.imager.geometry
         frames = len(t_s)
-        phase = np.zeros((frames, g.n_pupil, g.n_pupil))
+        phase_t = np.zeros((frames, g.n_pupil, g.n_pupil))        # transposed: (F, x, y), see LayerScreen.accumulate
         if not self.imager.atmosphere:
-            return phase
+            return phase_t
         turbulent = np.isfinite(zenith_rad)
         xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
         k2 = (2 * np.pi / self.imager.wavelength) ** 2
@@ -77,8 +77,8 @@ class PupilPath:
             cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
             # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
             weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
-            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase)
-        return phase
+            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase_t)
+        return np.ascontiguousarray(phase_t.transpose(0, 2, 1))
 
     def _modal_phase(self, source, t_s, x_px, y_px, zenith_rad, range_m, epochs) -> np.ndarray:
         """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""

@@ -216,25 +216,46 @@ def prefilter_band(values, taps, low, high):
         for i in range(max(0, need_low[k]), min(height, need_high[k])):
             k0[i] = min(k0[i], k)
             k1[i] = k + 1
+    # loops run over slices from 0 (indices Numba knows are not negative: no wraparound checks, so SIMD)
     rows = np.empty((height, width))
     for i in range(height):
         if k1[i] <= k0[i]:
             continue
-        line = rows[i]
-        line[k0[i]:k1[i]] = 0.0
+        line = rows[i, k0[i]:k1[i]]
+        line[:] = 0.0
         for m in range(max(0, i - half), min(height, i + half + 1)):
             t = taps[m - i + half]
-            source = values[m]
-            for k in range(k0[i], k1[i]):
-                line[k] += t * source[k]
+            source = values[m, k0[i]:k1[i]]
+            for q in range(line.shape[0]):
+                line[q] += t * source[q]
     out = np.zeros((height, width))
+    acc = np.empty(width)
     for i in range(height):
+        j0, j1 = width, 0                       # the span of this row's coefficients
         for j in range(k0[i], k1[i]):
             if low[j] <= i < high[j]:
-                acc = 0.0
-                for k in range(max(0, j - half), min(width, j + half + 1)):
-                    acc += taps[k - j + half] * rows[i, k]
-                out[i, j] = acc
+                j0 = min(j0, j)
+                j1 = j + 1
+        # away from the edges, every coefficient of the span at once (along the row): each still
+        # adds its terms in tap order, so it is the scalar sum bit for bit
+        a, b = max(j0, half), min(j1, width - half)
+        if a < b:
+            span = acc[a:b]
+            span[:] = 0.0
+            for t in range(2 * half + 1):
+                tap = taps[t]
+                source = rows[i, a - half + t:b - half + t]
+                for q in range(span.shape[0]):
+                    span[q] += tap * source[q]
+        for j in range(j0, j1):
+            if low[j] <= i < high[j]:
+                if a <= j < b:
+                    out[i, j] = acc[j]
+                else:
+                    total = 0.0
+                    for k in range(max(0, j - half), min(width, j + half + 1)):
+                        total += taps[k - j + half] * rows[i, k]
+                    out[i, j] = total
     return out
 
 
@@ -307,4 +328,46 @@ def sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
                 c = ix[j] - c0
                 target[j] += g * (wx[j, 0] * line[c] + wx[j, 1] * line[c + 1]
                                   + wx[j, 2] * line[c + 2] + wx[j, 3] * line[c + 3])
+    return True
+
+
+@jit
+def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
+    """:func:`sample_grids` into the transposed ``out_t`` (F, nx, ny): ``out_t[f, j, i]`` gets what ``out[f, i, j]`` would.
+
+    Every sample is the same sum in the same order; the 4 coefficient rows combined along y are
+    stored by column (``lines[c, i]``), so the 4-tap combination along x runs over contiguous
+    output rows of ``out_t`` (SIMD) instead of gathering columns for each output sample.
+    """
+    height, width = coefficients.shape
+    ny, nx = rows.shape[1], cols.shape[1]
+    iy = np.empty(ny, np.int64)
+    ix = np.empty(nx, np.int64)
+    wy = np.empty((ny, 4))
+    wx = np.empty((nx, 4))
+    lines = np.empty((width, ny))               # the y-combined rows, column by column: contiguous in y
+    combined = np.empty(width)
+    for f in range(first, stop):
+        _taps(rows[f] - top, iy, wy)
+        _taps(cols[f] - left, ix, wx)
+        if iy[0] < 0 or iy[ny - 1] + 3 >= height or ix[0] < 0 or ix[nx - 1] + 3 >= width:
+            return False
+        c0, c1 = ix[0], ix[nx - 1] + 4
+        g = weight[f]
+        for i in range(ny):
+            r = iy[i]
+            w0, w1, w2, w3 = wy[i, 0], wy[i, 1], wy[i, 2], wy[i, 3]
+            k0, k1, k2, k3 = (coefficients[r, c0:c1], coefficients[r + 1, c0:c1], coefficients[r + 2, c0:c1],
+                              coefficients[r + 3, c0:c1])
+            for q in range(c1 - c0):
+                combined[q] = w0 * k0[q] + w1 * k1[q] + w2 * k2[q] + w3 * k3[q]
+            for q in range(c1 - c0):
+                lines[q, i] = combined[q]
+        for j in range(nx):
+            c = ix[j] - c0
+            a0, a1, a2, a3 = wx[j, 0], wx[j, 1], wx[j, 2], wx[j, 3]
+            l0, l1, l2, l3 = lines[c], lines[c + 1], lines[c + 2], lines[c + 3]
+            target = out_t[f, j]
+            for i in range(ny):
+                target[i] += g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
     return True

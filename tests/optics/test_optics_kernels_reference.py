@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsda.blocks.optics.screen_kernels import _taps, prefilter_band, prefilter_taps, sample_grids
+from evsda.blocks.optics.screen_kernels import _taps, prefilter_band, prefilter_taps, sample_grids, sample_grids_transposed
 
 
 def reference_prefilter(values, taps, low, high):
@@ -73,3 +73,18 @@ def test_sample_grids_is_its_sums_in_order():
     assert sample_grids(coefficients, 2, 3, rows, cols, weight, 0, 3, fast)
     reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
     np.testing.assert_array_equal(fast, slow)
+
+
+def test_transposed_sampler_is_the_same_sums_in_order():
+    # the fast path of a walk (output transposed, SIMD along y) against the same plain-Python sums
+    rng = np.random.default_rng(9)
+    coefficients = rng.standard_normal((50, 80))
+    rows = 5 + rng.uniform(0, 3, (4, 1)) + 0.21 * np.arange(42)[None]
+    cols = 8 + rng.uniform(0, 40, (4, 1)) + 0.52 * np.arange(40)[None]
+    weight = rng.uniform(0.5, 2.0, 4)
+    fast, slow = rng.standard_normal((4, 40, 42)), np.empty((4, 42, 40))
+    slow[:] = fast.transpose(0, 2, 1)
+    assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 1, 4, fast)
+    reference_sample(coefficients, 2, 3, rows[1:], cols[1:], weight[1:], slow[1:])
+    np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
+    assert not sample_grids_transposed(coefficients, 2, 3, rows + 40, cols, weight, 0, 4, fast)

@@ -138,8 +138,9 @@ def test_walked_screen_keeps_von_karman_statistics_up_to_several_footprints():
         steps = 1500
         c = 20.0 + np.arange(steps)
         rows, cols = np.tile([20.0, 20.0 + across], (steps, 1)), np.c_[c, c + 1]
-        out = np.zeros((steps, 2, 2))
-        LayerScreen(n, delta, (seed,), L0=L0).accumulate(rows, cols, np.zeros(steps, np.int64), np.ones(steps), out)
+        out_t = np.zeros((steps, 2, 2))
+        LayerScreen(n, delta, (seed,), L0=L0).accumulate(rows, cols, np.zeros(steps, np.int64), np.ones(steps), out_t)
+        out = out_t.transpose(0, 2, 1)
         v = out[100:, 0, 0]
         along += [np.mean((v[k:] - v[:-k]) ** 2) for k in seps]
         transverse += np.mean((out[100:, 0, 0] - out[100:, 1, 0]) ** 2)
@@ -194,8 +195,9 @@ def test_batched_walk_reads_what_frame_by_frame_covers_read():
     rows, cols = path[:, :1] + grid, path[:, 1:] + grid
     epochs = np.zeros(len(path), dtype=np.int64)
     batched = LayerScreen(40, 0.02, (4,), L0=25.0)
-    out = np.zeros((len(path), 12, 12))
-    batched.accumulate(rows, cols, epochs, np.full(len(path), 2.0), out)
+    out_t = np.zeros((len(path), 12, 12))
+    batched.accumulate(rows, cols, epochs, np.full(len(path), 2.0), out_t)
+    out = out_t.transpose(0, 2, 1)
     single = LayerScreen(40, 0.02, (4,), L0=25.0)
     for f in range(len(path)):
         single.cover(np.array([rows[f, 0], cols[f, 0]]), np.array([rows[f, -1], cols[f, -1]]))
