@@ -138,10 +138,28 @@ def print_sensitivities(stare: Setup, scan: Setup) -> None:
     print(f"{stare.graph}: predicted limit with the prior dark current (1e-5 A/m^2) V {prior:.2f}; with the fitted one "
           f"and no low-pass V {static:.2f}")
     saturation = design_limit(stare.path).d.pixel.params.cutoff_saturation
-    for slower in BANDWIDTH_SLOWER:
+    nist = nist_saturation_scale()
+    for slower, label in [(k, f"{k:g}x slower") for k in BANDWIDTH_SLOWER] + [
+            (math.sqrt(nist), f"{math.sqrt(nist):.1f}x slower (NIST's dim OFF latency on this VGA: cutoff_saturation "
+                              f"x {nist:.1f}, benchmarks/pixel_latency_nist.py)")]:
         override = [f"sensor/pixel.cutoff_saturation={saturation * slower ** 2:.6g}"]
-        print(f"  bandwidth {slower:g}x slower: {stare.graph} V {contrast_limit(stare.path, override):.2f}, "
-              f"{scan.graph} at 1 deg/s V {contrast_limit(scan.path, override + scan_rate_overrides(1.0)):.2f}")
+        scans = ", ".join(f"{r:g} deg/s V {contrast_limit(scan.path, override + scan_rate_overrides(r)):.2f}"
+                          for r in (0.5, 1.0))
+        print(f"  bandwidth {label}: {stare.graph} V {contrast_limit(stare.path, override):.2f}, {scan.graph} {scans}")
+
+
+def nist_saturation_scale() -> float:
+    """The factor on the Gen3 preset's cutoff_saturation at which its OFF latency to NIST's dimmest LED step is the
+    one NIST measured on a SilkyEvCam VGA at default biases (benchmarks/pixel_latency_nist.py computes it)."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("pixel_latency_nist", Path(__file__).with_name("pixel_latency_nist.py"))
+    nist = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = nist
+    spec.loader.exec_module(nist)
+    measured_off_us = sum(nist.MEASURED["prophesee_gen3_vga"]["OFF"][0]) / 2
+    return nist.off_matching_scale("prophesee_gen3_vga", measured_off_us)
 
 
 def print_gen4_dark_current(setup: Setup) -> None:
