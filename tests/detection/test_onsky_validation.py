@@ -119,6 +119,17 @@ def test_fit_inverts_a_known_limit_against_dark_current(monkeypatch):
     assert math.log10(fitted) == pytest.approx((2.0 - setup.measured) / 1.25, abs=0.01)
 
 
+def test_what_a_miss_asks_inverts_a_known_limit_against_any_parameter(monkeypatch):
+    # The diagnostics solve for the one number at which a setup's criterion equals its measurement: a stand-in
+    # criterion m(qe) = 10 + 2.5 log10(qe / 0.2) is inverted at qe = 0.2 * 10^((m - 10) / 2.5).
+    bench = _benchmark()
+    monkeypatch.setattr(bench, "contrast_limit",
+                        lambda path, overrides: 10.0 + 2.5 * math.log10(float(overrides[0].split("=")[1]) / 0.2))
+    setup = bench.SETUPS[1]
+    asked = bench.value_matching(setup, "sensor/pixel.quantum_efficiency", 1e-3, 1.0)
+    assert asked == pytest.approx(0.2 * 10 ** ((setup.measured - 10.0) / 2.5), rel=0.01)
+
+
 def test_off_events_count_only_the_fall_completed_within_the_look():
     # After a source has passed, a pixel falls back with its time constant under the sky (Eq. 16). Crossed at a
     # uniformly random moment of a look of T seconds, it completes on average 1 - (tau/T)(1 - exp(-T/tau)) of its
