@@ -26,6 +26,10 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing, stays_in_band
 from .comparator import TOLERANCE
@@ -42,6 +46,22 @@ _STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
 (I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
 jit = numba.njit(cache=True, error_model="numpy")
 inline = numba.njit(cache=True, error_model="numpy", inline="always")
+
+
+@intrinsic
+def _prefetch(typingctx, array, row, column):
+    """Ask the CPU to bring ``array[row, column]`` into its caches (LLVM's ``prefetch``; no effect on results)."""
+    def codegen(context, builder, signature, args):
+        array_type = signature.args[0]
+        pointer = cgutils.get_item_pointer(context, builder, array_type,
+                                           context.make_array(array_type)(context, builder, args[0]),
+                                           [args[1], args[2]], wraparound=False)
+        byte_pointer, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32]),
+                                                  "llvm.prefetch.p0i8")
+        builder.call(function, [builder.bitcast(pointer, byte_pointer), i32(0), i32(3), i32(1)])   # read, keep, data
+        return context.get_dummy_value()
+    return types.void(array, row, column), codegen
 
 
 @jit
@@ -205,13 +225,27 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
             js[I_SPAN * TILE + i] = steps[0] - 1 - c[STEP]
             fs[F_RETAIN * TILE + i] = power(r[LOG_A], steps[0] - 1 - c[STEP])
         done = True
+        c0 = columns[t0]                                      # the tile's columns, if they are c0, c0 + 1, ...
+        contiguous = True
+        for i in range(n):
+            contiguous &= columns[t0 + i] == c0 + i
+        for i in range(n):
+            fs[F_NEXT * TILE + i] = background[0] + stamps[0, columns[t0 + i]]
         for k in range(n_samples):
             last = k + 1 == n_samples
-            for i in range(n):                                # this sample's flux: the last one's next
-                column = columns[t0 + i]
-                fs[F_NOW * TILE + i] = background[k] + stamps[k, column] if k == 0 else fs[F_NEXT * TILE + i]
-                if not last:
-                    fs[F_NEXT * TILE + i] = background[k + 1] + stamps[k + 1, column]
+            following = min(k + 1, n_samples - 1)             # this sample's flux: the last one's next
+            if contiguous:
+                for i in range(n):
+                    fs[F_NOW * TILE + i] = fs[F_NEXT * TILE + i]
+                    fs[F_NEXT * TILE + i] = background[following] + stamps[following, c0 + i]
+            else:
+                for i in range(n):
+                    fs[F_NOW * TILE + i] = fs[F_NEXT * TILE + i]
+                    fs[F_NEXT * TILE + i] = background[following] + stamps[following, columns[t0 + i]]
+            if k + 2 < n_samples:                             # frames lie a frame apart in memory: fetch ahead
+                for i in range(0, n, 8):                      # a cache line holds 8 samples
+                    _prefetch(stamps, k + 2, columns[t0 + i])
+                _prefetch(stamps, k + 2, columns[t0 + n - 1])
             t_next = NEVER if last else steps[k + 1]
             n_solve, n_stepped = _sweep(fs, js, n, steps[k], t_next, last, leak_hz, dt, drive_k)
             if n_solve:
