@@ -110,10 +110,13 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         new_l = moved_l if moved else filtered
         new_m = moved_m if moved else memorised
         new_y, new_log_a, new_para, new_accept = drive_one(flux, drive_k, square_law)
+        # a change with an event due first: run_pixel takes this sample (and leaves the pixel at its step), the pixel stays
+        stepped = active & (flux != held) & (last | (following != flux)) & (quiet == False)   # noqa: E712
+        takes = quiet | stepped                                             # the new input from this sample on
         # the retention to the next sample, for the bound of first_crossing_one now and the relaxation then
         horizon = J_LIMIT if last else min(t_next - 1 - step, J_LIMIT)
-        next_span = horizon if quiet else t_next - 1 - last_step           # waiting: from its last step
-        next_retain = power(new_log_a if quiet else log_a, next_span)
+        next_span = horizon if takes else t_next - 1 - last_step           # waiting: from its last step
+        next_retain = power(new_log_a if takes else log_a, next_span)
         j0 = max(ready - step, np.int64(1))
         inside = stays_in_band(max(horizon, j0), next_retain if j0 <= horizon else 0.0, new_y - new_m,
                                new_l - new_y, new_log_a, (leak_dt * scale + new_para * dt) * th_on,
@@ -130,13 +133,11 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         fs[F_ACCEPT * TILE + i] = new_accept if quiet else accept
         fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = new_y, new_log_a      # for run_pixel, if stepped
         fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
-        fs[F_RETAIN * TILE + i] = next_retain if quiet | waits else retain
-        js[I_SPAN * TILE + i] = next_span if quiet | waits else span
+        fs[F_RETAIN * TILE + i] = next_retain if takes | waits else retain
+        js[I_SPAN * TILE + i] = next_span if takes | waits else span
         js[I_STEP * TILE + i] = step if quiet else last_step
         js[I_CMP * TILE + i] = (NEVER if inside else _SOLVE) if quiet else cmp_next
         js[I_OPEN * TILE + i] = (1 if last else 0) if quiet else js[I_OPEN * TILE + i]
-        # a change with an event due first: run_pixel takes this sample, the pixel stays
-        stepped = active & (flux != held) & (last | (following != flux)) & (quiet == False)   # noqa: E712
         stays = quiet | waits | stepped
         js[I_LEAVE * TILE + i] = t_now if active != stays else leave        # those that stay are active
         js[I_ACTIVE * TILE + i] = _STEPPED if stepped else (1 if stays else 0)
@@ -177,7 +178,10 @@ def _to_state(fs, js, i, r, c):
 
 @jit
 def _from_state(fs, js, i, r, c, t_next):
-    """Tile pixel ``i`` from its state rows, active, its comparator scheduled up to ``t_next`` (``NEVER``: open)."""
+    """Tile pixel ``i`` from its state rows, active, its comparator scheduled up to ``t_next`` (``NEVER``: open).
+
+    Its filter's retention to its next sample (``F_RETAIN`` over ``I_SPAN`` steps) is the caller's to set.
+    """
     for field, column in ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y),
                           (F_LOG_A, LOG_A), (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON),
                           (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE)):
@@ -185,8 +189,6 @@ def _from_state(fs, js, i, r, c, t_next):
     js[I_STEP * TILE + i], js[I_READY * TILE + i], js[I_CMP * TILE + i] = c[STEP], c[READY], c[CMP_NEXT]
     js[I_DUE * TILE + i] = min(c[SHOT_NEXT], _settle_step(c))
     js[I_ACTIVE * TILE + i], js[I_LEAVE * TILE + i], js[I_OPEN * TILE + i] = 1, NEVER, 1 if t_next >= NEVER else 0
-    span = t_next - 1 - c[STEP] if t_next < NEVER else J_LIMIT
-    js[I_SPAN * TILE + i], fs[F_RETAIN * TILE + i] = span, power(r[LOG_A], span)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
@@ -266,7 +268,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                                                      ev_cause, n_events, lost, saved_r, saved_c)
                     if not done:
                         break
-                    _from_state(fs, js, i, r, c, t_next)
+                    _from_state(fs, js, i, r, c, t_next)        # at step steps[k] - 1: the sweep's retention
             if not done:
                 break
         for i in range(n if done else 0):                     # back to the state tables; the rest by run_pixel
