@@ -23,6 +23,10 @@ Every block runs on its own, outside any graph::
 Each block draws random numbers only from ``self.rng``, a ``numpy.random.Generator``
 derived from the graph seed and the block's name (:func:`block_rng`), so adding an
 unrelated block to a graph changes nothing else.
+
+A block changes only its own state: never a value it returned (a block downstream may still be reading
+it while this block steps over the next window, see :mod:`~evsda.graph.executor_pipeline`), nor a value
+it was given.
 """
 
 from __future__ import annotations

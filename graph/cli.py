@@ -49,7 +49,8 @@ def cmd_run(args) -> int:
         raise UserError(f"--checkpoint-every must be a finite number of seconds >= 0, got {args.checkpoint_every}")
     result = run_graph(graph, out, resume=args.resume, overwrite=args.overwrite, reuse=args.reuse,
                        progress=None if args.progress is None else args.progress,
-                       checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint)
+                       checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint,
+                       pipeline=args.pipeline)
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
     if args.json:
@@ -182,6 +183,9 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
                    help="reuse matching upstream outputs from an earlier run store (repeatable)")
     p.add_argument("--checkpoint-every", type=float, default=30.0, metavar="SECONDS",
                    help="wall-clock seconds between checkpoints (0: after every window)")
+    p.add_argument("--pipeline", action=argparse.BooleanOptionalAction, default=None,
+                   help="step blocks of successive windows concurrently, recording the same bytes "
+                        "(default: on, unless EVSDA_PIPELINE=0)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
     p.add_argument("--json", action="store_true",

@@ -7,6 +7,9 @@
   only downstream blocks reuses them (``reuse=[other_store]``) instead of recomputing.
 * Block state and RNG state are checkpointed; a killed run resumes from its last
   commit and produces byte-identical output (see :mod:`evsda.graph.store`).
+* Windows are pipelined by default: a block steps over window k + 1 while the blocks downstream of it are
+  still on window k (:mod:`evsda.graph.executor_pipeline`); the store records the same bytes as one step at a
+  time (``pipeline=False``, ``--no-pipeline``, ``EVSDA_PIPELINE=0``).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from . import __version__
 from . import store as store_module
 from .block import Block, RunInfo, Window
 from .errors import Interrupted, StoreError
+from .executor_pipeline import Pipeline, pipeline_enabled
 from .files import os_reason
 from .graphfile import Graph
 from .lock import StoreLock
@@ -111,8 +115,9 @@ class Executor:
     def __init__(self, graph: Graph, out: str | Path | None = None, *, resume: bool = False,
                  overwrite: bool = False, reuse: list[str | Path] = (), progress: bool | None = None,
                  checkpoint_every_s: float = 30.0, keep_outputs: bool | None = None,
-                 max_windows: int | None = None, keep_checkpoint: bool = False):
+                 max_windows: int | None = None, keep_checkpoint: bool = False, pipeline: bool | None = None):
         self.graph = graph
+        self.pipeline = pipeline_enabled(pipeline)
         self.run = graph.run_info()
         self.requested = requested_outputs(graph)
         self.hashes = upstream_hashes(graph, self.run)
@@ -336,31 +341,58 @@ class Executor:
         self._last_commit = time.perf_counter()
         bar = progress_bar(total=self.run.n_windows, initial=start_window, enabled=self.progress,
                            desc=self.graph.name)
+
+        def loaded(index: int) -> dict[tuple[str, str], Any]:
+            return {key: next(reader) for key, reader in readers.items()}
+
+        def commit_due(index: int) -> bool:
+            return self._commit_due(index, stop_window)
+
+        if self.pipeline:
+            pipeline = Pipeline(self.running, self._upstream(), self._inputs_for, self._step_block)
+            windows = pipeline.windows(self.run, start_window, stop_window, loaded, commit_due)
+        else:
+            windows = self._serial_windows(start_window, stop_window, loaded, commit_due)
         try:
-            for window in self.run.windows(start_window):
-                if window.index >= stop_window:
-                    break
-                produced = self._step(window, {key: next(reader) for key, reader in readers.items()})
+            for window, produced, commit in windows:
                 with self.watch.timing(STORE), self._writing():
                     self._record_window(window, produced, result)
                 result.windows_run += 1
-                self._commit_if_due(window, stop_window)
+                if commit:
+                    with self.watch.timing(STORE), self._writing():
+                        self._commit(window, {n: self.blocks[n] for n in self.running})
+                    self._last_commit = time.perf_counter()
                 bar.update(1)
         finally:
+            windows.close()                  # a pipeline waits for its running steps
             bar.close()
 
-    def _step(self, window: Window, values: dict[tuple[str, str], Any]) -> list[tuple[str, dict[str, Any]]]:
-        """Step each running block over ``window`` in order, feeding it the values of its inputs."""
-        produced = []
-        for name in self.running:
-            block = self.blocks[name]
-            kwargs = self._gather(block, self.inputs_of[name], values)
-            with self.watch.timing(name):
-                outputs = block.step(window, **kwargs)
-            self._check_outputs(block, outputs)
-            values.update({(name, port): value for port, value in outputs.items()})
-            produced.append((name, outputs))
-        return produced
+    def _serial_windows(self, start_window: int, stop_window: int, loaded, commit_due):
+        """``(window, produced, commit)`` of each window in turn, one step at a time (no pipeline)."""
+        for index in range(start_window, stop_window):
+            window = self.run.window(index)
+            values = loaded(index)
+            produced = []
+            for name in self.running:
+                outputs = self._step_block(name, window, self._inputs_for(name, values))
+                values.update({(name, port): value for port, value in outputs.items()})
+                produced.append((name, outputs))
+            yield window, produced, commit_due(index)
+
+    def _upstream(self) -> dict[str, set[str]]:
+        """Each running block's upstream blocks (those whose outputs it takes)."""
+        return {name: {src for src, _, _ in self.inputs_of[name]} for name in self.running}
+
+    def _inputs_for(self, name: str, values: dict[tuple[str, str], Any]) -> dict[str, Any]:
+        return self._gather(self.blocks[name], self.inputs_of[name], values)
+
+    def _step_block(self, name: str, window: Window, inputs: dict[str, Any]) -> dict[str, Any]:
+        """Step block ``name`` over ``window`` with ``inputs``; its outputs, checked against its declaration."""
+        block = self.blocks[name]
+        with self.watch.timing(name):
+            outputs = block.step(window, **inputs)
+        self._check_outputs(block, outputs)
+        return outputs
 
     def _record_window(self, window: Window, produced: list[tuple[str, dict[str, Any]]], result: RunResult) -> None:
         # The store is created once the first window has been computed in full: a scene that
@@ -373,19 +405,15 @@ class Executor:
             for name in self._loaded_truth():
                 self.store.copy_truth(self.loaded[name], name, window.start_ns, window.stop_ns)
 
-    def _commit_if_due(self, window: Window, stop_window: int) -> None:
-        """Commit after ``window`` every ``checkpoint_every_s`` and at the last window this call runs. The
-        run's last window is committed with the final outputs instead (no checkpoint is written only to be
-        dropped), unless the checkpoint is kept."""
-        if self.store is None:
-            return
-        last = window.index == self.run.n_windows - 1
-        due = (time.perf_counter() - self._last_commit >= self.checkpoint_every_s
-               or window.index == stop_window - 1)
-        if (due and not last) or (last and self.keep_checkpoint):
-            with self.watch.timing(STORE), self._writing():
-                self._commit(window, {n: self.blocks[n] for n in self.running})
-            self._last_commit = time.perf_counter()
+    def _commit_due(self, index: int, stop_window: int) -> bool:
+        """Whether to commit after window ``index``: every ``checkpoint_every_s`` and at the last window this
+        call runs. The run's last window is committed with the final outputs instead (no checkpoint is written
+        only to be dropped), unless the checkpoint is kept."""
+        if self.out is None:
+            return False
+        if index == self.run.n_windows - 1:
+            return self.keep_checkpoint
+        return time.perf_counter() - self._last_commit >= self.checkpoint_every_s or index == stop_window - 1
 
     def _finish_store(self, result: RunResult, running: list[str], timing: dict[str, float], finished: bool) -> None:
         if self.out is not None and self.store is None:
@@ -481,6 +509,8 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``checkpoint_every_s`` (wall-clock seconds between commits; 0 commits every window),
     ``keep_outputs`` (keep requested outputs in memory), ``max_windows`` (stop early),
     ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
+    ``pipeline`` (step blocks of successive windows concurrently, recording the same bytes; default:
+    ``EVSDA_PIPELINE``, on unless it is ``0``; see :mod:`evsda.graph.executor_pipeline`).
     BLAS libraries run one thread while it runs (see :mod:`evsda.graph.threads`).
     """
     with limit_blas():

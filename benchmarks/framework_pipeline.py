@@ -1,0 +1,65 @@
+"""Pipelined windows against one step at a time (issue 13.1), side by side in one run.
+
+Runs a graph (default: the tracked LEO pass of benchmarks/end_to_end.yaml) with ``evsda run``,
+``EVSDA_PIPELINE=0`` and ``=1`` alternately, in fresh processes, and prints for each the
+median wall time, CPU time and peak memory, the wall-time speed-up and the load average around
+each run. The two stores must record the same bytes (checked: a hash of every array). The
+machine's other load shares the cores, so the ratio of the medians is the figure to quote.
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/framework_pipeline.py [--duration 10] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
+
+from end_to_end import GRAPH, run_cli                     # noqa: E402
+from test_examples_identical import store_digest          # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
+    parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run [s]")
+    parser.add_argument("--repeats", type=int, default=3, help="runs of each mode, alternated (medians)")
+    args = parser.parse_args()
+    print(f"machine: {os.cpu_count()} cores; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
+          f"EVSDA_THREADS={os.environ.get('EVSDA_THREADS', 'unset')}; {args.graph.name}, {args.duration:g} s simulated")
+    runs: dict[str, list[dict]] = {"serial": [], "pipelined": []}
+    digests = set()
+    with tempfile.TemporaryDirectory() as tmp:
+        run_cli(0.1, Path(tmp) / "warm.zarr", graph=args.graph)           # warm the compiled caches
+        for repeat in range(args.repeats):
+            for mode, switch in (("serial", "0"), ("pipelined", "1")):
+                store = Path(tmp) / f"{mode}.zarr"
+                load = os.getloadavg()[0]
+                os.environ["EVSDA_PIPELINE"] = switch                    # what --no-pipeline / --pipeline set
+                run = run_cli(args.duration, store, graph=args.graph)
+                run["load"] = (load + os.getloadavg()[0]) / 2
+                runs[mode].append(run)
+                digests.add(store_digest(store))
+                print(f"  {repeat + 1}. {mode:9s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s  "
+                      f"peak {run['peak_mb']:5.0f} MB  load {run['load']:.2f}", flush=True)
+    print(f"\nmedians of {args.repeats} (alternated):")
+    for mode, rows in runs.items():
+        wall = statistics.median(r["wall_s"] for r in rows)
+        print(f"  {mode:9s} wall {wall:6.1f} s = {args.duration / wall:.2f}x real time; CPU "
+              f"{statistics.median(r['cpu_s'] for r in rows):.1f} s; peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB; "
+              f"load {statistics.median(r['load'] for r in rows):.2f}")
+    speedup = statistics.median(r["wall_s"] for r in runs["serial"]) / statistics.median(r["wall_s"] for r in runs["pipelined"])
+    print(f"  pipelined / serial wall-time speed-up: {speedup:.2f}x")
+    print(f"  stores identical: {len(digests) == 1} ({len(digests)} distinct hash{'es' if len(digests) > 1 else ''})")
+    if len(digests) != 1:
+        raise SystemExit("pipelined and serial stores differ")
+
+
+if __name__ == "__main__":
+    main()
