@@ -24,6 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
+import threading
+
+import numba
 import numpy as np
 import scipy.fft as sfft
 
@@ -99,6 +102,17 @@ class PupilRenderer:
         real = np.float32 if dtype == np.complex64 else np.float64
         self.b_real, self.b_imag = b.real.astype(real), b.imag.astype(real)
         self.dtype = dtype
+        self._local = threading.local()
+
+    def _workspace(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This thread's padded buffers for ``frames <= STAMP_CHUNK`` frames (sources render on several threads)."""
+        buffers = getattr(self._local, "buffers", None)
+        if buffers is None:
+            size, real = self.padded, self.b_real.dtype
+            buffers = self._local.buffers = (np.zeros((STAMP_CHUNK, self.n, size), self.dtype),
+                                             np.zeros((STAMP_CHUNK, size, size), self.dtype),
+                                             np.zeros((STAMP_CHUNK, size, size), real))
+        return tuple(b[:frames] for b in buffers)
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Separable pupil factors ``exp(i k theta . r)`` (F, n) along y and x moving the image by ``offset_px``."""
@@ -142,10 +156,19 @@ class PupilRenderer:
         return out
 
     def _integrate(self, tilted: np.ndarray) -> np.ndarray:
-        """Pixel energy fractions of tilted pupil fields (F, n, n): padded FFT, ``|.|^2``, then ``B_y PSF B_x^T``."""
-        size = self.padded
-        spectrum = sfft.fft(sfft.fft(tilted, n=size, axis=-1, workers=1), n=size, axis=-2, workers=1)
-        psf = spectrum.real**2 + spectrum.imag**2                        # (F, L, L), up to delta^4/lambda^2
+        """Pixel energy fractions of tilted pupil fields (F, n, n), ``F <= STAMP_CHUNK``: padded FFT, ``|.|^2``,
+        then ``B_y PSF B_x^T``."""
+        n, frames = self.n, len(tilted)
+        rows, grid, psf = self._workspace(frames)
+        # the zero-padded FFTs, in place in this thread's buffers (the same transforms of the same values
+        # as scipy's own padding)
+        rows[:, :, :n] = tilted
+        rows[:, :, n:] = 0
+        along_x = sfft.fft(rows, axis=-1, workers=1, overwrite_x=True)
+        grid[:, :n] = along_x
+        grid[:, n:] = 0
+        spectrum = sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
+        squared_modulus(spectrum, psf)                                   # (F, L, L), up to delta^4/lambda^2
         # stamp = Re(B_y PSF B_x^T), as real products frame by frame: every frame goes through the
         # same fixed-size products whatever the batch, so results do not depend on how frames are grouped
         along_x_re = np.matmul(psf, self.b_real.T)
@@ -162,6 +185,15 @@ STAMP_CHUNK = 16
 
 def _chunks(frames: int):
     return (slice(start, start + STAMP_CHUNK) for start in range(0, frames, STAMP_CHUNK))
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def squared_modulus(spectrum, out):
+    """``out = re^2 + im^2`` of a complex64 ``spectrum`` in one pass (numpy's ``real**2 + imag**2``, bit for bit)."""
+    flat, target = spectrum.reshape(-1), out.reshape(-1)
+    for i in range(flat.shape[0]):
+        value = flat[i]
+        target[i] = value.real * value.real + value.imag * value.imag
 
 
 class RadialRenderer:

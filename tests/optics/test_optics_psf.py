@@ -187,3 +187,30 @@ def test_pupil_stamps_from_a_phase_equal_those_from_its_field():
     fast = renderer.stamps(amplitude, phase, offsets)
     field = renderer.stamps_from_field(amplitude * np.exp(1j * phase), offsets)
     np.testing.assert_allclose(fast, field, rtol=0, atol=1e-6 * field.sum())
+
+
+def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
+    # the renderer works in chunks of STAMP_CHUNK frames in reused buffers: 37 frames at once, one by one and in
+    # another thread give the same bits, and its one-pass |.|^2 is numpy's real**2 + imag**2 bit for bit
+    import threading
+
+    from evsda.blocks.optics.render import squared_modulus
+
+    telescope = Telescope(0.2, 0.0)
+    renderer = PupilRenderer(StampSampler(7, 4.86e-6, 10), 42, 0.005, 550e-9, telescope.collecting_area_m2)
+    amplitude = telescope.pupil(42, 0.005)
+    rng = np.random.default_rng(5)
+    phase = 3.0 * rng.standard_normal((37, 42, 42))
+    offsets = rng.uniform(-0.5, 0.5, (37, 2))
+    together = renderer.stamps(amplitude, phase, offsets)
+    one_by_one = np.concatenate([renderer.stamps(amplitude, phase[f:f + 1], offsets[f:f + 1]) for f in range(37)])
+    elsewhere = []
+    worker = threading.Thread(target=lambda: elsewhere.append(renderer.stamps(amplitude, phase[5:30], offsets[5:30])))
+    worker.start()
+    worker.join()
+    np.testing.assert_array_equal(together, one_by_one)
+    np.testing.assert_array_equal(together[5:30], elsewhere[0])
+    spectrum = (rng.standard_normal((3, 8, 8)) + 1j * rng.standard_normal((3, 8, 8))).astype(np.complex64)
+    out = np.empty((3, 8, 8), np.float32)
+    squared_modulus(spectrum, out)
+    np.testing.assert_array_equal(out, spectrum.real**2 + spectrum.imag**2)
