@@ -88,6 +88,10 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
     leak_dt = leak_hz * dt
     n_solve = n_stepped = 0
     step = t_now - 1
+    for i in range(n):      # the drive of this sample's flux first: short loops overlap more of their pixels' work
+        new_y, new_log_a, new_para, new_accept = drive_one(fs[F_NOW * TILE + i], drive_k, square_law)
+        fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = new_y, new_log_a
+        fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
     for i in range(n):      # all loads first, then no branches: every pixel computes, the quiet ones keep the result
         flux, held, following = fs[F_NOW * TILE + i], fs[F_FLUX * TILE + i], fs[F_NEXT * TILE + i]
         filtered, memorised = fs[F_L * TILE + i], fs[F_M * TILE + i]
@@ -109,7 +113,8 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         moved = j > 0                         # run_pixel's _advance moves only forward
         new_l = moved_l if moved else filtered
         new_m = moved_m if moved else memorised
-        new_y, new_log_a, new_para, new_accept = drive_one(flux, drive_k, square_law)
+        new_y, new_log_a, new_para, new_accept = fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i], \
+            fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
         # a change with an event due first: run_pixel takes this sample (and leaves the pixel at its step), the pixel stays
         stepped = active & (flux != held) & (last | (following != flux)) & (quiet == False)   # noqa: E712
         takes = quiet | stepped                                             # the new input from this sample on
@@ -131,8 +136,6 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         fs[F_LOG_A * TILE + i] = new_log_a if quiet else log_a
         fs[F_PARA * TILE + i] = new_para if quiet else para
         fs[F_ACCEPT * TILE + i] = new_accept if quiet else accept
-        fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = new_y, new_log_a      # for run_pixel, if stepped
-        fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
         fs[F_RETAIN * TILE + i] = next_retain if takes | waits else retain
         js[I_SPAN * TILE + i] = next_span if takes | waits else span
         js[I_STEP * TILE + i] = step if quiet else last_step
