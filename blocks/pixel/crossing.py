@@ -130,16 +130,24 @@ def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
     """
     horizon = min(horizon, J_LIMIT)
     j_max = max(horizon, j0)
-    if stays_in_band(j_max, power(log_a, j_max), c, d, log_a, delta, theta_on, theta_off):
+    retention = power(log_a, j_max)
+    if stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off):
         return NEVER, 0
-    return search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon)
+    return search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_max, retention)
+
+
+@inline
+def _g(j, c, d, log_a, delta, j_known, known):
+    """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits)."""
+    return c + d * (known if j == j_known else power(log_a, j)) + delta * j
 
 
 @jit
-def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
+def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_known, known):
     """:func:`first_crossing_one` without its bound (``horizon <= J_LIMIT``): for callers that found the bound
-    false already."""
-    g0 = comparator_input(j0, c, d, log_a, delta)
+    false already. ``known = power(log_a, j_known)``, which the bound took (``j_known``: ``max(horizon, j0)``),
+    is not computed again."""
+    g0 = _g(j0, c, d, log_a, delta, j_known, known)
     if g0 >= theta_on:
         return j0, 1
     if g0 <= -theta_off:
@@ -152,11 +160,11 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
             c_eff = c + d if log_a == 0.0 else c
             j = max(_ceil_steps((theta_on - c_eff) / delta), j0 + 1)
             # the closed form can be one step off through rounding: settle it on g itself
-            if comparator_input(j, c, d, log_a, delta) < theta_on:
+            if _g(j, c, d, log_a, delta, j_known, known) < theta_on:
                 j += 1
-            if j - 1 > j0 and comparator_input(j - 1, c, d, log_a, delta) >= theta_on:
+            if j - 1 > j0 and _g(j - 1, c, d, log_a, delta, j_known, known) >= theta_on:
                 j -= 1
-            if j <= horizon and comparator_input(j, c, d, log_a, delta) >= theta_on:
+            if j <= horizon and _g(j, c, d, log_a, delta, j_known, known) >= theta_on:
                 return j, 1
         return NEVER, 0
 
@@ -168,7 +176,7 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
         else:
             hi = J_LIMIT
         hi = max(min(hi, horizon), j0 + 1)
-        if comparator_input(hi, c, d, log_a, delta) >= theta_on:
+        if _g(hi, c, d, log_a, delta, j_known, known) >= theta_on:
             # g is concave here: from any start Newton's first iterate lies at or below the root and the
             # next climb to it monotonically. The root without drift (drift only brings it forward) is
             # close above it when the relaxation alone reaches theta_ON; else the root of the drift alone
@@ -192,8 +200,8 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
     else:
         hi = J_LIMIT
     hi = max(min(hi, horizon), j0 + 1)
-    if comparator_input(hi, c, d, log_a, delta) > level_off:
-        if delta > 0.0 and hi + 1 <= horizon and comparator_input(hi + 1, c, d, log_a, delta) <= level_off:
+    if _g(hi, c, d, log_a, delta, j_known, known) > level_off:
+        if delta > 0.0 and hi + 1 <= horizon and _g(hi + 1, c, d, log_a, delta, j_known, known) <= level_off:
             hi += 1
         else:
             hi = -1
@@ -204,7 +212,7 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
     # ON: after the minimum, where g increases (g(j_min) <= g(j0) < theta_ON)
     if delta > 0.0 and j_min < horizon:
         hi = max(min(_ceil_steps((theta_on - c) / delta) + 1, horizon), j_min + 1)   # g >= C + delta j
-        if comparator_input(hi, c, d, log_a, delta) >= theta_on:
+        if _g(hi, c, d, log_a, delta, j_known, known) >= theta_on:
             return _root(j_min, hi, c, d, log_a, delta, theta_on, True, float(hi)), 1
     return NEVER, 0
 

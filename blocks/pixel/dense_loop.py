@@ -155,7 +155,7 @@ def _solve(fs, js, n, t_next, last, leak_hz, dt):
 
     Their bound in the sweep was :func:`.crossing.first_crossing_one`'s own (same arguments)
     where the pixel may fire before the next sample (``j0 <= horizon``), and it failed: the
-    search starts past it there.
+    search starts past it there, with the bound's ``a^horizon`` (``F_RETAIN``).
     """
     leak_dt = leak_hz * dt
     for i in range(n):
@@ -166,7 +166,8 @@ def _solve(fs, js, n, t_next, last, leak_hz, dt):
             horizon = J_LIMIT if last else min(t_next - 1 - step, J_LIMIT)
             args = (j0, y - fs[F_M * TILE + i], fs[F_L * TILE + i] - y, fs[F_LOG_A * TILE + i], drift,
                     fs[F_TH_ON * TILE + i] - TOLERANCE, fs[F_TH_OFF * TILE + i] - TOLERANCE, horizon)
-            j, _ = search_crossing(*args) if j0 <= horizon else first_crossing_one(*args)
+            j, _ = search_crossing(*args, horizon, fs[F_RETAIN * TILE + i]) if j0 <= horizon else \
+                first_crossing_one(*args)                       # F_RETAIN: the bound's a^horizon
             js[I_CMP * TILE + i] = NEVER if j >= NEVER else step + j
 
 
