@@ -3,19 +3,23 @@
 Video frames, or noise added upstream, change nearly every pixel at every sample. Instead
 of listing (pixel, change) pairs, the pixels of a tile read their photon flux at each sample
 of the window off the frame-major input (``background[k] + stamps[k, pixel]``: the additions,
-in the same order, that the sparse path makes) and take the input change as the
-event-driven loop (:func:`.pixel_loop.run_pixel`) would, in a loop over the tile that the
-compiler vectorises:
+in the same order, that the sparse path makes; the frames two samples ahead are prefetched)
+and take the input change as the event-driven loop (:func:`.pixel_loop.run_pixel`) would, in
+two loops over the tile that the compiler vectorises, the first for the new drive
+(:func:`.drive_kernel.drive_one`), the second for the rest:
 
 * a change is *quiet* when the pixel has no event due before it and the next sample
   changes its flux again: the pixel then relaxes to the change (:func:`.pixel_loop.relaxed`),
-  takes its new drive (:func:`.drive_kernel.drive_one`) and, in the common case where the
-  comparator input provably stays inside its band until the next sample
-  (:func:`.crossing.stays_in_band`), has no crossing to solve; otherwise the crossing is
-  solved exactly (:func:`.pixel_loop.next_crossing`), as ``run_pixel`` does;
-* at its first change that is not quiet (an event is due, or the flux holds still) a pixel
-  leaves the sweep and ``run_pixel`` takes it from there, through its remaining samples and
-  events, as does every pixel with an event due after its last change.
+  takes its new drive and, in the common case where the comparator input provably stays
+  inside its band until the next sample (:func:`.crossing.stays_in_band`), has no crossing
+  to solve; otherwise the crossing is solved exactly (:func:`.crossing.search_crossing`,
+  past the bound), as ``run_pixel`` does;
+* a change with an event due before it is taken by ``run_pixel`` for that sample (its
+  events, then the change, with the drive and the retention the sweep computed), and the
+  pixel rejoins the sweep;
+* a pixel whose flux stops changing from sample to sample (the next sample holds it) leaves
+  the sweep there, and ``run_pixel`` takes it from there, through its remaining samples and
+  events, as it does every pixel with an event due after its last change.
 
 Every step is the arithmetic ``run_pixel`` performs, in the same order, with the same
 functions (:mod:`.fastmath` vectorises to the same bits), so the events are those of the
@@ -57,8 +61,8 @@ def _prefetch(typingctx, array, row, column):
                                            context.make_array(array_type)(context, builder, args[0]),
                                            [args[1], args[2]], wraparound=False)
         byte_pointer, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
-        function = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32]),
-                                                  "llvm.prefetch.p0i8")
+        signature_ir = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
+        function = cgutils.get_or_insert_function(builder.module, signature_ir, "llvm.prefetch.p0i8")
         builder.call(function, [builder.bitcast(pointer, byte_pointer), i32(0), i32(3), i32(1)])   # read, keep, data
         return context.get_dummy_value()
     return types.void(array, row, column), codegen
@@ -115,7 +119,7 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         new_m = moved_m if moved else memorised
         new_y, new_log_a, new_para, new_accept = fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i], \
             fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
-        # a change with an event due first: run_pixel takes this sample (and leaves the pixel at its step), the pixel stays
+        # a change with an event due first: run_pixel takes this sample (the pixel ends at its step) and it stays
         stepped = active & (flux != held) & (last | (following != flux)) & (quiet == False)   # noqa: E712
         takes = quiet | stepped                                             # the new input from this sample on
         # the retention to the next sample, for the bound of first_crossing_one now and the relaxation then
