@@ -7,7 +7,8 @@ Prints, each in fresh processes as a user meets them:
    the load of their compiled loop);
 2. the whole run (``evsda run``, every core): wall time against the simulated time, CPU,
    peak memory, events, bytes per event in the finished store, time per block;
-3. the optics block alone on one thread: its CPU against the bare FFT cost of the PSFs it
+3. the optics block alone on one thread, windows not pipelined (so that the process's CPU time
+   around its steps is the optics' own): its CPU against the bare FFT cost of the PSFs it
    rendered (a 2-D complex64 FFT of the zero-padded pupil per PSF, timed here on batches of
    256), the ratio issue 13 targets at <= 3.
 
@@ -142,11 +143,54 @@ print(json.dumps({"optics_cpu_s": spent["cpu"], "frames": spent["frames"], "padd
 """
 
 
+def fixed_costs_and_whole_run(args, store: Path) -> None:
+    """Sections 1 and 2: fixed costs in fresh processes, then the whole run on every core."""
+    print("\n1. fixed costs (fresh processes, medians of %d)" % args.repeats)
+    cli = statistics.median(fresh(IMPORT_CLI)["import_cli_s"] for _ in range(args.repeats))
+    loads = [fresh(LOAD_GRAPH % str(GRAPH)) for _ in range(args.repeats)]
+    one = [run_cli(0.1, store) for _ in range(args.repeats)]
+    print(f"  import the CLI                 {cli:7.2f} s")
+    print(f"  load the graph (block imports) {statistics.median(x['load_graph_s'] for x in loads):7.2f} s "
+          f"({loads[0]['modules']} modules loaded)")
+    compiled = [fresh(COMPILED_LOAD) for _ in range(args.repeats)]
+    print(f"  compiled loops, first call     {statistics.median(x['pixel_s'] for x in compiled):7.2f} s pixels "
+          f"(8 x 8 sensor, one window), {statistics.median(x['screens_s'] for x in compiled):.2f} s screen walk "
+          f"(Numba's cache loaded; their imports {statistics.median(x['import_s'] for x in compiled):.2f} s)")
+    print(f"  a one-window (0.1 s) run       {statistics.median(x['wall_s'] for x in one):7.2f} s wall, "
+          f"{statistics.median(x['cpu_s'] for x in one):.2f} s CPU, of which:")
+    for name in sorted(one[0]["blocks"], key=lambda n: -one[0]["blocks"][n])[:5]:
+        print(f"    {name:28s} {statistics.median(x['blocks'].get(name, 0.0) for x in one):7.2f} s")
+
+    print(f"\n2. the whole run: {args.duration:g} s simulated, every core")
+    full = run_cli(args.duration, store)
+    print(f"  wall {full['wall_s']:.1f} s = {args.duration / full['wall_s']:.2f}x real time (target >= 2x); "
+          f"CPU {full['cpu_s']:.1f} s; peak memory {full['peak_mb']:.0f} MB (target <= 1000)")
+    print(f"  {full['events']} events, store {full['store_mb']:.1f} MB = {full['bytes_per_event']:.1f} bytes "
+          f"per event (target <= 10)")
+    for name, seconds in sorted(full["blocks"].items(), key=lambda kv: -kv[1])[:6]:
+        print(f"    {name:28s} {seconds:7.2f} s")
+
+
+def optics_probe(args, store: Path) -> None:
+    """Section 3: the optics block's CPU on one thread, windows not pipelined, against the bare FFT cost."""
+    print(f"\n3. optics on one thread ({args.duration:g} s simulated)")
+    probe = fresh(OPTICS_PROBE % (str(GRAPH), args.duration, str(store)),
+                  env={"EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0"})
+    psfs = sum(probe["frames"].values())
+    fft = psfs * probe["fft_per_psf_s"]
+    print(f"  PSFs rendered: {psfs} {probe['frames']}")
+    print(f"  bare FFT cost: {psfs} x {probe['fft_per_psf_s'] * 1e3:.3f} ms "
+          f"({probe['padded']}^2 complex64) = {fft:.2f} s")
+    print(f"  optics CPU {probe['optics_cpu_s']:.2f} s = {probe['optics_cpu_s'] / fft:.1f}x its FFT cost "
+          f"(target <= 3x)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds of the whole run [s]")
     parser.add_argument("--repeats", type=int, default=3, help="fresh processes per fixed cost (medians)")
     parser.add_argument("--skip-optics", action="store_true", help="leave out the single-thread optics probe")
+    parser.add_argument("--optics-only", action="store_true", help="only the single-thread optics probe (section 3)")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f} at the start; "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
@@ -154,42 +198,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "run.zarr"
         run_cli(0.1, store)                                       # warm the compiled caches once
-
-        print("\n1. fixed costs (fresh processes, medians of %d)" % args.repeats)
-        cli = statistics.median(fresh(IMPORT_CLI)["import_cli_s"] for _ in range(args.repeats))
-        loads = [fresh(LOAD_GRAPH % str(GRAPH)) for _ in range(args.repeats)]
-        one = [run_cli(0.1, store) for _ in range(args.repeats)]
-        print(f"  import the CLI                 {cli:7.2f} s")
-        print(f"  load the graph (block imports) {statistics.median(x['load_graph_s'] for x in loads):7.2f} s "
-              f"({loads[0]['modules']} modules loaded)")
-        compiled = [fresh(COMPILED_LOAD) for _ in range(args.repeats)]
-        print(f"  compiled loops, first call     {statistics.median(x['pixel_s'] for x in compiled):7.2f} s pixels "
-              f"(8 x 8 sensor, one window), {statistics.median(x['screens_s'] for x in compiled):.2f} s screen walk "
-              f"(Numba's cache loaded; their imports {statistics.median(x['import_s'] for x in compiled):.2f} s)")
-        print(f"  a one-window (0.1 s) run       {statistics.median(x['wall_s'] for x in one):7.2f} s wall, "
-              f"{statistics.median(x['cpu_s'] for x in one):.2f} s CPU, of which:")
-        for name in sorted(one[0]["blocks"], key=lambda n: -one[0]["blocks"][n])[:5]:
-            print(f"    {name:28s} {statistics.median(x['blocks'].get(name, 0.0) for x in one):7.2f} s")
-
-        print(f"\n2. the whole run: {args.duration:g} s simulated, every core")
-        full = run_cli(args.duration, store)
-        print(f"  wall {full['wall_s']:.1f} s = {args.duration / full['wall_s']:.2f}x real time (target >= 2x); "
-              f"CPU {full['cpu_s']:.1f} s; peak memory {full['peak_mb']:.0f} MB (target <= 1000)")
-        print(f"  {full['events']} events, store {full['store_mb']:.1f} MB = {full['bytes_per_event']:.1f} bytes "
-              f"per event (target <= 10)")
-        for name, seconds in sorted(full["blocks"].items(), key=lambda kv: -kv[1])[:6]:
-            print(f"    {name:28s} {seconds:7.2f} s")
-
+        if not args.optics_only:
+            fixed_costs_and_whole_run(args, store)
         if not args.skip_optics:
-            print(f"\n3. optics on one thread ({args.duration:g} s simulated)")
-            probe = fresh(OPTICS_PROBE % (str(GRAPH), args.duration, str(store)), env={"EVSDA_THREADS": "1"})
-            psfs = sum(probe["frames"].values())
-            fft = psfs * probe["fft_per_psf_s"]
-            print(f"  PSFs rendered: {psfs} {probe['frames']}")
-            print(f"  bare FFT cost: {psfs} x {probe['fft_per_psf_s'] * 1e3:.3f} ms "
-                  f"({probe['padded']}^2 complex64) = {fft:.2f} s")
-            print(f"  optics CPU {probe['optics_cpu_s']:.2f} s = {probe['optics_cpu_s'] / fft:.1f}x its FFT cost "
-                  f"(target <= 3x)")
+            optics_probe(args, store)
     print(f"\nload average at the end: {os.getloadavg()[0]:.2f}")
 
 
