@@ -228,34 +228,33 @@ def prefilter_band(values, taps, low, high):
             source = values[m, k0[i]:k1[i]]
             for q in range(line.shape[0]):
                 line[q] += t * source[q]
+    # each row's span of coefficients, from the columns' bands
+    j0 = np.full(height, width, np.int64)
+    j1 = np.zeros(height, np.int64)
+    for j in range(width):
+        for i in range(max(0, low[j]), min(height, high[j])):
+            j0[i] = min(j0[i], j)
+            j1[i] = j + 1
     out = np.zeros((height, width))
-    acc = np.empty(width)
     for i in range(height):
-        j0, j1 = width, 0                       # the span of this row's coefficients
-        for j in range(k0[i], k1[i]):
-            if low[j] <= i < high[j]:
-                j0 = min(j0, j)
-                j1 = j + 1
         # away from the edges, every coefficient of the span at once (along the row): each still
         # adds its terms in tap order, so it is the scalar sum bit for bit
-        a, b = max(j0, half), min(j1, width - half)
+        a, b = max(j0[i], half), min(j1[i], width - half)
         if a < b:
-            span = acc[a:b]
-            span[:] = 0.0
+            span = out[i, a:b]
             for t in range(2 * half + 1):
                 tap = taps[t]
                 source = rows[i, a - half + t:b - half + t]
                 for q in range(span.shape[0]):
                     span[q] += tap * source[q]
-        for j in range(j0, j1):
-            if low[j] <= i < high[j]:
-                if a <= j < b:
-                    out[i, j] = acc[j]
-                else:
-                    total = 0.0
-                    for k in range(max(0, j - half), min(width, j + half + 1)):
-                        total += taps[k - j + half] * rows[i, k]
-                    out[i, j] = total
+        for j in range(j0[i], j1[i]):
+            if not low[j] <= i < high[j]:
+                out[i, j] = 0.0                 # inside the span, outside this column's band
+            elif not a <= j < b:
+                total = 0.0
+                for k in range(max(0, j - half), min(width, j + half + 1)):
+                    total += taps[k - j + half] * rows[i, k]
+                out[i, j] = total
     return out
 
 
