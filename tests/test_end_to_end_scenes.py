@@ -97,8 +97,13 @@ def test_iss_track_events_follow_the_projected_satellite_path(iss_run):
         offsets.append((events["x"][sel].mean() - np.interp(t_mid, t, x), events["y"][sel].mean() - np.interp(t_mid, t, y)))
     offsets = np.array(offsets)
     assert len(offsets) >= 10
-    # the centroid of the track's events sits within a pixel of the geometry block's prediction
-    assert np.all(np.hypot(offsets[:, 0], offsets[:, 1]) < 1.0), offsets
+    direction = np.array([x[-1] - x[0], y[-1] - y[0]]) / np.hypot(x[-1] - x[0], y[-1] - y[0])
+    along, across = offsets @ direction, offsets @ np.array([direction[1], -direction[0]])
+    # across the motion the centroid of the track's events sits within a pixel of the geometry block's
+    # prediction; along it the events trail the satellite by the photoreceptor's lag (the one-pole filter at
+    # the lit pixel's cutoff, which the Gen4 preset takes from NIST's latencies: ~1 px here), never lead it
+    assert np.all(np.abs(across) < 1.0), offsets
+    assert np.all((along > -2.0) & (along < 0.5)), offsets
 
 
 def test_iss_on_events_lead_off_events_along_the_motion(iss_run):
@@ -214,7 +219,11 @@ def test_iss_truth_and_events_agree_on_where_the_track_is(iss_run):
     offsets = [(dx[near][bins == b].mean(), dy[near][bins == b].mean()) for b in np.unique(bins)
                if np.count_nonzero(bins == b) >= 50]
     assert len(offsets) >= 10
-    assert np.all(np.hypot(*np.array(offsets).T) < 1.0), offsets
+    motion = np.array([sat["x_px"][-1] - sat["x_px"][0], sat["y_px"][-1] - sat["y_px"][0]])
+    motion /= np.hypot(*motion)
+    along, across = np.array(offsets) @ motion, np.array(offsets) @ np.array([motion[1], -motion[0]])
+    # across the motion within a pixel; along it trailing by the photoreceptor's lag (~1 px), never leading
+    assert np.all(np.abs(across) < 1.0) and np.all((along > -2.0) & (along < 0.5)), offsets
     # and the track's events span the path the truth gives: first and last event columns at the truth's ends
     assert abs(np.percentile(events["x"][near], 1) - sat["x_px"].min()) < 4
     assert abs(np.percentile(events["x"][near], 99) - sat["x_px"].max()) < 4
