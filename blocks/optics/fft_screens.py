@@ -29,7 +29,8 @@ from .kolmogorov import phase_psd
 
 def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float, L0: float = np.inf,
                       subharmonics: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Two independent ``n x n`` screens [rad] sampled every ``delta`` [m] with Fried parameter ``r0`` [m].
+    """Two independent ``n x n`` screens [rad] sampled every ``delta`` [m] with Fried parameter ``r0`` [m]
+    (the real and imaginary parts of one complex array: views, not copies).
 
     ``L0`` is the von Karman outer scale [m]; ``subharmonics`` adds Lane et al. 1992's low frequencies.
     The spectra depend only on ``(n, delta, r0, L0)`` and are kept (:func:`_spectra`), so a screen
@@ -37,13 +38,15 @@ def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float,
     sources on every core).
     """
     amplitude, low = _spectra(int(n), float(delta), float(r0), float(L0), bool(subharmonics))
+    draws = rng.standard_normal((2, n, n))                        # the real parts' draws, then the imaginary parts'
+    draws *= amplitude
     coefficients = np.empty((n, n), dtype=complex)
-    coefficients.real = rng.standard_normal((n, n)) * amplitude
-    coefficients.imag = rng.standard_normal((n, n)) * amplitude
+    coefficients.real = draws[0]
+    coefficients.imag = draws[1]
     screen = sfft.ifft2(coefficients, workers=1, overwrite_x=True)
     if subharmonics:
         screen += _subharmonics(rng, *low)
-    return np.ascontiguousarray(screen.real), np.ascontiguousarray(screen.imag)
+    return screen.real, screen.imag                               # views: a caller keeping one copies only it
 
 
 @lru_cache(maxsize=64)

@@ -139,8 +139,8 @@ class PupilRenderer:
         theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
         k = 2 * np.pi / self.wavelength
         real = self.b_real.dtype
-        total = (phase + (k * theta[:, 1, None, None]) * self.x[None, :, None]
-                 + (k * theta[:, 0, None, None]) * self.x[None, None, :]).astype(real)
+        total = np.empty(phase.shape, real)
+        tilted_phase(np.ascontiguousarray(phase, dtype=float), k * theta[:, 1], k * theta[:, 0], self.x, total)
         field = np.empty(total.shape, dtype=self.dtype)
         np.cos(total, out=field.real)
         np.sin(total, out=field.imag)
@@ -185,6 +185,19 @@ STAMP_CHUNK = 16
 
 def _chunks(frames: int):
     return (slice(start, start + STAMP_CHUNK) for start in range(0, frames, STAMP_CHUNK))
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def tilted_phase(phase, ky, kx, x, out):
+    """``out[f, i, j] = (phase[f, i, j] + ky[f] x[i]) + kx[f] x[j]`` [rad], rounded to ``out``'s precision: the tilt
+    ``k theta . r`` of a sub-pixel offset added to the phase in one pass (numpy's broadcast sums, bit for bit)."""
+    frames, rows, cols = phase.shape
+    for f in range(frames):
+        for i in range(rows):
+            along_y = ky[f] * x[i]
+            source, target = phase[f, i], out[f, i]
+            for j in range(cols):
+                target[j] = (source[j] + along_y) + kx[f] * x[j]
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

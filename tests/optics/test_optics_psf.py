@@ -194,7 +194,7 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     # another thread give the same bits, and its one-pass |.|^2 is numpy's real**2 + imag**2 bit for bit
     import threading
 
-    from evsda.blocks.optics.render import squared_modulus
+    from evsda.blocks.optics.render import squared_modulus, tilted_phase
 
     telescope = Telescope(0.2, 0.0)
     renderer = PupilRenderer(StampSampler(7, 4.86e-6, 10), 42, 0.005, 550e-9, telescope.collecting_area_m2)
@@ -214,3 +214,9 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     out = np.empty((3, 8, 8), np.float32)
     squared_modulus(spectrum, out)
     np.testing.assert_array_equal(out, spectrum.real**2 + spectrum.imag**2)
+    # and its one-pass tilted phase is numpy's broadcast sums, rounded to single precision
+    ky, kx, x = rng.standard_normal(37) * 1e3, rng.standard_normal(37) * 1e3, renderer.x
+    tilted = np.empty(phase.shape, np.float32)
+    tilted_phase(phase, ky, kx, x, tilted)
+    np.testing.assert_array_equal(tilted, (phase + ky[:, None, None] * x[None, :, None]
+                                           + kx[:, None, None] * x[None, None, :]).astype(np.float32))
