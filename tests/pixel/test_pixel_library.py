@@ -29,6 +29,8 @@ LICHTSTEINER_CUTOFF_BRACKETS = ((LICHTSTEINER_LED_LUX * 1e-3, 131.0, 257.0), (LI
 LUX_AT_3KHZ = 56.0                  # the presets' fit of those brackets with a square-root law [lx]
 #: presets whose bandwidth law is fitted to NIST's latency measurements of their own sensor instead
 NIST_FITTED = ("prophesee_gen3_vga", "prophesee_gen4")
+#: presets of the same pixel circuit as a NIST-fitted one, which carry its law (in photocurrent, whatever their QE)
+SAME_PIXEL_AS = {"cooled_bsi": "prophesee_gen4"}
 
 
 def include_preset(tmp_path, name: str, **pixel_params):
@@ -69,9 +71,9 @@ def test_davis346_preset_runs_on_its_focal_plane(tmp_path, scenes):
     assert np.all(out.x < width) and np.all(out.y < height)
 
 
-@pytest.mark.parametrize("name", sorted(set(PRESETS) - set(NIST_FITTED)))
+@pytest.mark.parametrize("name", sorted(set(PRESETS) - set(NIST_FITTED) - set(SAME_PIXEL_AS)))
 def test_preset_photoreceptor_follows_its_stated_derivation(tmp_path, name):
-    # Every preset but the NIST-fitted ones: log response down to the dark current, and the square-root bandwidth reaching
+    # Every preset but the NIST-fitted ones and their pixel's variants: log response down to the dark current, and the square-root bandwidth reaching
     # 3 kHz at the photocurrent of LUX_AT_3KHZ on its pixel (555 nm, its QE and pitch; Lichtsteiner et
     # al. 2008), as the comments in the preset derive. Catches a pitch or QE edited without the saturation.
     from scipy import constants
@@ -125,6 +127,19 @@ def test_preset_bandwidth_reproduces_nist_dim_on_latency(name):
     old = nist.step_latencies_us(name, nist.IRRADIANCES_W_M2[0], nist.LED_WAVELENGTHS_M[0],
                                  cutoff_saturation=old_law, cutoff_exponent=0.5)[0]
     assert measured_us / old > 10 * high
+
+
+@pytest.mark.parametrize("name", sorted(SAME_PIXEL_AS))
+def test_preset_of_the_same_pixel_carries_the_nist_fitted_law(tmp_path, name):
+    # A variant of a NIST-fitted sensor's pixel (cooled_bsi: the IMX636's, with another QE and temperature) has the same
+    # cutoff law in photocurrent [A], so its dark pixel answers at the rate of its own dark current (cooled_bsi: 0.098 fA
+    # at 253 K -> 1.09 Hz, against 12 Hz for the Gen4's 5.5 fA at 300 K).
+    variant = include_preset(tmp_path, name).nodes["sensor/pixel"].block.params
+    fitted = _nist_benchmark().preset_pixel(SAME_PIXEL_AS[name])[0].params
+    assert variant.knee_at_dark_current and variant.cutoff_model == fitted.cutoff_model == "power"
+    assert variant.cutoff_max_hz == fitted.cutoff_max_hz and variant.cutoff_exponent == fitted.cutoff_exponent
+    assert (variant.cutoff_saturation * variant.reference_current_A
+            == pytest.approx(fitted.cutoff_saturation * fitted.reference_current_A, rel=1e-9, abs=0.0))
 
 
 @pytest.mark.parametrize("name", NIST_FITTED)
