@@ -17,7 +17,9 @@ identical on both of its paths. Input frames are made before the clock starts. T
 the frame-by-frame simulator run ``--repeats`` times, alternately (same load), and the medians are
 printed, as wall time and as CPU time of the process (all threads); the sparse path runs once. Last,
 the dense path's CPU is split into a cost per pixel-sample (the video with thresholds nothing reaches)
-and a cost per event (the rest).
+and a cost per event (the rest), and the elementary functions of an exact pixel-sample (the drive, the
+relaxation's ``exp``, vectorised) and of an event's crossing search (scalar ``exp``, one waiting for the
+last) are timed on their own.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_dense.py [--seconds 0.5] [--noise 0.02] [--repeats 3]
 """
@@ -28,10 +30,13 @@ import argparse
 import os
 import time
 
+import numba
 import numpy as np
 import yaml
 
 from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.crossing import power
+from evsda.blocks.pixel.drive_kernel import SQUARE_LAW, drive_constants, drive_cutoff, drive_log, drive_rest
 from evsda.blocks.pixel.model import PixelModel
 from evsda.blocks.ports import FocalPlane, Irradiance
 from evsda.graph import RunInfo, Window
@@ -91,6 +96,51 @@ class FrameByFrame:
         shot = self.rng.random(flux.size) < drive.shot_p * (self.dt / self.model.dt_s)
         self.events = (np.nonzero(n_on)[0], np.nonzero(n_off)[0], np.nonzero(shot)[0])      # this frame's pixels
         return int(n_on.sum() + n_off.sum() + shot.sum())
+
+
+@numba.njit(error_model="numpy")
+def _drives(flux, k, square_law, out):
+    for i in range(flux.size):                        # as the dense sweep's first loops: vectorised
+        out[0, i], out[1, i] = drive_log(flux[i], k)
+    for i in range(flux.size):
+        out[0, i], out[1, i] = drive_cutoff(out[0, i], out[1, i], k, square_law)
+    for i in range(flux.size):
+        out[0, i], out[1, i], out[2, i], out[3, i] = drive_rest(flux[i], out[0, i], out[1, i], k)
+
+
+@numba.njit(error_model="numpy")
+def _powers(log_a, span, out):
+    for i in range(log_a.size):                       # the relaxation to the next sample, vectorised
+        out[i] = power(log_a[i], span)
+
+
+@numba.njit(error_model="numpy")
+def _power_chain(log_a, n):
+    total = 0.0
+    for i in range(n):                                # one after the other, as an event's search takes them
+        total += power(log_a - total * 1e-30, 500 + (i & 7))
+    return total
+
+
+def elementary_costs(params: dict, flux: np.ndarray) -> tuple[float, float, float]:
+    """CPU [ns] of the drive (Eqs. 12-20) and of the relaxation's ``exp`` per pixel-sample in vectorised loops
+    over one frame, and of one scalar ``exp`` when each waits for the last (minima of 20 runs)."""
+    model = PixelModel(DvsPixel.Params(**params), FP.pixel_area_m2, 550e-9)
+    k = drive_constants(model)
+    drives = np.empty((4, flux.size))
+    log_a = np.empty(flux.size)
+    args = [(_drives, (flux, k, k[SQUARE_LAW] != 0.0, drives), flux.size),
+            (_powers, (drives[1], np.int64(999), log_a), flux.size), (_power_chain, (-1e-3, 100_000), 100_000)]
+    costs = []
+    for function, arguments, n in args:
+        function(*arguments)
+        best = np.inf
+        for _ in range(20):
+            c = time.process_time()
+            function(*arguments)
+            best = min(best, time.process_time() - c)
+        costs.append(best / n * 1e9)
+    return tuple(costs)
 
 
 def run_block(params: dict, path: str, windows: list[Window], inputs: list[Irradiance]):
@@ -156,6 +206,10 @@ def main() -> None:
     samples = n_frames * FP.width_px * FP.height_px
     print(f"  dense path without events: {silent_cpu / samples * 1e9:.1f} ns of CPU per pixel-sample; "
           f"with them {(dense_s[1] - silent_cpu) / max(dense[0].size, 1) * 1e6:.2f} us of CPU per event")
+    drive_ns, exp_ns, scalar_ns = elementary_costs(params, np.ascontiguousarray(inputs[0].stamp_flux[0, 0].ravel()))
+    print(f"  its elementary functions: the drive (two logarithms, a square root) {drive_ns:.1f} ns and the "
+          f"relaxation's exp {exp_ns:.1f} ns of CPU per pixel-sample, vectorised; one scalar exp waiting for the "
+          f"last {scalar_ns:.1f} ns")
     print(f"medians of {args.repeats}; load average at the end: {os.getloadavg()[0]:.2f}")
 
 

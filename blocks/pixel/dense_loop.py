@@ -37,7 +37,7 @@ from numba.extending import intrinsic
 
 from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing, stays_in_band
 from .comparator import TOLERANCE
-from .drive_kernel import SQUARE_LAW, drive_into, drive_one
+from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_into, drive_log, drive_rest
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
                          SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, relaxed_by, run_pixel)
 
@@ -92,8 +92,15 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
     leak_dt = leak_hz * dt
     n_solve = n_stepped = 0
     step = t_now - 1
-    for i in range(n):      # the drive of this sample's flux first: short loops overlap more of their pixels' work
-        new_y, new_log_a, new_para, new_accept = drive_one(fs[F_NOW * TILE + i], drive_k, square_law)
+    # the drive of this sample's flux first, in three loops (short loops overlap more pixels' work)
+    for i in range(n):
+        fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = drive_log(fs[F_NOW * TILE + i], drive_k)    # x, ln x
+    for i in range(n):
+        fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = drive_cutoff(
+            fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i], drive_k, square_law)                  # Y, w
+    for i in range(n):
+        new_y, new_log_a, new_para, new_accept = drive_rest(fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i],
+                                                            fs[F_NEW_LOG_A * TILE + i], drive_k)
         fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = new_y, new_log_a
         fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
     for i in range(n):      # all loads first, then no branches: every pixel computes, the quiet ones keep the result

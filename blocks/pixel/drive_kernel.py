@@ -69,26 +69,46 @@ def drive_one(flux, k, square_law):
     ``square_law``: ``k[SQUARE_LAW] != 0``, the power cutoff law with exponent 1/2, whose
     ``(x / x_sat)^(1/2) f_max`` is ``sqrt(x f_max^2 / x_sat)`` (one rounding instead of an ``exp``
     of a logarithm); a loop over pixels passes it as a constant (two versions of the loop), so
-    that the other is not computed.
+    that the other is not computed. In three stages (:func:`drive_log`, :func:`drive_cutoff`,
+    :func:`drive_rest`), which a loop over pixels may take in three loops: short loops overlap
+    more pixels' work.
     """
+    x, log_x = drive_log(flux, k)
+    y, w = drive_cutoff(x, log_x, k, square_law)
+    return drive_rest(flux, y, w, k)
+
+
+@inline
+def drive_log(flux, k):
+    """``(x, ln x)``: the normalised current of a photon flux (Eqs. 12, 13, 15) and its logarithm."""
+    x = flux * k[CURRENT_PER_FLUX] + k[DARK]
+    return x, log_(x)
+
+
+@inline
+def drive_cutoff(x, log_x, k, square_law):
+    """``(Y, w)`` from ``(x, ln x)``: the lin-log target (Eq. 14) and ``w = 2 pi dt f_3dB`` (Eq. 16)."""
     # the constants are read first and every alternative is computed and one selected (no branches, no
     # conditional loads), so that loops over pixels vectorise
-    current_per_flux, dark, log_to_dark, knee, knee_slope = (k[CURRENT_PER_FLUX], k[DARK], k[LOG_TO_DARK], k[KNEE],
-                                                             k[KNEE_SLOPE])
+    log_to_dark, knee, knee_slope = k[LOG_TO_DARK], k[KNEE], k[KNEE_SLOPE]
     f_max, law, per_current, per_y, w_per_hz = (k[CUTOFF_MAX], k[CUTOFF_LAW], k[CUTOFF_PER_CURRENT], k[CUTOFF_PER_Y],
                                                 k[W_PER_HZ])
     exponent, log_saturation = k[CUTOFF_EXPONENT], k[LOG_SATURATION]
-    para_per_flux, para_max, floor, per_y_shot, slope = (k[PARA_PER_FLUX], k[PARA_MAX], k[SHOT_FLOOR], k[SHOT_PER_Y],
-                                                         k[SHOT_SLOPE])
-    accept_dark, accept_flat = k[ACCEPT_DARK], k[ACCEPT_FLAT]
-    x = flux * current_per_flux + dark                                     # normalised current, Eqs. 12, 13, 15
-    log_x = log_(x)
     y = log_x if (log_to_dark != 0.0) | (not x < knee) else x * knee_slope            # lin-log, Eq. 14
     f_power = (math.sqrt(x * k[CUTOFF_SQUARED_PER_CURRENT]) if square_law else
                f_max * exp_(min(max(exponent * (log_x - log_saturation), -700.0), 700.0)))   # (x / x_sat)^n f_max
     f_power = f_power if x > 0.0 else 0.0
     f = x * per_current if law == 1.0 else (f_power if law == 2.0 else (y + lowpass.PAPER_OFFSET) * per_y)  # Eq. 16
-    log_a = -log1p_(w_per_hz * min(max(f, 0.0), f_max))                    # ln(1 - eps) = -ln(1 + w)
+    return y, w_per_hz * min(max(f, 0.0), f_max)
+
+
+@inline
+def drive_rest(flux, y, w, k):
+    """:func:`drive_one` from ``(Y, w)`` (:func:`drive_cutoff`)."""
+    f_max, para_per_flux, para_max, floor, per_y_shot, slope = (k[CUTOFF_MAX], k[PARA_PER_FLUX], k[PARA_MAX],
+                                                                k[SHOT_FLOOR], k[SHOT_PER_Y], k[SHOT_SLOPE])
+    accept_dark, accept_flat = k[ACCEPT_DARK], k[ACCEPT_FLAT]
+    log_a = -log1p_(w)                                                     # ln(1 - eps) = -ln(1 + w)
     log_a = log_a if f_max > 0.0 else -math.inf                            # no filter: L follows Y
     para = min(flux * para_per_flux, para_max)                             # Eq. 19
     level = min(max((y - floor) * per_y_shot, 0.0), 1.0)                   # shot noise, Eq. 20
