@@ -51,11 +51,15 @@ def main() -> None:
     print(f"\nmedians of {args.repeats} (alternated):")
     for mode, rows in runs.items():
         wall = statistics.median(r["wall_s"] for r in rows)
-        print(f"  {mode:9s} wall {wall:6.1f} s = {args.duration / wall:.2f}x real time; CPU "
-              f"{statistics.median(r['cpu_s'] for r in rows):.1f} s; peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB; "
+        print(f"  {mode:9s} wall {wall:6.1f} s = {args.duration / wall:.2f}x real time; "
+              f"CPU {statistics.median(r['cpu_s'] for r in rows):.1f} s; "
+              f"peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB; "
               f"load {statistics.median(r['load'] for r in rows):.2f}")
-    speedup = statistics.median(r["wall_s"] for r in runs["serial"]) / statistics.median(r["wall_s"] for r in runs["pipelined"])
+    walls = {mode: statistics.median(r["wall_s"] for r in rows) for mode, rows in runs.items()}
+    speedup = walls["serial"] / walls["pipelined"]
     print(f"  pipelined / serial wall-time speed-up: {speedup:.2f}x")
+    pairs = ", ".join(f"{s['wall_s'] / p['wall_s']:.2f}x" for s, p in zip(runs["serial"], runs["pipelined"]))
+    print(f"  each pair (serial then pipelined): {pairs}")
     print(f"  stores identical: {len(digests) == 1} ({len(digests)} distinct hash{'es' if len(digests) > 1 else ''})")
     if len(digests) != 1:
         raise SystemExit("pipelined and serial stores differ")

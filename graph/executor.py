@@ -38,7 +38,7 @@ from .lock import StoreLock
 from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
-from .threads import limit_blas
+from .threads import limit_blas, limit_malloc_arenas
 
 STORE = "(store)"           # the timing entry of the run store's writes
 log = logging.getLogger("evsda.executor")
@@ -363,6 +363,7 @@ class Executor:
                         self._commit(window, {n: self.blocks[n] for n in self.running})
                     self._last_commit = time.perf_counter()
                 bar.update(1)
+                del produced                     # this window's values go before the next one is waited for
         finally:
             windows.close()                  # a pipeline waits for its running steps
             bar.close()
@@ -511,7 +512,8 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
     ``pipeline`` (step blocks of successive windows concurrently, recording the same bytes; default:
     ``EVSDA_PIPELINE``, on unless it is ``0``; see :mod:`evsda.graph.executor_pipeline`).
-    BLAS libraries run one thread while it runs (see :mod:`evsda.graph.threads`).
+    BLAS libraries run one thread while it runs, and threads share few malloc arenas (see :mod:`evsda.graph.threads`).
     """
+    limit_malloc_arenas()
     with limit_blas():
         return Executor(graph, out, **options).execute()
