@@ -73,7 +73,7 @@ SETUPS = (
     Setup("onsky_stare_85mm_hvga.yaml", "Gen3 HVGA-EM 20 um, 85 mm f/1.4, stare (15\"/s), 20.3 mag/arcsec^2",
           "PREDICTION", 6.9, "V 6.9", "4.5:9.5:0.5"),
     Setup("onsky_scan_200mm.yaml", "Gen3 VGA 15 um, 200 mm f/2.0, scan at 0.5 deg/s, 20.3 mag/arcsec^2",
-          "PREDICTION", None, "no star above 0.5 deg/s", "9.5:14.5:0.5"),
+          "PREDICTION", None, "no star above 0.5 deg/s", "4:9:0.5"),
     Setup("onsky_stare_135mm_vga.yaml", "Gen3 VGA 15 um, 135 mm f/2.0, stare (15\"/s), sky 20.3 assumed",
           "PREDICTION", 9.8, "G 9.8 (90 % of matches)", "5.5:10.5:0.5"),
     Setup("onsky_stare_135mm_gen4.yaml", "Gen4 4.86 um, 135 mm f/2.0, stare (15\"/s), sky 20.3 assumed",
@@ -81,7 +81,7 @@ SETUPS = (
 )
 GEN4 = SETUPS[4]
 SCAN_RATES_DEG_S = (0.5, 1.0, 2.0, 4.0)      # rates at which the scan setup's contrast limit is printed [deg/s]
-BANDWIDTH_SLOWER = (10.0, 100.0, 1000.0)     # factors by which the sensitivity lines slow the photoreceptor [1]
+BANDWIDTH_SLOWER = (0.1, 0.3, 3.0)           # factors by which the sensitivity lines slow the photoreceptor [1]
 SCAN_PIXEL_ARCSEC = 15.47                    # 15 um at 200 mm [arcsec]
 SCAN_SWATH_DEG = 480 * SCAN_PIXEL_ARCSEC / 3600.0   # the VGA's short side swept across the sky [deg]
 SKY_DEG2 = 41252.96                          # the whole sky [deg^2]
@@ -131,35 +131,20 @@ def scan_rate_overrides(rate_deg_s: float) -> list[str]:
 
 def print_sensitivities(stare: Setup, scan: Setup) -> None:
     """What the fit and the scan's prediction hang on: the stare's limit with the preset's prior dark current and
-    without a low-pass, and both setups with the bandwidth law slowed (``cutoff_saturation`` x k^2: with the
-    square-root law a k times slower photoreceptor at every current)."""
+    without a low-pass, and both setups with the photoreceptor k times slower at every current (``cutoff_saturation``
+    x k^(1/n) under the power law f = f_max (I / I_sat)^n)."""
     prior = contrast_limit(stare.path, [f"{DARK_PARAM}=1e-5"])
     static = contrast_limit(stare.path, ["sensor/pixel.cutoff_max_hz=0"])
     print(f"{stare.graph}: predicted limit with the prior dark current (1e-5 A/m^2) V {prior:.2f}; with the fitted one "
           f"and no low-pass V {static:.2f}")
-    saturation = design_limit(stare.path).d.pixel.params.cutoff_saturation
-    nist = nist_saturation_scale()
-    for slower, label in [(k, f"{k:g}x slower") for k in BANDWIDTH_SLOWER] + [
-            (math.sqrt(nist), f"{math.sqrt(nist):.1f}x slower (NIST's dim OFF latency on this VGA: cutoff_saturation "
-                              f"x {nist:.1f}, benchmarks/pixel_latency_nist.py)")]:
-        override = [f"sensor/pixel.cutoff_saturation={saturation * slower ** 2:.6g}"]
+    params = design_limit(stare.path).d.pixel.params
+    for slower in BANDWIDTH_SLOWER:
+        override = [f"sensor/pixel.cutoff_saturation={params.cutoff_saturation * slower ** (1 / params.cutoff_exponent):.6g}"]
         scans = ", ".join(f"{r:g} deg/s V {contrast_limit(scan.path, override + scan_rate_overrides(r)):.2f}"
                           for r in (0.5, 1.0))
-        print(f"  bandwidth {label}: {stare.graph} V {contrast_limit(stare.path, override):.2f}, {scan.graph} {scans}")
-
-
-def nist_saturation_scale() -> float:
-    """The factor on the Gen3 preset's cutoff_saturation at which its OFF latency to NIST's dimmest LED step is the
-    one NIST measured on a SilkyEvCam VGA at default biases (benchmarks/pixel_latency_nist.py computes it)."""
-    import importlib.util
-    import sys
-
-    spec = importlib.util.spec_from_file_location("pixel_latency_nist", Path(__file__).with_name("pixel_latency_nist.py"))
-    nist = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = nist
-    spec.loader.exec_module(nist)
-    measured_off_us = sum(nist.MEASURED["prophesee_gen3_vga"]["OFF"][0]) / 2
-    return nist.off_matching_scale("prophesee_gen3_vga", measured_off_us)
+        factor = f"{1 / slower:.3g}x faster" if slower < 1 else f"{slower:.3g}x slower"
+        print(f"  photoreceptor {factor}: {stare.graph} "
+              f"V {contrast_limit(stare.path, override):.2f}, {scan.graph} {scans}")
 
 
 def value_matching(setup: Setup, param: str, low: float, high: float) -> float:
