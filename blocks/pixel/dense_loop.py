@@ -41,7 +41,7 @@ from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_into, drive_log, drive
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
                          SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, relaxed_by, run_pixel)
 
-TILE = 64                    # pixels swept together
+TILE = 128                   # pixels swept together (64: ~5 % more CPU, 256: the same)
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
 _STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
 # per-pixel fields of a tile (rows of the sweep's tables)
