@@ -47,7 +47,7 @@ def _cannot_fire(r, step, k, y_high, y_low, para_high, n_end, leak_dt, dt):
     return rise < r[TH_ON] - TOLERANCE - ROUNDING_MARGIN and fall > -(r[TH_OFF] - TOLERANCE) + ROUNDING_MARGIN
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
 def select_pixels(real, count, next_step, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
                   leak_dt, dt, defer):
     """The pixels a window must process, in order, and whether each takes pending background changes.

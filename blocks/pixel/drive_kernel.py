@@ -31,7 +31,7 @@ from .pixel_loop import ACCEPT, FLUX, LOG_A, PARA, Y
  SHOT_FLOOR, SHOT_PER_Y, SHOT_SLOPE, ACCEPT_DARK, ACCEPT_FLAT, N_CONSTANTS) = range(22)
 LAWS = {"paper": 0.0, "proportional": 1.0, "power": 2.0}          # cutoff laws of Eq. 16 (:mod:`.lowpass`)
 
-jit = numba.njit(cache=True, error_model="numpy")
+jit = numba.njit(cache=True, error_model="numpy", nogil=True)      # runs beside other blocks' steps (pipelined windows)
 inline = numba.njit(cache=True, error_model="numpy", inline="always")      # so that loops over pixels vectorise
 
 

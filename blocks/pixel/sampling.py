@@ -139,7 +139,7 @@ def dense_stamps(irradiance: Irradiance, samples: np.ndarray, row0: int, row1: i
     return summed
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
 def _sum_stamps(flux, origin, samples, row0, row1, width, out):
     """Add the stamps of ``samples`` (clipped to rows ``row0 .. row1 - 1`` and the sensor) into ``out[sample, pixel]``."""
     h, w = flux.shape[2], flux.shape[3]
