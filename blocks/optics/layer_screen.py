@@ -34,7 +34,7 @@ import numpy as np
 from .autoregressive import extension_operator
 from .fft_screens import fft_phase_screens
 from .screen_kernels import (MARGIN, REGENERATE, extend_columns, plan_walk, prefilter, prefilter_band, prefilter_taps,
-                             read_band, sample_grids, sample_grids_transposed)
+                             read_band, sample_grids_transposed)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -182,11 +182,11 @@ class LayerScreen:
         cols = np.ascontiguousarray(np.atleast_2d(cols), dtype=float)
         if self._coefficients is None:
             self._coefficients = prefilter(self.values, _TAPS)
-        out = np.zeros((rows.shape[0], rows.shape[1], cols.shape[1]))
-        if not sample_grids(self._coefficients, int(self.origin[0]), int(self.origin[1]), rows, cols,
-                            np.ones(rows.shape[0]), 0, rows.shape[0], out):
+        out_t = np.zeros((rows.shape[0], cols.shape[1], rows.shape[1]))
+        if not sample_grids_transposed(self._coefficients, int(self.origin[0]), int(self.origin[1]), rows, cols,
+                                       np.ones(rows.shape[0]), 0, rows.shape[0], out_t):
             raise ValueError("screen sampled outside its window")
-        return out
+        return out_t.transpose(0, 2, 1)
 
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:

@@ -12,7 +12,7 @@
   coefficient then depends only on the samples within 8 of it (error ``|z1|^9 ~ 7e-6`` of
   the screen's values against the infinite filter), so results do not depend on how large
   a canvas is or how a run is cut into windows.
-* :func:`sample_grids` reads separable grids with the 4-tap cubic B-spline, its weights
+* :func:`sample_grids_transposed` reads separable grids with the 4-tap cubic B-spline, its weights
   computed once per row and column of each frame (no dense scatter matrices).
 """
 
@@ -294,49 +294,16 @@ def _taps(u, index, weights):
 
 
 @jit
-def sample_grids(coefficients, top, left, rows, cols, weight, first, stop, out):
-    """``out[f] += weight[f] * screen(rows[f], cols[f])`` for frames ``first <= f < stop``.
+def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
+    """``out_t[f] += weight[f] * screen(rows[f], cols[f]).T`` for frames ``first <= f < stop``.
 
     ``rows`` (F, ny) and ``cols`` (F, nx) are increasing absolute positions [samples]; the
-    coefficient array's first sample is at (``top``, ``left``). Each frame is read on its own
-    (the same result in any batch): every output row combines 4 coefficient rows along y, then
-    4 of those values along x. Returns False (and stops) when a grid reaches outside the array.
-    """
-    height, width = coefficients.shape
-    ny, nx = rows.shape[1], cols.shape[1]
-    iy = np.empty(ny, np.int64)
-    ix = np.empty(nx, np.int64)
-    wy = np.empty((ny, 4))
-    wx = np.empty((nx, 4))
-    line = np.empty(width)                      # one output row's patch, combined along y: contiguous in x
-    for f in range(first, stop):
-        _taps(rows[f] - top, iy, wy)
-        _taps(cols[f] - left, ix, wx)
-        if iy[0] < 0 or iy[ny - 1] + 3 >= height or ix[0] < 0 or ix[nx - 1] + 3 >= width:
-            return False
-        c0, c1 = ix[0], ix[nx - 1] + 4
-        g = weight[f]
-        for i in range(ny):
-            r = iy[i]
-            w0, w1, w2, w3 = wy[i, 0], wy[i, 1], wy[i, 2], wy[i, 3]
-            for c in range(c0, c1):
-                line[c - c0] = (w0 * coefficients[r, c] + w1 * coefficients[r + 1, c]
-                                + w2 * coefficients[r + 2, c] + w3 * coefficients[r + 3, c])
-            target = out[f, i]
-            for j in range(nx):
-                c = ix[j] - c0
-                target[j] += g * (wx[j, 0] * line[c] + wx[j, 1] * line[c + 1]
-                                  + wx[j, 2] * line[c + 2] + wx[j, 3] * line[c + 3])
-    return True
-
-
-@jit
-def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
-    """:func:`sample_grids` into the transposed ``out_t`` (F, nx, ny): ``out_t[f, j, i]`` gets what ``out[f, i, j]`` would.
-
-    Every sample is the same sum in the same order; the 4 coefficient rows combined along y are
-    stored by column (``lines[c, i]``), so the 4-tap combination along x runs over contiguous
-    output rows of ``out_t`` (SIMD) instead of gathering columns for each output sample.
+    coefficient array's first sample is at (``top``, ``left``); ``out_t`` is (F, nx, ny), the
+    phase transposed. Each frame is read on its own (the same result in any batch): every output
+    row combines 4 coefficient rows along y, then 4 of those values along x. The y-combined rows
+    are stored by column (``lines[c, i]``), so the 4-tap combination along x runs over contiguous
+    output rows of ``out_t`` (SIMD) instead of gathering columns for each output sample. Returns
+    False (and stops) when a grid reaches outside the array.
     """
     height, width = coefficients.shape
     ny, nx = rows.shape[1], cols.shape[1]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsda.blocks.optics.screen_kernels import _taps, prefilter_band, prefilter_taps, sample_grids, sample_grids_transposed
+from evsda.blocks.optics.screen_kernels import _taps, prefilter_band, prefilter_taps, sample_grids_transposed
 
 
 def reference_prefilter(values, taps, low, high):
@@ -63,16 +63,16 @@ def test_prefilter_band_is_its_sums_in_order():
     np.testing.assert_array_equal(prefilter_band(values, taps, low, high), reference_prefilter(values, taps, low, high))
 
 
-def test_sample_grids_is_its_sums_in_order():
+def test_sampler_is_its_sums_in_order():
     rng = np.random.default_rng(8)
     coefficients = rng.standard_normal((40, 60))
     rows = 5 + rng.uniform(0, 3, (3, 1)) + 0.9 * np.arange(7)[None]
     cols = 8 + rng.uniform(0, 30, (3, 1)) + 0.8 * np.arange(9)[None]
     weight = rng.uniform(0.5, 2.0, 3)
-    fast, slow = np.ones((3, 7, 9)), np.ones((3, 7, 9))
-    assert sample_grids(coefficients, 2, 3, rows, cols, weight, 0, 3, fast)
+    fast, slow = np.ones((3, 9, 7)), np.ones((3, 7, 9))
+    assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 0, 3, fast)
     reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
-    np.testing.assert_array_equal(fast, slow)
+    np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
 
 
 def test_transposed_sampler_is_the_same_sums_in_order():
