@@ -66,8 +66,9 @@ def test_davis346_preset_runs_on_its_focal_plane(tmp_path, scenes):
     block = include_preset(tmp_path, "davis346").nodes["sensor/pixel"].block
     fp = FocalPlane(width, height, pitch, 0.5)
     out = block.step(Window.from_seconds(0, 0.05), irradiance=scenes.uniform(fp, [0], 1e4))["events"]
-    # only noise: about (0.1 Hz leak + 2 x 0.1 Hz shot) x 90k pixels x 0.05 s
-    assert 0 < len(out) < 5000 and out.counts_by_cause[0] == 0
+    # only noise: about (0.2 Hz leak + 2 x 5 Hz shot, Guo & Delbruck 2022) x 90k pixels x 0.05 s = 46 000
+    expected = (0.2 + 2 * 5.0) * width * height * 0.05
+    assert 0.8 * expected < len(out) < 1.2 * expected and out.counts_by_cause[0] == 0
     assert np.all(out.x < width) and np.all(out.y < height)
 
 
@@ -249,3 +250,54 @@ def test_preset_threshold_is_the_vendor_nominal_contrast(tmp_path, name):
     p = include_preset(tmp_path, name).nodes["sensor/pixel"].block.params
     theta = np.log1p(VENDOR_NOMINAL_CONTRAST[name])
     assert p.threshold_on == pytest.approx(theta, abs=1e-4) and p.threshold_off == pytest.approx(theta, abs=1e-4)
+
+
+#: iniVation's DAVIS346 datasheet: "contrast sensitivity 14.3 % (ON), 22.5 % (OFF) (with 50 % of the pixels responding)"
+#: (as Yu et al. 2024, arXiv:2405.20224 App. A, quote it), Weber contrast (L_max - L_min)/L_min.
+DAVIS346_CONTRAST_AT_HALF_RESPONSE = {"ON": 0.143, "OFF": 0.225}
+
+
+def _fraction_responding(scenes, params, pitch_m, factor, side=50):
+    """Fraction of ``side`` x ``side`` noise-free preset pixels firing ON and OFF after the light steps by ``factor``.
+
+    100 lx on the pixel (the dark current then shifts the step by < 0.01 % of ln), the step at 20 ms, 80 ms after
+    it to settle (the preset's cutoff there is 3 kHz).
+    """
+    block = DvsPixel(params, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0,
+                     noise_rate_spread_decades=0.0, seed=3)
+    fp = FocalPlane(side, side, pitch_m, 0.5)
+    flux = 100.0 / LUX_PER_W_AT_555NM * pitch_m**2 * 555e-9 / 1.98644586e-25
+    ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [0, 20_000_000], [flux, flux * factor]),
+                                       0.1, 0.1))
+    fired = lambda sign: np.unique(ev["y"][ev["p"] == sign] * side + ev["x"][ev["p"] == sign]).size / side**2
+    return fired(1), fired(-1)
+
+
+def test_davis346_threshold_reproduces_the_datasheet_half_response(tmp_path, scenes):
+    # The DAVIS346 preset's pixels (noise off, the preset's threshold spread) through the model: a light step of the
+    # datasheet's ON contrast (x 1.143) fires half of them, within the binomial error of 2 500 pixels (1 %); a fall
+    # of its OFF contrast (/ 1.225) likewise. The two differ: the ON contrast fires ~1 % at OFF, the OFF one 99 % at ON
+    # (the spread 0.03 against thresholds 0.069 apart), which v2e's symmetric 0.2 / 0.2 cannot show.
+    pitch = PRESETS["davis346"][2]
+    p = include_preset(tmp_path, "davis346").nodes["sensor/pixel"].block.params
+    on, off = DAVIS346_CONTRAST_AT_HALF_RESPONSE["ON"], DAVIS346_CONTRAST_AT_HALF_RESPONSE["OFF"]
+    up_on, up_off = _fraction_responding(scenes, p, pitch, 1 + on)
+    down_on, down_off = _fraction_responding(scenes, p, pitch, 1 / (1 + off))
+    assert up_on == pytest.approx(0.5, abs=0.04) and up_off == 0.0
+    assert down_off == pytest.approx(0.5, abs=0.04) and down_on == 0.0
+    assert _fraction_responding(scenes, p, pitch, 1 + off)[0] > 0.95
+    assert _fraction_responding(scenes, p, pitch, 1 / (1 + on))[1] < 0.05
+
+
+def test_davis346_dark_background_activity_is_the_measured_rate(tmp_path, scenes):
+    # Guo & Delbruck 2022 (DAVIS346): leak ~0.2 Hz and shot noise ~10 Hz (ON + OFF) per pixel in low light. The preset's
+    # dark pixels (10 000 of them, its hot-pixel spread included), simulated for 1 s from the start: ON 0.2 + 5 Hz, OFF
+    # 5 Hz per pixel, each within 5 % (Poisson 1 sigma 0.45 %, the log-normal spread's 0.6 %).
+    pitch = PRESETS["davis346"][2]
+    p = include_preset(tmp_path, "davis346").nodes["sensor/pixel"].block.params
+    side = 100
+    fp = FocalPlane(side, side, pitch, 0.5)
+    ev = scenes.concat(scenes.simulate(DvsPixel(p, seed=5), lambda a, b: scenes.uniform(fp, [a], 0.0), 1.0, 0.25))
+    on_hz = np.sum(ev["p"] > 0) / side**2
+    off_hz = np.sum(ev["p"] < 0) / side**2
+    assert on_hz == pytest.approx(0.2 + 10.0 / 2, rel=0.05) and off_hz == pytest.approx(10.0 / 2, rel=0.05)
