@@ -81,6 +81,9 @@ class PointSourceOptics(Block):
                                           description="Stamp width; None encloses all but tolerance/2 [pixel]")
         grid_size: int | None = Field(None, ge=16, le=16384,
                                       description="Reference propagation grid width; None picks a valid one [1]")
+        detector: DataFile | None = Field(
+            None, description="Sensor preset whose dvs_pixel the irradiance feeds: 'auto' then chooses from what "
+                              "its pixels see (response time, threshold; see paths) [-]")
 
         @model_validator(mode="after")
         def _consistent(self):
@@ -146,10 +149,23 @@ class PointSourceOptics(Block):
             p = self.params
             seed = tuple(int(w) for w in self.rng.bit_generator.seed_seq.generate_state(2))
             self._imager = Imager(self.telescope, focal_plane, wavelength, self._atmosphere, p, seed=seed,
-                                  label=self.label)
+                                  label=self.label, pixels=self._pixels(focal_plane, wavelength))
             if self.optics_state:
                 self._imager.set_state(self.optics_state)
         return self._imager
+
+    def _pixels(self, focal_plane: FocalPlane, wavelength: float):
+        """The detector's pixels (:class:`.PixelView`) from the ``detector`` preset, or None."""
+        if self.params.detector is None:
+            return None
+        from evsda.library import resolve
+
+        from .pixel_view import PixelView, load_pixel_params
+        try:
+            path = resolve(self.params.detector)
+        except (OSError, UserError) as exc:
+            raise ParameterError(f"{self.label} parameter 'detector': {exc}") from None
+        return PixelView.of(load_pixel_params(path, self.label), focal_plane.pixel_area_m2, wavelength)
 
     # -- state ----------------------------------------------------------------------------------
     def get_state(self) -> dict:
@@ -182,12 +198,14 @@ class PointSourceOptics(Block):
     def _held_samples(self, key: str, src: PointSources, t_ns: np.ndarray) -> dict[str, np.ndarray]:
         """Sample-and-hold the input at the render times, carrying the last sample across windows."""
         n_src = src.n_sources
+        held = self.held.get(key)
         fields = {"x": src.x_px, "y": src.y_px, "flux": src.photon_flux, "range": src.range_m,
                   "magnitude": src.magnitude,
                   "zenith": np.broadcast_to(np.asarray(src.zenith_angle_rad, dtype=float)[:, None],
-                                            (len(src.t_ns), n_src))}
+                                            (len(src.t_ns), n_src)),
+                  "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (len(src.t_ns), n_src))}
+        fields["rate"] = self._rates(fields, held, n_src)
         index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
-        held = self.held.get(key)
         out = {}
         for name, values in fields.items():
             values = np.asarray(values, dtype=float).reshape(len(src.t_ns), n_src)
@@ -206,6 +224,27 @@ class PointSourceOptics(Block):
             self.held[key] = {name: np.asarray(values, dtype=float).reshape(len(src.t_ns), n_src)[-1].copy()
                               for name, values in fields.items()}
         return out
+
+    @staticmethod
+    def _rates(fields: dict, held: dict | None, n_src: int) -> np.ndarray:
+        """Apparent rate [pixel/s] at each input sample: the distance from the sample before (the held one at
+        a window's start) over the time between them; a track's first sample takes the slowest rate of the
+        input's other sources (NaN if none has one)."""
+        n_t = len(fields["t"])
+        if not n_t or not n_src:
+            return np.full((n_t, n_src), np.nan)
+        x, y, t = (np.asarray(fields[n], dtype=float).reshape(n_t, n_src) for n in ("x", "y", "t"))
+        before = [np.asarray(held[n], dtype=float)[None] if held is not None and n in held
+                  and np.asarray(held[n]).shape == (n_src,) else np.full((1, n_src), np.nan) for n in ("x", "y", "t")]
+        x, y, t = (np.concatenate([b, a]) for b, a in zip(before, (x, y, t)))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rate = np.hypot(np.diff(x, axis=0), np.diff(y, axis=0)) / (np.diff(t, axis=0) * 1e-9)
+        # a track's first sample: the slowest rate of the input's other sources then (a star field moves as one)
+        first = np.isnan(rate) & np.isfinite(x[1:])
+        if first.any():
+            slowest = np.where(np.isnan(rate), np.inf, rate).min(axis=1, initial=np.inf)
+            rate = np.where(first, np.where(np.isfinite(slowest), slowest, np.nan)[:, None], rate)
+        return rate
 
     def step(self, window: Window, sources: list[PointSources] | PointSources,
              background: SkyBackground | None = None) -> dict:
@@ -226,6 +265,11 @@ class PointSourceOptics(Block):
                 tracks.append((f"{i}:{source_id}", {name: v[:, j] for name, v in samples.items()}))
                 kinds.append(int(src.kind[j]))
 
+        sky = np.zeros(len(t_ns))
+        if background is not None and len(background.t_ns):
+            k = np.clip(np.searchsorted(np.asarray(background.t_ns), t_ns, side="right") - 1, 0, None)
+            sky = np.asarray(background.photon_flux_per_pixel, dtype=float)[k] * collected
+
         zenith_first = next((float(tr["zenith"][0]) for _, tr in tracks if len(tr["zenith"])), np.nan)
         geometry = imager.ensure_geometry(zenith_first)
         size = geometry.stamp_size
@@ -236,12 +280,15 @@ class PointSourceOptics(Block):
             visible = np.isfinite(tr["x"]) & np.isfinite(tr["y"]) & (np.nan_to_num(tr["flux"]) > 0)
             if visible.any():
                 idx = np.nonzero(visible)[0]
-                jobs.append((s, key, tr, idx))
-                imager.prepare(key, tr["zenith"][idx], tr["range"][idx])      # path choices, in order
+                # what the pixels see of each frame: apparent rate, collected flux, sky per pixel
+                seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx]], axis=1)
+                jobs.append((s, key, tr, idx, seen))
+                imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
 
         def render(job):
-            s, key, tr, idx = job
-            o, stamps, _ = imager.render(key, t_s[idx], tr["x"][idx], tr["y"][idx], tr["zenith"][idx], tr["range"][idx])
+            s, key, tr, idx, seen = job
+            o, stamps, _ = imager.render(key, t_s[idx], tr["x"][idx], tr["y"][idx], tr["zenith"][idx], tr["range"][idx],
+                                         seen)
             origin[idx, s] = o
             flux[idx, s] = stamps * (tr["flux"][idx] * collected)[:, None, None]
 
@@ -254,10 +301,6 @@ class PointSourceOptics(Block):
             for job in jobs:
                 render(job)
 
-        sky = np.zeros(len(t_ns))
-        if background is not None and len(background.t_ns):
-            k = np.clip(np.searchsorted(np.asarray(background.t_ns), t_ns, side="right") - 1, 0, None)
-            sky = np.asarray(background.photon_flux_per_pixel, dtype=float)[k] * collected
         truth = truth_table(focal_plane, t_ns, [key.partition(":")[2] for key, _ in tracks], kinds,
                             [tr for _, tr in tracks])
         return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux), "truth": truth}

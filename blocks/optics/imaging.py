@@ -48,6 +48,7 @@ from .sizing import PupilGeometry, choose_geometry
 
 if TYPE_CHECKING:
     from .block import PointSourceOptics
+    from .pixel_view import PixelView
     from .telescope import Telescope
 
 
@@ -58,12 +59,13 @@ class Imager:
     :class:`.PathChooser` for each frame's path and hands the frames to that path's object
     (:class:`.AnalyticPath`, :class:`.PupilPath`, :class:`.ReferencePath`), which keep their own
     tables and screens. ``params`` is the ``optics`` block's ``Params``; ``label`` names the block in
-    messages and log lines (:attr:`~evsda.graph.block.Block.label`).
+    messages and log lines (:attr:`~evsda.graph.block.Block.label`); ``pixels``, the detector's pixels
+    (:class:`.PixelView`), lets ``auto`` choose from what they see (:mod:`.paths`).
     """
 
     def __init__(self, telescope: Telescope, focal_plane: FocalPlane, wavelength_m: float,
                  atmosphere: Atmosphere | None, params: PointSourceOptics.Params, *, seed: tuple = (0,),
-                 label: str = "optics"):
+                 label: str = "optics", pixels: PixelView | None = None):
         self.telescope, self.wavelength = telescope, float(wavelength_m)
         self.atmosphere = atmosphere if atmosphere is not None and atmosphere.layers else None
         self.tolerance, self.focus = float(params.tolerance), params.focus
@@ -72,7 +74,7 @@ class Imager:
         self.pixel_scale = focal_plane.pixel_scale_rad                 # [rad]
         self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])  # [pixel]
         self.geometry: PupilGeometry | None = None
-        self.chooser = PathChooser(self, params.psf_path)
+        self.chooser = PathChooser(self, params.psf_path, pixels)
         self.pupil = PupilPath(self, params.screen_method, params.screen_update, params.n_zernike_modes)
         self.reference = ReferencePath(self, params.grid_size)
         #: each path's renderer by name
@@ -158,23 +160,33 @@ class Imager:
         return centre, scale
 
     # -- rendering --------------------------------------------------------------------------------
-    def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray) -> None:
-        """Make the path choices and shared tables a track needs, so that sources can then render concurrently."""
+    @staticmethod
+    def _seen(seen: np.ndarray | None, n: int) -> list:
+        """Per frame, what the pixels see (rate [pixel/s], source [photon/s], sky [photon/s per pixel]) or None."""
+        return [None] * n if seen is None else [tuple(row) for row in np.asarray(seen, dtype=float)]
+
+    def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> None:
+        """Make the path choices and shared tables a track needs, so that sources can then render concurrently.
+
+        ``seen`` (F, 3): each frame's apparent rate [pixel/s], collected source flux [photon/s] and sky
+        [photon/s per pixel], for a chooser that knows the detector (:meth:`.PathChooser.key`)."""
         range_m = np.asarray(range_m, dtype=float)
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), range_m.shape)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
         self.pupil_renderer
-        for z, r in zip(zenith_rad, range_m):
-            if not self.chooser.is_chosen(z, r):
-                path = self.chooser.choose(z, r, source).path
+        for z, r, v in zip(zenith_rad, range_m, self._seen(seen, len(range_m))):
+            if not self.chooser.is_chosen(z, r, v):
+                path = self.chooser.choose(z, r, source, v).path
                 if path in ANALYTIC_PATHS:
                     self.path_named[path].renderer(z)
         if self.pupil.screen_method == "zernike" and self.atmosphere:
             self.pupil.pupil_modes
 
     def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
-               zenith_rad: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame."""
+               zenith_rad: np.ndarray, range_m: np.ndarray,
+               seen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame
+        (``seen``: as for :meth:`prepare`)."""
         t_s, x_px, y_px = (np.asarray(a, dtype=float) for a in (t_s, x_px, y_px))
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), t_s.shape)
         range_m = np.broadcast_to(np.asarray(range_m, dtype=float), t_s.shape)
@@ -182,7 +194,8 @@ class Imager:
         origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
         size = self.geometry.stamp_size
         stamps = np.zeros((len(t_s), size, size))
-        paths = [self.chooser.choose(z, r, source).path for z, r in zip(zenith_rad, range_m)]
+        paths = [self.chooser.choose(z, r, source, v).path
+                 for z, r, v in zip(zenith_rad, range_m, self._seen(seen, len(t_s)))]
         for path in PATHS:
             idx = np.array([i for i, p in enumerate(paths) if p == path], dtype=int)
             if idx.size == 0:

@@ -33,6 +33,22 @@ distance between pixel-integrated stamps of total flux ``F``).
 :class:`PathChooser` makes these estimates once per bin of conditions (1 degree of zenith
 angle, 5 % of range; the pupil path's error on coarser bins) and keeps each choice, so a
 choice is a pure function of the bin and of the run's seed.
+
+**What the pixels see** (with a detector, the block's ``detector``: :mod:`.pixel_view`). The
+error that matters is that of the image the pixels respond to, the irradiance low-passed by the
+photoreceptor, not that of one render time. Bins then also hold the source's apparent rate, its
+flux and the sky (factors of 2), and each bin's estimate is taken at the bin's worst edge:
+
+* a source that cannot move any pixel's filtered log intensity by the array's smallest threshold,
+  even with all of its flux on one pixel above the darkest sky of the bin for the longest time its
+  slowest rate allows (:meth:`.PixelView.seen_step`), takes ``long_exposure`` (it makes no event of
+  its own; the long-exposure PSF gives its mean irradiance);
+* otherwise the pixel's filter (time constant ``tau`` at the brightest current the source can make)
+  averages ``K_eff`` independent short exposures (:func:`.pixel_view.averaged_frames`, at the
+  slowest footprint speeds the bin allows), and an analytic path's error is its distance from the
+  mean of ``K_eff`` pupil-path frames: ``sqrt(b^2 + s^2 / K)`` fitted to the probe's distances of
+  means of 1, 2, 3, 4, 6, 8, 12 and 24 frames held at one position, averaged over 8 positions
+  (``b``: the bias left when the turbulence is averaged away, ``s``: one frame's fluctuation).
 """
 
 from __future__ import annotations
@@ -45,10 +61,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .fft_screens import fft_phase_screens
+from .pixel_view import averaged_frames, footprint_speeds
 from .reference_path import FAR_RANGE_M
 
 if TYPE_CHECKING:
     from .imaging import Imager
+    from .pixel_view import PixelView
 
 PATHS = ("airy", "long_exposure", "pupil_fft", "reference")
 #: the paths rendered from a tabulated radial PSF (:mod:`.analytic_path`)
@@ -65,6 +83,14 @@ PUPIL_ERROR_ZENITH_BIN_RAD = np.deg2rad(10.0)
 #: tolerance lies within two standard errors of their mean, so a close call is decided on the mean
 #: error rather than on the luck of three frames
 REFERENCE_PROBE_FRAMES = (3, 12)
+#: frames per mean in the averaging fit (divisors of PROBE_FRAMES) [1]
+AVERAGED_GROUPS = (1, 2, 3, 4, 6, 8, 12, 24)
+#: positions (the probe's first sub-pixel offsets) the averaging fit holds its frames at [1]
+AVERAGED_POSITIONS = 8
+#: the apparent rate below which a source counts as still [pixel/s]
+STILL_RATE_PX_S = 1.0
+#: bins of what the pixels see: factor 2 of rate [pixel/s], source flux [photon/s] and sky [photon/s per pixel]
+SEEN_BIN_RATIO = 2.0
 
 
 @dataclass(frozen=True)
@@ -106,6 +132,41 @@ def conditions_key(zenith_rad: float, range_m: float, turbulent: bool) -> tuple[
     return z, r
 
 
+def seen_key(rate_px_s: float, source_photon_s: float, sky_photon_s: float) -> tuple[int, int, int]:
+    """Bin of what the pixels see: factors of ``SEEN_BIN_RATIO`` of the apparent rate (-1 below
+    ``STILL_RATE_PX_S`` or unknown), of the source's collected flux and of the sky per pixel (-1 below 1)."""
+    def log_bin(value: float, least: float) -> int:
+        return int(np.floor(np.log(value) / np.log(SEEN_BIN_RATIO))) if value >= least else -1
+    rate = float(rate_px_s) if np.isfinite(rate_px_s) else 0.0
+    return log_bin(rate, STILL_RATE_PX_S), log_bin(float(source_photon_s), 1.0), log_bin(float(sky_photon_s), 1.0)
+
+
+def seen_edges(key: tuple[int, int, int]) -> tuple[float, float, float, float]:
+    """The bin's worst edges: slowest rate [pixel/s], brightest source [photon/s], darkest and brightest sky
+    [photon/s per pixel] (each the one that makes the pixels see more of the turbulence)."""
+    rate, flux, sky = key
+    edge = SEEN_BIN_RATIO
+    return (0.0 if rate < 0 else edge**rate, edge ** (flux + 1) if flux >= 0 else 1.0,
+            0.0 if sky < 0 else edge**sky, 1.0 if sky < 0 else edge ** (sky + 1))
+
+
+def fit_averaged(frames: np.ndarray, distances: np.ndarray) -> tuple[float, float]:
+    """``(b, s)`` [1] of ``d(K)^2 = b^2 + s^2 / K`` by least squares on the squares (both clipped at 0)."""
+    a = np.stack([np.ones(len(frames)), 1.0 / np.asarray(frames, dtype=float)], axis=1)
+    (b2, s2), *_ = np.linalg.lstsq(a, np.asarray(distances, dtype=float) ** 2, rcond=None)
+    if s2 < 0:
+        b2, s2 = float(np.mean(np.asarray(distances) ** 2)), 0.0
+    if b2 < 0:
+        b2, s2 = 0.0, float(np.sum(np.asarray(distances) ** 2 / frames) / np.sum(1.0 / np.asarray(frames) ** 2))
+    return float(np.sqrt(b2)), float(np.sqrt(s2))
+
+
+def averaged_distance(fit: tuple[float, float], k_eff: float) -> float:
+    """The distance [1] of the mean of ``k_eff`` frames from the fit ``(b, s)`` of :func:`fit_averaged`."""
+    b, s = fit
+    return float(np.sqrt(b * b + s * s / max(k_eff, 1.0)))
+
+
 def representative_conditions(key: tuple[int, int]) -> tuple[float, float]:
     """The zenith angle [rad] (NaN: no turbulence) and range [m] (inf: far) at the centre of a bin."""
     z, r = key
@@ -121,27 +182,35 @@ class PathChooser:
     ``forced_path`` is the block's ``psf_path`` (``auto``: the cheapest within ``imager.tolerance``).
     """
 
-    def __init__(self, imager: Imager, forced_path: str):
-        self.imager, self.forced_path = imager, forced_path
+    def __init__(self, imager: Imager, forced_path: str, pixels: PixelView | None = None):
+        self.imager, self.forced_path, self.pixels = imager, forced_path, pixels
         self._choices: dict[tuple, PathChoice] = {}
         self._pupil_errors: dict[tuple, float] = {}
+        self._estimates: dict[tuple, tuple[dict, dict]] = {}
 
-    def key(self, zenith_rad: float, range_m: float) -> tuple[int, int]:
-        """The bin of these conditions (:func:`conditions_key`)."""
-        return conditions_key(zenith_rad, range_m, self.imager.turbulent(zenith_rad))
+    def key(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> tuple:
+        """The bin of these conditions (:func:`conditions_key`), with what the pixels see
+        (``seen``: rate [pixel/s], source flux [photon/s], sky [photon/s per pixel]; :func:`seen_key`)
+        when the chooser knows the detector and decides (``psf_path: auto``) in turbulence."""
+        key = conditions_key(zenith_rad, range_m, self.imager.turbulent(zenith_rad))
+        if seen is None or self.pixels is None or self.forced_path != "auto" or key[0] < 0:
+            return key
+        return key + seen_key(*seen)
 
-    def is_chosen(self, zenith_rad: float, range_m: float) -> bool:
-        return self.key(zenith_rad, range_m) in self._choices
+    def is_chosen(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> bool:
+        return self.key(zenith_rad, range_m, seen) in self._choices
 
-    def choose(self, zenith_rad: float, range_m: float, source: str = "") -> PathChoice:
+    def choose(self, zenith_rad: float, range_m: float, source: str = "", seen: tuple | None = None) -> PathChoice:
         """The path for these conditions (forced, or the cheapest within tolerance); logged once per bin."""
-        key = self.key(zenith_rad, range_m)
+        key = self.key(zenith_rad, range_m, seen)
         if key not in self._choices:
             self.imager.ensure_geometry(zenith_rad)
-            zenith, range_rep = representative_conditions(key)
+            zenith, range_rep = representative_conditions(key[:2])
             context = self._context(zenith, range_rep)
             if self.forced_path != "auto":
                 choice = PathChoice(self.forced_path, {}, f"path '{self.forced_path}' forced by psf_path ({context})")
+            elif len(key) > 2:
+                choice = self._choose_seen(zenith, range_rep, key[2:], context)
             else:
                 choice = pick(self.estimate_errors(zenith, range_rep), self.imager.tolerance, context)
             self._choices[key] = choice
@@ -164,6 +233,14 @@ class PathChooser:
     def estimate_errors(self, zenith_rad: float, range_m: float) -> dict[str, float]:
         """Estimated error [1] of each path against the reference (module docstring): the analytic paths'
         mean distance from ``PROBE_FRAMES`` pupil-path stamps (one without turbulence) plus the pupil path's."""
+        return dict(self._probe(zenith_rad, range_m)[0])
+
+    def _probe(self, zenith_rad: float, range_m: float) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+        """The instantaneous estimates of :meth:`estimate_errors` and, for each analytic path, the fit
+        ``(b, s)`` of its distance from means of frames at one position (:func:`fit_averaged`); kept per bin."""
+        cache = (zenith_rad, range_m)
+        if cache in self._estimates:
+            return self._estimates[cache]
         imager = self.imager
         pupil_error = self.pupil_error(zenith_rad, range_m)
         rng = np.random.Generator(np.random.PCG64(zlib.crc32(repr((zenith_rad, range_m, imager.seed)).encode())))
@@ -174,12 +251,53 @@ class PathChooser:
         pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, offsets)
         flux = pupil.sum(axis=(1, 2)).mean()
         estimates = {"reference": 0.0, "pupil_fft": pupil_error}
+        fits = {}
         for name in ANALYTIC_PATHS:
             analytic = imager.path_named[name].renderer(zenith_rad).stamps(offsets)
             estimates[name] = float(total_variation(analytic, pupil, flux).mean()) + pupil_error
         if not imager.turbulent(zenith_rad):
             estimates.pop("long_exposure")
-        return estimates
+        elif self.pixels is not None:
+            # the same screens held at each of AVERAGED_POSITIONS positions: how an analytic path's distance
+            # falls as the frames at one position are averaged (a pixel's share of a PSF depends on where it sits)
+            means = {name: np.zeros(len(AVERAGED_GROUPS)) for name in ANALYTIC_PATHS}
+            for offset in offsets[:AVERAGED_POSITIONS]:
+                still = np.broadcast_to(offset, offsets.shape)
+                pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, still)
+                for name in ANALYTIC_PATHS:
+                    analytic = imager.path_named[name].renderer(zenith_rad).stamps(offset[None])[0]
+                    means[name] += [float(total_variation(pupil.reshape(-1, k, *pupil.shape[1:]).mean(axis=1),
+                                                          analytic, flux).mean()) for k in AVERAGED_GROUPS]
+            for name in ANALYTIC_PATHS:
+                fits[name] = fit_averaged(np.array(AVERAGED_GROUPS), means[name] / AVERAGED_POSITIONS)
+        self._estimates[cache] = (estimates, fits)
+        return self._estimates[cache]
+
+    def _choose_seen(self, zenith_rad: float, range_m: float, seen: tuple[int, int, int], context: str) -> PathChoice:
+        """The choice for a bin of what the pixels see (module docstring): ``long_exposure`` for a source no pixel
+        can see, else the cheapest path whose distance from the mean of the frames the pixels average is in tolerance."""
+        imager, pixels = self.imager, self.pixels
+        rate_px_s, source, sky_low, sky_high = seen_edges(seen)
+        step = pixels.seen_step(source, sky_low, rate_px_s)
+        if step < pixels.threshold_min:          # no probe needed: whatever the PSF, no pixel fires
+            reason = (f"path 'long_exposure': the source cannot make a pixel fire: at most {source:.3g} photon/s on "
+                      f"one pixel over a sky of {sky_low:.3g}, at >= {rate_px_s:.3g} pixel/s, moves its filtered log "
+                      f"intensity by {step:.3g} < the smallest threshold {pixels.threshold_min:.3g} ({context})")
+            return PathChoice("long_exposure", {}, reason)
+        instantaneous, fits = self._probe(zenith_rad, range_m)
+        tau = pixels.response_time_s(source + sky_high)
+        atmosphere = imager.atmosphere
+        cn2 = np.array([layer.cn2_dh for layer in atmosphere.layers])
+        speeds = footprint_speeds(np.array([layer.altitude_m for layer in atmosphere.layers]),
+                                  np.array([layer.wind_speed_m_s for layer in atmosphere.layers]), zenith_rad,
+                                  rate_px_s * imager.pixel_scale)
+        k_eff = averaged_frames(tau, cn2 / cn2.sum(), speeds, imager.telescope.diameter_m)
+        estimates = dict(instantaneous)
+        for name, fit in fits.items():
+            estimates[name] = averaged_distance(fit, k_eff) + estimates["pupil_fft"]
+        seen_context = (f"{context}; the pixels average {k_eff:.3g} short exposures: tau {tau * 1e3:.3g} ms at "
+                        f"{source:.3g} photon/s on a pixel, rate >= {rate_px_s:.3g} pixel/s")
+        return pick(estimates, imager.tolerance, seen_context)
 
     def pupil_error(self, zenith_rad: float, range_m: float) -> float:
         """Estimated error of ``pupil_fft`` against ``reference`` [1] (module docstring), kept per coarse bin.
@@ -248,3 +366,4 @@ class PathChooser:
         """Drop every choice and estimate (the sampling they were made with changed)."""
         self._choices.clear()
         self._pupil_errors.clear()
+        self._estimates.clear()

@@ -1,0 +1,139 @@
+"""Path choice from what the pixels see (blocks/optics/pixel_view.py, PathChooser with a detector).
+
+References nobody here wrote: the pixel's first-order response and cutoff law are the Gen4 preset's (NIST fit),
+the direct time average below is the pupil path's own frames under frozen flow (Taylor), low-passed as a
+first-order filter does (paper Eq. 16); the estimate under test is the chooser's fit and K_eff formula.
+"""
+
+import numpy as np
+import pytest
+
+from evsda.blocks.optics import PointSourceOptics
+from evsda.blocks.optics.atmosphere import Atmosphere, Layer
+from evsda.blocks.optics.fft_screens import fft_phase_screens
+from evsda.blocks.optics.imaging import Imager
+from evsda.blocks.optics.paths import averaged_distance, representative_conditions, total_variation
+from evsda.blocks.optics.pixel_view import PixelView, averaged_frames, load_pixel_params
+from evsda.blocks.optics.telescope import Telescope
+from evsda.blocks.ports import FocalPlane, PointSources
+from evsda.graph import ParameterError, RunInfo, Window
+from evsda.library import resolve
+
+GEN4 = "library:sensors/prophesee_gen4.yaml"
+FOCAL_PLANE = FocalPlane(1280, 720, 4.86e-6, 0.4)          # the tracked pass's 12.2 urad pixels
+WAVELENGTH = 550e-9
+
+
+def gen4_pixels(focal_plane=FOCAL_PLANE):
+    return PixelView.of(load_pixel_params(resolve(GEN4), "optics"), focal_plane.pixel_area_m2, WAVELENGTH)
+
+
+def imager(atmosphere, diameter=0.2, obscuration=0.4, focal_plane=FOCAL_PLANE, seed=1):
+    return Imager(Telescope(diameter, obscuration), focal_plane, WAVELENGTH, atmosphere, PointSourceOptics.Params(),
+                  seed=(seed,), pixels=gen4_pixels(focal_plane))
+
+
+def test_a_fast_faint_star_takes_long_exposure_and_a_tracked_satellite_keeps_the_pupil_path():
+    im = imager(Atmosphere.from_table(resolve("library:atmospheres/median_seeing.csv")))
+    zenith, sky = np.deg2rad(40.0), 30.0                  # [rad], [photon/s per pixel]
+    im.ensure_geometry(zenith)
+    # a V ~ 12 star streaking at 800 pixel/s: ~5e3 photon/s, on a pixel for < 1.8 ms of its ~12 ms response
+    star = im.chooser.choose(zenith, np.inf, "star", (800.0, 5e3, sky))
+    assert star.path == "long_exposure" and "cannot make a pixel fire" in star.reason
+    # the same star held still would move its pixel's log intensity by more than the smallest threshold
+    assert gen4_pixels().seen_step(8192.0, 16.0, 0.0) > gen4_pixels().threshold_min
+    # a bright satellite the mount tracks: a fast pixel (tau < 1 ms) sees every short exposure
+    satellite = im.chooser.choose(zenith, 7e5, "satellite", (0.0, 8e6, sky))
+    assert satellite.path == "pupil_fft", satellite.reason
+    assert satellite.estimates["long_exposure"] > 0.1 >= satellite.estimates["pupil_fft"]
+    assert "the pixels average 1.0" in satellite.reason
+
+
+def test_the_pixels_response_follows_the_presets_cutoff_law():
+    pixels = gen4_pixels()
+    p = pixels.model.params
+    # dark pixel: f_3dB = f_max (x_dark / x_sat)^n with the preset's fitted law
+    x_dark = pixels.model.dark_current_A / p.reference_current_A
+    f_dark = p.cutoff_max_hz * (x_dark / p.cutoff_saturation) ** p.cutoff_exponent
+    assert pixels.response_time_s(0.0) == pytest.approx(1 / (2 * np.pi * f_dark), rel=1e-6)
+    # a first-order filter reaches 1 - exp(-t / tau) of a step in a time t: a point at v pixel/s stays sqrt(2)/v
+    tau = pixels.response_time_s(16.0 + 5e3)
+    full = pixels.log_step(5e3, 16.0)
+    assert pixels.seen_step(5e3, 16.0, 400.0) == pytest.approx(full * (1 - np.exp(-np.sqrt(2) / 400.0 / tau)))
+    assert pixels.threshold_min == pytest.approx(p.threshold_on - 5 * p.threshold_sigma)
+
+
+@pytest.mark.parametrize("tau_s", [0.01, 0.04])
+def test_the_averaging_estimate_matches_a_direct_time_average_of_the_frames(tau_s):
+    """One frozen-flow layer sliding across the pupil at 20 m/s; the pupil path's frames, low-passed by a
+    first-order filter of time constant tau, against the long-exposure PSF at the same positions."""
+    atmosphere = Atmosphere((Layer(1000.0, 1.5e-12, 20.0, 0.0),), 25.0)
+    im = imager(atmosphere, diameter=0.2, obscuration=0.0, focal_plane=FocalPlane(64, 64, 4.86e-6, 0.4))
+    zenith, range_m = representative_conditions(im.chooser.key(0.3, np.inf))
+    im.ensure_geometry(zenith)
+    g, speed = im.geometry, 20.0
+    assert 2.5 < 0.2 / im.r0(zenith) < 3.5
+    _, fits = im.chooser._probe(zenith, range_m)
+    k_eff = averaged_frames(tau_s, np.array([1.0]), np.array([speed]), 0.2)
+    estimate = averaged_distance(fits["long_exposure"], k_eff)
+
+    dt = g.delta_m / speed                                # one screen sample per frame [s]
+    gain = -np.expm1(-dt / tau_s)
+    burn, kept = int(np.ceil(4 * tau_s / dt)) + 1, 60
+    rng = np.random.default_rng(5)
+    distances, instantaneous = [], []
+    for offset in rng.uniform(-0.5, 0.5, (6, 2)):
+        n = 1 << int(np.ceil(np.log2(g.n_pupil + burn + kept)))
+        screen = fft_phase_screens(rng, n, g.delta_m, im.r0(zenith), atmosphere.L0)[0]
+        phase = np.stack([screen[: g.n_pupil, k : k + g.n_pupil] for k in range(burn + kept)])
+        frames = im.pupil_renderer.stamps(im.pupil_amplitude, phase, np.broadcast_to(offset, (len(phase), 2)))
+        long_exposure = im.path_named["long_exposure"].renderer(zenith).stamps(offset[None])[0]
+        flux = frames.sum(axis=(1, 2)).mean()
+        filtered = frames[0].copy()
+        for k in range(1, len(frames)):
+            filtered += gain * (frames[k] - filtered)
+            if k >= burn:
+                distances.append(float(total_variation(filtered, long_exposure, flux)))
+                instantaneous.append(float(total_variation(frames[k], long_exposure, flux)))
+    direct = np.mean(distances)
+    assert direct < 0.9 * np.mean(instantaneous)          # the filter does average the turbulence
+    assert estimate == pytest.approx(direct, rel=0.25)
+
+
+def streaking_star(window, cadence_ns=1_000_000, x0=-4.0, vx=800.0, flux=2e5):
+    """A star entering the field at 800 pixel/s (NaN while outside), sampled every millisecond."""
+    t_ns = window.sample_times_ns(cadence_ns)
+    x = x0 + vx * t_ns * 1e-9
+    xs = np.where(x >= 0, x, np.nan)[:, None]
+    n = len(t_ns)
+    return PointSources(FOCAL_PLANE, WAVELENGTH, t_ns, np.array(["HIP 7"]), np.array([1], np.int8), xs,
+                        np.full((n, 1), 300.0), np.full((n, 1), flux), np.full((n, 1), 11.0), np.full((n, 1), np.inf),
+                        np.full(n, np.deg2rad(30.0)))
+
+
+@pytest.mark.parametrize("flux", [2e5, 1e7])       # V ~ 12.8: no pixel fires; V ~ 8.5: the chooser probes
+def test_choices_from_what_the_pixels_see_do_not_depend_on_the_windows(flux):
+    kwargs = dict(aperture_m=0.2, obscuration=0.4, seed=3, detector=GEN4)
+    outputs = []
+    for length in (0.03, 0.01):
+        block = PointSourceOptics(**kwargs)
+        windows = [Window.from_seconds(i * length, (i + 1) * length, index=i) for i in range(round(0.03 / length))]
+        block.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+        out = [block.step(w, sources=[streaking_star(w, flux=flux)])["irradiance"] for w in windows]
+        outputs.append([np.concatenate([o.stamp_flux for o in out]), np.concatenate([o.stamp_origin for o in out])])
+        frames = block._imager.frames_rendered
+    for u, v in zip(*outputs):
+        np.testing.assert_array_equal(u, v)
+    if flux < 1e6:      # its first frame has no rate yet (nothing before it, no other source): taken as still
+        assert frames["pupil_fft"] == 1 and frames["long_exposure"] == 30 - 5 - 1
+    else:
+        assert set(frames) == {"pupil_fft"}
+
+
+def test_a_detector_without_a_pixel_block_is_one_clear_error(tmp_path):
+    preset = tmp_path / "camera_only.yaml"
+    preset.write_text("evsda: 1\nname: x\nblocks:\n  camera: {type: camera, params: {width_px: 8}}\n")
+    block = PointSourceOptics(aperture_m=0.2, detector=str(preset))
+    block.setup(RunInfo(duration_ns=10_000_000))
+    with pytest.raises(ParameterError, match="one 'dvs_pixel' block, found 0"):
+        block.step(Window.from_seconds(0, 0.01), sources=[streaking_star(Window.from_seconds(0, 0.01))])
