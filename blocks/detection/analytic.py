@@ -120,15 +120,21 @@ def filtered_rise(pixel: PixelModel, flux_t: np.ndarray, dt_s: np.ndarray) -> fl
     """Largest rise of the low-passed lin-log level (Eq. 12-16) above its value under the first flux [1].
 
     ``flux_t`` [photon s^-1] holds over the steps ``dt_s`` [s]; the one-pole filter relaxes toward each
-    step's ``Y`` at the rate ``-ln(1 - eps) / dt`` the pixel model gives (exact for a held input).
+    step's ``Y`` at the rate ``-ln(1 - eps) / dt`` the pixel model gives (exact for a held input): ``L - Y``
+    decays so (small-signal), or ``e^-L - e^-Y`` does (``lowpass_form: large_signal``, :mod:`evsda.blocks.pixel.lowpass`).
     """
     drive = pixel.drive(flux_t)
     rate = -drive.log_a / pixel.dt_s                          # [s^-1]
+    large = pixel.params.lowpass_form == "large_signal"
     y = drive.y
     level = y[0]
     top = level
     for k in range(1, y.size):
-        level = y[k] + (level - y[k]) * math.exp(-rate[k] * dt_s[k])
+        decay = math.exp(-rate[k] * dt_s[k])
+        if large:
+            level = y[k] - math.log1p(math.expm1(min(y[k] - level, 700.0)) * decay)
+        else:
+            level = y[k] + (level - y[k]) * decay
         top = max(top, level)
     return float(top - y[0])
 

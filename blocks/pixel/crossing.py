@@ -29,7 +29,7 @@ import math
 import numba
 import numpy as np
 
-from .fastmath import exp_
+from .fastmath import exp_, log_
 
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
 J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
@@ -53,20 +53,67 @@ def power(log_a, j):
     return exp_(x) if x > -707.0 else 0.0
 
 
-@jit
-def comparator_input(j, c, d, log_a, delta):
-    """``g(j) = C + D a^j + delta j`` for ``j >= 1``."""
-    return c + d * power(log_a, j) + delta * j
+@inline
+def one_minus_power(x):
+    """``1 - e^x`` for ``x <= 0`` (``1 - a^j`` with ``x = j ln a``), to a relative ~1e-11 also where ``e^x`` is near 1.
+
+    Series below ``|x| = 1e-5`` (error ``x^4/24``), :func:`.fastmath.exp_` above; 1 where :func:`power` flushes."""
+    series = -x * (1.0 + x * (0.5 + x * (1.0 / 6.0)))
+    direct = 1.0 - exp_(x) if x > -707.0 else 1.0
+    return series if x > -1e-5 else direct
+
+
+@inline
+def relaxation(d, e, x, decay, large):
+    """The filter's ``L_j - Y`` after ``j`` steps at constant input from ``L_0 - Y = D`` (paper Eq. 16).
+
+    ``x = j ln a``, ``decay = a^j`` (:func:`power`). Small-signal (Eq. 16 as printed, on ``L``):
+    ``D a^j``. Large-signal (the same filter on ``w = e^-L``, the first-order logarithmic
+    photoreceptor, :mod:`.lowpass`): ``w_j = w_inf + (w_0 - w_inf) a^j``, so
+    ``L_j - Y = -ln(1 - a^j + e a^j)`` with ``e = e^-D`` (:func:`large_weight`); written with
+    ``1 - a^j`` apart (:func:`one_minus_power`) so that it stays finite for any step.
+    """
+    if large:
+        return -log_(one_minus_power(x) + e * decay)
+    return d * decay
+
+
+@inline
+def large_weight(d):
+    """``e^-D``, the large-signal form's weight of the filter's start (:func:`relaxation`), clamped to ``e^+-700``."""
+    return exp_(min(max(-d, -700.0), 700.0))
+
+
+@inline
+def relaxation_slope(d, e, log_a, x, decay, large):
+    """``d/dj`` of :func:`relaxation` (Newton's method)."""
+    if large:
+        return -log_a * (e - 1.0) * decay / (one_minus_power(x) + e * decay)
+    return d * decay * log_a
 
 
 @jit
-def _reached(j, c, d, log_a, delta, level, upward):
-    g = comparator_input(j, c, d, log_a, delta)
+def decay_reaching(target, d, large):
+    """``a^j`` at which :func:`relaxation` equals ``target`` (the relaxation alone reaching a level), or NaN."""
+    if large:
+        return math.expm1(-target) / math.expm1(-d)
+    return target / d
+
+
+@jit
+def comparator_input(j, c, d, log_a, delta, large=False):
+    """``g(j) = C + relaxation(j) + delta j`` for ``j >= 1`` (small-signal: ``C + D a^j + delta j``)."""
+    return c + relaxation(d, large_weight(d), j * log_a, power(log_a, j), large) + delta * j
+
+
+@jit
+def _reached(j, c, d, e, log_a, delta, level, upward, large):
+    g = c + relaxation(d, e, j * log_a, power(log_a, j), large) + delta * j
     return g >= level if upward else g <= level
 
 
 @jit
-def _root(lo, hi, c, d, log_a, delta, level, upward, x0):
+def _root(lo, hi, c, d, e, log_a, delta, level, upward, x0, large):
     """Smallest ``j`` in ``(lo, hi]`` with ``g(j) >= level`` (``upward``) or ``<= level``.
 
     Requires the test false at ``lo``, true at ``hi`` and monotone in between. Newton's
@@ -78,19 +125,20 @@ def _root(lo, hi, c, d, log_a, delta, level, upward, x0):
     x = min(max(x0, lo_f), hi_f) if math.isfinite(x0) else lo_f
     for _ in range(_NEWTON_STEPS):
         decay = power(log_a, x)
-        dx = (level - (c + d * decay + delta * x)) / (d * decay * log_a + delta)
+        dx = ((level - (c + relaxation(d, e, x * log_a, decay, large) + delta * x))
+              / (relaxation_slope(d, e, log_a, x * log_a, decay, large) + delta))
         if not math.isfinite(dx):
             dx = 0.0
         x = min(max(x + dx, lo_f), hi_f)
         if abs(dx) < 0.25:
             break
     j = min(max(np.int64(math.ceil(x - 1e-6)), lo + 1), hi)
-    if _reached(j, c, d, log_a, delta, level, upward) and (
-            j - 1 <= lo or not _reached(j - 1, c, d, log_a, delta, level, upward)):
+    if _reached(j, c, d, e, log_a, delta, level, upward, large) and (
+            j - 1 <= lo or not _reached(j - 1, c, d, e, log_a, delta, level, upward, large)):
         return j
     while hi - lo > 1:
         mid = lo + (hi - lo) // 2
-        if _reached(mid, c, d, log_a, delta, level, upward):
+        if _reached(mid, c, d, e, log_a, delta, level, upward, large):
             hi = mid
         else:
             lo = mid
@@ -106,48 +154,54 @@ def _ceil_steps(x):
 
 
 @inline
-def stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off):
+def stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off, large=False):
     """Whether ``g`` stays strictly inside ``(-theta_off, theta_on)`` for ``0 <= j <= j_max``, from a bound.
 
-    ``retention`` is ``a^j_max`` or less (0 will do). With ``0 <= a <= 1``, ``D a^j`` lies
-    between ``D`` and ``D retention`` and ``delta j`` between 0 and ``delta j_max``; the range
+    ``retention`` is ``a^j_max`` or less (0 will do). With ``0 <= a <= 1`` the relaxation
+    (:func:`relaxation`, monotone in ``j`` in either form) lies between ``D`` and its value at
+    ``j_max`` (0 for ``retention`` 0), and ``delta j`` between 0 and ``delta j_max``; the range
     is widened far beyond the rounding of ``g``. False means "not shown", not "crosses".
     """
     span = delta * float(j_max)
     margin = _ROUNDING * (abs(c) + abs(d) + span)
-    relaxed = d * retention
+    if large:
+        relaxed = relaxation(d, large_weight(d), float(j_max) * log_a, retention, True) if retention > 0.0 else 0.0
+    else:
+        relaxed = d * retention
     return ((delta >= 0.0) & (log_a <= 0.0) & (retention >= 0.0) & (c + max(d, relaxed) + span + margin < theta_on)
             & (c + min(d, relaxed) - margin > -theta_off))
 
 
 @jit
-def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
+def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon, large=False):
     """First ``j`` in ``[j0, horizon]`` at which ``g`` reaches ``theta_on`` (polarity +1) or ``-theta_off`` (-1).
 
     ``j0 >= 1``; ``horizon`` bounds the search where the answer stops mattering (the
     pixel's next input change; ``NEVER`` for none), except that ``j0`` itself is always
-    tested. Returns ``(j, polarity)``, ``(NEVER, 0)`` where there is none.
+    tested. Returns ``(j, polarity)``, ``(NEVER, 0)`` where there is none. ``large``: the
+    large-signal filter (:func:`relaxation`).
     """
     horizon = min(horizon, J_LIMIT)
     j_max = max(horizon, j0)
     retention = power(log_a, j_max)
-    if stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off):
+    if stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off, large):
         return NEVER, 0
-    return search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_max, retention)
+    return search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_max, retention, large)
 
 
 @inline
-def _g(j, c, d, log_a, delta, j_known, known):
+def _g(j, c, d, e, log_a, delta, j_known, known, large):
     """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits)."""
-    return c + d * (known if j == j_known else power(log_a, j)) + delta * j
+    return c + relaxation(d, e, j * log_a, known if j == j_known else power(log_a, j), large) + delta * j
 
 
 @jit
-def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_known, known):
+def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_known, known, large=False):
     """:func:`first_crossing_one` without its bound (``horizon <= J_LIMIT``): for callers that found the bound
     false already. ``known = power(log_a, j_known)``, which the bound took (``j_known``: ``max(horizon, j0)``),
     is not computed again."""
-    g0 = _g(j0, c, d, log_a, delta, j_known, known)
+    e = large_weight(d) if large else 0.0
+    g0 = _g(j0, c, d, e, log_a, delta, j_known, known, large)
     if g0 >= theta_on:
         return j0, 1
     if g0 <= -theta_off:
@@ -160,11 +214,11 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_know
             c_eff = c + d if log_a == 0.0 else c
             j = max(_ceil_steps((theta_on - c_eff) / delta), j0 + 1)
             # the closed form can be one step off through rounding: settle it on g itself
-            if _g(j, c, d, log_a, delta, j_known, known) < theta_on:
+            if _g(j, c, d, e, log_a, delta, j_known, known, large) < theta_on:
                 j += 1
-            if j - 1 > j0 and _g(j - 1, c, d, log_a, delta, j_known, known) >= theta_on:
+            if j - 1 > j0 and _g(j - 1, c, d, e, log_a, delta, j_known, known, large) >= theta_on:
                 j -= 1
-            if j <= horizon and _g(j, c, d, log_a, delta, j_known, known) >= theta_on:
+            if j <= horizon and _g(j, c, d, e, log_a, delta, j_known, known, large) >= theta_on:
                 return j, 1
         return NEVER, 0
 
@@ -172,58 +226,61 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_know
         if delta > 0.0:
             hi = _ceil_steps((theta_on - c - d) / delta) + 1              # g >= C + D + delta j
         elif c > theta_on:
-            hi = _ceil_steps(math.log((theta_on - c) / d) / log_a) + 1    # without drift
+            hi = _ceil_steps(math.log(decay_reaching(theta_on - c, d, large)) / log_a) + 1    # without drift
         else:
             hi = J_LIMIT
         hi = max(min(hi, horizon), j0 + 1)
-        if _g(hi, c, d, log_a, delta, j_known, known) >= theta_on:
+        if _g(hi, c, d, e, log_a, delta, j_known, known, large) >= theta_on:
             # g is concave here: from any start Newton's first iterate lies at or below the root and the
             # next climb to it monotonically. The root without drift (drift only brings it forward) is
             # close above it when the relaxation alone reaches theta_ON; else the root of the drift alone
             # (relaxation only delays it), below the root; without drift, j0.
-            ratio = (theta_on - c) / d
+            ratio = decay_reaching(theta_on - c, d, large)
             start = math.log(ratio) / log_a if (ratio > 0.0) & (ratio < 1.0) else (
                 (theta_on - c) / delta if delta > 0.0 else np.nan)
-            return _root(j0, hi, c, d, log_a, delta, theta_on, True, start), 1
+            return _root(j0, hi, c, d, e, log_a, delta, theta_on, True, start, large), 1
         return NEVER, 0
 
     # falling (D > 0): g convex, decreasing until j*, increasing after
     level_off = -theta_off
-    j_star = math.log(delta / (-d * log_a)) / log_a if delta > 0.0 else np.inf    # a^{j*} = delta / (-D ln a)
+    if large:                                                      # slope -ln a (e - 1) a^j / (1 + (e - 1) a^j) = -delta
+        j_star = math.log(delta / (log_a - delta) / math.expm1(-d)) / log_a if delta > 0.0 else np.inf
+    else:
+        j_star = math.log(delta / (-d * log_a)) / log_a if delta > 0.0 else np.inf    # a^{j*} = delta / (-D ln a)
     j_min = J_LIMIT if not math.isfinite(j_star) else np.int64(min(max(math.floor(j_star), 0.0), float(J_LIMIT)))
     j_min = min(max(j_min, j0), horizon)
     # OFF: on the decreasing stretch (j0, min(j_min + 1, horizon)]
     if delta > 0.0:
         hi = j_min
     elif c < level_off:
-        hi = _ceil_steps(math.log((level_off - c) / d) / log_a) + 1        # OFF without drift
+        hi = _ceil_steps(math.log(decay_reaching(level_off - c, d, large)) / log_a) + 1     # OFF without drift
     else:
         hi = J_LIMIT
     hi = max(min(hi, horizon), j0 + 1)
-    if _g(hi, c, d, log_a, delta, j_known, known) > level_off:
-        if delta > 0.0 and hi + 1 <= horizon and _g(hi + 1, c, d, log_a, delta, j_known, known) <= level_off:
+    if _g(hi, c, d, e, log_a, delta, j_known, known, large) > level_off:
+        if delta > 0.0 and hi + 1 <= horizon and _g(hi + 1, c, d, e, log_a, delta, j_known, known, large) <= level_off:
             hi += 1
         else:
             hi = -1
     if hi > 0:
-        ratio = (level_off - c) / d                       # root without drift: drift only delays it
+        ratio = decay_reaching(level_off - c, d, large)   # root without drift: drift only delays it
         start = math.log(ratio) / log_a if ratio > 0.0 else np.nan
-        return _root(j0, hi, c, d, log_a, delta, level_off, False, start), -1
+        return _root(j0, hi, c, d, e, log_a, delta, level_off, False, start, large), -1
     # ON: after the minimum, where g increases (g(j_min) <= g(j0) < theta_ON)
     if delta > 0.0 and j_min < horizon:
         hi = max(min(_ceil_steps((theta_on - c) / delta) + 1, horizon), j_min + 1)   # g >= C + delta j
-        if _g(hi, c, d, log_a, delta, j_known, known) >= theta_on:
-            return _root(j_min, hi, c, d, log_a, delta, theta_on, True, float(hi)), 1
+        if _g(hi, c, d, e, log_a, delta, j_known, known, large) >= theta_on:
+            return _root(j_min, hi, c, d, e, log_a, delta, theta_on, True, float(hi), large), 1
     return NEVER, 0
 
 
 @jit
-def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon):
+def first_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, large=False):
     """:func:`first_crossing_one` over arrays of one length; returns ``(j, polarity)`` arrays."""
     n = j0.shape[0]
     out = np.empty(n, np.int64)
     pol = np.empty(n, np.int8)
     for k in range(n):
         out[k], pol[k] = first_crossing_one(np.int64(j0[k]), c[k], d[k], log_a[k], delta[k], theta_on[k],
-                                            theta_off[k], np.int64(horizon[k]))
+                                            theta_off[k], np.int64(horizon[k]), large)
     return out, pol

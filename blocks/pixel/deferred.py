@@ -15,8 +15,9 @@ input changes, in order, the events are the same bytes as when every change is t
 once (the property that makes the events independent of the window length; tested).
 
 The bound (paper Eqs. 16-19 at piecewise constant input): between updates the filtered
-log-intensity ``L`` relaxes geometrically towards the input's ``Y``, so it stays within the
-hull of its value at the last update and every ``Y`` it is given; the memorised ``M`` only
+log-intensity ``L`` relaxes geometrically towards the input's ``Y`` (in the large-signal form
+``e^-L`` does, towards ``e^-Y``: ``L`` is monotone in ``e^-L``), so in either form it stays within
+the hull of its value at the last update and every ``Y`` it is given; the memorised ``M`` only
 falls, by at most the largest drift ``(R_leak + R_para) theta_ON dt`` per step. So
 ``L - M`` stays below ``max(L_0, Y_i) - M_0 + drift_max (n_end - 1 - step_0)`` and above
 ``min(L_0, Y_i) - M_0``; if that band lies inside the comparator's thresholds (less their
@@ -83,7 +84,7 @@ def select_pixels(real, count, next_step, applied, touched, changed, n_end, base
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def take_quietly(real, count, pixels, lo, hi, steps, inputs, leak_hz, dt):
+def take_quietly(real, count, pixels, lo, hi, steps, inputs, leak_hz, dt, large):
     """Give ``pixels[i]`` the changes ``lo[i] .. hi[i] - 1`` (``steps``, ``inputs`` rows) without looking
     for comparator events between them: the compiled loop's own updates (:func:`.pixel_loop._advance`
     to the step before each change, then the new input), less its search for the next crossing after
@@ -91,7 +92,7 @@ def take_quietly(real, count, pixels, lo, hi, steps, inputs, leak_hz, dt):
     for i in range(pixels.size):
         r, c = real[pixels[i]], count[pixels[i]]
         for k in range(lo[i], hi[i]):
-            _advance(r, c, steps[k] - 1, leak_hz, dt)
+            _advance(r, c, steps[k] - 1, leak_hz, dt, large)
             row = inputs[k]
             r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
 
@@ -140,7 +141,7 @@ class SharedChanges:
         para_high = np.r_[np.maximum.accumulate(rows[::-1, para])[::-1], -np.inf]
         return y_high, y_low, para_high
 
-    def take_all_but_last(self, pixels: np.ndarray, kept: int, leak_hz: float, dt: float) -> None:
+    def take_all_but_last(self, pixels: np.ndarray, kept: int, leak_hz: float, dt: float, large: bool) -> None:
         """Give ``pixels`` their pending changes among the first ``kept`` kept ones, but the last of those,
         without the crossing searches (:func:`take_quietly`).
 
@@ -154,7 +155,7 @@ class SharedChanges:
             return
         pixels, lo = pixels[quiet], lo[quiet]
         take_quietly(self.s["real"], self.s["count"], pixels, lo, np.full(pixels.size, kept - 1, np.int64),
-                     self.s["shared_step"], self.s["shared_input"], leak_hz, dt)
+                     self.s["shared_step"], self.s["shared_input"], leak_hz, dt, large)
         self.s["applied"][pixels] = int(self.s["shared_base"]) + kept - 1
 
     def taken(self, pixels: np.ndarray) -> None:

@@ -69,15 +69,20 @@ def _prefetch(typingctx, array, row, column):
 
 
 @jit
-def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k):
-    """:func:`_sweep_law` with the cutoff law's ``square_law`` a constant: one loop for each."""
+def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, large, drive_k):
+    """:func:`_sweep_law` with the cutoff law's ``square_law`` and the filter's form ``large`` constants: one loop
+    for each."""
+    if large:
+        if drive_k[SQUARE_LAW] != 0.0:
+            return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, True, True)
+        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, False, True)
     if drive_k[SQUARE_LAW] != 0.0:
-        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, True)
-    return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, False)
+        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, True, False)
+    return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, False, False)
 
 
 @inline
-def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law):
+def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law, large):
     """Take the sample at ``t_now`` for the active pixels ``0 .. n - 1`` of a tile, where it is quiet.
 
     ``fs``/``js``: the tile's float and integer tables (flattened ``[field, TILE]``);
@@ -119,8 +124,8 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         waits = active & (flux == held) & is_open
         quiet = (active & (flux != held) & (min(cmp_next, due) >= t_now) & (last | (following != flux))
                  & ((j <= 0) | (j == span)))
-        moved_l, moved_m, moved_leak, moved_para = relaxed_by(retain, filtered, memorised, c_leak, c_para, y, para,
-                                                              th_on, scale, j, leak_hz, dt)
+        moved_l, moved_m, moved_leak, moved_para = relaxed_by(retain, filtered, memorised, c_leak, c_para, y, log_a,
+                                                              para, th_on, scale, j, leak_hz, dt, large)
         moved = j > 0                         # run_pixel's _advance moves only forward
         new_l = moved_l if moved else filtered
         new_m = moved_m if moved else memorised
@@ -136,7 +141,7 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
         j0 = max(ready - step, np.int64(1))
         inside = stays_in_band(max(horizon, j0), next_retain if j0 <= horizon else 0.0, new_y - new_m,
                                new_l - new_y, new_log_a, (leak_dt * scale + new_para * dt) * th_on,
-                               th_on - TOLERANCE, th_off - TOLERANCE)
+                               th_on - TOLERANCE, th_off - TOLERANCE, large)
 
         fs[F_FLUX * TILE + i] = flux if quiet else held
         fs[F_L * TILE + i] = new_l if quiet else filtered
@@ -161,7 +166,7 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law)
 
 
 @jit
-def _solve(fs, js, n, t_next, last, leak_hz, dt):
+def _solve(fs, js, n, t_next, last, leak_hz, dt, large):
     """The exact next crossing (:func:`.pixel_loop.next_crossing`) of the tile's pixels marked ``_SOLVE``.
 
     Their bound in the sweep was :func:`.crossing.first_crossing_one`'s own (same arguments)
@@ -177,8 +182,8 @@ def _solve(fs, js, n, t_next, last, leak_hz, dt):
             horizon = J_LIMIT if last else min(t_next - 1 - step, J_LIMIT)
             args = (j0, y - fs[F_M * TILE + i], fs[F_L * TILE + i] - y, fs[F_LOG_A * TILE + i], drift,
                     fs[F_TH_ON * TILE + i] - TOLERANCE, fs[F_TH_OFF * TILE + i] - TOLERANCE, horizon)
-            j, _ = search_crossing(*args, horizon, fs[F_RETAIN * TILE + i]) if j0 <= horizon else \
-                first_crossing_one(*args)                       # F_RETAIN: the bound's a^horizon
+            j, _ = search_crossing(*args, horizon, fs[F_RETAIN * TILE + i], large) if j0 <= horizon else \
+                first_crossing_one(*args, large)                # F_RETAIN: the bound's a^horizon
             js[I_CMP * TILE + i] = NEVER if j >= NEVER else step + j
 
 
@@ -208,7 +213,7 @@ def _from_state(fs, js, i, r, c, t_next):
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, background, steps, drive_k, n_end,
-                    leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+                    leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
                     ev_step, ev_pixel, ev_pol, ev_cause, off_background):
     """Every event before step ``n_end`` of the pixels ``first_pixel + columns[i]``, their inputs read off the frames.
 
@@ -264,9 +269,9 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                     _prefetch(stamps, k + 2, columns[t0 + i])
                 _prefetch(stamps, k + 2, columns[t0 + n - 1])
             t_next = NEVER if last else steps[k + 1]
-            n_solve, n_stepped = _sweep(fs, js, n, steps[k], t_next, last, leak_hz, dt, drive_k)
+            n_solve, n_stepped = _sweep(fs, js, n, steps[k], t_next, last, leak_hz, dt, large, drive_k)
             if n_solve:
-                _solve(fs, js, n, t_next, last, leak_hz, dt)
+                _solve(fs, js, n, t_next, last, leak_hz, dt, large)
             for i in range(n if n_stepped else 0):            # run_pixel takes this sample: its events, the change
                 if js[I_ACTIVE * TILE + i] == _STEPPED:
                     pixel = first_pixel + columns[t0 + i]
@@ -278,7 +283,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                         fs[F_NEW_LOG_A * TILE + i]
                     row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
                     n_events, lost, done = run_pixel(r, c, pixel, 0, 1 if last else 2, 1, change_step, change_input,
-                                                     n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on,
+                                                     n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on,
                                                      th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
                                                      ev_cause, n_events, lost, saved_r, saved_c)
                     if not done:
@@ -305,7 +310,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                             held = flux
             if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c)) < n_end:
                 n_events, lost, done = run_pixel(r, c, pixel, 0, n_changes, n_changes + 1, change_step, change_input,
-                                                 n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off,
+                                                 n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
                                                  th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events,
                                                  lost, saved_r, saved_c)
                 if not done:

@@ -57,7 +57,8 @@ class EventDrivenPixels:
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._drive = drive_constants(model)
-        self._constants = (p.leak_rate_hz, model.dt_s, np.int64(model.refractory_steps), q,
+        self._constants = (p.leak_rate_hz, model.dt_s, p.lowpass_form == "large_signal",
+                           np.int64(model.refractory_steps), q,
                            np.int64(state["key"]), p.threshold_redraw,
                            p.threshold_on, p.threshold_off, p.threshold_sigma, p.threshold_floor)
 
@@ -94,9 +95,9 @@ class EventDrivenPixels:
         pixels = EventDrivenPixels(model, state)
         real, count = state["real"], state["count"]
         drive_rows(np.ascontiguousarray(photon_flux, dtype=float), pixels._drive, real)      # the input columns
-        leak_hz, dt, _, q, key, *_ = pixels._constants
+        leak_hz, dt, large, _, q, key, *_ = pixels._constants
         start_pixels(real, count, state["next"], init.filtered, init.memorised, init.theta_on, init.theta_off,
-                     np.ascontiguousarray(init.credit), init.noise_scale, np.int64(n_start), leak_hz, dt, key, q)
+                     np.ascontiguousarray(init.credit), init.noise_scale, np.int64(n_start), leak_hz, dt, large, key, q)
         return state
 
     # -- one window ---------------------------------------------------------------------------
@@ -135,13 +136,13 @@ class EventDrivenPixels:
         kept = s["shared_step"].size                          # changes from before this window
         if shared.size:
             history.append(steps[shared], self._inputs(background[shared]))
-        leak_hz, dt = self._constants[:2]
+        leak_hz, dt, large = self._constants[:3]
         pixels, takes = select_pixels(s["real"], s["count"], s["next"], s["applied"], touched, changed, np.int64(n_end),
                                       np.int64(s["shared_base"]), np.int64(history.end),
                                       *history.suffix_bounds(Y, PARA), leak_hz * dt, dt, self.defer_background)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
         taking = pixels[takes]
-        history.take_all_but_last(taking, kept, leak_hz, dt)
+        history.take_all_but_last(taking, kept, leak_hz, dt, large)
         lo[takes], hi[takes] = history.ranges(taking, own_pixel.size)
         where = np.searchsorted(pixels, changed)
         lo[where], hi[where] = first, first + counts
@@ -166,7 +167,7 @@ class EventDrivenPixels:
         """
         if not pixels.size:
             return
-        history.take_all_but_last(pixels, self.s["shared_step"].size, *self._constants[:2])
+        history.take_all_but_last(pixels, self.s["shared_step"].size, *self._constants[:3])
         lo, hi = history.ranges(pixels, 0)
         steps = self.s["shared_step"]
         scratch = EventLog()

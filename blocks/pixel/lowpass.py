@@ -27,6 +27,24 @@ Three cutoff laws:
   (the photodiode node's pole goes as the photocurrent, the amplifier's as its bias current;
   their geometric mean sets the cutoff while the two are apart); the resonant peaking of the
   second-order response is left out of this one-pole filter.
+
+Two forms of the filter (``lowpass_form``):
+
+* ``small_signal`` -- Eq. 16 as printed: the one-pole filter on ``L`` itself.
+* ``large_signal`` -- the same filter on ``w = e^-L`` towards ``e^-Y``. The first-order
+  logarithmic photoreceptor (Delbruck & Mead 1994, "Analog VLSI phototransduction by
+  continuous-time, adaptive, logarithmic photoreceptor circuits"; Liu, Kramer, Indiveri,
+  Delbruck & Douglas 2002, *Analog VLSI: Circuits and Principles*, ch. 13) charges its node
+  ``V`` (in units of ``U_T / kappa``) with the photocurrent and discharges it through the
+  feedback transistor's subthreshold current: ``C dV/dt = I - I_0 e^V``. With ``u = ln(I/I_0)``
+  and ``a = I / C`` this is ``dV/dt = a (1 - e^(V - u))``, and in ``w = e^-V`` it is linear:
+  ``dw/dt = -a (w - e^-u)``, a one-pole low-pass whose rate is the input current's, the cutoff
+  law above. Near equilibrium (``|V - u|`` small) it is the small-signal form; on a large
+  falling step ``V`` starts falling at ``(I_before - I)/C``, the speed of the current the node
+  carried, not of the current it now gets (the first OFF event of a light turned off comes at
+  about the bright speed, as NIST measure); on a large rising step it rises at most at ``a``
+  per unit ``V`` (slew), slower than the small-signal form's ``a (u - V)``. Discretised with
+  the same backward-Euler gain: ``w <- (1 - eps) w + eps e^-Y``.
 """
 
 from __future__ import annotations
@@ -71,3 +89,13 @@ def log_retention(eps):
     eps = np.asarray(eps, dtype=float)
     with np.errstate(divide="ignore"):
         return np.log1p(-eps)
+
+
+def large_signal_step(filtered, y, eps):
+    """One backward-Euler step of the large-signal filter: ``e^-L <- (1 - eps) e^-L + eps e^-Y`` [1].
+
+    Written relative to the target, ``L - Y <- -ln(eps + (1 - eps) e^(Y - L))``, so that ``e^-L``
+    neither overflows nor underflows (``Y - L`` is clipped to +-700: a step of e^700 is no current).
+    """
+    filtered, y, eps = (np.asarray(v, dtype=float) for v in (filtered, y, eps))
+    return y - np.log(eps + (1.0 - eps) * np.exp(np.clip(y - filtered, -700.0, 700.0)))

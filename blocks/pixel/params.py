@@ -42,6 +42,11 @@ class DvsPixelParams(BlockParams):
         "paper", description="Cutoff law: 'paper' = Eq. 16 as printed, (Y+3)/5.616 f_max; 'proportional' = "
                              "f_max min(1, x/cutoff_saturation), proportional to the total current; 'power' = "
                              "f_max min(1, (x/cutoff_saturation)^cutoff_exponent) [-]")
+    lowpass_form: Literal["small_signal", "large_signal"] = Field(
+        "small_signal", description="Form of Eq. 16's filter: 'small_signal' = the one-pole filter on L as printed; "
+                                    "'large_signal' = the same filter (same cutoff, same gain) on exp(-L), the first-"
+                                    "order logarithmic photoreceptor C dV/dt = I - I_0 e^V (Delbruck & Mead 1994): a "
+                                    "falling step starts at the speed of the current the pixel carried [-]")
     cutoff_saturation: float = Field(275.0, gt=0, description="Normalised current at which the proportional or "
                                                               "power cutoff reaches its maximum (v2e: 255 + 20) [1]")
     cutoff_exponent: float = Field(0.5, gt=0, le=2, description="Exponent of the 'power' cutoff law (0.5: the "

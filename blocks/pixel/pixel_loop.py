@@ -3,7 +3,8 @@
 Each pixel is taken on its own, from its last update through its input changes and its
 events up to the end of the window; between them its state follows in closed form:
 
-* low-pass filter at constant input (Eq. 16): ``L_j = Y + (L_0 - Y) a^j``, ``a = 1 - eps``;
+* low-pass filter at constant input (Eq. 16): ``L_j = Y + (L_0 - Y) a^j``, ``a = 1 - eps``, or in
+  the large-signal form ``e^-L_j = e^-Y + (e^-L_0 - e^-Y) a^j`` (:func:`.crossing.relaxation`);
 * memory drift by junction leak and parasitic photocurrent (Eqs. 18, 19): ``M`` falls by
   ``(R_leak + R_para) theta_ON dt`` per step;
 * comparator (Eq. 17): the first step the input leaves its band (:mod:`.crossing`), not
@@ -32,7 +33,7 @@ import numpy as np
 
 from .comparator import TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import NEVER, first_crossing_one, power
+from .crossing import NEVER, first_crossing_one, large_weight, power, relaxation
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -62,7 +63,7 @@ def shot_gap(key, pixel, count, q):
 
 @jit
 def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, credit, noise_scale, n_start, leak_hz,
-                 dt, key, q):
+                 dt, large, key, q):
     """Fill every pixel's state row (its input columns already set) from its initial state, at step ``n_start - 1``,
     and schedule its first shot-noise trial and comparator event: one pass over the tables."""
     for pixel in range(count.shape[0]):
@@ -72,7 +73,7 @@ def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, cre
         c[:] = 0
         c[STEP], c[READY] = n_start - 1, n_start
         c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q * real[pixel, NOISE_SCALE])
-        c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt)
+        c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt, large)
         next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
 
 
@@ -83,37 +84,44 @@ def _settle_step(c):
 
 
 @jit
-def next_crossing(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change, leak_dt, dt):
+def next_crossing(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change, leak_dt, dt,
+                  large):
     """Step of a pixel's next comparator event before its next input change ``t_change`` (``NEVER``: none).
 
-    The pixel is at ``step`` with the given state and input and may fire from ``ready`` on.
+    The pixel is at ``step`` with the given state and input and may fire from ``ready`` on;
+    ``large``: the large-signal filter.
     """
     drift = (leak_dt * noise_scale + para * dt) * th_on
     j0 = max(ready - step, np.int64(1))
     horizon = NEVER if t_change >= NEVER else t_change - 1 - step
     j, _ = first_crossing_one(j0, y - memorised, filtered - y, log_a, drift, th_on - TOLERANCE, th_off - TOLERANCE,
-                              horizon)
+                              horizon, large)
     return NEVER if j >= NEVER else step + j
 
 
 @jit
-def _schedule(r, c, t_change, leak_dt, dt):
+def _schedule(r, c, t_change, leak_dt, dt, large):
     """:func:`next_crossing` of the pixel with state rows ``r``, ``c``."""
     return next_crossing(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
-                         r[NOISE_SCALE], t_change, leak_dt, dt)
+                         r[NOISE_SCALE], t_change, leak_dt, dt, large)
 
 
 @inline
-def relaxed(filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j, leak_hz, dt):
+def relaxed(filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j, leak_hz, dt, large):
     """``(L, M, c_leak, c_para)`` after ``j > 0`` steps at constant input (Eqs. 16, 18, 19)."""
-    return relaxed_by(power(log_a, j), filtered, memorised, c_leak, c_para, y, para, th_on, noise_scale, j, leak_hz,
-                      dt)
+    return relaxed_by(power(log_a, j), filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j,
+                      leak_hz, dt, large)
 
 
 @inline
-def relaxed_by(retention, filtered, memorised, c_leak, c_para, y, para, th_on, noise_scale, j, leak_hz, dt):
+def relaxed_by(retention, filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j, leak_hz, dt,
+               large):
     """:func:`relaxed` with the filter's ``retention = a^j`` given (``power(log_a, j)``)."""
-    filtered = y + (filtered - y) * retention
+    if large:
+        d = filtered - y
+        filtered = y + relaxation(d, large_weight(d), j * log_a, retention, True)
+    else:
+        filtered = y + (filtered - y) * retention
     scale = th_on * j * dt
     leak = leak_hz * noise_scale * scale
     para = para * scale
@@ -121,12 +129,12 @@ def relaxed_by(retention, filtered, memorised, c_leak, c_para, y, para, th_on, n
 
 
 @jit
-def _advance(r, c, t, leak_hz, dt):
+def _advance(r, c, t, leak_hz, dt, large):
     """Move a pixel from its last step to step ``t`` at constant input (:func:`relaxed`)."""
     j = t - c[STEP]
     if j > 0:
         r[L_], r[M_], r[C_LEAK], r[C_PARA] = relaxed(r[L_], r[M_], r[C_LEAK], r[C_PARA], r[Y], r[LOG_A], r[PARA],
-                                                     r[TH_ON], r[NOISE_SCALE], j, leak_hz, dt)
+                                                     r[TH_ON], r[NOISE_SCALE], j, leak_hz, dt, large)
     c[STEP] = t
 
 
@@ -180,7 +188,7 @@ def _record(r, c, pixel, t, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_c
 
 
 @jit
-def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_hz, dt, k_refr, q, key, redraw,
+def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
               th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost,
               saved_r, saved_c):
     """Every event of one pixel (state rows ``r``, ``c``) before step ``n_end``, through its input changes ``lo:hi``.
@@ -207,7 +215,7 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
             if n_events + 2 > capacity:                       # no room: undo this pixel
                 r[:], c[:] = saved_r, saved_c
                 return first_event, lost_before, False
-            _advance(r, c, t_event, leak_hz, dt)
+            _advance(r, c, t_event, leak_hz, dt, large)
             awake = c[READY] <= t_event
             fires = cmp_next == t_event
             sign, cause, total = 0, SIGNAL, 0.0
@@ -236,14 +244,14 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
                 c[SHOT_COUNT] += 1
                 c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q * r[NOISE_SCALE])
         elif ptr < end:                                       # the next input takes over
-            _advance(r, c, t_change - 1, leak_hz, dt)
+            _advance(r, c, t_change - 1, leak_hz, dt, large)
             row = change_input[ptr]
             r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
             ptr += 1
             t_change = change_step[ptr] if ptr < end else NEVER
         else:
             break
-        cmp_next = _schedule(r, c, t_change, leak_dt, dt)
+        cmp_next = _schedule(r, c, t_change, leak_dt, dt, large)
         if ptr == stop:
             break
     c[CMP_NEXT] = cmp_next
@@ -252,7 +260,7 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
-              leak_hz, dt, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+              leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
               ev_step, ev_pixel, ev_pol, ev_cause):
     """:func:`run_pixel` for each of ``pixels``, one after the other; pixel ``pixels[i]`` has the changes
     ``change_lo[i]:change_hi[i]`` (rows of ``change_input`` may be shared by many pixels).
@@ -270,7 +278,7 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
         pixel = pixels[i]
         r, c = real[pixel], count[pixel]
         n_events, lost, done = run_pixel(r, c, pixel, change_lo[i], change_hi[i], change_hi[i] + 1, change_step,
-                                         change_input, n_end, leak_hz, dt, k_refr, q, key, redraw, th_mean_on,
+                                         change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on,
                                          th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
                                          n_events, lost, saved_r, saved_c)
         if not done:

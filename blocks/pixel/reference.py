@@ -2,7 +2,8 @@
 
 One step ``n`` (time ``n dt``) of every pixel:
 
-1. photoreceptor: ``L <- (1 - eps) L + eps Y`` (Eqs. 12-16, for the input held at ``n dt``);
+1. photoreceptor: ``L <- (1 - eps) L + eps Y`` (Eqs. 12-16, for the input held at ``n dt``), or in
+   the large-signal form the same step on ``e^-L`` (:func:`.lowpass.large_signal_step`);
 2. junction leak and parasitic photocurrent lower the memory ``M`` (Eqs. 18-19);
 3. comparator (Eq. 17), for pixels not in their refractory period: at most one event,
    the rest of ``Ne_total`` owed; at a pixel's first comparison after an event, the owed
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import lowpass
 from .comparator import charge_cause, events_possible, lost_owed
 from .eventlog import EventLog
 from .initial import initial_pixels
@@ -47,6 +49,7 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
     ready, th_on, th_off, credit = state["ready"], state["theta_on"], state["theta_off"], state["credit"]
     owed, scale = state["owed"], state["noise_scale"]
     drive = model.drive(flux)
+    large = p.lowpass_form == "large_signal"
     next_change = 0
     for n in range(n_start, n_end):
         while next_change < len(change_steps) and change_steps[next_change] <= n:
@@ -54,7 +57,10 @@ def run(model: PixelModel, state: dict, n_start: int, n_end: int, change_steps: 
             drive = model.drive(flux)
             next_change += 1
         # 1. photoreceptor low-pass (Eq. 16)
-        L[:] = (1.0 - drive.eps) * L + drive.eps * drive.y
+        if large:
+            L[:] = lowpass.large_signal_step(L, drive.y, drive.eps)
+        else:
+            L[:] = (1.0 - drive.eps) * L + drive.eps * drive.y
         # 2. junction leak (Eq. 18) and parasitic photocurrent (Eq. 19)
         leak = dt * p.leak_rate_hz * scale * th_on
         para = dt * drive.parasitic_hz * th_on

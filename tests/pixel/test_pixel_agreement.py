@@ -47,12 +47,13 @@ def moving_runs():
                          time_step_s=1e-5, seed=11, **NOISY)
 
 
-def test_signal_events_agree_pixel_by_pixel(scenes):
+@pytest.mark.parametrize("form", ["small_signal", "large_signal"])
+def test_signal_events_agree_pixel_by_pixel(scenes, form):
     # Without noise the event stream is deterministic given the thresholds, which both
-    # implementations share: they must agree pixel by pixel (up to floating-point ties).
+    # implementations share: they must agree pixel by pixel (up to floating-point ties), with either filter form.
     fp = scenes.focal_plane(20, 12)
     runs = _run_both(scenes, fp, _moving(scenes, fp, velocity=(120.0, 20.0), start=(2.0, 3.0)), 0.15, 0.05,
-                     time_step_s=1e-5, seed=4, leak_rate_hz=0.0, shot_noise_rate_hz=0.0)
+                     time_step_s=1e-5, seed=4, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, lowpass_form=form)
     signal = {k: scenes.counts_image(v, fp, v["cause"] == EventCause.SIGNAL) for k, v in runs.items()}
     lit = signal["reference"] > 0
     assert lit.sum() > 60
@@ -210,7 +211,8 @@ def test_killed_and_resumed_run_is_identical(scenes, implementation):
         assert got.n_loss == want.n_loss and got.counts_by_cause == want.counts_by_cause
 
 
-def test_changing_background_agrees(scenes):
+@pytest.mark.parametrize("form", ["small_signal", "large_signal"])
+def test_changing_background_agrees(scenes, form):
     # The uniform background brightens in steps (every pixel's input changes) while a spot
     # moves: the fast path's every-pixel route against the reference, pixel by pixel.
     fp = scenes.focal_plane(12, 9)
@@ -222,7 +224,7 @@ def test_changing_background_agrees(scenes):
         return type(spot)(fp, spot.wavelength_m, t, background, spot.stamp_origin, spot.stamp_flux)
 
     runs = _run_both(scenes, fp, irradiance, 0.15, 0.05, time_step_s=1e-5, seed=8, leak_rate_hz=0.0,
-                     shot_noise_rate_hz=0.0)
+                     shot_noise_rate_hz=0.0, lowpass_form=form)
     images = {k: scenes.counts_image(v, fp) for k, v in runs.items()}
     assert images["reference"].sum() > 300
     assert np.mean(images["reference"] == images["fast"]) > 0.98

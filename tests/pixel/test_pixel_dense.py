@@ -40,10 +40,11 @@ def video(window: Window, spots: bool = True) -> Irradiance:
     return Irradiance(FP, 550e-9, t, sky, np.concatenate(origin, axis=1), np.concatenate(stamps, axis=1))
 
 
-def events(path: str, window_s: float, duration_s: float = 0.12, threads: str | None = None, monkeypatch=None):
+def events(path: str, window_s: float, duration_s: float = 0.12, threads: str | None = None, monkeypatch=None,
+           **params):
     if threads is not None:
         monkeypatch.setenv("EVSDA_THREADS", threads)
-    block = DvsPixel(seed=5, **NOISY)
+    block = DvsPixel(seed=5, **{**NOISY, **params})
     block.input_path = path
     block.setup(RunInfo(duration_ns=round(duration_s * 1e9)))
     out = []
@@ -71,6 +72,15 @@ def test_dense_and_sparse_paths_give_identical_events(monkeypatch):
         other = events(path, window_s, threads=threads, monkeypatch=monkeypatch)
         for a, b in zip(sparse, other):
             np.testing.assert_array_equal(a, b, err_msg=f"{path}, windows of {window_s} s, {threads} threads")
+
+
+def test_dense_and_sparse_paths_agree_with_the_large_signal_filter(monkeypatch):
+    # lowpass_form large_signal: the sweep's relaxation and bound in e^-L, against the sparse path, event for event.
+    sparse = events("sparse", 0.03, lowpass_form="large_signal")
+    assert sparse[0].size > 1000
+    dense = events("dense", 0.04, threads="2", monkeypatch=monkeypatch, lowpass_form="large_signal")
+    for a, b in zip(sparse, dense):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_dense_path_reruns_tiles_that_run_out_of_room(monkeypatch):
