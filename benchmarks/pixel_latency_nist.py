@@ -10,15 +10,19 @@ camera; ranges over ROIs and, for the IMX636, both cameras; outlying ROIs left o
 
 The LED's wavelength (their bench has a 523 nm and a 680 nm LED) and its off level are not stated next
 to the figures; the simulation takes the LED fully off (the pixel at its dark current) and shows both
-wavelengths (photons per watt differ by 1.3x). The preset pixel runs alone, noise off, threshold spread 0,
-settled on the off level; the latency is the first ON event after the rise (50 ms lit) and the first OFF
-event after the fall (0.2 s simulated).
+wavelengths (photons per watt differ by 1.3x). As NIST's figures give the median over a 10 x 10-pixel ROI, the
+preset's pixels run as a 10 x 10 array, noise off, with the preset's threshold spread, settled on the off level;
+the latency is the median over the pixels of the first ON event after the rise (50 ms lit) and of the first OFF
+event after the fall (0.2 s simulated). The spread matters for OFF: after the ON burst a pixel's memory lies a
+random fraction of a threshold below the lit level, which adds to the fall its first OFF event needs.
 
 :func:`fit_bandwidth` fits the power cutoff law (``cutoff_exponent``, ``cutoff_saturation`` at the preset's
-``cutoff_max_hz``) to the five ON rows by weighted least squares in ln latency, with the fixed delay the model
-lacks (comparator, arbiter, time stamping: the bright-light floor) as a third parameter that stays out of the
-preset; the Gen4 and Gen3 VGA presets hold its result. The OFF rows are predictions, not fitted: the model's
-falling step runs at the dark pixel's cutoff, while the measured OFF latency is about the ON one.
+``cutoff_max_hz``) to the five ON and five OFF rows together by weighted least squares in ln latency, with the
+large-signal filter (``lowpass_form: large_signal``, docs/pixel.md) and a fixed delay per polarity that the model
+lacks (comparator, arbiter, time stamping: the bright-light floors) as two more parameters kept out of the preset;
+the Gen4 and Gen3 VGA presets hold its result. It prints, beside it, the law fitted before (ON rows only, the
+small-signal filter), whose OFF latencies are 3-220x too slow: that form's falling step runs at the dark pixel's
+cutoff, while the measured OFF latency is about the ON one.
 
     python benchmarks/pixel_latency_nist.py
 """
@@ -47,40 +51,54 @@ MEASURED = {
 }
 HALF_PERIOD_S = 0.05
 OFF_WAIT_S = 0.2                  # time simulated after the fall: a dark pixel's cutoff can be below 1 Hz [s]
+ROI_SIDE = 10                     # NIST's ROIs: 10 x 10 pixels, the median latency over them [pixels]
+
+
+#: the laws the presets carried before the large-signal form: fitted to the ON rows alone with the small-signal filter
+SMALL_SIGNAL_FIT = {"prophesee_gen4": {"cutoff_exponent": 0.599, "cutoff_saturation": 5.42e4, "lowpass_form": "small_signal"},
+                    "prophesee_gen3_vga": {"cutoff_exponent": 0.742, "cutoff_saturation": 2.33e5,
+                                           "lowpass_form": "small_signal"}}
 
 
 def preset_pixel(name: str, saturation_scale: float = 1.0, **cutoff) -> tuple[DvsPixel, float]:
-    """The preset's pixel with noise and threshold spread off (cutoff_saturation times ``saturation_scale``, other
-    ``cutoff_*`` parameters as given), and its pitch [m]."""
+    """The preset's pixel with noise off (cutoff_saturation times ``saturation_scale``, other pixel parameters, e.g.
+    ``cutoff_*`` and ``lowpass_form``, as given), and its pitch [m]."""
     graph = load_graph(f"library:sensors/{name}.yaml", overrides={"camera.focal_length_m": 1.0})
     pitch_m = graph.nodes["camera"].block.params.pixel_pitch_m
     params = graph.nodes["pixel"].block.params
     cutoff.setdefault("cutoff_saturation", params.cutoff_saturation)
     cutoff["cutoff_saturation"] *= saturation_scale
-    block = DvsPixel(params, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0,
-                     noise_rate_spread_decades=0.0, **cutoff)
+    block = DvsPixel(params, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0,
+                     noise_rate_spread_decades=0.0, seed=1, **cutoff)
     return block, pitch_m
 
 
 def step_latencies_us(name: str, irradiance_w_m2: float, wavelength_m: float,
                       saturation_scale: float = 1.0, **cutoff) -> tuple[float, float]:
-    """(ON, OFF) latency [us] of the preset pixel to an LED going on for 50 ms from off, then off (inf: none in 0.2 s)."""
+    """(ON, OFF) latency [us] of the preset's pixels to an LED going on for 50 ms from off, then off: the medians
+    over a :data:`ROI_SIDE` square of pixels of their first events (inf: a pixel without one in 0.2 s)."""
     block, pitch_m = preset_pixel(name, saturation_scale, **cutoff)
     photons_s = irradiance_w_m2 * pitch_m**2 * wavelength_m / (constants.h * constants.c)
-    fp = FocalPlane(1, 1, pitch_m, 1.0)
+    fp = FocalPlane(ROI_SIDE, ROI_SIDE, pitch_m, 1.0)
     rise_ns, fall_ns = int(HALF_PERIOD_S * 1e9), int(2 * HALF_PERIOD_S * 1e9)
     t = np.array([0, rise_ns, fall_ns], dtype=np.int64)
     flux = np.array([0.0, photons_s, 0.0])
     light = Irradiance(fp, wavelength_m, t, flux, np.zeros((3, 0, 2), np.int32), np.zeros((3, 0, 1, 1)))
     events = block.step(Window.from_seconds(0.0, 2 * HALF_PERIOD_S + OFF_WAIT_S), irradiance=light)["events"]
-    on = events.t_ns[(events.p > 0) & (events.t_ns >= rise_ns) & (events.t_ns < fall_ns)]
-    off = events.t_ns[(events.p < 0) & (events.t_ns >= fall_ns)]
-    return ((on.min() - rise_ns) / 1e3 if on.size else np.inf, (off.min() - fall_ns) / 1e3 if off.size else np.inf)
+    pixel = events.y.astype(np.int64) * ROI_SIDE + events.x
+
+    def median_first_us(selected: np.ndarray, since_ns: int) -> float:
+        first = np.full(ROI_SIDE**2, np.inf)
+        np.minimum.at(first, pixel[selected], (events.t_ns[selected] - since_ns) / 1e3)
+        return float(np.median(first))
+
+    return (median_first_us((events.p > 0) & (events.t_ns >= rise_ns) & (events.t_ns < fall_ns), rise_ns),
+            median_first_us((events.p < 0) & (events.t_ns >= fall_ns), fall_ns))
 
 
 def main() -> None:
-    print("first-event latency after an LED step [us]: NIST measured (median range) | this preset, LED off -> on -> off,"
-          " at 523 nm / 681 nm")
+    print("first-event latency after an LED step [us]: NIST measured (median range) | the preset pixel, LED off -> on -> off,"
+          " at 523 nm / 681 nm (no fixed delay)")
     for name, measured in MEASURED.items():
         print(f"\n{name}")
         print(f"{'E [W/m2]':>9} {'ON meas.':>11} {'ON sim.':>15} {'OFF meas.':>11} {'OFF sim.':>17}  meas./sim. (ON, OFF)")
@@ -91,108 +109,135 @@ def main() -> None:
             ratio_off = np.mean(off_m) / np.exp(np.mean(np.log([s[1] for s in sims])))
             print(f"{irradiance:9.3f} {on_m[0]:5d}-{on_m[1]:<5d} {sims[0][0]:7.1f}/{sims[1][0]:<7.1f} "
                   f"{off_m[0]:5d}-{off_m[1]:<5d} {sims[0][1]:8.1f}/{sims[1][1]:<8.1f}  {ratio_on:6.2f}x {ratio_off:6.3f}x")
-        dim, bright = measured["ON"][0], measured["ON"][2]
-        slope = np.log(np.mean(dim) / np.mean(bright)) / np.log(IRRADIANCES_W_M2[2] / IRRADIANCES_W_M2[0])
-        print(f"measured ON latency ~ E^-{slope:.2f} from 0.006 to 0.166 W/m2 (a photoreceptor-limited latency goes as "
-              f"1/(f dY): steeper than the cutoff law's E^-n while dY = ln(x/x_dark) grows)")
         print_fit(name, fit_bandwidth(name))
 
 
 def print_fit(name: str, fit: BandwidthFit) -> None:
-    """The fitted law, its errors and the residuals, ON (fitted) and OFF (predicted: the simulated pixel) separately."""
+    """The fitted law, its errors and residuals (ON, OFF), against the small-signal law fitted to the ON rows before."""
     params = preset_pixel(name)[0].params
-    law = {"cutoff_saturation": fit.saturation, "cutoff_exponent": fit.exponent}
-    off_us = np.array([np.exp(np.mean(np.log([step_latencies_us(name, e, wl, **law)[1] for wl in LED_WAVELENGTHS_M])))
-                       for e in IRRADIANCES_W_M2])
-    off_residuals = np.log(np.array([np.mean(r) for r in MEASURED[name]["OFF"]]) / off_us)
-    print("fit to the five ON rows (t_ON = t0 + the one-pole latency; the LEDs' geometric-mean photon rate; LED off = dark):")
+    print("joint fit to the five ON and five OFF rows (large-signal filter; a fixed delay per polarity beside the law;"
+          " both LEDs' latencies, geometric mean; LED off = dark):")
     print(f"  cutoff_exponent {fit.exponent:.3f} +- {fit.exponent_err:.3f}, cutoff_saturation {fit.saturation:.4g} "
-          f"(x/ {np.exp(fit.ln_saturation_err):.2f}) at cutoff_max_hz {params.cutoff_max_hz:g}, "
-          f"fixed delay t0 {fit.floor_s * 1e6:.1f} +- {fit.floor_err_s * 1e6:.1f} us (not in the model); "
-          f"chi2 {fit.chi2:.3f} for 2 degrees of freedom")
-    print(f"  preset: cutoff_exponent {params.cutoff_exponent:g}, cutoff_saturation {params.cutoff_saturation:.6g}; "
-          f"the fitted law's dark-pixel cutoff {fit.dark_cutoff_hz:.3g} Hz")
-    print("  ln(measured / fit)   ON  (fitted, t0 included): " + " ".join(f"{r:+.3f}" for r in fit.on_residuals))
-    print("  ln(measured / model) OFF (predicted, simulated): " + " ".join(f"{r:+.2f}" for r in off_residuals)
-          + f"  (the model's OFF {np.exp(-off_residuals.max()):.1f}-{np.exp(-off_residuals.min()):.0f}x slower than"
-          " measured: its falling step runs at the dark current's cutoff)")
+          f"(x/ {np.exp(fit.ln_saturation_err):.2f}) at cutoff_max_hz {params.cutoff_max_hz:g}; fixed delays (not in "
+          f"the model) ON {fit.floor_s[0] * 1e6:.1f} +- {fit.floor_err_s[0] * 1e6:.1f} us, OFF {fit.floor_s[1] * 1e6:.1f} "
+          f"+- {fit.floor_err_s[1] * 1e6:.1f} us; chi2 {fit.chi2:.2f} for 6 degrees of freedom")
+    print(f"  preset: lowpass_form {params.lowpass_form}, cutoff_exponent {params.cutoff_exponent:g}, cutoff_saturation "
+          f"{params.cutoff_saturation:.6g}; the fitted law's dark-pixel cutoff {fit.dark_cutoff_hz:.3g} Hz")
+    print("  ln(measured / fit)  ON  (delay included): " + " ".join(f"{r:+.3f}" for r in fit.on_residuals))
+    print("  ln(measured / fit)  OFF (delay included): " + " ".join(f"{r:+.3f}" for r in fit.off_residuals))
+    law = {"cutoff_saturation": fit.saturation, "cutoff_exponent": fit.exponent, "lowpass_form": "large_signal"}
+    sim = np.array([[np.exp(np.mean(np.log([step_latencies_us(name, e, wl, **law)[k] for wl in LED_WAVELENGTHS_M])))
+                     for k in (0, 1)] for e in IRRADIANCES_W_M2]) * 1e-6 + np.array(fit.floor_s)
+    meas = np.array([[np.mean(MEASURED[name][pol][k]) for pol in ("ON", "OFF")] for k in range(5)]) * 1e-6
+    print("  ln(measured / simulated + delay), ON: " + " ".join(f"{r:+.3f}" for r in np.log(meas / sim)[:, 0])
+          + "; OFF: " + " ".join(f"{r:+.3f}" for r in np.log(meas / sim)[:, 1]) + " (the simulated pixel, 1 us steps)")
+    old = SMALL_SIGNAL_FIT[name]
+    x, x_dark, block = row_currents(name)
+    on_old, off_old = step_latencies_s(x, x_dark, block.params, old["cutoff_saturation"], old["cutoff_exponent"],
+                                       "small_signal")
+    on_old, off_old = np.exp(np.log(on_old).mean(0)), np.exp(np.log(off_old).mean(0))
+    t0_old = {"prophesee_gen4": 12e-6, "prophesee_gen3_vga": 358e-6}[name]
+    print(f"  before (small-signal, ON rows alone: n {old['cutoff_exponent']}, x_sat {old['cutoff_saturation']:.4g}, "
+          f"delay {t0_old * 1e6:.0f} us on both): ln(measured / model) ON "
+          + " ".join(f"{r:+.3f}" for r in np.log(meas[:, 0] / (t0_old + on_old)))
+          + "; OFF " + " ".join(f"{r:+.2f}" for r in np.log(meas[:, 1] / (t0_old + off_old))))
 
 
 @dataclass(frozen=True)
 class BandwidthFit:
-    """The power cutoff law ``f = f_max (x / x_sat)^n`` fitted to NIST's ON latencies, plus a fixed delay ``t0``."""
+    """The power cutoff law ``f = f_max (x / x_sat)^n`` fitted to NIST's ON and OFF latencies, plus a fixed delay each."""
 
     saturation: float            # cutoff_saturation x_sat at the preset's cutoff_max_hz [1]
     exponent: float              # cutoff_exponent n [1]
-    floor_s: float               # fixed delay t0 the pixel model lacks (comparator, arbiter, time stamp) [s]
-    ln_saturation_err: float     # 1-sigma errors of ln x_sat, n and t0 [1, 1, s]
+    floor_s: tuple               # fixed delays (ON, OFF) the pixel model lacks (comparator, arbiter, time stamp) [s]
+    ln_saturation_err: float     # 1-sigma errors of ln x_sat, n and the delays [1, 1, s]
     exponent_err: float
-    floor_err_s: float
-    chi2: float                  # sum of squared weighted residuals, 5 rows - 3 parameters = 2 degrees of freedom
+    floor_err_s: tuple
+    chi2: float                  # sum of squared weighted residuals, 10 rows - 4 parameters = 6 degrees of freedom
     on_residuals: np.ndarray     # ln(measured / fitted) per irradiance, ON [1]
+    off_residuals: np.ndarray    # the same, OFF [1]
     dark_cutoff_hz: float        # the fitted law at the dark current (the LED off) [Hz]
 
 
 def row_currents(name: str) -> tuple[np.ndarray, float, DvsPixel]:
-    """Normalised current x of the preset pixel at each NIST irradiance (geometric mean over the two LEDs), the
-    dark pixel's x, and the pixel block."""
+    """Normalised current x of the preset pixel at each NIST irradiance ``[LED, irradiance]``, the dark pixel's x,
+    and the pixel block."""
     block, pitch_m = preset_pixel(name)
     logs = []
     for wavelength_m in LED_WAVELENGTHS_M:
         model = PixelModel(block.params, pitch_m**2, wavelength_m)
         photons_s = np.asarray(IRRADIANCES_W_M2) * pitch_m**2 * wavelength_m / (constants.h * constants.c)
         logs.append(np.log(model.normalised_current(photons_s)))
-    return np.exp(np.mean(logs, axis=0)), float(model.normalised_current(np.zeros(1))[0]), block
+    return np.exp(np.array(logs)), float(model.normalised_current(np.zeros(1))[0]), block
 
 
-def on_latency_s(x: np.ndarray, x_dark: float, params, saturation: float, exponent: float) -> np.ndarray:
-    """First ON event's latency [s] of the one-pole photoreceptor (paper Eq. 16) after a step from dark to ``x``.
+def step_latencies_s(x: np.ndarray, x_dark: float, params, saturation: float, exponent: float,
+                     form: str) -> tuple[np.ndarray, np.ndarray]:
+    """(ON, OFF) latency [s] of the one-pole photoreceptor (paper Eq. 16, ``form`` small- or large-signal) to the
+    benchmark's step, dark -> ``x`` for :data:`HALF_PERIOD_S` -> dark, in continuous time (the 1 us backward-Euler
+    step changes it by < 1 % below 1 kHz).
 
-    ``L`` approaches ``ln x`` at the lit pixel's cutoff ``f(x)`` and fires once it has risen theta_ON of
-    ``dY = ln(x / x_dark)``: ``t = -ln(1 - theta_ON / dY) / (2 pi f(x))`` (continuous time; the 1 us
-    backward-Euler step changes it by < 1 % below 1 kHz).
+    ON: the filter leaves ``ln x_dark`` at the lit cutoff ``a = 2 pi f(x)``; the first ON event comes when it has
+    risen theta_ON. The memory then lies a fraction of theta_ON below the filter's level at the fall, half of it
+    for the median pixel of an ROI (thresholds spread over pixels: the fraction is spread over [0, theta_ON)),
+    and the first OFF event comes when the filter, relaxing at the dark cutoff ``2 pi f(x_dark)`` from its level
+    at the fall, is theta_OFF below the memory. Small-signal: ``L - Y`` decays as ``e^(-a t)``; large-signal: ``e^-L - e^-Y``
+    does (:mod:`evsda.blocks.pixel.lowpass`).
     """
-    cutoff = lowpass.cutoff_hz(x, None, params.cutoff_max_hz, "power", saturation, exponent)
-    return -np.log1p(-params.threshold_on / np.log(x / x_dark)) / (2 * np.pi * cutoff)
+    def cutoff(z):
+        return 2 * np.pi * lowpass.cutoff_hz(np.asarray(z, dtype=float), None, params.cutoff_max_hz, "power",
+                                             saturation, exponent)
+
+    a_lit, a_dark = cutoff(x), cutoff(x_dark)
+    y, y_dark = np.log(x), np.log(x_dark)
+    th_on, th_off = params.threshold_on, params.threshold_off
+    if form == "large_signal":
+        on = -np.log((np.exp(-th_on) - x_dark / x) / (1.0 - x_dark / x)) / a_lit
+        w_fall = 1.0 / x + (1.0 / x_dark - 1.0 / x) * np.exp(-a_lit * HALF_PERIOD_S)
+        level = -np.log(w_fall)
+    else:
+        on = -np.log1p(-th_on / (y - y_dark)) / a_lit
+        level = y - (y - y_dark) * np.exp(-a_lit * HALF_PERIOD_S)
+    memory = level - 0.5 * th_on
+    if form == "large_signal":
+        off = -np.log((np.exp(th_off - memory) - 1.0 / x_dark) / (w_fall - 1.0 / x_dark)) / a_dark
+    else:
+        off = -np.log((memory - th_off - y_dark) / (level - y_dark)) / a_dark
+    return on, off
 
 
-def fit_bandwidth(name: str, measured_on_us=None) -> BandwidthFit:
-    """Weighted least squares in ln(latency) over the five ON rows: ``t_ON = t0 + on_latency_s(x; x_sat, n)``.
+def fit_bandwidth(name: str, measured=None) -> BandwidthFit:
+    """Weighted least squares in ln(latency) over the five ON and five OFF rows (large-signal filter):
+    ``t_ON = t0_ON + on(x; x_sat, n)``, ``t_OFF = t0_OFF + off(x; x_sat, n)`` (:func:`step_latencies_s`).
 
-    ``measured_on_us``: (low, high) per irradiance, NIST's by default. Each row's sigma is half its ln-range
-    (over ROIs and cameras). The bright rows keep a fixed delay the model lacks, so ``t0`` is fitted beside
-    the law and left out of the preset. The OFF rows are not fitted: the model's falling step runs at the
-    dark current's cutoff, which the measured OFF ~ ON denies (:func:`print_fit` prints them as predictions).
+    ``measured``: ``{"ON": rows, "OFF": rows}``, (low, high) per irradiance, NIST's by default. Each row's sigma is
+    half its ln-range (over ROIs and cameras). The bright rows keep fixed delays the model lacks, ON and OFF apart
+    (the Gen3 VGA's OFF floor, ~150 us, lies below its ON one, ~360 us), fitted beside the law, kept out of the preset.
     """
     x, x_dark, block = row_currents(name)
     params = block.params
-    rows = MEASURED[name]["ON"] if measured_on_us is None else measured_on_us
-    on_s = np.array([np.mean(r) for r in rows]) * 1e-6
-    sigma = np.array([0.5 * np.log(hi / lo) for lo, hi in rows])
+    rows = MEASURED[name] if measured is None else measured
+    on_s, off_s = (np.array([np.mean(r) for r in rows[pol]]) * 1e-6 for pol in ("ON", "OFF"))
+    sigma = np.r_[[0.5 * np.log(hi / lo) for lo, hi in rows["ON"]], [0.5 * np.log(hi / lo) for lo, hi in rows["OFF"]]]
+
+    def model_s(p: np.ndarray) -> np.ndarray:       # delay + the geometric mean over the two LEDs
+        on, off = step_latencies_s(x, x_dark, params, np.exp(p[0]), p[1], "large_signal")
+        return np.r_[p[2] * 1e-6 + np.exp(np.log(on).mean(0)), p[3] * 1e-6 + np.exp(np.log(off).mean(0))]
 
     def residuals(p: np.ndarray) -> np.ndarray:
-        return (np.log(on_s) - np.log(p[2] * 1e-6 + on_latency_s(x, x_dark, params, np.exp(p[0]), p[1]))) / sigma
+        return (np.log(np.r_[on_s, off_s]) - np.log(model_s(p))) / sigma
 
-    start = np.array([np.log(params.cutoff_saturation), params.cutoff_exponent, 0.5e6 * on_s.min()])
-    sol = optimize.least_squares(residuals, start, bounds=([-np.inf, 0.05, 0.0], [np.inf, 2.0, 1e6 * on_s.min()]),
-                                 x_scale=[1.0, 0.1, 10.0])
+    start = np.array([np.log(params.cutoff_saturation), params.cutoff_exponent, 1.0, 1.0])
+    sol = optimize.least_squares(residuals, start, bounds=([-np.inf, 0.05, 0.0, 0.0],
+                                                           [np.inf, 2.0, 1e6 * on_s.min(), 1e6 * off_s.min()]),
+                                 x_scale=[1.0, 0.1, 10.0, 10.0])
     chi2 = float(np.sum(sol.fun**2))
-    err = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * max(1.0, chi2 / (len(x) - 3))))
-    saturation, exponent, floor_s = float(np.exp(sol.x[0])), float(sol.x[1]), float(sol.x[2]) * 1e-6
+    err = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * max(1.0, chi2 / (2 * x.shape[1] - 4))))
+    saturation, exponent = float(np.exp(sol.x[0])), float(sol.x[1])
     dark_hz = float(lowpass.cutoff_hz(np.array([x_dark]), None, params.cutoff_max_hz, "power", saturation, exponent)[0])
-    return BandwidthFit(saturation, exponent, floor_s, float(err[0]), float(err[1]), float(err[2]) * 1e-6, chi2,
-                        np.log(on_s / (floor_s + on_latency_s(x, x_dark, params, saturation, exponent))), dark_hz)
-
-
-def off_matching_scale(name: str, measured_us: float) -> float:
-    """The factor on cutoff_saturation at which the OFF latency at the dimmest level (both LEDs' mean) is ``measured_us``."""
-    def off_us(log_scale: float) -> float:
-        return np.mean([step_latencies_us(name, IRRADIANCES_W_M2[0], wl, np.exp(log_scale))[1] for wl in LED_WAVELENGTHS_M])
-    low, high = -np.log(1e6), np.log(1e6)
-    for _ in range(30):                       # bisection in ln(scale): the latency grows with the scale
-        mid = 0.5 * (low + high)
-        low, high = (mid, high) if off_us(mid) < measured_us else (low, mid)
-    return float(np.exp(0.5 * (low + high)))
+    resid = np.log(np.r_[on_s, off_s] / model_s(sol.x))
+    return BandwidthFit(saturation, exponent, (sol.x[2] * 1e-6, sol.x[3] * 1e-6), float(err[0]), float(err[1]),
+                        (err[2] * 1e-6, err[3] * 1e-6), chi2, resid[:5], resid[5:], dark_hz)
 
 
 if __name__ == "__main__":
