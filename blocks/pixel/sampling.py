@@ -47,21 +47,44 @@ class StampPixels:
     flux: np.ndarray     # float64 [photon s^-1]
 
 
+def live_stamps(irradiance: Irradiance, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(k, s)``: the stamps ``s`` that add any flux at sample ``samples[k]`` (row-major: by sample, then stamp).
+
+    A source off the detector at a sample, or at every sample of the window, keeps its slot in the
+    ``Irradiance`` with zero flux (the optics keeps one slot per source it is given, and a star field gives
+    every star the pointing sweeps over in the run); such a stamp adds nothing, so it is left out here, and a
+    window's work and memory follow the sources on the detector in it, not those of the whole run.
+    """
+    flux = np.asarray(irradiance.stamp_flux)
+    n_t, n_stamps = flux.shape[:2]
+    adds = np.zeros((n_t, n_stamps), bool)
+    for k in np.unique(samples):                 # one sample at a time: no copy of the window's stamps
+        np.any(flux[k].reshape(n_stamps, -1) != 0, axis=1, out=adds[k])
+    return np.nonzero(adds[samples])
+
+
 def stamp_pixels(irradiance: Irradiance, samples: np.ndarray) -> StampPixels:
-    """The stamps of ``samples`` as sparse (sample, pixel, flux) triples, clipped to the sensor and summed."""
+    """The stamps of ``samples`` as sparse (sample, pixel, flux) triples, clipped to the sensor and summed.
+
+    Only the stamps that add flux (:func:`live_stamps`) are listed; each pixel's flux is summed from 0 in the
+    stamps' order.
+    """
     height, width = irradiance.focal_plane.shape
     flux = np.asarray(irradiance.stamp_flux)
+    empty = np.zeros(0, np.int64)
     if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0 or flux.shape[2] * flux.shape[3] == 0:
-        empty = np.zeros(0, np.int64)
         return StampPixels(empty, empty, np.zeros(0))
-    _, n_stamps, h, w = flux.shape
-    origin = np.asarray(irradiance.stamp_origin, dtype=np.int64)[samples]          # [K, S, 2]
-    rows = origin[:, :, 1, None, None] + np.arange(h)[None, None, :, None]        # [K, S, h, 1]
-    cols = origin[:, :, 0, None, None] + np.arange(w)[None, None, None, :]        # [K, S, 1, w]
+    _, _, h, w = flux.shape
+    which, stamp = live_stamps(irradiance, samples)
+    if which.size == 0:
+        return StampPixels(empty, empty, np.zeros(0))
+    origin = np.asarray(irradiance.stamp_origin)[samples[which], stamp].astype(np.int64)   # [P, 2]
+    rows = origin[:, 1, None, None] + np.arange(h)[None, :, None]                           # [P, h, 1]
+    cols = origin[:, 0, None, None] + np.arange(w)[None, None, :]                           # [P, 1, w]
     rows, cols = np.broadcast_arrays(rows, cols)
     inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
-    which = np.broadcast_to(np.arange(samples.size)[:, None, None, None], inside.shape)
-    values = flux[samples]
+    values = flux[samples[which], stamp]                                                     # [P, h, w]
+    which = np.broadcast_to(which[:, None, None], inside.shape)
     key = which[inside] * np.int64(height * width) + rows[inside] * width + cols[inside]
     unique, inverse = np.unique(key, return_inverse=True)
     summed = np.bincount(inverse, weights=values[inside], minlength=unique.size)
@@ -82,15 +105,17 @@ DENSE_FRACTION = 0.25
 
 
 def stamp_coverage(irradiance: Irradiance, samples: np.ndarray) -> float:
-    """Mean fraction of the sensor's pixels that the stamps of ``samples`` cover per sample (overlaps counted twice)."""
+    """Mean fraction of the sensor's pixels that the stamps adding flux at ``samples`` (:func:`live_stamps`) cover
+    per sample (overlaps counted twice)."""
     height, width = irradiance.focal_plane.shape
     flux = np.asarray(irradiance.stamp_flux)
     if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0:
         return 0.0
     h, w = flux.shape[2:]
-    origin = np.asarray(irradiance.stamp_origin, dtype=np.int64)[samples]             # [K, S, (x0, y0)]
-    cols = np.clip(origin[..., 0] + w, 0, width) - np.clip(origin[..., 0], 0, width)
-    rows = np.clip(origin[..., 1] + h, 0, height) - np.clip(origin[..., 1], 0, height)
+    which, stamp = live_stamps(irradiance, samples)
+    origin = np.asarray(irradiance.stamp_origin)[samples[which], stamp].astype(np.int64)      # [P, (x0, y0)]
+    cols = np.clip(origin[:, 0] + w, 0, width) - np.clip(origin[:, 0], 0, width)
+    rows = np.clip(origin[:, 1] + h, 0, height) - np.clip(origin[:, 1], 0, height)
     return float((cols * rows).sum() / (samples.size * height * width))
 
 
