@@ -16,6 +16,7 @@ Targets (issue 13): >= 2x real time in wall time on a 2-core machine, peak memor
 optics <= 3x its FFT cost, <= 10 bytes per event.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/end_to_end.py [--duration 10] [--repeats 3]
+    ... --optics-only --set telescope/optics.psf_path=pupil_fft    # every source through the pupil path
 """
 
 from __future__ import annotations
@@ -127,7 +128,7 @@ def timed(self, *args, **kwargs):
     spent["padded"] = self._imager.pupil_renderer.padded
     return out
 PointSourceOptics.step = timed
-graph = load_graph(%r, ["run.duration_s=%s"])
+graph = load_graph(%r, ["run.duration_s=%s", *%r])
 run_graph(graph, %r, overwrite=True)
 
 size = spent["padded"]
@@ -173,8 +174,8 @@ def fixed_costs_and_whole_run(args, store: Path) -> None:
 
 def optics_probe(args, store: Path) -> None:
     """Section 3: the optics block's CPU on one thread, windows not pipelined, against the bare FFT cost."""
-    print(f"\n3. optics on one thread ({args.duration:g} s simulated)")
-    probe = fresh(OPTICS_PROBE % (str(GRAPH), args.duration, str(store)),
+    print(f"\n3. optics on one thread ({args.duration:g} s simulated{', ' + ' '.join(args.set) if args.set else ''})")
+    probe = fresh(OPTICS_PROBE % (str(GRAPH), args.duration, list(args.set), str(store)),
                   env={"EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0"})
     psfs = sum(probe["frames"].values())
     fft = psfs * probe["fft_per_psf_s"]
@@ -191,6 +192,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="fresh processes per fixed cost (medians)")
     parser.add_argument("--skip-optics", action="store_true", help="leave out the single-thread optics probe")
     parser.add_argument("--optics-only", action="store_true", help="only the single-thread optics probe (section 3)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a graph setting for the optics probe, e.g. telescope/optics.psf_path=pupil_fft")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f} at the start; "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")

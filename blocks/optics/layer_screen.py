@@ -1,7 +1,8 @@
 """A turbulent layer's phase screen under frozen flow: a square window onto an unbounded screen.
 
-The window holds ``n x n`` samples spaced ``delta`` [m] of a screen drawn for ``r0 = 1 m``
-(multiply by ``r0^(-5/6)`` for a layer of Fried parameter ``r0``). Its first sample sits
+The window holds the ``n x n`` cubic B-spline coefficients, spaced ``delta`` [m], of a screen
+drawn for ``r0 = 1 m`` (multiply by ``r0^(-5/6)`` for a layer of Fried parameter ``r0``): the
+spline through them takes von Karman statistics on the grid (:mod:`.autoregressive`). Its first sample sits
 at the absolute index ``origin`` (row, column) of the unbounded screen, so a footprint
 is addressed in absolute screen coordinates ``[delta]`` that do not depend on when the
 window moved. When a footprint would leave the window the screen is
@@ -12,6 +13,14 @@ window moved. When a footprint would leave the window the screen is
 * ``"regenerate"``: replaced by a fresh, independent screen centred on the footprint
   (the paper's Sec. 2.2 revisit). Modal (Zernike) screens live in :mod:`.modal_screen`.
 
+A fresh window of up to ``SELF_START_SAMPLES`` is made by the same conditional draws, from
+a few exactly drawn columns (the Cholesky factor of their covariance) and ``BURN_IN``
+windows of columns before its own, so a walk has no seam between differently made screens
+(an FFT screen twice a 24-sample window, cut to it, joined its first conditional columns
+with a structure function 10-16 % high: benchmarks/screen_statistics.py). Wider windows (the
+reference path's) are cut from an FFT screen twice as wide, whose samples are prefiltered
+by Unser's inverse filter (Eq. 10) truncated at ``|k| <= PREFILTER_HALF_WIDTH``.
+
 Each (re)generated screen draws from its own generator seeded by ``(seed, epoch,
 regeneration count)``, where the epoch counts revisit periods (``floor(t / revisit)``),
 so the screen's values at an absolute position depend only on the sequence of
@@ -21,23 +30,42 @@ round-trip it, generator included.
 Values between samples are cubic B-spline interpolants (Unser 1999, IEEE Signal
 Process. Mag. 16(6), 22): unlike bilinear weights they do not smooth the screen by an
 amount that changes with the sub-sample position (which would modulate the PSD at the
-rate the screen crosses samples). :meth:`LayerScreen.accumulate` walks a whole batch of
-footprints in a few compiled calls (:mod:`.screen_kernels`): it plans the extensions,
-makes every value of the walk on one canvas, prefilters it with the local (truncated)
-B-spline filter and reads each frame with separable 4-tap weights.
+rate the screen crosses samples). Every draw makes coefficients directly (no prefilter).
+:meth:`LayerScreen.accumulate` walks a whole batch of footprints in a few compiled calls
+(:mod:`.screen_kernels`): it plans the extensions, makes every coefficient of the walk on
+one canvas and reads each frame with separable 4-tap weights.
 """
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from .autoregressive import extension_operator
+import numpy as np
+from scipy.ndimage import correlate1d
+
+from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_phase_screens
-from .screen_kernels import (MARGIN, REGENERATE, extend_columns, plan_walk, prefilter, prefilter_band, prefilter_taps,
-                             read_band, sample_grids_transposed)
+from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, sample_grids_transposed
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
+#: windows of columns drawn before a fresh window's own: their first few are conditioned on a partial stencil [1]
+BURN_IN = 1
+#: widest window made by conditional draws when fresh (a 128-sample one costs ~20 ms) [samples]
+SELF_START_SAMPLES = 128
+#: half-width of the truncated inverse B-spline filter on an FFT screen: error ``|z1|^17 ~ 2e-10`` [samples]
+PREFILTER_HALF_WIDTH = 16
+
+
+def prefilter_taps() -> np.ndarray:
+    """Unser 1999's inverse B-spline filter ``h[k] = sqrt(3) z1^|k|`` (Eq. 10) for ``|k| <= PREFILTER_HALF_WIDTH``,
+    normalised to unit sum [1]."""
+    z1 = math.sqrt(3.0) - 2.0
+    k = np.arange(-PREFILTER_HALF_WIDTH, PREFILTER_HALF_WIDTH + 1)
+    taps = math.sqrt(3.0) * z1 ** np.abs(k)
+    return taps / taps.sum()
+
+
 _TAPS = prefilter_taps()
 
 
@@ -49,12 +77,11 @@ class LayerScreen:
             raise ValueError("extending a screen needs a finite outer scale L0")
         self.n, self.delta, self.seed = int(n), float(delta), tuple(int(s) for s in seed)
         self.L0, self.update = float(L0), update
-        self.values: np.ndarray | None = None
+        self.coefficients: np.ndarray | None = None   # B-spline coefficients of the window [rad, r0 = 1 m]
         self.origin = np.zeros(2, dtype=np.int64)
         self.epoch = -1            # revisit period the screen belongs to
         self.n_regenerations = 0   # regenerations within the epoch (footprint ran off, or jumped far)
         self._rng = np.random.Generator(np.random.PCG64(0))
-        self._coefficients: np.ndarray | None = None
 
     # -- creation -------------------------------------------------------------------------------
     def regenerate(self, centre: np.ndarray, epoch: int) -> None:
@@ -66,16 +93,44 @@ class LayerScreen:
         self._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
             [*self.seed, self.epoch & 0xFFFFFFFF, self.n_regenerations])))
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
-        # a screen twice the window, cut down, keeps the low orders (cf. Johansson & Gavel 1994)
-        full, _ = fft_phase_screens(self._rng, 2 * self.n, self.delta, 1.0, self.L0)
-        self.values = np.ascontiguousarray(full[: self.n, : self.n])
-        self._coefficients = None
+        self.coefficients = self._fresh() if self.n <= SELF_START_SAMPLES else self._cut_from_fft()
+
+    def _cut_from_fft(self) -> np.ndarray:
+        """B-spline coefficients of a window cut from an FFT screen twice as wide (cf. Johansson & Gavel 1994: the
+        low orders kept), prefiltered where the truncated filter has every sample it needs."""
+        n, half = self.n, PREFILTER_HALF_WIDTH
+        full, _ = fft_phase_screens(self._rng, max(2 * n, n + 2 * half), self.delta, 1.0, self.L0)
+        cut = full[: n + 2 * half, : n + 2 * half]
+        coefficients = correlate1d(correlate1d(cut, _TAPS, axis=0), _TAPS, axis=1)
+        return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
+
+    def _fresh(self) -> np.ndarray:
+        """B-spline coefficients of a window made by conditional draws from a few exact columns."""
+        n = self.n
+        width = n + BURN_IN * n
+        canvas = np.empty((n, width))
+        # the first columns exactly, then one conditional column at a time, each on the stencil the columns
+        # made so far allow (the operators change where the stencil gains a column: 4, 8, 16, ...); the window
+        # keeps the last n
+        canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L0)
+                                    @ self._rng.standard_normal(FULL_COLUMNS * n)).reshape(FULL_COLUMNS, n).T
+        made = FULL_COLUMNS
+        while made < width:
+            stop = made + 1
+            while stop < width and stencil_width(min(stop, n)) == stencil_width(min(made, n)):
+                stop += 1
+            operator = extension_operator(n, 1, self.delta, self.L0, min(made, n))
+            steps = np.arange(made, stop, dtype=np.int64)
+            extend_columns(canvas, np.zeros_like(steps), steps - n, np.full_like(steps, RIGHT), operator.A, operator.B,
+                           operator.stencil_rows, operator.stencil_cols, self._rng.standard_normal(n * len(steps)), n)
+            made = stop
+        return np.ascontiguousarray(canvas[:, width - n:])
 
     # -- keeping footprints inside ------------------------------------------------------------
     def usable(self, low: np.ndarray, high: np.ndarray) -> np.ndarray | bool:
         """Whether boxes ``low .. high`` (absolute row, col) [delta], shape (2,) or (F, 2), lie in the usable part."""
         low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
-        if self.values is None:
+        if self.coefficients is None:
             return np.zeros(low.shape[:-1], dtype=bool) if low.ndim > 1 else False
         lo = self.origin + MARGIN
         hi = self.origin + self.n - 1 - MARGIN
@@ -94,22 +149,22 @@ class LayerScreen:
     def walk(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray, read=None) -> None:
         """Keep each box ``low[f] .. high[f]`` (F, 2) [delta] of epoch ``epochs[f]`` inside the window in turn.
 
-        ``read(values, top, left, first, stop)`` is called with a canvas holding the windows of
+        ``read(coefficients, top, left, first, stop)`` is called with a canvas holding the windows of
         frames ``first .. stop - 1`` at their turn (its first sample at absolute (``top``, ``left``));
-        values are made once, in order, whatever the batching.
+        coefficients are made once, in order, whatever the batching.
         """
         low = np.ascontiguousarray(low, dtype=float)
         high = np.ascontiguousarray(high, dtype=float)
         kind, side, op_epoch, centre, before, frame_ops, starts = plan_walk(
             low, high, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN, self.update == "regenerate",
-            self.origin.astype(np.int64), np.int64(self.epoch), self.values is not None, CANVAS_STEPS)
+            self.origin.astype(np.int64), np.int64(self.epoch), self.coefficients is not None, CANVAS_STEPS)
         if len(kind) and kind[0] < 0:
             span = np.max(high - low, axis=0)
             raise ValueError(f"a footprint of {span} samples does not fit a {self.n}-sample screen")
         # frames [0, ready) need no operation; those up to the end of each canvas's operations read it
         ready = int(np.searchsorted(frame_ops, 0, side="right"))
         if read is not None and ready:
-            read(self.values, int(self.origin[0]), int(self.origin[1]), 0, ready)
+            read(self.coefficients, int(self.origin[0]), int(self.origin[1]), 0, ready)
         for a, b in zip(starts[:-1], starts[1:]):
             first = a
             if kind[a] == REGENERATE:
@@ -127,22 +182,21 @@ class LayerScreen:
         Returns a canvas holding every window of the steps and the absolute position of its first sample.
         """
         if not len(sides):
-            return self.values, self.origin.copy()
+            return self.coefficients, self.origin.copy()
         n = self.n
         moves = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)], dtype=np.int64)      # RIGHT, LEFT, DOWN, UP
         after = before[-1] + moves[sides[-1]]
         lo = np.minimum(before.min(axis=0), after)
         canvas = np.zeros(tuple(np.maximum(before.max(axis=0), after) + n - lo))
         top, left = self.origin - lo
-        canvas[top:top + n, left:left + n] = self.values
+        canvas[top:top + n, left:left + n] = self.coefficients
         operator = extension_operator(n, 1, self.delta, self.L0, n)
         noise = self._rng.standard_normal(n * len(sides))
         extend_columns(canvas, before[:, 0] - lo[0], before[:, 1] - lo[1], sides.astype(np.int64), operator.A,
                        operator.B, operator.stencil_rows, operator.stencil_cols, noise, n)
         self.origin = after
         top, left = after - lo
-        self.values = np.ascontiguousarray(canvas[top:top + n, left:left + n])
-        self._coefficients = None
+        self.coefficients = np.ascontiguousarray(canvas[top:top + n, left:left + n])
         return canvas, lo
 
     # -- sampling ---------------------------------------------------------------------------------
@@ -158,13 +212,7 @@ class LayerScreen:
         cols = np.ascontiguousarray(cols, dtype=float)
         weight = np.ascontiguousarray(weight, dtype=float)
 
-        def read(values, top, left, first, stop):
-            # spline coefficients only where these frames read (the footprints and their taps): a walk's
-            # canvas is mostly values other frames read, or margins
-            low, high, inside = read_band(rows, cols, top, left, first, stop, *values.shape)
-            if not inside:
-                raise ValueError("screen sampled outside its window")
-            coefficients = prefilter_band(values, _TAPS, low, high)
+        def read(coefficients, top, left, first, stop):
             if not sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
                 raise ValueError("screen sampled outside its window")
 
@@ -180,25 +228,22 @@ class LayerScreen:
         """
         rows = np.ascontiguousarray(np.atleast_2d(rows), dtype=float)
         cols = np.ascontiguousarray(np.atleast_2d(cols), dtype=float)
-        if self._coefficients is None:
-            self._coefficients = prefilter(self.values, _TAPS)
         out_t = np.zeros((rows.shape[0], cols.shape[1], rows.shape[1]))
-        if not sample_grids_transposed(self._coefficients, int(self.origin[0]), int(self.origin[1]), rows, cols,
+        if not sample_grids_transposed(self.coefficients, int(self.origin[0]), int(self.origin[1]), rows, cols,
                                        np.ones(rows.shape[0]), 0, rows.shape[0], out_t):
             raise ValueError("screen sampled outside its window")
         return out_t.transpose(0, 2, 1)
 
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:
-        return {"values": self.values, "origin": self.origin.copy(), "epoch": self.epoch,
+        return {"coefficients": self.coefficients, "origin": self.origin.copy(), "epoch": self.epoch,
                 "n_regenerations": self.n_regenerations, "rng": self._rng.bit_generator.state}
 
     def set_state(self, state: dict) -> None:
-        values = state.get("values")
-        self.values = None if values is None else np.asarray(values, dtype=float)
+        coefficients = state.get("coefficients")
+        self.coefficients = None if coefficients is None else np.asarray(coefficients, dtype=float)
         self.origin = np.asarray(state["origin"], dtype=np.int64)
         self.epoch = int(state["epoch"])
         self.n_regenerations = int(state["n_regenerations"])
         self._rng = np.random.Generator(np.random.PCG64(0))
         self._rng.bit_generator.state = state["rng"]
-        self._coefficients = None

@@ -1,19 +1,14 @@
-"""Compiled loops of :class:`.layer_screen.LayerScreen`: plan a walk, extend, prefilter, sample.
+"""Compiled loops of :class:`.layer_screen.LayerScreen`: plan a walk, extend, sample.
 
 * :func:`plan_walk` decides, frame by frame, what keeps each footprint inside the screen's
   window (regenerations and one-column conditional extensions) from integers alone, so the
   values are then made in a few compiled calls instead of one Python call per frame.
-* :func:`extend_columns` adds one column per step by Assemat et al. 2006's conditional draw
-  (``x = A z + B w``, :mod:`.autoregressive`) on any side of the window, writing into a
-  canvas that keeps every value made during a walk.
-* :func:`prefilter` turns samples into cubic B-spline coefficients with the inverse filter
-  ``h[k] = sqrt(3) z1^|k|``, ``z1 = sqrt(3) - 2`` (Unser 1999, IEEE Signal Process. Mag. 16(6),
-  22, Eq. 10), truncated at ``|k| <= PREFILTER_HALF_WIDTH`` and normalised to unit gain: a
-  coefficient then depends only on the samples within 8 of it (error ``|z1|^9 ~ 7e-6`` of
-  the screen's values against the infinite filter), so results do not depend on how large
-  a canvas is or how a run is cut into windows.
-* :func:`sample_grids_transposed` reads separable grids with the 4-tap cubic B-spline, its weights
-  computed once per row and column of each frame (no dense scatter matrices).
+* :func:`extend_columns` adds one column of B-spline coefficients per step by Assemat et al.
+  2006's conditional draw (``x = A z + B w``, :mod:`.autoregressive`) on any side of the window,
+  writing into a canvas that keeps every coefficient made during a walk.
+* :func:`sample_grids_transposed` reads separable grids with the 4-tap cubic B-spline (Unser 1999,
+  IEEE Signal Process. Mag. 16(6), 22, Eq. 4), its weights computed once per row and column of
+  each frame (no dense scatter matrices).
 """
 
 from __future__ import annotations
@@ -28,20 +23,11 @@ jit = numba.njit(cache=True, error_model="numpy", nogil=True)
 #: call, so results still do not depend on threads or batching
 fast_jit = numba.njit(cache=True, error_model="numpy", nogil=True, fastmath={"reassoc", "contract"})
 
-#: half-width of the truncated B-spline prefilter [samples]
-PREFILTER_HALF_WIDTH = 8
-#: samples kept between a footprint and the window's edge: spline support (2) and the prefilter
-MARGIN = PREFILTER_HALF_WIDTH + 3
+#: samples kept between a footprint and the window's edge: the cubic B-spline's support (a value at u reads
+#: the coefficients floor(u) - 1 .. floor(u) + 2)
+MARGIN = 2
 REGENERATE, EXTEND = 0, 1
 RIGHT, LEFT, DOWN, UP = 0, 1, 2, 3
-
-
-def prefilter_taps() -> np.ndarray:
-    """The truncated inverse B-spline filter ``h[-K..K]``, normalised to unit sum [1]."""
-    z1 = math.sqrt(3.0) - 2.0
-    k = np.arange(-PREFILTER_HALF_WIDTH, PREFILTER_HALF_WIDTH + 1)
-    taps = math.sqrt(3.0) * z1 ** np.abs(k)
-    return taps / taps.sum()
 
 
 @jit
@@ -179,103 +165,6 @@ def extend_columns(canvas, tops, lefts, sides, a, b, stencil_rows, stencil_back,
                 acc += b[r, j] * w[j]
             row, col = _canvas_index(s, top, left, n, r, n)
             canvas[row, col] = acc
-
-
-@jit
-def prefilter(values, taps):
-    """Cubic B-spline coefficients of ``values`` (H, W) by the truncated separable inverse filter ``taps``.
-
-    Within ``len(taps) // 2`` of an edge the sums are cut short; callers never read there.
-    """
-    height, width = values.shape
-    return prefilter_band(values, taps, np.zeros(width, np.int64), np.full(width, height, np.int64))
-
-
-@jit
-def prefilter_band(values, taps, low, high):
-    """The coefficients of :func:`prefilter` in rows ``low[c] .. high[c] - 1`` of each column ``c`` only (0 elsewhere).
-
-    Each coefficient is the same sum, in the same order, as over the whole array, so a frame
-    reads identical values whatever part of its canvas was prefiltered. Both passes run along
-    the rows of ``values`` (contiguous), each coefficient's terms still added in tap order.
-    """
-    height, width = values.shape
-    half = taps.shape[0] // 2
-    # the first (vertical) pass is needed within `half` columns of every coefficient
-    need_low = np.full(width, height, np.int64)
-    need_high = np.zeros(width, np.int64)
-    for j in range(width):
-        if high[j] > low[j]:
-            for k in range(max(0, j - half), min(width, j + half + 1)):
-                need_low[k] = min(need_low[k], low[j])
-                need_high[k] = max(need_high[k], high[j])
-    # each row's span of columns that need it (a superset of those columns; the rest is never read)
-    k0 = np.full(height, width, np.int64)
-    k1 = np.zeros(height, np.int64)
-    for k in range(width):
-        for i in range(max(0, need_low[k]), min(height, need_high[k])):
-            k0[i] = min(k0[i], k)
-            k1[i] = k + 1
-    # loops run over slices from 0 (indices Numba knows are not negative: no wraparound checks, so SIMD)
-    rows = np.empty((height, width))
-    for i in range(height):
-        if k1[i] <= k0[i]:
-            continue
-        line = rows[i, k0[i]:k1[i]]
-        line[:] = 0.0
-        for m in range(max(0, i - half), min(height, i + half + 1)):
-            t = taps[m - i + half]
-            source = values[m, k0[i]:k1[i]]
-            for q in range(line.shape[0]):
-                line[q] += t * source[q]
-    # each row's span of coefficients, from the columns' bands
-    j0 = np.full(height, width, np.int64)
-    j1 = np.zeros(height, np.int64)
-    for j in range(width):
-        for i in range(max(0, low[j]), min(height, high[j])):
-            j0[i] = min(j0[i], j)
-            j1[i] = j + 1
-    out = np.zeros((height, width))
-    for i in range(height):
-        # away from the edges, every coefficient of the span at once (along the row): each still
-        # adds its terms in tap order, so it is the scalar sum bit for bit
-        a, b = max(j0[i], half), min(j1[i], width - half)
-        if a < b:
-            span = out[i, a:b]
-            for t in range(2 * half + 1):
-                tap = taps[t]
-                source = rows[i, a - half + t:b - half + t]
-                for q in range(span.shape[0]):
-                    span[q] += tap * source[q]
-        for j in range(j0[i], j1[i]):
-            if not low[j] <= i < high[j]:
-                out[i, j] = 0.0                 # inside the span, outside this column's band
-            elif not a <= j < b:
-                total = 0.0
-                for k in range(max(0, j - half), min(width, j + half + 1)):
-                    total += taps[k - j + half] * rows[i, k]
-                out[i, j] = total
-    return out
-
-
-@jit
-def read_band(rows, cols, top, left, first, stop, height, width):
-    """Rows ``low[c] .. high[c] - 1`` of each column ``c`` of an (``height``, ``width``) array whose first
-    sample is at (``top``, ``left``) that the 4-tap reads of frames ``first .. stop - 1`` of ``rows``
-    (F, ny) and ``cols`` (F, nx) touch; False when a read falls outside the array."""
-    low = np.full(width, height, np.int64)
-    high = np.zeros(width, np.int64)
-    for f in range(first, stop):
-        r0 = math.floor(rows[f, 0] - top) - 1
-        r1 = math.floor(rows[f, rows.shape[1] - 1] - top) + 3
-        c0 = math.floor(cols[f, 0] - left) - 1
-        c1 = math.floor(cols[f, cols.shape[1] - 1] - left) + 3
-        if r0 < 0 or c0 < 0 or r1 > height or c1 > width:
-            return low, high, False
-        for c in range(c0, c1):
-            low[c] = min(low[c], r0)
-            high[c] = max(high[c], r1)
-    return low, high, True
 
 
 @jit

@@ -13,8 +13,8 @@ degrees more zenith angle near 45 degrees):
   every ``delta`` repeats every ``lambda / delta`` [rad], so the stamp of ``M`` pixels of ``p``
   [rad] stays inside one period with a quarter to spare (no wrapped light);
 * each layer's screen sampled at a sixth of its own ``r0_i`` (between the pupil spacing and
-  ``D/8``), its window the pupil's footprint and half as much again, plus the walk's margins
-  (:mod:`.screen_kernels`).
+  ``D/8``), its window the pupil's footprint and half as much again, plus the B-spline's
+  2-sample support each side (:mod:`.screen_kernels`).
 
 The result is kept in the block's state, so that a resumed run samples as the first did.
 """
@@ -90,7 +90,7 @@ def layer_grids(atmosphere: Atmosphere, wavelength_m: float, zenith_rad: float, 
         step = float(np.clip(r0_l / 6, pupil_delta_m, diameter_m / 8))
         across = int(np.ceil(footprint_m / step))
         # the footprint, half as much again (transverse drift, and the stencil's reach for the large
-        # scales: columns 3, 7, 15, ... back, beyond the footprint's width) and the margins
+        # scales: columns 3, 7, 15, ... back, beyond the footprint's width) and the spline's support
         n = across + across // 2 + 2 * MARGIN + 2
         layer_delta.append(step)
         layer_n.append(n + n % 2)

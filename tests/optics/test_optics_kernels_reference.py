@@ -10,21 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsda.blocks.optics.screen_kernels import _taps, prefilter_band, prefilter_taps, sample_grids_transposed
-
-
-def reference_prefilter(values, taps, low, high):
-    """Vertical taps in order over the whole column, then horizontal taps in order, rows low[j]..high[j]-1."""
-    height, width = values.shape
-    half = len(taps) // 2
-    vertical = [[sum_in_order(taps[m - i + half] * values[m, k] for m in range(max(0, i - half), min(height, i + half + 1)))
-                 for k in range(width)] for i in range(height)]
-    out = np.zeros((height, width))
-    for j in range(width):
-        for i in range(low[j], high[j]):
-            out[i, j] = sum_in_order(taps[k - j + half] * vertical[i][k]
-                                     for k in range(max(0, j - half), min(width, j + half + 1)))
-    return out
+from evsda.blocks.optics.screen_kernels import _taps, sample_grids_transposed
 
 
 def sum_in_order(terms) -> float:
@@ -51,16 +37,6 @@ def reference_sample(coefficients, top, left, rows, cols, weight, out):
                          for cc in range(c, c + 4)]
                 out[f, i, j] += weight[f] * (wx[j, 0] * along[0] + wx[j, 1] * along[1] + wx[j, 2] * along[2]
                                              + wx[j, 3] * along[3])
-
-
-def test_prefilter_band_is_its_sums_in_order():
-    rng = np.random.default_rng(7)
-    taps = prefilter_taps()
-    values = rng.standard_normal((30, 44))
-    low = rng.integers(0, 30, 44)
-    high = np.minimum(low + rng.integers(0, 30, 44), 30)
-    high[::5] = 0                                              # columns no frame reads
-    np.testing.assert_array_equal(prefilter_band(values, taps, low, high), reference_prefilter(values, taps, low, high))
 
 
 def test_sampler_is_its_sums_in_order():

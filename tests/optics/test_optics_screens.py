@@ -7,12 +7,12 @@ import pytest
 from scipy.integrate import IntegrationWarning
 from scipy.ndimage import map_coordinates, spline_filter
 
-from evsda.blocks.optics.autoregressive import extension_operator
+from evsda.blocks.optics.autoregressive import extension_operator, spline_coefficient_covariance
 from evsda.blocks.optics.fft_screens import fft_phase_screens, radial_profile, structure_function_2d
 from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
-from evsda.blocks.optics.layer_screen import LayerScreen
-from evsda.blocks.optics.screen_kernels import MARGIN, prefilter, prefilter_band, prefilter_taps, read_band
+from evsda.blocks.optics.layer_screen import PREFILTER_HALF_WIDTH, SELF_START_SAMPLES, LayerScreen
+from evsda.blocks.optics.screen_kernels import MARGIN
 from evsda.blocks.optics import PointSourceOptics
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics.imaging import Imager
@@ -89,42 +89,121 @@ def test_fft_screens_reproduce_noll_residuals():
         assert abs(mean[J - 1] - NOLL_1976_RESIDUALS[J]) < allowance, J
 
 
-def test_extension_reproduces_von_karman_statistics():
-    # Assemat et al. 2006: columns drawn conditionally on an exact (Cholesky) screen have the target covariance
-    n, k, delta, L0 = 12, 3, 0.02, 20.0
+def grid_values(coefficients: np.ndarray) -> np.ndarray:
+    """The cubic B-spline's values on the grid, ``(b x b) * c`` with ``b = [1, 4, 1] / 6`` (Unser 1999 Eq. 4); the
+    outermost row and column on each side, which need coefficients beyond the array, are left out."""
+    c = np.asarray(coefficients)
+    rows = (c[..., :-2, :] + 4 * c[..., 1:-1, :] + c[..., 2:, :]) / 6
+    return (rows[..., :-2] + 4 * rows[..., 1:-1] + rows[..., 2:]) / 6
+
+
+def test_spline_coefficient_covariance_gives_von_karman_on_the_grid():
+    # the spline through coefficients of covariance C_c takes values of covariance (b*b x b*b) * C_c on the grid,
+    # which must be von Karman's B(r) (Assemat et al. 2006 Eq. 5) at every offset
+    extent, delta, L0 = 40, 0.02, 25.0
+    table = spline_coefficient_covariance(extent, delta, L0)
+    full = np.block([[table[::-1, ::-1], table[::-1, 1:]], [table[1:, ::-1], table[1:, 1:]]])   # offsets -40..40
+    bb = np.array([1.0, 8.0, 18.0, 8.0, 1.0]) / 36                                               # b * b
+    values = sum(bb[i] * bb[j] * full[i:i + 77, j:j + 77] for i in range(5) for j in range(5))[38:, 38:]
+    m = np.arange(values.shape[0])
+    expected = von_karman_covariance(np.hypot(m[:, None], m[None, :]) * delta, 1.0, L0)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-10 * expected[0, 0])
+    np.testing.assert_allclose(table, table.T, rtol=1e-12)
+
+
+def test_extension_reproduces_von_karman_statistics_across_the_seam():
+    # Assemat et al. 2006: coefficient columns drawn conditionally on an exact (Cholesky) coefficient screen; the
+    # spline's values across the seam between old and new columns have von Karman's structure function
+    n, k, delta, L0, draws = 14, 4, 0.02, 20.0, 4000
     op = extension_operator(n, k, delta, L0, n)
     yy, xx = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    points = np.c_[yy.ravel(), xx.ravel()].astype(float)
-    r = np.hypot(*(points[:, None, :] - points[None, :, :]).transpose(2, 0, 1)) * delta
-    chol = np.linalg.cholesky(von_karman_covariance(r, 1.0, L0) + 1e-10 * np.eye(n * n))
+    table = spline_coefficient_covariance(n, delta, L0)
+    covariance = table[np.abs(yy.ravel()[:, None] - yy.ravel()[None]), np.abs(xx.ravel()[:, None] - xx.ravel()[None])]
+    chol = np.linalg.cholesky(covariance + 1e-10 * table[0, 0] * np.eye(n * n))
     rng = np.random.default_rng(2)
-    screens = (chol @ rng.standard_normal((n * n, 3000))).T.reshape(-1, n, n)
+    screens = (chol @ rng.standard_normal((n * n, draws))).T.reshape(-1, n, n)
     blocks = np.stack([op.extend_right(s, rng.standard_normal(n * k)) for s in screens])
-    full = np.concatenate([screens, blocks], axis=2)
-    for gap in (1, 2, 3):
-        across = np.mean((full[:, :, n - 1 + gap] - full[:, :, n - 1]) ** 2, axis=1)
+    values = grid_values(np.concatenate([screens, blocks], axis=2))    # column j is coefficient column j + 1
+    last_old = n - 3                                                    # the last value made of old coefficients only
+    for start, gap in ((last_old - 2, 3), (last_old, 1), (last_old, 2), (last_old, 3), (last_old + 1, 2)):
+        pairs = np.mean((values[:, :, start + gap] - values[:, :, start]) ** 2, axis=1)
         expected = structure_function(gap * delta, 1.0, L0)
-        assert across.mean() == pytest.approx(expected, abs=4 * across.std() / np.sqrt(len(across)))
+        assert pairs.mean() == pytest.approx(expected, abs=4 * pairs.std() / np.sqrt(draws)), (start, gap)
     variance = np.var(blocks[:, :, -1])
-    assert variance == pytest.approx(von_karman_covariance(0.0, 1.0, L0), rel=0.1)
+    assert variance == pytest.approx(table[0, 0], rel=0.1)
 
 
-def test_extended_screen_keeps_its_structure_function_far_from_the_start():
-    rng_seeds = range(60)
-    delta, L0, n = 0.02, 20.0, 40
-    seps = np.array([1, 2, 4])
-    along, across = [], []
-    for seed in rng_seeds:
+def _within_standard_errors(per_screen: np.ndarray, expected: np.ndarray, k: float = 3.0) -> None:
+    """Mean over screens (axis 0) within ``k`` standard errors of ``expected``."""
+    mean = per_screen.mean(axis=0)
+    error = per_screen.std(axis=0, ddof=1) / np.sqrt(len(per_screen))
+    assert np.all(np.abs(mean - expected) < k * error), (mean / expected, (mean - expected) / error)
+
+
+def test_fresh_window_joins_its_extension_without_a_seam():
+    # a fresh window (conditional draws from exact columns) extended by half its width: pairs straddling the seam
+    # between its coefficients and the new ones, along the walk, and pairs across it in the new columns have von
+    # Karman's structure function, 1 sample to the footprint (benchmarks/screen_statistics.py: 1500 screens)
+    delta, L0, across, screens = 0.02, 25.0, 12, 1000
+    n = across + across // 2 + 2 * MARGIN + 2
+    lags = np.array([1, 4, across])
+    along, transverse = [], []
+    for seed in range(screens):
         screen = LayerScreen(n, delta, (seed,), L0=L0)
-        screen.cover(np.array([10.0, 10.0]), np.array([20.0, 20.0]))
-        for shift in range(0, 300, 10):                   # several window widths of wind
-            screen.cover(np.array([10.0, 10.0 + shift]), np.array([20.0, 20.0 + shift]))
-        v = screen.values
-        along.append([np.mean((v[:, s:] - v[:, :-s]) ** 2) for s in seps])
-        across.append([np.mean((v[s:, :] - v[:-s, :]) ** 2) for s in seps])
-    expected = structure_function(seps * delta, 1.0, L0)
-    np.testing.assert_allclose(np.mean(along, axis=0) / expected, 1.0, atol=0.1)
-    np.testing.assert_allclose(np.mean(across, axis=0) / expected, 1.0, atol=0.1)
+        screen.cover(np.array([100.0, 100.0]), np.array([100.0, 100.0]) + across)
+        first_new = int(screen.origin[1]) + n
+        screen.cover(np.array([100.0, 100.0 + n // 2]), np.array([100.0, 100.0 + n // 2]) + across)
+        top, left = screen.origin + MARGIN
+        grid = screen.sample(np.arange(top, top + n - 2 * MARGIN, dtype=float)[None],
+                             np.arange(left, left + n - 2 * MARGIN, dtype=float)[None])[0]
+        cols = np.arange(left, left + n - 2 * MARGIN)
+        new = cols >= first_new
+        straddle = [(cols[:-k] < first_new) & (cols[k:] >= first_new) for k in lags]
+        along.append([np.mean((grid[:, k:][:, s] - grid[:, :-k][:, s]) ** 2) for k, s in zip(lags, straddle)])
+        transverse.append([np.mean((grid[k:, new] - grid[:-k, new]) ** 2) for k in lags])
+    expected = structure_function(lags * delta, 1.0, L0)
+    _within_standard_errors(np.array(along), expected)
+    _within_standard_errors(np.array(transverse), expected)
+
+
+def test_walked_screens_keep_von_karman_and_noll_statistics_on_the_pupil():
+    # footprints of 12 samples walked 2400 columns, one per frame, read on their integer grids (the spline's values):
+    # the structure function along and across the walk, 1 sample to the footprint, and the residual variances after
+    # removing J = 1..21 Zernike modes on the pupil against their exact expectation for von Karman phase on the same
+    # points, tr(P C P) / N with C = -D/2 (Noll 1976 Table IV is its L0 -> inf limit: within 1 % for J >= 3 here);
+    # no drift of the piston-removed variance along the walk
+    delta, L0, across, screens, columns = 0.02, 25.0, 12, 24, 2400
+    n = across + across // 2 + 2 * MARGIN + 2
+    x = np.arange(across + 1.0) - across / 2
+    xx, yy = np.meshgrid(x, x)
+    inside = np.hypot(xx, yy) <= across / 2
+    q, _ = np.linalg.qr(zernike_basis(21, xx[inside], yy[inside], across / 2).T)
+    px, py = xx[inside], yy[inside]
+    c = -0.5 * structure_function(np.hypot(px[:, None] - px[None], py[:, None] - py[None]) * delta, 1.0, L0)
+    noll = (np.trace(c) - np.cumsum(np.einsum("ij,ij->j", q, c @ q))) / len(px)
+    scale = (across * delta) ** (5 / 3)
+    for J in (3, 6, 10, 21):
+        assert noll[J - 1] == pytest.approx(NOLL_1976_RESIDUALS[J] * scale, rel=0.035), J
+    lags = np.array([1, 4, across])
+    along, transverse, residuals, drift = [], [], [], []
+    for seed in range(screens):
+        grid = np.arange(across + 1.0)
+        left = 100.0 + np.arange(columns)
+        out_t = np.zeros((columns, across + 1, across + 1))
+        LayerScreen(n, delta, (seed,), L0=L0).accumulate(np.tile(100.0 + grid, (columns, 1)), left[:, None] + grid,
+                                                         np.zeros(columns, np.int64), np.ones(columns), out_t)
+        v = out_t.transpose(0, 2, 1)[2 * n:]              # past the fresh window
+        along.append([np.mean((v[:, :, k:] - v[:, :, :-k]) ** 2) for k in lags])
+        transverse.append([np.mean((v[:, k:, :] - v[:, :-k, :]) ** 2) for k in lags])
+        phase = v[:, inside]
+        r = (np.sum(phase**2, axis=1)[:, None] - np.cumsum((phase @ q) ** 2, axis=1)) / phase.shape[1]
+        residuals.append(r.mean(axis=0))
+        drift.append(np.polyfit(np.arange(8), [b.mean() for b in np.array_split(r[:, 0], 8)], 1)[0])
+    expected = structure_function(lags * delta, 1.0, L0)
+    _within_standard_errors(np.array(along), expected)
+    _within_standard_errors(np.array(transverse), expected)
+    _within_standard_errors(np.array(residuals), noll)
+    _within_standard_errors(np.array(drift)[:, None], np.zeros(1))
 
 
 def test_walked_screen_keeps_von_karman_statistics_up_to_several_footprints():
@@ -149,41 +228,32 @@ def test_walked_screen_keeps_von_karman_statistics_up_to_several_footprints():
 
 
 def test_spline_sampling_matches_scipy_map_coordinates():
-    # the compiled 4-tap sampler on the truncated prefilter against scipy's exact B-spline interpolation, far from
-    # the window's edges (where scipy's mirror boundary no longer matters): within the truncation's bound
-    # 2 sqrt(3) |z1|^9 / (1 - |z1|) per axis, 7e-5 of the screen's largest value
+    # the compiled 4-tap sampler on a screen's B-spline coefficients against scipy's B-spline interpolation
     screen = LayerScreen(96, 0.01, (1,), L0=25.0)
     screen.cover(np.array([40.0, 40.0]), np.array([50.0, 50.0]))
     rng = np.random.default_rng(0)
     rows = screen.origin[0] + 30 + rng.uniform(0, 5, (4, 1)) + 0.9 * np.arange(20)[None]
     cols = screen.origin[1] + 30 + rng.uniform(0, 5, (4, 1)) + 0.95 * np.arange(18)[None]
     sampled = screen.sample(rows, cols)
-    coefficients = spline_filter(screen.values, order=3, mode="mirror")
-    bound = 7e-5 * np.abs(screen.values).max()
     for f in range(4):
         r, c = np.meshgrid(rows[f] - screen.origin[0], cols[f] - screen.origin[1], indexing="ij")
-        np.testing.assert_allclose(sampled[f], map_coordinates(coefficients, [r, c], order=3, prefilter=False),
-                                   rtol=0, atol=bound)
-    # on the samples themselves the spline interpolates
-    on_grid = screen.sample(screen.origin[0] + np.arange(30, 60)[None] * 1.0, screen.origin[1] + np.arange(30, 60)[None] * 1.0)
-    np.testing.assert_allclose(on_grid[0], screen.values[30:60, 30:60], rtol=0, atol=bound)
+        np.testing.assert_allclose(sampled[f], map_coordinates(screen.coefficients, [r, c], order=3, prefilter=False),
+                                   rtol=0, atol=1e-12 * np.abs(screen.coefficients).max())
 
 
-def test_banded_prefilter_is_the_whole_prefilter_where_frames_read():
-    # a walk prefilters only the band its frames read (fast path); there every coefficient is bit for bit
-    # the whole canvas's (the reference), and a read that leaves the canvas is refused
-    rng = np.random.default_rng(3)
-    values = rng.standard_normal((60, 200))
-    whole = prefilter(values, prefilter_taps())
-    rows = 20 + 0.3 * np.arange(40)[:, None] + np.linspace(0, 9, 12)[None]       # a diagonal walk of 40 frames
-    cols = 15 + 3.5 * np.arange(40)[:, None] + np.linspace(0, 9, 12)[None]
-    low, high, inside = read_band(rows, cols, 0, 0, 0, 40, *values.shape)
-    assert inside and np.all(high[15:160] > low[15:160])
-    band = prefilter_band(values, prefilter_taps(), low, high)
-    mask = (np.arange(60)[:, None] >= low[None]) & (np.arange(60)[:, None] < high[None])
-    assert 0.05 < mask.mean() < 0.5
-    np.testing.assert_array_equal(band[mask], whole[mask])
-    assert not read_band(rows + 40, cols, 0, 0, 0, 40, *values.shape)[2]
+def test_regenerated_screen_interpolates_its_fft_screen():
+    # a regeneration prefilters an FFT screen (Unser 1999 Eq. 10, truncated at 16 samples): the spline through the
+    # coefficients takes the FFT screen's values on the grid, within the truncation's 2 sqrt(3) |z1|^17 / (1 - |z1|)
+    # per axis of its largest value
+    n = SELF_START_SAMPLES + 2                           # wider windows (the reference path's) are cut from FFT screens
+    screen = LayerScreen(n, 0.02, (5,), L0=25.0)
+    screen.cover(np.array([10.0, 10.0]), np.array([20.0, 20.0]))
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([5, 0, 0])))
+    values = fft_phase_screens(rng, 2 * n, 0.02, 1.0, 25.0)[0]
+    window = values[PREFILTER_HALF_WIDTH:PREFILTER_HALF_WIDTH + n, PREFILTER_HALF_WIDTH:PREFILTER_HALF_WIDTH + n]
+    np.testing.assert_allclose(grid_values(screen.coefficients), window[1:-1, 1:-1], rtol=0,
+                               atol=1e-9 * np.abs(values).max())
+    assert np.abs(grid_values(screen.coefficients) - window[1:-1, 1:-1]).max() > 0      # not a copy of the values
 
 
 def test_batched_walk_reads_what_frame_by_frame_covers_read():
@@ -203,7 +273,7 @@ def test_batched_walk_reads_what_frame_by_frame_covers_read():
         single.cover(np.array([rows[f, 0], cols[f, 0]]), np.array([rows[f, -1], cols[f, -1]]))
         np.testing.assert_allclose(out[f], 2.0 * single.sample(rows[f:f + 1], cols[f:f + 1])[0], rtol=0, atol=1e-12)
     assert single.n_regenerations == batched.n_regenerations == 1
-    np.testing.assert_array_equal(single.values, batched.values)
+    np.testing.assert_array_equal(single.coefficients, batched.coefficients)
 
 
 def _walk(screen, boxes, chunks):
