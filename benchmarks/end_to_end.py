@@ -149,7 +149,7 @@ def fixed_costs_and_whole_run(args, store: Path) -> None:
     print("\n1. fixed costs (fresh processes, medians of %d)" % args.repeats)
     cli = statistics.median(fresh(IMPORT_CLI)["import_cli_s"] for _ in range(args.repeats))
     loads = [fresh(LOAD_GRAPH % str(GRAPH)) for _ in range(args.repeats)]
-    one = [run_cli(0.1, store) for _ in range(args.repeats)]
+    one = [run_cli(0.1, store, args.set) for _ in range(args.repeats)]
     print(f"  import the CLI                 {cli:7.2f} s")
     print(f"  load the graph (block imports) {statistics.median(x['load_graph_s'] for x in loads):7.2f} s "
           f"({loads[0]['modules']} modules loaded)")
@@ -163,7 +163,7 @@ def fixed_costs_and_whole_run(args, store: Path) -> None:
         print(f"    {name:28s} {statistics.median(x['blocks'].get(name, 0.0) for x in one):7.2f} s")
 
     print(f"\n2. the whole run: {args.duration:g} s simulated, every core")
-    full = run_cli(args.duration, store)
+    full = run_cli(args.duration, store, args.set)
     print(f"  wall {full['wall_s']:.1f} s = {args.duration / full['wall_s']:.2f}x real time (target >= 2x); "
           f"CPU {full['cpu_s']:.1f} s; peak memory {full['peak_mb']:.0f} MB (target <= 1000)")
     print(f"  {full['events']} events, store {full['store_mb']:.1f} MB = {full['bytes_per_event']:.1f} bytes "
@@ -177,10 +177,11 @@ def optics_probe(args, store: Path) -> None:
     print(f"\n3. optics on one thread ({args.duration:g} s simulated{', ' + ' '.join(args.set) if args.set else ''})")
     probe = fresh(OPTICS_PROBE % (str(GRAPH), args.duration, list(args.set), str(store)),
                   env={"EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0"})
-    psfs = sum(probe["frames"].values())
+    # the FFT paths' PSFs (the analytic paths' stamps are tabulated profiles: no FFT)
+    psfs = sum(n for path, n in probe["frames"].items() if path in ("pupil_fft", "reference"))
     fft = psfs * probe["fft_per_psf_s"]
-    print(f"  PSFs rendered: {psfs} {probe['frames']}")
-    print(f"  bare FFT cost: {psfs} x {probe['fft_per_psf_s'] * 1e3:.3f} ms "
+    print(f"  PSFs rendered: {sum(probe['frames'].values())} {probe['frames']}")
+    print(f"  bare FFT cost of the pupil/reference PSFs: {psfs} x {probe['fft_per_psf_s'] * 1e3:.3f} ms "
           f"({probe['padded']}^2 complex64) = {fft:.2f} s")
     print(f"  optics CPU {probe['optics_cpu_s']:.2f} s = {probe['optics_cpu_s'] / fft:.1f}x its FFT cost "
           f"(target <= 3x)")
@@ -193,14 +194,15 @@ def main() -> None:
     parser.add_argument("--skip-optics", action="store_true", help="leave out the single-thread optics probe")
     parser.add_argument("--optics-only", action="store_true", help="only the single-thread optics probe (section 3)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="a graph setting for the optics probe, e.g. telescope/optics.psf_path=pupil_fft")
+                        help="a graph setting for the timed runs (as evsda run --set), e.g. "
+                             "telescope/optics.detector=null for the path choice without the detector")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; load average {os.getloadavg()[0]:.2f} at the start; "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; settings {args.set}")
 
     with tempfile.TemporaryDirectory() as tmp:
         store = Path(tmp) / "run.zarr"
-        run_cli(0.1, store)                                       # warm the compiled caches once
+        run_cli(0.1, store, args.set)                             # warm the compiled caches once
         if not args.optics_only:
             fixed_costs_and_whole_run(args, store)
         if not args.skip_optics:

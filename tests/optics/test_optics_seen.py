@@ -137,3 +137,18 @@ def test_a_detector_without_a_pixel_block_is_one_clear_error(tmp_path):
     block.setup(RunInfo(duration_ns=10_000_000))
     with pytest.raises(ParameterError, match="one 'dvs_pixel' block, found 0"):
         block.step(Window.from_seconds(0, 0.01), sources=[streaking_star(Window.from_seconds(0, 0.01))])
+
+
+@pytest.mark.parametrize("size, oversample", [(7, 10), (13, 7), (5, 16), (9, 3)])
+def test_compiled_analytic_stamps_are_the_reference_renderers_bit_for_bit(size, oversample):
+    from evsda.blocks.optics.analytic_path import AnalyticPath
+    from evsda.blocks.optics.psf import long_exposure_profile
+    from evsda.blocks.optics.render import RadialRenderer, StampSampler
+
+    sampler = StampSampler(size, 12.15e-6, oversample)
+    theta = np.linspace(0.0, (size / 2 + 2) * np.sqrt(2) * sampler.pixel_scale_rad, 2048)
+    renderer = RadialRenderer(sampler, theta, long_exposure_profile(Telescope(0.2, 0.4), WAVELENGTH, 0.05, 25.0,
+                                                                    theta, 2048))
+    offsets = np.random.default_rng(1).uniform(-0.5, 0.5, (50, 2))
+    offsets[:2] = [[0.0, 0.0], [0.5, -0.5]]
+    np.testing.assert_array_equal(AnalyticPath.stamps(renderer, offsets), renderer.stamps(offsets))
