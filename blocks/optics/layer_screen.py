@@ -187,7 +187,7 @@ class LayerScreen:
         moves = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)], dtype=np.int64)      # RIGHT, LEFT, DOWN, UP
         after = before[-1] + moves[sides[-1]]
         lo = np.minimum(before.min(axis=0), after)
-        canvas = np.zeros(tuple(np.maximum(before.max(axis=0), after) + n - lo))
+        canvas = np.empty(tuple(np.maximum(before.max(axis=0), after) + n - lo))    # only windows are written and read
         top, left = self.origin - lo
         canvas[top:top + n, left:left + n] = self.coefficients
         operator = extension_operator(n, 1, self.delta, self.L0, n)

@@ -101,6 +101,9 @@ class PupilRenderer:
         b = a @ np.exp(2j * np.pi * np.outer(lags, np.arange(size)) / size) / size
         real = np.float32 if dtype == np.complex64 else np.float64
         self.b_real, self.b_imag = b.real.astype(real), b.imag.astype(real)
+        # their transposes stored contiguous: numpy's batched matmul with a transposed (strided) right operand
+        # took 2.3x longer per frame (the same products, the same bits)
+        self.b_real_t, self.b_imag_t = np.ascontiguousarray(self.b_real.T), np.ascontiguousarray(self.b_imag.T)
         self.dtype = dtype
         self._local = threading.local()
 
@@ -171,8 +174,8 @@ class PupilRenderer:
         squared_modulus(spectrum, psf)                                   # (F, L, L), up to delta^4/lambda^2
         # stamp = Re(B_y PSF B_x^T), as real products frame by frame: every frame goes through the
         # same fixed-size products whatever the batch, so results do not depend on how frames are grouped
-        along_x_re = np.matmul(psf, self.b_real.T)
-        along_x_im = np.matmul(psf, self.b_imag.T)
+        along_x_re = np.matmul(psf, self.b_real_t)
+        along_x_im = np.matmul(psf, self.b_imag_t)
         image = np.matmul(self.b_real, along_x_re) - np.matmul(self.b_imag, along_x_im)
         return image.astype(float) * (self.delta**2 / self.wavelength) ** 2 / self.area
 

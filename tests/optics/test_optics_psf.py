@@ -220,3 +220,20 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     tilted_phase(phase, ky, kx, x, tilted)
     np.testing.assert_array_equal(tilted, (phase + ky[:, None, None] * x[None, :, None]
                                            + kx[:, None, None] * x[None, None, :]).astype(np.float32))
+
+
+def test_stamp_width_by_bisection_is_the_searchsorted_over_every_radius():
+    # the fast path (encircled energy at the ~10 radii a bisection visits) against its reference: the energy at all
+    # 1024 radii, then numpy's searchsorted
+    from evsda.blocks.optics.psf import long_exposure_encircled_energy
+    from evsda.blocks.optics.sizing import stamp_width_px
+    rng = np.random.default_rng(4)
+    for _ in range(3):                                    # the reference costs ~1 s each
+        telescope = Telescope(rng.uniform(0.05, 1.0), rng.uniform(0.0, 0.5))
+        wavelength, pixel, r0 = rng.uniform(400e-9, 900e-9), 10 ** rng.uniform(-6.5, -4.5), 10 ** rng.uniform(-2.5, 0)
+        tolerance = rng.choice([0.02, 0.1, 0.2])
+        theta = np.arange(1, 1025) * pixel / 4
+        enclosed = long_exposure_encircled_energy(telescope, wavelength, r0, 25.0, theta)
+        radius = theta[min(np.searchsorted(enclosed, 1 - tolerance / 2), theta.size - 1)]
+        expected = int(np.clip(2 * np.ceil(radius / pixel) + 1, 3, 129))
+        assert stamp_width_px(telescope, wavelength, pixel, r0, 25.0, tolerance) == expected
