@@ -4,7 +4,7 @@ Prints the fast implementation's speed against real time and its peak memory, th
 speed-up over the reference implementation on a crop small enough for the reference,
 with the agreement of each statistic (fast - reference, in units of its Poisson error).
 
-    python benchmarks/pixel_sensor.py [--seconds 10] [--crop-seconds 0.5]
+    python benchmarks/pixel_sensor.py [--seconds 10] [--crop-seconds 0.5] [--lowpass-form large_signal]
 """
 
 from __future__ import annotations
@@ -79,6 +79,8 @@ def main() -> None:
     parser.add_argument("--crop-seconds", type=float, default=0.5, help="simulated time on the crop [s]")
     parser.add_argument("--crop", type=int, default=48, help="crop size for the reference comparison [pixel]")
     parser.add_argument("--no-reference", action="store_true", help="skip the crop comparison with the reference")
+    parser.add_argument("--lowpass-form", default="small_signal", choices=("small_signal", "large_signal"),
+                        help="the photoreceptor filter's form (dvs_pixel lowpass_form)")
     args = parser.parse_args()
 
     tic = time.perf_counter()
@@ -86,10 +88,11 @@ def main() -> None:
     simulate("fast", tiny, 0.01, 0.01, dict(background=2e3, peak=1e4, start_xy=(2.0, 2.0), velocity_px_s=(1.0, 0.0)))
     print(f"compiled pixel loop ready in {time.perf_counter() - tic:.2f} s (Numba: compiled on the first run, "
           f"then loaded from its cache)")
-    noise = dict(leak_rate_hz=0.1, shot_noise_rate_hz=0.1)
+    noise = dict(leak_rate_hz=0.1, shot_noise_rate_hz=0.1, lowpass_form=args.lowpass_form)
     full = FocalPlane(1280, 720, 4.86e-6, 1.0)
     print(f"full sensor {full.width_px}x{full.height_px}, {args.seconds:g} s simulated, dt = 1 us, windows of 0.1 s,")
-    print("default noise (leak 0.1 Hz, shot noise 0.1 Hz per polarity), one spot moving at 100 px/s:")
+    print(f"default noise (leak 0.1 Hz, shot noise 0.1 Hz per polarity), one spot moving at 100 px/s, "
+          f"lowpass_form {args.lowpass_form}:")
     for label, peak, sky_step_s in (("faint source, peak 5e4 photon/s", 5e4, 0.0),
                                     ("bright source, peak 3e5 photon/s", 3e5, 0.0),
                                     ("bright source, sky brightening every 0.1 s", 3e5, 0.1)):
@@ -110,7 +113,7 @@ def main() -> None:
         return
     crop = FocalPlane(args.crop, args.crop, 4.86e-6, 1.0)
     crop_source = dict(background=2e3, peak=3e5, start_xy=(4.0, args.crop / 2), velocity_px_s=(args.crop / args.crop_seconds * 0.8, 0.0))
-    crop_noise = dict(leak_rate_hz=2.0, shot_noise_rate_hz=2.0, time_step_s=1e-5)
+    crop_noise = dict(leak_rate_hz=2.0, shot_noise_rate_hz=2.0, time_step_s=1e-5, lowpass_form=args.lowpass_form)
     ref, ref_wall, _ = simulate("reference", crop, args.crop_seconds, 0.05, crop_source, **crop_noise)
     fast, fast_wall, _ = simulate("fast", crop, args.crop_seconds, 0.05, crop_source, **crop_noise)
     print(f"crop {args.crop}x{args.crop}, {args.crop_seconds:g} s, dt = 10 us, noise raised to see its statistics")

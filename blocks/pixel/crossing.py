@@ -54,13 +54,11 @@ def power(log_a, j):
 
 
 @inline
-def one_minus_power(x):
-    """``1 - e^x`` for ``x <= 0`` (``1 - a^j`` with ``x = j ln a``), to a relative ~1e-11 also where ``e^x`` is near 1.
-
-    Series below ``|x| = 1e-5`` (error ``x^4/24``), :func:`.fastmath.exp_` above; 1 where :func:`power` flushes."""
+def one_minus_power(x, decay):
+    """``1 - a^j`` for ``x = j ln a <= 0`` and ``decay = a^j`` (:func:`power`), to a relative ~1e-11 also where
+    ``a^j`` is near 1: the series of ``1 - e^x`` below ``|x| = 1e-5`` (error ``x^4/24``), ``1 - decay`` above."""
     series = -x * (1.0 + x * (0.5 + x * (1.0 / 6.0)))
-    direct = 1.0 - exp_(x) if x > -707.0 else 1.0
-    return series if x > -1e-5 else direct
+    return series if x > -1e-5 else 1.0 - decay
 
 
 @inline
@@ -74,7 +72,7 @@ def relaxation(d, e, x, decay, large):
     ``1 - a^j`` apart (:func:`one_minus_power`) so that it stays finite for any step.
     """
     if large:
-        return -log_(one_minus_power(x) + e * decay)
+        return -log_(one_minus_power(x, decay) + e * decay)
     return d * decay
 
 
@@ -88,7 +86,7 @@ def large_weight(d):
 def relaxation_slope(d, e, log_a, x, decay, large):
     """``d/dj`` of :func:`relaxation` (Newton's method)."""
     if large:
-        return -log_a * (e - 1.0) * decay / (one_minus_power(x) + e * decay)
+        return -log_a * (e - 1.0) * decay / (one_minus_power(x, decay) + e * decay)
     return d * decay * log_a
 
 
