@@ -56,11 +56,20 @@ def live_stamps(irradiance: Irradiance, samples: np.ndarray) -> tuple[np.ndarray
     window's work and memory follow the sources on the detector in it, not those of the whole run.
     """
     flux = np.asarray(irradiance.stamp_flux)
-    n_t, n_stamps = flux.shape[:2]
-    adds = np.zeros((n_t, n_stamps), bool)
-    for k in np.unique(samples):                 # one sample at a time: no copy of the window's stamps
-        np.any(flux[k].reshape(n_stamps, -1) != 0, axis=1, out=adds[k])
-    return np.nonzero(adds[samples])
+    adds = np.zeros((samples.size, flux.shape[1]), np.bool_)
+    _adds_flux(flux.reshape(*flux.shape[:2], -1), np.asarray(samples, dtype=np.int64), adds)
+    return np.nonzero(adds)
+
+
+@numba.njit(cache=True, nogil=True)
+def _adds_flux(flux, samples, out):
+    """``out[i, s]``: stamp ``s`` has a non-zero (or NaN) value at sample ``samples[i]`` (``flux`` [n_t, S, pixels])."""
+    for i in range(samples.size):
+        for s in range(flux.shape[1]):
+            for value in flux[samples[i], s]:
+                if value != 0:
+                    out[i, s] = True
+                    break
 
 
 def stamp_pixels(irradiance: Irradiance, samples: np.ndarray) -> StampPixels:

@@ -75,6 +75,25 @@ class EventMetrics(Block):
         self.last_xy = None        # float64 [n_src, 2] last known position of each source (track continuity)
         self.order = {"last_t_a": -1, "max_before_last": np.iinfo(np.int64).min, "max_all": np.iinfo(np.int64).min}
         self._box = _box_offsets(self.params.track_radius_px)
+        self._sums: dict[str, int] | None = None     # running sums over image and tracks (see _track_sums)
+
+    def set_state(self, state: dict) -> None:
+        super().set_state(state)
+        if self.image is not None:          # counted into through flat views
+            self.image, self.tracks = np.ascontiguousarray(self.image), np.ascontiguousarray(self.tracks)
+        self._sums = None
+
+    def _track_sums(self) -> dict[str, int]:
+        """Recorded events in all, and pixels and their recorded events near any source and near a satellite,
+        kept up to date as events and track pixels come (so that the running figures cost no pass over the
+        frame each window); worked out from ``image`` and ``tracks`` after a restart."""
+        if self._sums is None:
+            source, satellite = (self.tracks & SOURCE_BIT) != 0, (self.tracks & SATELLITE_BIT) != 0
+            self._sums = {"events": int(self.image.sum()),
+                          "source_pixels": int(np.count_nonzero(source)), "source_events": int(self.image[source].sum()),
+                          "satellite_pixels": int(np.count_nonzero(satellite)),
+                          "satellite_events": int(self.image[satellite].sum())}
+        return self._sums
 
     # -- accumulation -----------------------------------------------------------------------------
     def step(self, window: Window, triggered: TriggeredEvents, events: Events,
@@ -95,7 +114,12 @@ class EventMetrics(Block):
         c["recorded_by_cause"] = [a + int(b) for a, b in zip(c["recorded_by_cause"], by_cause)]
         if len(events):
             index = events.y.astype(np.int64) * fp.width_px + events.x.astype(np.int64)
-            self.image += np.bincount(index, minlength=self.image.size).reshape(fp.shape)
+            sums = self._track_sums()
+            np.add.at(self.image.reshape(-1), index, 1)
+            marks = self.tracks.reshape(-1)[index]
+            sums["events"] += index.size
+            sums["source_events"] += int(np.count_nonzero(marks & SOURCE_BIT))
+            sums["satellite_events"] += int(np.count_nonzero(marks & SATELLITE_BIT))
             self._delays(events.t_readout_ns - events.t_trigger_ns)
             c["out_of_order"] += self._out_of_order(events.t_readout_ns, events.t_trigger_ns)
         if sources is not None:
@@ -140,7 +164,7 @@ class EventMetrics(Block):
             return
         seen = np.where(np.isfinite(xy).all(axis=-1, keepdims=True), xy, np.nan)
         self.last_xy = seen[-1].copy()          # NaN if the source was lost: the next window starts afresh
-        for s in range(xy.shape[1]):
+        for s in np.flatnonzero(np.isfinite(seen[..., 0]).any(axis=0)):      # the sources seen in this window
             bit = SOURCE_BIT | (SATELLITE_BIT if sources.kind[s] == SourceKind.SATELLITE else 0)
             points = densify(seen[:, s])
             if points.size:
@@ -155,7 +179,14 @@ class EventMetrics(Block):
         near = (((pix - np.repeat(points, self._box.shape[0], axis=0)) ** 2).sum(axis=1) <= r * r)
         near &= (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
         pix = pix[near]
-        self.tracks[pix[:, 1], pix[:, 0]] |= np.uint8(bit)
+        index = np.unique(pix[:, 1] * w + pix[:, 0])
+        tracks, sums = self.tracks.reshape(-1), self._track_sums()
+        for mark, name in ((SOURCE_BIT, "source"), (SATELLITE_BIT, "satellite")):
+            if bit & mark:
+                new = index[(tracks[index] & mark) == 0]
+                sums[f"{name}_pixels"] += new.size
+                sums[f"{name}_events"] += int(self.image.reshape(-1)[new].sum())
+        tracks[index] |= np.uint8(bit)
 
     # -- the figures ----------------------------------------------------------------------------------
     def summary(self, with_tracks: bool) -> Metrics:
@@ -191,17 +222,16 @@ class EventMetrics(Block):
                 values[f"readout_delay_p{q:g}_s".replace(".", "_")] = self.delay_percentile(q) / NS_PER_S
             units.update({name: "s" for name in values if name.startswith("readout_delay")})
         if self.image is not None and duration_s > 0:
-            background = (self.tracks & SOURCE_BIT) == 0 if with_tracks else np.ones(self.image.shape, bool)
-            n_bg = int(np.count_nonzero(background))
-            rate = _ratio(int(self.image[background].sum()), n_bg * duration_s)
+            sums = self._track_sums()
+            n_bg = self.image.size - (sums["source_pixels"] if with_tracks else 0)
+            rate = _ratio(sums["events"] - (sums["source_events"] if with_tracks else 0), n_bg * duration_s)
             values["background_rate_hz_per_pixel"] = rate
             values["background_pixels"] = n_bg
             units.update(background_rate_hz_per_pixel="Hz pixel^-1", background_pixels="pixel")
             if with_tracks:
-                track = (self.tracks & SATELLITE_BIT) != 0
-                n_track = int(self.image[track].sum())
-                expected_bg = rate * int(np.count_nonzero(track)) * duration_s
-                values.update(track_pixels=int(np.count_nonzero(track)), track_events=n_track,
+                n_track, track_pixels = sums["satellite_events"], sums["satellite_pixels"]
+                expected_bg = rate * track_pixels * duration_s
+                values.update(track_pixels=track_pixels, track_events=n_track,
                               track_background_events=expected_bg,
                               track_snr=(n_track - expected_bg) / np.sqrt(n_track) if n_track else 0.0)
                 units.update(track_pixels="pixel", track_events="event", track_background_events="event",

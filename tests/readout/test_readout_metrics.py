@@ -200,3 +200,32 @@ def test_state_round_trip_continues_identically():
     m3.set_state(m2.get_state())
     m3.step(Window(1, 35, 60), triggered=trig(2), events=b)
     assert m1.finish()["metrics"].values == m3.finish()["metrics"].values
+
+
+def test_state_round_trip_with_tracks_continues_identically():
+    """The running track and background sums are worked out again from the image and tracks after a restart."""
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.integers(0, 100, 400))
+    x, y = rng.integers(0, 64, 400), rng.integers(0, 48, 400)
+    windows = [(0, 50), (50, 100)]
+    path = {0: ([10], [5.0], [20.0]), 1: ([60], [40.0], [30.0])}
+
+    def step(m, i):
+        lo, hi = windows[i]
+        sel = (t >= lo) & (t < hi)
+        return m.step(Window(i, lo, hi), triggered=trig(int(sel.sum())), events=recorded(t[sel], t[sel], x[sel], y[sel]),
+                      sources=satellite(FP, *(np.asarray(v) for v in path[i])))["metrics"].values
+
+    m1, m2 = EventMetrics(), EventMetrics()
+    step(m1, 0)
+    step(m2, 0)
+    m3 = EventMetrics()
+    m3.set_state(m2.get_state())
+    assert step(m1, 1) == step(m3, 1)
+    final = m3.finish()["metrics"].values
+    assert final == m1.finish()["metrics"].values
+    tube = (m3.tracks & 1).astype(bool)
+    counts = np.zeros((48, 64), int)
+    np.add.at(counts, (y, x), 1)
+    assert final["track_events"] == counts[tube].sum() > 0
+    assert final["background_pixels"] == (~tube).sum()
