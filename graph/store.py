@@ -125,6 +125,7 @@ class RunStore:
         self._truth_cache: dict[str, np.ndarray] | None = None
         #: set_metrics' values not yet written: earlier calls' (merged, JSON form), the latest call's, units
         self._pending_metrics: tuple[dict, dict, dict] = ({}, {}, {})
+        self._attrs_set: set[tuple[str, str]] = set()      # (group, attribute) known to be set (_set_attr_once)
 
     # -- opening ----------------------------------------------------------------------
     @classmethod
@@ -336,6 +337,16 @@ class RunStore:
                 if stale != name:
                     del self.group["checkpoint"][stale]
 
+    def _set_attr_once(self, group: str, name: str, make) -> None:
+        """Set attribute ``name`` of ``group`` to ``make()`` unless it has one; each (group, name) is looked up on
+        disk once per store object (a Zarr group's attributes cost milliseconds to read, and appends come every window)."""
+        if (group, name) in self._attrs_set:
+            return
+        attrs = self.group[group].attrs
+        if name not in attrs:
+            attrs[name] = make()
+        self._attrs_set.add((group, name))
+
     # -- events -----------------------------------------------------------------------------
     def append_events(self, events: dict[str, np.ndarray], focal_plane: PortValue | None = None) -> None:
         """Append recorded events (a dict with the :func:`event_fields`); durable after :meth:`commit`."""
@@ -346,8 +357,8 @@ class RunStore:
         for name, (dtype, attrs) in columns.items():
             self._append(f"events/{name}", np.asarray(events[name]).astype(dtype, copy=False),
                          EVENT_CHUNK_BYTES // dtype.itemsize, ("event",), attrs)
-        if focal_plane is not None and "focal_plane" not in self.group["events"].attrs:
-            self.group["events"].attrs["focal_plane"] = focal_plane.to_arrays()[1]
+        if focal_plane is not None:
+            self._set_attr_once("events", "focal_plane", lambda: focal_plane.to_arrays()[1])
 
     def append_table(self, group: str, columns: dict[str, np.ndarray], dim: str,
                      attrs: dict[str, dict[str, Any]] | None = None, chunk_bytes: int = PRODUCT_CHUNK_BYTES) -> None:
@@ -423,9 +434,7 @@ class RunStore:
                          ("window", f"{name}_axis"), {"units": "1"})
         self._append(f"{base}/_attrs", np.array([json.dumps(attrs)], dtype=np.dtypes.StringDType()), 1024,
                      ("window",), {"long_name": "each window's scalar fields (JSON)"})
-        group = self.group[base]
-        if "type" not in group.attrs:
-            group.attrs["type"] = type(value).type_name()
+        self._set_attr_once(base, "type", lambda: type(value).type_name())
 
     def has_product(self, block: str, port: str) -> bool:
         return f"products/{block}/{port}/_attrs" in self.group
@@ -479,9 +488,8 @@ class RunStore:
         """
         sources, rows, attrs = value.table()
         self._append_truth_table(block, sources, rows, attrs)
-        group = self.group["truth"]
-        if "focal_plane" not in group.attrs and isinstance(getattr(value, "focal_plane", None), PortValue):
-            group.attrs["focal_plane"] = value.focal_plane.to_arrays()[1]
+        if isinstance(getattr(value, "focal_plane", None), PortValue):
+            self._set_attr_once("truth", "focal_plane", lambda: value.focal_plane.to_arrays()[1])
 
     def _append_truth_table(self, block: str, sources: dict[str, np.ndarray], rows: dict[str, np.ndarray],
                             attrs: dict[str, dict]) -> None:
