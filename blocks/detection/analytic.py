@@ -21,12 +21,21 @@ events come looks later); a detector that reads ON events only counts none of th
 the look's middle, where they pile at the perpendicular offset of their pixel: the expected
 signal ``S(m)`` of the box. The background in the box is ``mu = r_bg T box^2``, with ``r_bg`` the
 leak, parasitic and shot-noise rates of Eqs. 18-20 at the sky's level (a shot event's rebound one
-refractory period later merged into it, as the detector does), and the detector's threshold
+refractory period later merged into it, as the detector does; the leaks fire ON events, so a detector
+reading ON events only counts them and the ON half of the shot noise), and the detector's threshold
 ``k`` follows from its false-alarm rate (:mod:`.significance`). Then
 
     P_d(m) = P(N >= k),   N ~ Poisson(mu + S(m)),
 
-and the magnitudes where ``P_d`` is 0.5 and 0.9 are the analytic limits. The *contrast limit*
+and the magnitudes where ``P_d`` is 0.5 and 0.9 are the analytic limits. A survey that matches its
+detections to a star catalogue reports instead the magnitude brighter than which a fraction ``q`` of
+the *matched* stars lie (D. G. Monet's 2022 limiting-magnitude figure: ``q`` = 0.9): with star counts
+growing as ``10^(a m)`` per unit magnitude up to the catalogue's end ``m_c``, that is the ``M`` with
+
+    int_{-inf}^{M} P_s(m) 10^(a m) dm = q int_{-inf}^{m_c} P_s(m) 10^(a m) dm,
+
+``P_s = (P_d - P_0) / (1 - P_0)`` the detections the star causes (``P_0`` the chance detection
+probability, ``P_d`` of a source too faint to add events). The *contrast limit*
 is the magnitude at which the best-centred pixel's rise reaches one ON threshold: the condition
 ``Delta L = theta_ON`` of McMahon-Crabtree & Monet (2021, Applied Optics 60(25), G144), here
 with the photoreceptor's lin-log response and bandwidth at the given motion.
@@ -97,13 +106,14 @@ class EventDesign:
     polarity: str = "both"          # events the detector reads: "both", "on" or "off"
 
 
-def background_rate_hz(pixel: PixelModel, sky_photon_s: float) -> float:
-    """Background events per second of a pixel under the sky alone, as the detector counts them [Hz]: the
-    junction leak (Eq. 18), the parasitic leak (Eq. 19) and shot noise of both polarities (Eq. 20; a shot
-    event's rebound is merged into it)."""
+def background_rate_hz(pixel: PixelModel, sky_photon_s: float, polarity: str = "both") -> float:
+    """Background events per second of a pixel under the sky alone, as a detector reading ``polarity`` counts
+    them [Hz]: the junction leak (Eq. 18) and the parasitic leak (Eq. 19), which lower the comparator's memory
+    and so fire ON events, and shot noise of each polarity (Eq. 20; a shot event's rebound is merged into it)."""
     drive = pixel.drive(np.array([sky_photon_s]))
-    shot_hz = 2.0 * float(drive.shot_p[0]) / pixel.dt_s
-    return pixel.params.leak_rate_hz + float(drive.parasitic_hz[0]) + shot_hz
+    shot_hz = float(drive.shot_p[0]) / pixel.dt_s                    # one polarity [Hz]
+    on_hz = pixel.params.leak_rate_hz + float(drive.parasitic_hz[0]) + shot_hz
+    return {"both": on_hz + shot_hz, "on": on_hz, "off": shot_hz}[polarity]
 
 
 def mean_inverse_threshold(mean: float, sigma: float, floor: float) -> float:
@@ -147,7 +157,7 @@ class EventLimit:
         p = design.pixel.params
         self.inv_theta_on = mean_inverse_threshold(p.threshold_on, p.threshold_sigma, p.threshold_floor)
         self.inv_theta_off = mean_inverse_threshold(p.threshold_off, p.threshold_sigma, p.threshold_floor)
-        self.background_hz = background_rate_hz(design.pixel, design.sky_photon_s)
+        self.background_hz = background_rate_hz(design.pixel, design.sky_photon_s, design.polarity)
         self.mu = self.background_hz * design.look_s * design.box_px**2
         p_thr = local_p_threshold(design.false_alarm_rate_per_hour_per_mpx, design.look_s, design.n_pixels,
                                   design.n_pixels * design.n_velocities)
@@ -210,6 +220,24 @@ class EventLimit:
             return float("nan")
         return float(optimize.brentq(f, bright, faint, xtol=1e-3))
 
+    def matched_magnitude(self, fraction: float, slope_dex_per_mag: float, faintest: float, bright: float = 0.0,
+                          step: float = 0.2) -> float:
+        """The magnitude brighter than which ``fraction`` of the stars this detector finds lie, on a sky whose star
+        counts grow as ``10^(slope m)`` up to ``faintest`` (module docstring) [mag]. ``S(m)`` is computed every
+        ``step`` magnitudes from ``bright`` (every star brighter is found) and interpolated in log."""
+        fine, p_d, chance = self.detection_curve(bright, faintest, step)
+        caused = np.clip((p_d - chance) / (1.0 - chance), 0.0, 1.0)
+        return matched_fraction_magnitude(fine, caused, slope_dex_per_mag, fraction)
+
+    def detection_curve(self, bright: float, faintest: float, step: float = 0.2) -> tuple[np.ndarray, np.ndarray, float]:
+        """``P_d`` on a 0.01 mag grid from ``bright`` to ``faintest`` (``S(m)`` computed every ``step`` magnitudes and
+        interpolated in log), and the chance detection probability ``P_0`` [1]."""
+        grid = np.arange(bright, faintest + step / 2, step)
+        signal = np.array([self.expected_events(m) for m in grid])
+        fine = np.arange(bright, faintest + 1e-9, 0.01)
+        s_fine = np.exp(np.interp(fine, grid, np.log(np.maximum(signal, 1e-300))))
+        return fine, poisson_p_value(self.k_threshold, self.mu + s_fine), float(poisson_p_value(self.k_threshold, self.mu))
+
     def time_constant_s(self, magnitude: float | None = None) -> float:
         """The photoreceptor's time constant (Eq. 16, ``1 / (2 pi f_3dB)``) under the sky alone, or with the
         whole flux of a source of ``magnitude`` on the pixel [s]."""
@@ -224,6 +252,18 @@ class EventLimit:
         if f(bright) < 0 or f(faint) > 0:
             return float("nan")
         return float(optimize.brentq(f, bright, faint, xtol=1e-3))
+
+
+def matched_fraction_magnitude(magnitudes: np.ndarray, probability: np.ndarray, slope_dex_per_mag: float,
+                               fraction: float) -> float:
+    """The magnitude brighter than which ``fraction`` of the detected stars lie [mag]: detection probability
+    ``probability`` on the ascending grid ``magnitudes``, star counts ``10^(slope m)`` per unit magnitude, every
+    star brighter than the grid detected (its share ``10^(slope m_0) / (slope ln 10)`` added at the start)."""
+    m = np.asarray(magnitudes, dtype=float)
+    density = np.asarray(probability, dtype=float) * 10.0 ** (slope_dex_per_mag * m)
+    brighter = 10.0 ** (slope_dex_per_mag * m[0]) / (slope_dex_per_mag * math.log(10.0))
+    cumulative = brighter + np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(m))])
+    return float(np.interp(fraction * cumulative[-1], cumulative, m))
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from scipy import constants
 
-from evsda.blocks.detection.analytic import EventDesign, EventLimit, PsfTable
+from evsda.blocks.detection.analytic import (EventDesign, EventLimit, PsfTable, background_rate_hz,
+                                             matched_fraction_magnitude)
 from evsda.blocks.detection.study import design_limit
 from evsda.blocks.pixel import DvsPixel
 from evsda.blocks.pixel.model import PixelModel
@@ -103,17 +104,19 @@ def test_gen4_setup_is_the_gen4_preset_unchanged_behind_the_135mm_lens():
 
 
 def test_fitted_gen3_dark_current_reproduces_the_measurement_it_was_fitted_to():
-    # The preset's dark current was fitted so that setup 1's contrast limit is McMahon-Crabtree & Monet's V 9.8;
-    # a change of the Gen3 preset (QE, thresholds, bandwidth) that moves it needs a new fit.
-    assert design_limit(str(EXAMPLES / "onsky_stare_85mm_vga.yaml")).contrast_limit() == pytest.approx(9.8, abs=0.05)
+    # The preset's dark current was fitted so that setup 1's predicted limit (Monet's statistic: 90 % of the stars
+    # found in 5 s slices of ON events brighter) is McMahon-Crabtree & Monet's V 9.8; a change of the Gen3 preset
+    # (QE, thresholds, bandwidth, noise) that moves it needs a new fit.
+    bench = _benchmark()
+    assert bench.predicted_limit(bench.SETUPS[0]) == pytest.approx(9.8, abs=0.05)
 
 
 def test_fit_inverts_a_known_limit_against_dark_current(monkeypatch):
     # The fit finds the dark current at which the criterion equals the measured limit, on a log scale over
     # six decades: a stand-in criterion m(J) = 2 - 1.25 log10(J) is inverted exactly.
     bench = _benchmark()
-    monkeypatch.setattr(bench, "contrast_limit",
-                        lambda path, overrides: 2.0 - 1.25 * math.log10(float(overrides[0].split("=")[1])))
+    monkeypatch.setattr(bench, "predicted_limit",
+                        lambda setup, overrides: 2.0 - 1.25 * math.log10(float(overrides[0].split("=")[1])))
     setup = bench.SETUPS[0]
     fitted = bench.fit_dark_current(setup, report=lambda *a: None)
     assert math.log10(fitted) == pytest.approx((2.0 - setup.measured) / 1.25, abs=0.01)
@@ -123,11 +126,51 @@ def test_what_a_miss_asks_inverts_a_known_limit_against_any_parameter(monkeypatc
     # The diagnostics solve for the one number at which a setup's criterion equals its measurement: a stand-in
     # criterion m(qe) = 10 + 2.5 log10(qe / 0.2) is inverted at qe = 0.2 * 10^((m - 10) / 2.5).
     bench = _benchmark()
-    monkeypatch.setattr(bench, "contrast_limit",
-                        lambda path, overrides: 10.0 + 2.5 * math.log10(float(overrides[0].split("=")[1]) / 0.2))
+    monkeypatch.setattr(bench, "predicted_limit",
+                        lambda setup, overrides: 10.0 + 2.5 * math.log10(float(overrides[0].split("=")[1]) / 0.2))
     setup = bench.SETUPS[1]
     asked = bench.value_matching(setup, "sensor/pixel.quantum_efficiency", 1e-3, 1.0)
     assert asked == pytest.approx(0.2 * 10 ** ((setup.measured - 10.0) / 2.5), rel=0.01)
+
+
+def test_g_limits_are_compared_in_v_through_gaias_colour_polynomial():
+    # Monet's limits are Gaia G; the comparison is in V: V = G - (G - V)(BP - RP), the polynomial of Riello et al.
+    # (2021, Table C.2), which at BP - RP = 0 is its constant and makes a star of the Sun's colour (0.82) about
+    # 0.15 mag brighter in G than in V; the 2021 limits are V already.
+    bench = _benchmark()
+    assert bench.g_minus_v(0.0) == pytest.approx(-0.02704)
+    assert bench.g_minus_v(0.82) == pytest.approx(-0.02704 + 0.01424 * 0.82 - 0.2156 * 0.82**2 + 0.01426 * 0.82**3)
+    gen4 = bench.SETUPS[4]
+    assert gen4.band == "G" and gen4.measured_v == pytest.approx(10.1 - bench.g_minus_v(0.82))
+    assert bench.SETUPS[0].measured_v == 9.8
+
+
+@pytest.mark.parametrize("slope, start", [(0.5, 0.0), (0.4, 6.0)])
+def test_matched_fraction_magnitude_is_the_closed_form_for_a_sharp_limit(slope, start):
+    # Every star brighter than m0 found, none fainter, counts growing as 10^(slope m): the cumulative count is
+    # 10^(slope m) / (slope ln 10) up to m0, so 90 % of the found stars lie brighter than m0 + log10(0.9) / slope,
+    # wherever the grid starts (the stars brighter than its start are counted in closed form).
+    m0 = 9.0
+    grid = np.arange(start, 12.0 + 1e-9, 0.001)
+    found = (grid < m0).astype(float)
+    value = matched_fraction_magnitude(grid, found, slope, 0.9)
+    assert value == pytest.approx(m0 + math.log10(0.9) / slope, abs=0.003)
+
+
+def test_background_counts_the_polarity_the_detector_reads():
+    # The junction and parasitic leaks fire ON events only (they lower the comparator's memory, Eqs. 18-19); shot
+    # noise fires each polarity at the rate of Eq. 20 (about R_n = 0.1 Hz in the dark). A detector reading ON events
+    # counts the leaks and one polarity of shot noise, one reading OFF events the other polarity only.
+    params = DvsPixel(leak_rate_hz=0.1, shot_noise_rate_hz=0.1, parasitic_rate_per_lux_hz=0.01).params
+    pixel = PixelModel(params, (15e-6) ** 2, 550e-9)
+    for flux in (0.0, 1e4):
+        drive = pixel.drive(np.array([flux]))
+        shot = float(drive.shot_p[0]) / pixel.dt_s
+        assert 0.05 < shot <= 0.1
+        assert background_rate_hz(pixel, flux, "off") == pytest.approx(shot)
+        assert background_rate_hz(pixel, flux, "on") == pytest.approx(0.1 + float(drive.parasitic_hz[0]) + shot)
+        assert background_rate_hz(pixel, flux, "both") == pytest.approx(
+            background_rate_hz(pixel, flux, "on") + background_rate_hz(pixel, flux, "off"))
 
 
 def test_off_events_count_only_the_fall_completed_within_the_look():
