@@ -15,7 +15,9 @@ references are exact for the grid:
    (piston removed; Noll 1976 Table IV's values are its ``L0 -> inf`` limit, printed beside);
 3. drift along a long walk: the lag-1 and footprint structure functions and the piston-removed
    variance in each tenth of the walk, and the structure function of one point's values over the
-   whole walk at lags up to half of it (a repeating screen would dip back towards 0).
+   whole walk at lags up to half of it (a repeating screen would dip back towards 0);
+4. image wander: a footprint drifting diagonally (0.3, 0.4 samples per frame, 3000 frames, as the
+   wind carries a static star's), the RMS difference between the mean tilts of the two halves.
 
 Every figure is the mean over ``--seeds`` independent screens with its standard error (the
 spread of the per-screen values / sqrt(seeds)), and the deviation in standard errors.
@@ -179,6 +181,27 @@ def main() -> None:
         per = np.array([[np.mean((x[k:] - x[:-k]) ** 2) for k in long_lags] for x in s])
         report("   one point's values over the walk: structure function at long lags", per,
                structure_function(long_lags * DELTA_M, 1.0, L0_M), [f"lag {k}" for k in long_lags])
+    shifts = np.array([wander(seed, across) for seed in range(min(args.seeds, 150))])
+    rms = np.sqrt(np.mean(shifts**2, axis=0))
+    print(f"4. image wander, {len(shifts)} drifting footprints: RMS difference of the halves' mean tilts "
+          f"x {rms[0]:.4f}, y {rms[1]:.4f} rad/sample (+- {rms.mean() / np.sqrt(2 * len(shifts)):.4f})")
+
+
+def wander(seed: int, across: int, frames: int = 3000, velocity=(0.3, 0.4)) -> np.ndarray:
+    """Difference between the mean tilts [rad per sample, r0 = 1 m] (x, y) of the second and first half of a
+    drifting footprint's frames."""
+    n = window_width(across)
+    grid = np.arange(across + 1.0)
+    x = grid - across / 2
+    xx, yy = np.meshgrid(x, x)
+    fit = np.linalg.pinv(np.c_[xx.ravel(), yy.ravel(), np.ones(xx.size)])
+    rows = 100 + velocity[0] * np.arange(frames)
+    cols = 100 + velocity[1] * np.arange(frames)
+    out_t = np.zeros((frames, across + 1, across + 1))
+    LayerScreen(n, DELTA_M, (20_000 + seed,), L0=L0_M).accumulate(rows[:, None] + grid, cols[:, None] + grid,
+                                                                  np.zeros(frames, np.int64), np.ones(frames), out_t)
+    tilt = out_t.transpose(0, 2, 1).reshape(frames, -1) @ fit.T
+    return tilt[frames // 2:, :2].mean(axis=0) - tilt[:frames // 2, :2].mean(axis=0)
 
 
 if __name__ == "__main__":

@@ -317,7 +317,10 @@ def test_geo_events_follow_it_while_the_stars_stay_put(geo_run):
     assert (on_geo | on_star).sum() >= 0.99 * signal.sum()
     # the GEO's events sit on its predicted position (centroid within a pixel) ...
     assert abs(dx[on_geo].mean()) < 1.0 and abs(dy[on_geo].mean()) < 1.0, (dx[on_geo].mean(), dy[on_geo].mean())
-    # ... and move with it, while the stars' events (scintillation, image motion) stay put
+    # ... and move with it, while the stars' events (scintillation, image motion) stay put: within 1 px, a third of
+    # the GEO's shift (turbulent image motion alone moves a star's event centroid by a few tenths of a pixel between
+    # the halves: 0.29 px with the sample screens' draws, 0.52 px with the B-spline coefficient screens', whose
+    # tilt wander is the same: benchmarks/screen_statistics.py section 4, 0.018-0.021 either way, +- 0.001)
     t_mid = (t[0] + t[-1]) / 2
     early, late = events["t_trigger_ns"] < t_mid, events["t_trigger_ns"] >= t_mid
     geo_shift = events["x"][on_geo & late].mean() - events["x"][on_geo & early].mean()
@@ -332,7 +335,7 @@ def test_geo_events_follow_it_while_the_stars_stay_put(geo_run):
             continue
         checked += 1
         for c in ("x", "y"):
-            assert abs(events[c][mine & late].mean() - events[c][mine & early].mean()) < 0.5
+            assert abs(events[c][mine & late].mean() - events[c][mine & early].mean()) < 1.0
     assert checked >= 1
 
 
