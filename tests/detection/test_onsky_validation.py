@@ -13,6 +13,7 @@ from scipy import constants
 
 from evsda.blocks.detection.analytic import (EventDesign, EventLimit, PsfTable, background_rate_hz,
                                              matched_fraction_magnitude)
+from evsda.blocks.detection.significance import poisson_p_value
 from evsda.blocks.detection.study import design_limit
 from evsda.blocks.pixel import DvsPixel
 from evsda.blocks.pixel.model import PixelModel
@@ -196,3 +197,15 @@ def test_off_events_count_only_the_fall_completed_within_the_look():
     tau = slow.time_constant_s()
     assert tau > 100 * 5.0
     assert slow.fall_fraction_in_look() == pytest.approx(5.0 / (2 * tau), rel=0.01)
+
+
+def test_matched_detector_holds_each_star_and_slice_to_the_chance_probability():
+    # Monet's detection in evsda: one test per catalogued star and 5 s slice (one trial velocity, the known track), ON
+    # events only; its count threshold k is the smallest with P(N >= k | mu) <= the chance probability, mu the ON
+    # background of the box over the slice (significance.py's rule with one trial per star).
+    bench = _benchmark()
+    detector = bench.matched_detector(bench.SETUPS[4].path, false_probability=1e-4)
+    assert detector.d.look_s == bench.SLICE_S == 5.0 and detector.d.polarity == "on" and detector.d.n_velocities == 1
+    assert detector.mu == pytest.approx(detector.background_hz * 5.0 * detector.d.box_px**2)
+    assert poisson_p_value(detector.k_threshold, detector.mu) <= 1e-4 < poisson_p_value(detector.k_threshold - 1,
+                                                                                           detector.mu)
