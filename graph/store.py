@@ -845,10 +845,14 @@ class _ChunkedWriter(io.RawIOBase):
         return size
 
     def close(self) -> None:
-        if not self.closed and self._pending:
-            self._store(self._pending)
-            self._pending = bytearray()
-        super().close()
+        """Store the last partial chunk; closed even when that fails (a full disk), so that nothing retries the
+        write later (Python closes unclosed streams when it collects them, at exit too, where Zarr hangs)."""
+        pending, self._pending = self._pending, bytearray()
+        try:
+            if not self.closed and pending:
+                self._store(pending)
+        finally:
+            super().close()
 
     def _store(self, data) -> None:
         start = self.size
