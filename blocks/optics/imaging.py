@@ -160,10 +160,18 @@ class Imager:
         return centre, scale
 
     # -- rendering --------------------------------------------------------------------------------
-    @staticmethod
-    def _seen(seen: np.ndarray | None, n: int) -> list:
-        """Per frame, what the pixels see (rate [pixel/s], source [photon/s], sky [photon/s per pixel]) or None."""
-        return [None] * n if seen is None else [tuple(row) for row in np.asarray(seen, dtype=float)]
+    def _paths(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None,
+               prepare: bool = False) -> list[str]:
+        """Each frame's path: the choice of its bin (:meth:`.PathChooser.keys`), made at the first frame of each
+        bin in order (and, with ``prepare``, the analytic path's table for that frame's zenith angle)."""
+        keys = self.chooser.keys(zenith_rad, range_m, seen)
+        chosen = {}
+        for i, key in enumerate(keys):
+            if key not in chosen:
+                chosen[key] = path = self.chooser.choose_key(key, float(zenith_rad[i]), source).path
+                if prepare and path in ANALYTIC_PATHS:
+                    self.path_named[path].renderer(zenith_rad[i])
+        return [chosen[key] for key in keys]
 
     def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> None:
         """Make the path choices and shared tables a track needs, so that sources can then render concurrently.
@@ -174,11 +182,7 @@ class Imager:
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), range_m.shape)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
         self.pupil_renderer
-        for z, r, v in zip(zenith_rad, range_m, self._seen(seen, len(range_m))):
-            if not self.chooser.is_chosen(z, r, v):
-                path = self.chooser.choose(z, r, source, v).path
-                if path in ANALYTIC_PATHS:
-                    self.path_named[path].renderer(z)
+        self._paths(source, zenith_rad, range_m, seen, prepare=True)
         if self.pupil.screen_method == "zernike" and self.atmosphere:
             self.pupil.pupil_modes
 
@@ -194,8 +198,7 @@ class Imager:
         origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
         size = self.geometry.stamp_size
         stamps = np.zeros((len(t_s), size, size))
-        paths = [self.chooser.choose(z, r, source, v).path
-                 for z, r, v in zip(zenith_rad, range_m, self._seen(seen, len(t_s)))]
+        paths = self._paths(source, zenith_rad, range_m, seen)
         for path in PATHS:
             idx = np.array([i for i, p in enumerate(paths) if p == path], dtype=int)
             if idx.size == 0:

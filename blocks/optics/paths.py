@@ -197,12 +197,35 @@ class PathChooser:
             return key
         return key + seen_key(*seen)
 
+    def keys(self, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> list[tuple]:
+        """:meth:`key` of every frame (``seen`` (F, 3) or None), the same numbers computed array-wise."""
+        z, r = np.asarray(zenith_rad, dtype=float), np.asarray(range_m, dtype=float)
+        turbulent = np.isfinite(z) & (self.imager.atmosphere is not None)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z_bin = np.where(turbulent, np.floor(z / ZENITH_BIN_RAD), -1.0).astype(np.int64)
+            far = ~np.isfinite(r) | (r >= FAR_RANGE_M)
+            r_bin = np.where(far, -1.0, np.floor(np.log(np.where(far, 1.0, r)) / np.log(RANGE_BIN_RATIO)))
+        base = list(zip(z_bin.tolist(), r_bin.astype(np.int64).tolist()))
+        if seen is None or self.pixels is None or self.forced_path != "auto":
+            return base
+        seen = np.asarray(seen, dtype=float)
+        rate = np.where(np.isfinite(seen[:, 0]), seen[:, 0], 0.0)
+        bins = []
+        for value, least in ((rate, STILL_RATE_PX_S), (seen[:, 1], 1.0), (seen[:, 2], 1.0)):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                logs = np.floor(np.log(np.where(value >= least, value, 1.0)) / np.log(SEEN_BIN_RATIO))
+            bins.append(np.where(value >= least, logs, -1.0).astype(np.int64).tolist())
+        return [b if b[0] < 0 else (*b, *extra) for b, extra in zip(base, zip(*bins))]
+
     def is_chosen(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> bool:
         return self.key(zenith_rad, range_m, seen) in self._choices
 
     def choose(self, zenith_rad: float, range_m: float, source: str = "", seen: tuple | None = None) -> PathChoice:
         """The path for these conditions (forced, or the cheapest within tolerance); logged once per bin."""
-        key = self.key(zenith_rad, range_m, seen)
+        return self.choose_key(self.key(zenith_rad, range_m, seen), zenith_rad, source)
+
+    def choose_key(self, key: tuple, zenith_rad: float, source: str = "") -> PathChoice:
+        """The path of a bin (:meth:`key`) met at ``zenith_rad`` [rad]: made and logged the first time."""
         if key not in self._choices:
             self.imager.ensure_geometry(zenith_rad)
             zenith, range_rep = representative_conditions(key[:2])
