@@ -54,10 +54,11 @@ OFF_WAIT_S = 0.2                  # time simulated after the fall: a dark pixel'
 ROI_SIDE = 10                     # NIST's ROIs: 10 x 10 pixels, the median latency over them [pixels]
 
 
-#: the laws the presets carried before the large-signal form: fitted to the ON rows alone with the small-signal filter
+#: the pixels the presets carried before the large-signal form: laws fitted to the ON rows alone with the small-signal
+#: filter (and the Gen3's dark current of then, fitted on sky on that law)
 SMALL_SIGNAL_FIT = {"prophesee_gen4": {"cutoff_exponent": 0.599, "cutoff_saturation": 5.42e4, "lowpass_form": "small_signal"},
                     "prophesee_gen3_vga": {"cutoff_exponent": 0.742, "cutoff_saturation": 2.33e5,
-                                           "lowpass_form": "small_signal"}}
+                                           "lowpass_form": "small_signal", "dark_current_density_A_m2": 1.55e-6}}
 
 
 def preset_pixel(name: str, saturation_scale: float = 1.0, **cutoff) -> tuple[DvsPixel, float]:
@@ -132,7 +133,7 @@ def print_fit(name: str, fit: BandwidthFit) -> None:
     print("  ln(measured / simulated + delay), ON: " + " ".join(f"{r:+.3f}" for r in np.log(meas / sim)[:, 0])
           + "; OFF: " + " ".join(f"{r:+.3f}" for r in np.log(meas / sim)[:, 1]) + " (the simulated pixel, 1 us steps)")
     old = SMALL_SIGNAL_FIT[name]
-    x, x_dark, block = row_currents(name)
+    x, x_dark, block = row_currents(name, **old)
     on_old, off_old = step_latencies_s(x, x_dark, block.params, old["cutoff_saturation"], old["cutoff_exponent"],
                                        "small_signal")
     on_old, off_old = np.exp(np.log(on_old).mean(0)), np.exp(np.log(off_old).mean(0))
@@ -159,10 +160,10 @@ class BandwidthFit:
     dark_cutoff_hz: float        # the fitted law at the dark current (the LED off) [Hz]
 
 
-def row_currents(name: str) -> tuple[np.ndarray, float, DvsPixel]:
-    """Normalised current x of the preset pixel at each NIST irradiance ``[LED, irradiance]``, the dark pixel's x,
-    and the pixel block."""
-    block, pitch_m = preset_pixel(name)
+def row_currents(name: str, **pixel) -> tuple[np.ndarray, float, DvsPixel]:
+    """Normalised current x of the preset pixel (parameters ``pixel`` changed) at each NIST irradiance
+    ``[LED, irradiance]``, the dark pixel's x, and the pixel block."""
+    block, pitch_m = preset_pixel(name, **pixel)
     logs = []
     for wavelength_m in LED_WAVELENGTHS_M:
         model = PixelModel(block.params, pitch_m**2, wavelength_m)
