@@ -15,6 +15,35 @@ WAVELENGTH_M = 550e-9
 PITCH_M = 5e-6
 
 
+CROSSING_HORIZON_STEPS = 400      # the longest search horizon of :func:`crossing_cases` [steps]
+
+
+def crossing_cases(seed: int, n: int, offset_sigma: float, relax_sigma: float, relax_share: float):
+    """Random inputs of :func:`crossing.first_crossing`: ``(c, d, log_a, delta, theta_on, theta_off, j0, horizon)``,
+    offsets ``c`` and relaxations ``d`` normal with the given spreads (``d`` zero outside ``relax_share`` of the
+    cases), filter gains from none to instant, leak drifts, thresholds 0.05-0.3 and horizons of 7-400 steps."""
+    rng = np.random.default_rng(seed)
+    c = rng.normal(0, offset_sigma, n)
+    d = rng.normal(0, relax_sigma, n) * (rng.random(n) < relax_share)
+    eps = rng.choice([0.0, 1e-3, 0.05, 0.5, 1.0], n)
+    with np.errstate(divide="ignore"):
+        log_a = np.log1p(-eps)
+    delta = rng.choice([0.0, 1e-4, 1e-3, 3e-2], n)
+    th_on, th_off = rng.uniform(0.05, 0.3, n), rng.uniform(0.05, 0.3, n)
+    j0 = rng.integers(1, 5, n)
+    horizon = rng.choice([CROSSING_HORIZON_STEPS, 50, 7], n)
+    return c, d, log_a, delta, th_on, th_off, j0, horizon
+
+
+def first_hits(g, th_on, th_off, j0, horizon):
+    """Stepping's answer for :func:`crossing_cases`: whether and at which step (1-based) ``g`` (n, steps) first
+    leaves the band ``(-theta_off, theta_on)`` within ``[j0, max(horizon, j0)]``."""
+    steps = np.arange(1, g.shape[1] + 1)
+    hit = ((g >= th_on[:, None]) | (g <= -th_off[:, None])) & (steps[None] >= j0[:, None]) \
+        & (steps[None] <= np.maximum(horizon, j0)[:, None])
+    return hit.any(axis=1), steps[np.argmax(hit, axis=1)]
+
+
 def focal_plane(width: int, height: int) -> FocalPlane:
     return FocalPlane(width, height, PITCH_M, 1.0)
 

@@ -15,7 +15,8 @@ from scipy.integrate import solve_ivp
 from evsda.blocks.pixel import DvsPixel, crossing, lowpass
 from evsda.blocks.pixel.model import PixelModel
 
-from .conftest import PITCH_M, WAVELENGTH_M, concat, focal_plane, simulate, uniform
+from .conftest import (CROSSING_HORIZON_STEPS, PITCH_M, WAVELENGTH_M, concat, crossing_cases, first_hits,
+                       focal_plane, simulate, uniform)
 
 QUIET = dict(leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0, threshold_sigma=0.0,
              refractory_period_s=0.0, dark_current_density_A_m2=0.0)
@@ -85,33 +86,20 @@ def test_large_signal_filter_is_the_small_signal_filter_near_equilibrium():
 
 def test_crossing_search_matches_stepping_the_large_signal_filter():
     # The closed-form search (crossing.py) against g(j) stepped in w = exp(-L) with NumPy, random cases.
-    rng = np.random.default_rng(3)
-    n, horizon_steps = 4000, 400
-    c = rng.normal(0, 0.3, n)
-    d = rng.normal(0, 2.0, n) * (rng.random(n) < 0.85)
-    eps = rng.choice([0.0, 1e-3, 0.05, 0.5, 1.0], n)
-    with np.errstate(divide="ignore"):
-        log_a = np.log1p(-eps)
-    delta = rng.choice([0.0, 1e-4, 1e-3, 3e-2], n)
-    th_on, th_off = rng.uniform(0.05, 0.3, n), rng.uniform(0.05, 0.3, n)
-    j0 = rng.integers(1, 5, n)
-    horizon = rng.choice([horizon_steps, 50, 7], n)
+    c, d, log_a, delta, th_on, th_off, j0, horizon = crossing_cases(3, 4000, 0.3, 2.0, 0.85)
     j, pol = crossing.first_crossing(j0, c, d, log_a, delta, th_on, th_off, horizon, True)
-    steps = np.arange(1, horizon_steps + 1)
+    steps = np.arange(1, CROSSING_HORIZON_STEPS + 1)
     # w_j / w_inf = 1 + (exp(-D) - 1) a^j  (e^-L relaxing to e^-Y)
     with np.errstate(divide="ignore", invalid="ignore"):
         decay = np.where(np.isinf(log_a)[:, None], 0.0, np.exp(steps[None] * log_a[:, None]))
     relax = -np.log1p(np.expm1(-d)[:, None] * decay)
     g = c[:, None] + relax + delta[:, None] * steps[None]
-    hit = ((g >= th_on[:, None]) | (g <= -th_off[:, None])) & (steps[None] >= j0[:, None]) \
-        & (steps[None] <= np.maximum(horizon, j0)[:, None])
-    found = hit.any(axis=1)
-    first = steps[np.argmax(hit, axis=1)]
+    found, first = first_hits(g, th_on, th_off, j0, horizon)
     # ties within rounding of a threshold may fall either side: allow one step where g is that close
     near = np.abs(np.minimum(np.abs(g - th_on[:, None]), np.abs(g + th_off[:, None]))) < 1e-12
     exact = j[found] == first[found]
     assert np.mean(exact) > 0.999 and np.all(exact | near[found].any(axis=1))
-    polarity = np.where(g[np.arange(n), first - 1] >= th_on, 1, -1)
+    polarity = np.where(g[np.arange(len(g)), first - 1] >= th_on, 1, -1)
     assert np.mean(pol[found] == polarity[found]) > 0.999
     assert np.all(j[~found] >= crossing.NEVER)
 

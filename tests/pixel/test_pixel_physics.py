@@ -9,6 +9,8 @@ from scipy import constants, stats
 from evsda.blocks.pixel import counter_rng, crossing, dark_current, lowpass, noise, photoreceptor
 from evsda.blocks.pixel.refractory import refractory_steps
 
+from .conftest import CROSSING_HORIZON_STEPS, crossing_cases, first_hits
+
 
 def test_responsivity_matches_the_papers_shortcut():
     # Eq. 12: R = eta q lambda / (h c) ~ eta lambda[um] / 1.23985
@@ -128,26 +130,13 @@ def test_counter_random_numbers_are_uniform_and_independent():
 
 
 def test_first_crossing_matches_stepping():
-    rng = np.random.default_rng(1)
-    n, horizon_steps = 5000, 400
-    c = rng.normal(0, 0.2, n)
-    d = rng.normal(0, 0.5, n) * (rng.random(n) < 0.8)
-    eps = rng.choice([0.0, 1e-3, 0.05, 0.5, 1.0], n)
-    with np.errstate(divide="ignore"):
-        log_a = np.log1p(-eps)
-    delta = rng.choice([0.0, 1e-4, 1e-3, 3e-2], n)
-    th_on, th_off = rng.uniform(0.05, 0.3, n), rng.uniform(0.05, 0.3, n)
-    j0 = rng.integers(1, 5, n)
-    horizon = rng.choice([horizon_steps, 50, 7], n)
+    c, d, log_a, delta, th_on, th_off, j0, horizon = crossing_cases(1, 5000, 0.2, 0.5, 0.8)
     j, pol = crossing.first_crossing(j0, c, d, log_a, delta, th_on, th_off, horizon)
-    steps = np.arange(1, horizon_steps + 1)
+    steps = np.arange(1, CROSSING_HORIZON_STEPS + 1)
     g = c[:, None] + d[:, None] * np.exp(steps[None] * log_a[:, None]) + delta[:, None] * steps[None]
-    hit = ((g >= th_on[:, None]) | (g <= -th_off[:, None])) & (steps[None] >= j0[:, None]) \
-        & (steps[None] <= np.maximum(horizon, j0)[:, None])
-    found = hit.any(axis=1)
-    first = steps[np.argmax(hit, axis=1)]
+    found, first = first_hits(g, th_on, th_off, j0, horizon)
     np.testing.assert_array_equal(j[found], first[found])
-    polarity = np.where(g[np.arange(n), first - 1] >= th_on, 1, -1)
+    polarity = np.where(g[np.arange(len(g)), first - 1] >= th_on, 1, -1)
     np.testing.assert_array_equal(pol[found], polarity[found])
     assert np.all(j[~found] >= crossing.NEVER)
 
