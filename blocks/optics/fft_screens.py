@@ -38,15 +38,41 @@ def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float,
     sources on every core).
     """
     amplitude, low = _spectra(int(n), float(delta), float(r0), float(L0), bool(subharmonics))
-    draws = rng.standard_normal((2, n, n))                        # the real parts' draws, then the imaginary parts'
-    draws *= amplitude
-    coefficients = np.empty((n, n), dtype=complex)
-    coefficients.real = draws[0]
-    coefficients.imag = draws[1]
-    screen = sfft.ifft2(coefficients, workers=1, overwrite_x=True)
+    screen = sfft.ifft2(_coefficients(rng, amplitude), workers=1, overwrite_x=True)
     if subharmonics:
         screen += _subharmonics(rng, *low)
     return screen.real, screen.imag                               # views: a caller keeping one copies only it
+
+
+def fft_phase_screen_corner(rng: np.random.Generator, n: int, m: int, delta: float, r0: float,
+                            L0: float = np.inf) -> np.ndarray:
+    """The first screen of :func:`fft_phase_screens` (with subharmonics), only its first ``m x m`` samples [rad]:
+    the same numbers bit for bit, from the same draws (``rng`` ends in the same state), for less work.
+
+    ``ifft2`` transforms the columns, scaled by ``1 / n^2``, then the rows (pocketfft applies the
+    whole factor on its first axis); here the rows' pass runs on the first ``m`` rows only and the
+    subharmonics are summed on them only (tests/optics/test_fft_screens.py checks the identity).
+    """
+    n, m = int(n), int(m)
+    amplitude, low = _spectra(n, float(delta), float(r0), float(L0), True)
+    columns = sfft.ifft(_coefficients(rng, amplitude), axis=0, norm="forward", workers=1, overwrite_x=True)[:m]
+    scale = np.float64(np.longdouble(1) / np.longdouble(n * n))  # pocketfft's factor, rounded from long double
+    columns.real *= scale
+    columns.imag *= scale
+    screen = sfft.ifft(columns, axis=1, norm="forward", workers=1, overwrite_x=True)
+    screen += _subharmonics(rng, *low, rows=m)
+    return np.ascontiguousarray(screen.real[:, :m])
+
+
+def _coefficients(rng: np.random.Generator, amplitude: np.ndarray) -> np.ndarray:
+    """Complex Gaussian Fourier coefficients of standard deviation ``amplitude``: the real parts' draws, then
+    the imaginary parts'."""
+    n = amplitude.shape[0]
+    draws = rng.standard_normal((2, n, n))
+    coefficients = np.empty((n, n), dtype=complex)
+    np.multiply(draws[0], amplitude, out=coefficients.real)
+    np.multiply(draws[1], amplitude, out=coefficients.imag)
+    return coefficients
 
 
 @lru_cache(maxsize=64)
@@ -76,13 +102,14 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool):
     return amplitude, (tuple(powers), ey, ex, ey.mean(axis=0), ex.mean(axis=1))
 
 
-def _subharmonics(rng: np.random.Generator, powers, ey, ex, ey_mean, ex_mean) -> np.ndarray:
-    """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3)."""
+def _subharmonics(rng: np.random.Generator, powers, ey, ex, ey_mean, ex_mean, rows: int | None = None) -> np.ndarray:
+    """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3); with
+    ``rows``, only its first ``rows`` rows (the same numbers)."""
     c = np.zeros((9, 9), dtype=complex)                          # block-diagonal: one 3 x 3 block per level
     for p, power in enumerate(powers):
         c[3 * p:3 * p + 3, 3 * p:3 * p + 3] = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) \
             * power                                              # c[iy, ix]
-    low = (ey @ c) @ ex                                          # the three levels in one product
+    low = (ey @ c)[:rows] @ ex                                   # the three levels in one product
     low -= ey_mean @ c @ ex_mean                                 # no piston
     return low
 

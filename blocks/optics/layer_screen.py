@@ -44,7 +44,7 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
-from .fft_screens import fft_phase_screens
+from .fft_screens import fft_phase_screen_corner
 from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, sample_grids_transposed
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
@@ -99,8 +99,7 @@ class LayerScreen:
         """B-spline coefficients of a window cut from an FFT screen twice as wide (cf. Johansson & Gavel 1994: the
         low orders kept), prefiltered where the truncated filter has every sample it needs."""
         n, half = self.n, PREFILTER_HALF_WIDTH
-        full, _ = fft_phase_screens(self._rng, max(2 * n, n + 2 * half), self.delta, 1.0, self.L0)
-        cut = full[: n + 2 * half, : n + 2 * half]
+        cut = fft_phase_screen_corner(self._rng, max(2 * n, n + 2 * half), n + 2 * half, self.delta, 1.0, self.L0)
         coefficients = correlate1d(correlate1d(cut, _TAPS, axis=0), _TAPS, axis=1)
         return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
 

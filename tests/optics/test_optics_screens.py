@@ -8,7 +8,12 @@ from scipy.integrate import IntegrationWarning
 from scipy.ndimage import map_coordinates, spline_filter
 
 from evsda.blocks.optics.autoregressive import extension_operator, spline_coefficient_covariance
-from evsda.blocks.optics.fft_screens import fft_phase_screens, radial_profile, structure_function_2d
+from evsda.blocks.optics.fft_screens import (
+    fft_phase_screen_corner,
+    fft_phase_screens,
+    radial_profile,
+    structure_function_2d,
+)
 from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
 from evsda.blocks.optics.layer_screen import PREFILTER_HALF_WIDTH, SELF_START_SAMPLES, LayerScreen
@@ -377,3 +382,15 @@ def test_modal_screens_change_continuously_and_keep_their_variance():
     np.testing.assert_allclose(many.var(axis=0) / variance, 1.0, atol=0.12)
     other = screen.coefficients(path[:5], np.ones(5))                   # another revisit epoch, another draw
     assert not np.allclose(other, a[:5])
+
+
+@pytest.mark.parametrize("n, m", [(256, 160), (301, 200), (526, 295), (602, 333), (1052, 558)])
+def test_fft_screen_corner_is_the_full_screens_corner_bit_for_bit(n, m):
+    """fft_phase_screen_corner (the reference probes' screens) against the full computation: the first screen
+    of fft_phase_screens cut to m x m, the same numbers and the generator left in the same state (odd sizes and
+    sizes with large prime factors, 263 and 43, take pocketfft's other algorithms)."""
+    full_rng, corner_rng = np.random.default_rng(n), np.random.default_rng(n)
+    full, _ = fft_phase_screens(full_rng, n, 0.013, 0.1, 25.0)
+    corner = fft_phase_screen_corner(corner_rng, n, m, 0.013, 0.1, 25.0)
+    assert np.array_equal(corner, full[:m, :m])
+    assert full_rng.bit_generator.state == corner_rng.bit_generator.state
