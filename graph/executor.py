@@ -139,13 +139,21 @@ class Executor:
     def _prepare(self) -> None:
         """What every window needs, worked out once: the blocks that step (those not loaded), their inputs,
         the event stream the store records, and a stopwatch per block."""
-        self.blocks: dict[str, Block] = {n: self.graph.nodes[n].block for n in self.order}
+        self.blocks: dict[str, Block] = {n: self._unused(n) for n in self.order}
         self.running = [n for n in self.order if n not in self.loaded]
         self.watch = Stopwatch([*self.running, STORE])
         self.event_output = self._event_output()
         #: each block's incoming connections as (source block, source port, input port)
         self.inputs_of = {n: [(c.src, c.src_port, c.dst_port) for c in self.graph.connections if c.dst == n]
                           for n in self.graph.nodes}
+
+    def _unused(self, name: str) -> Block:
+        """Block ``name``, built afresh (as the graph file builds it) if an earlier run of this graph set it up: a
+        block keeps its run's state, so a second run of one loaded graph would go on from the first one's end."""
+        node = self.graph.nodes[name]
+        if node.block.run_info is not None:
+            node.block = type(node.block)(node.block.params, name=node.block.name, seed=node.block.seed)
+        return node.block
 
     # -- planning --------------------------------------------------------------------------------
     def _consumed_ports(self, name: str, active: set[str]) -> set[str]:
