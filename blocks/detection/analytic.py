@@ -13,9 +13,15 @@ then gives on average exactly ``Delta L / theta_ON`` ON events (a rise smaller t
 fires with that probability), and the fall back ``max(0, c Delta L / theta_OFF - 1)`` OFF events,
 averaged over the per-pixel threshold spread. The fall follows the source's passage with the pixel's
 time constant under the sky, ``tau`` (Eq. 16): of a pixel crossed at a uniformly random moment of a
-look of ``T`` seconds, the fraction ``c = 1 - (tau / T)(1 - exp(-T / tau))`` of the fall lies inside
-the look (``c`` -> 1 for a fast pixel, -> ``T / (2 tau)`` for one much slower than the look, whose OFF
-events come looks later); a detector that reads ON events only counts none of them. Over a look of ``T`` seconds the track passes
+look of ``T`` seconds, the fraction ``c`` of the fall lies inside the look. With the small-signal filter
+``L - Y`` decays as ``exp(-t / tau)`` and ``c = 1 - (tau / T)(1 - exp(-T / tau))`` (``c`` -> 1 for a fast
+pixel, -> ``T / (2 tau)`` for one much slower than the look, whose OFF events come looks later). With the
+large-signal one (``lowpass_form: large_signal``, the first-order log photoreceptor of Delbruck & Mead
+1994) ``w = e^-L`` relaxes linearly to ``e^-Y`` at the same rate, so after a rise ``Delta L`` the fall left
+at ``t`` is ``-ln(1 - u e^(-t / tau))``, ``u = 1 - e^-Delta L``, and averaging over the crossing moment
+(``-ln(1 - z) = sum z^k / k``) gives ``c = 1 - [Li2(u) - Li2(u e^(-T / tau))] / ((T / tau) Delta L)``, Li2 the
+dilogarithm: the same ``c`` for a small rise, a larger one for a large rise (the fall starts at the speed
+of the brighter current); a detector that reads ON events only counts none of them. Over a look of ``T`` seconds the track passes
 ``omega T`` pixel centres per unit width of the band around it; the event detector's best box
 (:mod:`.event_detector`) collects the events of the pixels within its reach, each moved back to
 the look's middle, where they pile at the perpendicular offset of their pixel: the expected
@@ -54,7 +60,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import optimize, special, stats
 from scipy.interpolate import RegularGridInterpolator
 
 from evsda.blocks.pixel.model import PixelModel
@@ -191,7 +197,7 @@ class EventLimit:
         """Expected signal events ``S(m)`` in the detector's best box over one look [event]."""
         rise = self.rises(magnitude)
         on = rise * self.inv_theta_on
-        off = np.maximum(0.0, self.fall_fraction_in_look() * rise * self.inv_theta_off - 1.0)
+        off = np.maximum(0.0, self.fall_fraction_in_look(rise) * rise * self.inv_theta_off - 1.0)
         per_pixel = {"both": on + off, "on": on, "off": off}[self.d.polarity]
         step = 1.0 / OFFSETS_PER_PIXEL
         # the box reaches across the track over its extent along the direction perpendicular to the motion
@@ -201,14 +207,25 @@ class EventLimit:
         crossed = self.d.rate_px_s * self.d.look_s                     # pixel centres passed per unit width
         return float(crossed * window.max())
 
-    def fall_fraction_in_look(self) -> float:
-        """``c = 1 - (tau / T)(1 - exp(-T / tau))``: the mean fraction of a pixel's fall back to the sky (time
-        constant ``tau`` under the sky, Eq. 16) completed within the look ``T`` it was crossed in [1]."""
+    def fall_fraction_in_look(self, rise=0.0):
+        """The mean fraction ``c`` of a pixel's fall back to the sky (time constant ``tau`` under the sky, Eq. 16)
+        completed within the look ``T`` it was crossed in, after a rise ``rise`` [1] of its filtered level (module
+        docstring; the rise matters only in the large-signal form) [1], shaped as ``rise``."""
         drive = self.d.pixel.drive(np.array([self.d.sky_photon_s]))
         x = float(-drive.log_a[0]) / self.d.pixel.dt_s * self.d.look_s          # T / tau [1]
+        rise = np.asarray(rise, dtype=float)
         if x <= 0.0:
-            return 0.0                                                        # no bandwidth: the level never falls
-        return 1.0 if math.isinf(x) else float(1.0 + math.expm1(-x) / x)    # inf: no low-pass
+            return np.zeros_like(rise)[()]                                    # no bandwidth: the level never falls
+        if math.isinf(x):
+            return np.ones_like(rise)[()]                                     # no low-pass
+        small = 1.0 + math.expm1(-x) / x
+        if self.d.pixel.params.lowpass_form != "large_signal":
+            return np.full_like(rise, small)[()]
+        u = -np.expm1(-np.maximum(rise, 1e-300))                           # 1 - e^-Delta L [1]
+        dilog = special.spence(1.0 - u) - special.spence(1.0 - u * math.exp(-x))   # Li2(z) = spence(1 - z)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            large = 1.0 - dilog / (x * rise)
+        return np.where(rise > 1e-9, large, small)[()]                     # Delta L -> 0: the small-signal c
 
     def detection_probability(self, magnitude: float) -> float:
         return float(poisson_p_value(self.k_threshold, self.mu + self.expected_events(magnitude)))

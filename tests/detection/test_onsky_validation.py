@@ -199,6 +199,48 @@ def test_off_events_count_only_the_fall_completed_within_the_look():
     assert slow.fall_fraction_in_look() == pytest.approx(5.0 / (2 * tau), rel=0.01)
 
 
+def test_large_signal_fall_fraction_follows_the_photoreceptor_ode_and_the_pixels_steps():
+    # The large-signal photoreceptor (Delbruck & Mead 1994: C dV/dt = I - I_0 e^V) falls back from a rise Delta L
+    # as, in v = L - Y, dv/dt = a (1 - e^v), a = 1 / tau under the sky, v(0) = Delta L. Reference 1: that
+    # ODE by SciPy's solve_ivp; reference 2: the simulated pixel's own step (lowpass.large_signal_step at its dt and
+    # gain). The fall completed within the look, averaged over a crossing moment uniform in it, must be the
+    # analytic c; the small-signal c (1 - (tau/T)(1 - e^-T/tau), exponential fall) is 0.37 where they give 0.57.
+    from dataclasses import replace
+
+    from scipy.integrate import solve_ivp
+
+    from evsda.blocks.pixel import lowpass
+
+    params = DvsPixel(quantum_efficiency=0.2, knee_at_dark_current=True, threshold_sigma=0.0,
+                      dark_current_density_A_m2=2e-7, cutoff_max_hz=3000.0, cutoff_model="proportional",
+                      cutoff_saturation=10.0, lowpass_form="large_signal").params
+    pixel = PixelModel(params, (15e-6) ** 2, 550e-9)
+    design = EventDesign(pixel, _gaussian_psf(0.6), 3.0e7, 150.0, 0.4, 0.0, 1.0, 2, 5, 1.0, 65536)
+    tau = EventLimit(design).time_constant_s()
+    assert 1e-3 < tau < 0.1                                  # a few hundred pixel steps per tau at most
+    look = EventLimit(replace(design, look_s=tau))           # T / tau = 1: the fall half done in the look
+    rises = np.array([0.02, 0.5, 2.0, 5.0])
+    c = look.fall_fraction_in_look(rises)
+    small = 1.0 - (1.0 - math.exp(-1.0))
+    n_steps = int(round(tau / pixel.dt_s))
+    for rise, analytic in zip(rises, c):
+        # ODE: v and its running integral over [0, T]
+        sol = solve_ivp(lambda t, z: [(1.0 - math.exp(z[0])) / tau, z[0]], (0.0, tau), [rise, 0.0],
+                        rtol=1e-10, atol=1e-13, method="LSODA")
+        ode = 1.0 - sol.y[1, -1] / (tau * rise)
+        assert analytic == pytest.approx(ode, rel=1e-4)
+        # the pixel's steps, gain from its own rate: L <- large_signal_step(L, Y, eps)
+        gain = -math.expm1(-pixel.dt_s / tau)
+        level, remaining = rise, []
+        for _ in range(n_steps):
+            level = float(lowpass.large_signal_step(level, 0.0, gain))
+            remaining.append(level)
+        stepped = 1.0 - np.mean(remaining) / rise
+        assert analytic == pytest.approx(stepped, abs=2.0 / n_steps + 1e-4)
+    assert c[0] == pytest.approx(small, rel=0.01)             # a small rise: the small-signal c
+    assert c[2] > small + 0.15 and c[3] > c[2]                # a large one falls faster at first
+
+
 def test_matched_detector_holds_each_star_and_slice_to_the_chance_probability():
     # Monet's detection in evsda: one test per catalogued star and 5 s slice (one trial velocity, the known track), ON
     # events only; its count threshold k is the smallest with P(N >= k | mu) <= the chance probability, mu the ON
