@@ -289,10 +289,16 @@ class PointSourceOptics(Block):
 
         def render(job):
             s, key, tr, idx, seen = job
-            o, stamps, _ = imager.render(key, t_s[idx], tr["x"][idx], tr["y"][idx], tr["zenith"][idx], tr["range"][idx],
-                                         seen)
-            origin[idx, s] = o
-            flux[idx, s] = stamps * (tr["flux"][idx] * collected)[:, None, None]
+            # each stretch of consecutive render times in view; one after a render time out of view (this
+            # window's or the last one's, whose screens the window's end dropped) gets new screens
+            for part in np.split(np.arange(len(idx)), np.flatnonzero(np.diff(idx) > 1) + 1):
+                if idx[part[0]] > 0:
+                    imager.forget([key])
+                at = idx[part]
+                o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
+                                             tr["range"][at], seen[part])
+                origin[at, s] = o
+                flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
 
         # sources are independent (own screens, own slots of the output): render them on every core
         threads = min(worker_threads(), len(jobs))
@@ -303,6 +309,11 @@ class PointSourceOptics(Block):
             for job in jobs:
                 render(job)
 
+        # screens of the sources out of view at the window's last render time are dropped (a 60 s pupil_fft pass
+        # sweeps 1586 stars, ~96 kB of screens each): the rule reads render times only, so windows cannot change it
+        if len(t_ns):
+            in_view = {key for _, key, _, idx, _ in jobs if idx[-1] == len(t_ns) - 1}
+            imager.forget(sorted(imager.holding() - in_view))
         truth = truth_table(focal_plane, t_ns, [key.partition(":")[2] for key, _ in tracks], kinds,
                             [tr for _, tr in tracks])
         return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux), "truth": truth}

@@ -85,6 +85,9 @@ class Imager:
         #: PSFs rendered so far by each path (benchmarks compare the block's cost with theirs)
         self.frames_rendered: Counter = Counter()
         self._count_lock = threading.Lock()
+        #: screens dropped so far per source that has left the view (:meth:`forget`): its next screens are the
+        #: draw of this generation, never a reused seed stream
+        self.generations: dict[str, int] = {}
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -142,8 +145,22 @@ class Imager:
         return np.pi / self.wavelength * curvature[:, None, None] * r2[None]
 
     def source_seed(self, source: str, family: int) -> tuple:
-        """Seed of a source's screens: family 0 the pupil path's, 1 the reference path's."""
-        return (*self.seed, zlib.crc32(source.encode()), family)
+        """Seed of a source's screens: family 0 the pupil path's, 1 the reference path's, in the source's
+        generation ``g`` (screens dropped so far, :meth:`forget`) as the word ``family + 2 g``."""
+        return (*self.seed, zlib.crc32(source.encode()), family + 2 * self.generations.get(source, 0))
+
+    def holding(self) -> set[str]:
+        """Sources whose screens are held (pupil or reference path)."""
+        return set(self.pupil.screens) | set(self.pupil.modal_screens) | set(self.reference.screens)
+
+    def forget(self, sources) -> None:
+        """Drop the screens of sources that have left the view; one that comes back gets a new independent
+        draw (its generation, :meth:`source_seed`). A source with no screens is left as it is."""
+        for source in sources:
+            held = [store.pop(source, None) for store in (self.pupil.screens, self.pupil.modal_screens,
+                                                          self.reference.screens)]
+            if any(h is not None for h in held):
+                self.generations[source] = self.generations.get(source, 0) + 1
 
     def epochs_of(self, t_s: np.ndarray) -> np.ndarray:
         """Screen epoch of each time [1]: all screens are redrawn every ``screen_revisit_s``."""
@@ -215,6 +232,7 @@ class Imager:
             "geometry": None if self.geometry is None else self.geometry.state(),
             "screens": self.pupil.state(),
             "reference_screens": self.reference.state(),
+            "generations": dict(self.generations),
         }
 
     def set_state(self, state: dict) -> None:
@@ -224,5 +242,7 @@ class Imager:
         for path in ANALYTIC_PATHS:
             self.path_named[path].forget()
         self.chooser.forget()
+        self.generations = {str(k): int(v) for k, v in (state.get("generations") or {}).items()}
+        self.pupil.modal_screens = {}
         self.pupil.set_state(state.get("screens") or {})
         self.reference.set_state(state.get("reference_screens") or {})
