@@ -37,6 +37,7 @@ from .model import PixelModel
 from .deferred import SharedChanges, select_pixels
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
+from .own_changes import own_changes
 from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, run_chunk, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
@@ -125,12 +126,10 @@ class EventDrivenPixels:
         if steps.size:
             shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
             if touched.size:
-                values = np.repeat(background[None, :], touched.size, axis=0)          # [pixel, sample]
-                np.add.at(values, (np.searchsorted(touched, stamps.pixel), stamps.sample), stamps.flux)
-                before = np.concatenate([s["real"][touched, FLUX, None], values[:, :-1]], axis=1)
-                row, col = np.nonzero(values != before)                            # sorted by pixel, then step
-                own_pixel, own_step, own_flux = touched[row], steps[col].astype(np.int64), values[row, col]
-                s["off_background"] = touched[values[:, -1] != background[-1]]
+                row, col, own_flux, off = own_changes(s["real"][touched, FLUX], background,
+                                                      np.searchsorted(touched, stamps.pixel), stamps.sample, stamps.flux)
+                own_pixel, own_step = touched[row], steps[col].astype(np.int64)       # sorted by pixel, then step
+                s["off_background"] = touched[off]
         first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
         kept = s["shared_step"].size                          # changes from before this window

@@ -1,0 +1,88 @@
+"""Where the pixel block's CPU goes per window in the tracked pass (issue 13): GIL-held Python and NumPy
+against the compiled ``nogil`` kernels.
+
+Runs ``benchmarks/end_to_end.yaml`` for ``--duration`` simulated seconds keeping the pixel block's
+inputs, then steps a fresh copy of the block over them again (windows after the first) under cProfile
+with a CPU-time clock, and prints, per window: the block's CPU (every thread), the compiled kernels it
+calls on its own thread (``nogil``: they run beside other blocks' steps), and the rest, held under the
+GIL, with its largest items. The events' digest is printed to compare versions.
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import copy
+import hashlib
+import pstats
+import tempfile
+import time
+from pathlib import Path
+
+from evsda.blocks.pixel import block as pixel_block
+from evsda.graph.executor import run_graph
+from evsda.graph.graphfile import load_graph
+
+GRAPH = Path(__file__).with_name("end_to_end.yaml")
+#: compiled kernels the block calls on its own thread, all ``nogil``
+KERNELS = ("select_pixels", "take_quietly", "drive_rows", "own_changes", "_adds_flux", "_sum_stamps")
+
+
+def pixel_inputs(duration_s: float) -> tuple[pixel_block.DvsPixel, list]:
+    """A fresh copy of the pass's pixel block and its (window, irradiance) inputs."""
+    kept: dict = {"block": None, "inputs": []}
+    step = pixel_block.DvsPixel.step
+
+    def keeping(self, window, irradiance):
+        if kept["block"] is None:
+            kept["block"] = copy.deepcopy(self)
+        kept["inputs"].append((window, irradiance))
+        return step(self, window, irradiance)
+
+    pixel_block.DvsPixel.step = keeping
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            run_graph(load_graph(str(GRAPH), [f"run.duration_s={duration_s}"]), Path(tmp) / "run", progress=False)
+    finally:
+        pixel_block.DvsPixel.step = step
+    return kept["block"], kept["inputs"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=2.0, help="simulated seconds of the pass [s]")
+    args = parser.parse_args()
+    block, inputs = pixel_inputs(args.duration)
+    digest = hashlib.sha256()
+    window, irradiance = inputs[0]
+    block.step(window, irradiance=irradiance)                    # start-up and compiled loops' load, not timed
+    profile = cProfile.Profile(time.process_time)
+    cpu = time.process_time()
+    profile.enable()
+    for window, irradiance in inputs[1:]:
+        events = block.step(window, irradiance=irradiance)["events"]
+        for name in ("t_ns", "x", "y", "p", "cause"):
+            digest.update(getattr(events, name).tobytes())
+        digest.update(str(events.n_loss).encode())
+    profile.disable()
+    cpu = time.process_time() - cpu
+    n = len(inputs) - 1
+    kernels, held = {}, []
+    for (path, _, name), (_, _, own_s, _, _) in pstats.Stats(profile).stats.items():
+        if name in KERNELS:
+            kernels[name] = kernels.get(name, 0.0) + own_s
+        elif "acquire" not in name and name != "wait":            # waits: the pixel chunks' threads
+            held.append((own_s, f"{Path(path).name}:{name}"))
+    print(f"pixel block, {n} windows of the {args.duration:g} s tracked pass (windows after the first), per window:")
+    print(f"  CPU (every thread, profiled) {cpu / n * 1e3:.1f} ms")
+    print("  compiled nogil kernels on the block's thread: "
+          + ", ".join(f"{k} {v / n * 1e3:.1f} ms" for k, v in sorted(kernels.items(), key=lambda kv: -kv[1])))
+    print(f"  GIL-held Python and NumPy {sum(s for s, _ in held) / n * 1e3:.1f} ms; largest: "
+          + ", ".join(f"{name} {s / n * 1e3:.2f}" for s, name in sorted(held, reverse=True)[:6]))
+    print(f"  events' digest {digest.hexdigest()[:16]}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,55 @@
+"""The input changes of the pixels under stamps in one window, from the sparse stamp list (compiled)."""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
+def own_changes(held, background, row_of, sample, flux):
+    """Where the photon flux of each listed pixel changes in a window: ``(row, column, value, off)``.
+
+    Pixel ``i`` (of ``held.size``, sorted; ``held[i]`` its flux before the window [photon s^-1])
+    sees ``background[k]`` at sample ``k`` plus the stamp flux ``flux[e]`` of every entry ``e`` with
+    ``row_of[e] == i`` and ``sample[e] == k`` (entries sorted by sample), added in the entries' order.
+    Returns the (pixel, sample) pairs whose value differs from the pixel's previous one, sorted by
+    pixel then sample, their values, and ``off``: whether each pixel's last value differs from the
+    last background. The same values and order as filling the dense ``[pixel, sample]`` table and
+    comparing each column with the one before, without the table.
+    """
+    n, k_max, m = held.size, background.size, row_of.size
+    start = np.zeros(n + 1, np.int64)                # the entries by pixel, then sample (stable counting sort)
+    for e in range(m):
+        start[row_of[e] + 1] += 1
+    for i in range(n):
+        start[i + 1] += start[i]
+    fill = start[:-1].copy()
+    order = np.empty(m, np.int64)
+    for e in range(m):
+        order[fill[row_of[e]]] = e
+        fill[row_of[e]] += 1
+    n_background = 0                                 # a pixel's value changes only at sample 0, at a change
+    for k in range(1, k_max):                        # of the background, at its entries and after them
+        n_background += background[k] != background[k - 1]
+    capacity = n * (1 + n_background) + 2 * m
+    rows = np.empty(capacity, np.int64)
+    columns = np.empty(capacity, np.int64)
+    values = np.empty(capacity)
+    off = np.zeros(n, np.bool_)
+    out = 0
+    for i in range(n):
+        previous = held[i]
+        e, e_end = start[i], start[i + 1]
+        value = previous
+        for k in range(k_max):
+            value = background[k]
+            while e < e_end and sample[order[e]] == k:
+                value = value + flux[order[e]]
+                e += 1
+            if value != previous:
+                rows[out], columns[out], values[out] = i, k, value
+                out += 1
+            previous = value
+        off[i] = k_max > 0 and value != background[k_max - 1]
+    return rows[:out].copy(), columns[:out].copy(), values[:out].copy(), off

@@ -1,0 +1,34 @@
+"""The compiled input changes of pixels under stamps equal the dense [pixel, sample] table's (the former NumPy form)."""
+
+import numpy as np
+import pytest
+
+from evsda.blocks.pixel.own_changes import own_changes
+
+
+def dense_changes(held, background, row_of, sample, flux):
+    """Fill the dense table, add the stamp entries in order, compare each column with the one before."""
+    values = np.repeat(background[None, :], held.size, axis=0)
+    np.add.at(values, (row_of, sample), flux)
+    before = np.concatenate([held[:, None], values[:, :-1]], axis=1)
+    row, col = np.nonzero(values != before)
+    return row, col, values[row, col], values[:, -1] != background[-1]
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_own_changes_match_the_dense_table(seed):
+    rng = np.random.default_rng(seed)
+    n, k = int(rng.integers(1, 30)), int(rng.integers(1, 12))
+    background = rng.choice([1.0, 1.5, 2.0], size=k)
+    if seed % 3 == 0:
+        background[:] = background[0]                                  # a held background
+    if seed % 5 == 1:
+        background[rng.integers(0, k)] = np.nan                        # NaN is a change each time, as in NumPy
+    m = int(rng.integers(0, 3 * n))
+    sample = np.sort(rng.integers(0, k, m))                            # entries by sample (duplicates allowed)
+    row_of = rng.integers(0, n, m)
+    flux = rng.choice([0.0, 0.5, 1e-17, 3.0], size=m)
+    held = rng.choice([1.0, 1.5, 2.5], size=n)
+    got, want = own_changes(held, background, row_of, sample, flux), dense_changes(held, background, row_of, sample, flux)
+    for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
