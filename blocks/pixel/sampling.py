@@ -83,21 +83,48 @@ def stamp_pixels(irradiance: Irradiance, samples: np.ndarray) -> StampPixels:
     empty = np.zeros(0, np.int64)
     if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0 or flux.shape[2] * flux.shape[3] == 0:
         return StampPixels(empty, empty, np.zeros(0))
-    _, _, h, w = flux.shape
     which, stamp = live_stamps(irradiance, samples)
     if which.size == 0:
         return StampPixels(empty, empty, np.zeros(0))
-    origin = np.asarray(irradiance.stamp_origin)[samples[which], stamp].astype(np.int64)   # [P, 2]
-    rows = origin[:, 1, None, None] + np.arange(h)[None, :, None]                           # [P, h, 1]
-    cols = origin[:, 0, None, None] + np.arange(w)[None, None, :]                           # [P, 1, w]
-    rows, cols = np.broadcast_arrays(rows, cols)
-    inside = (rows >= 0) & (rows < height) & (cols >= 0) & (cols < width)
-    values = flux[samples[which], stamp]                                                     # [P, h, w]
-    which = np.broadcast_to(which[:, None, None], inside.shape)
-    key = which[inside] * np.int64(height * width) + rows[inside] * width + cols[inside]
-    unique, inverse = np.unique(key, return_inverse=True)
-    summed = np.bincount(inverse, weights=values[inside], minlength=unique.size)
-    return StampPixels(unique // (height * width), unique % (height * width), summed)
+    key, summed = _summed_stamps(flux, np.asarray(irradiance.stamp_origin), np.asarray(samples, dtype=np.int64),
+                                 which.astype(np.int64), stamp.astype(np.int64), height, width)
+    return StampPixels(key // (height * width), key % (height * width), summed)
+
+
+@numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
+def _summed_stamps(flux, origin, samples, which, stamp, height, width):
+    """``(key, flux)`` of :func:`stamp_pixels`: keys ``which * height * width + pixel`` of the live stamps' pixels
+    on the sensor (``which``, ``stamp``: :func:`live_stamps`, sorted by sample), sorted and unique, and each key's
+    flux summed from 0 in the stamps' order (``flux`` [n_t, S, h, w], ``origin`` [n_t, S, 2] column, row)."""
+    h, w = flux.shape[2], flux.shape[3]
+    keys = np.empty(which.size * h * w, np.int64)
+    values = np.empty(which.size * h * w)
+    unique = np.empty(which.size * h * w, np.int64)
+    summed = np.zeros(which.size * h * w)
+    m, u, i = 0, 0, 0
+    while i < which.size:                            # the stamps of one sample at a time: its keys sort alone
+        first = m
+        sample = which[i]
+        while i < which.size and which[i] == sample:
+            k, s = samples[which[i]], stamp[i]
+            col0, row0 = np.int64(origin[k, s, 0]), np.int64(origin[k, s, 1])
+            for a in range(h):
+                row = row0 + a
+                if 0 <= row < height:
+                    for b in range(w):
+                        col = col0 + b
+                        if 0 <= col < width:
+                            keys[m] = sample * np.int64(height * width) + row * width + col
+                            values[m] = flux[k, s, a, b]
+                            m += 1
+            i += 1
+        order = np.argsort(keys[first:m], kind="mergesort")   # stable: a key's additions keep the stamps' order
+        for j in order:
+            if u == 0 or keys[first + j] != unique[u - 1]:
+                unique[u] = keys[first + j]
+                u += 1
+            summed[u - 1] += values[first + j]
+    return unique[:u].copy(), summed[:u].copy()
 
 
 def dense_frames(irradiance: Irradiance, samples: np.ndarray) -> np.ndarray:
