@@ -72,18 +72,18 @@ def _adds_flux(flux, samples, out):
                     break
 
 
-def stamp_pixels(irradiance: Irradiance, samples: np.ndarray) -> StampPixels:
+def stamp_pixels(irradiance: Irradiance, samples: np.ndarray, live=None) -> StampPixels:
     """The stamps of ``samples`` as sparse (sample, pixel, flux) triples, clipped to the sensor and summed.
 
-    Only the stamps that add flux (:func:`live_stamps`) are listed; each pixel's flux is summed from 0 in the
-    stamps' order.
+    Only the stamps that add flux (:func:`live_stamps`; ``live``: its result when the caller has it) are
+    listed; each pixel's flux is summed from 0 in the stamps' order.
     """
     height, width = irradiance.focal_plane.shape
     flux = np.asarray(irradiance.stamp_flux)
     empty = np.zeros(0, np.int64)
     if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0 or flux.shape[2] * flux.shape[3] == 0:
         return StampPixels(empty, empty, np.zeros(0))
-    which, stamp = live_stamps(irradiance, samples)
+    which, stamp = live_stamps(irradiance, samples) if live is None else live
     if which.size == 0:
         return StampPixels(empty, empty, np.zeros(0))
     key, summed = _summed_stamps(flux, np.asarray(irradiance.stamp_origin), np.asarray(samples, dtype=np.int64),
@@ -140,15 +140,15 @@ def dense_frames(irradiance: Irradiance, samples: np.ndarray) -> np.ndarray:
 DENSE_FRACTION = 0.25
 
 
-def stamp_coverage(irradiance: Irradiance, samples: np.ndarray) -> float:
-    """Mean fraction of the sensor's pixels that the stamps adding flux at ``samples`` (:func:`live_stamps`) cover
-    per sample (overlaps counted twice)."""
+def stamp_coverage(irradiance: Irradiance, samples: np.ndarray, live=None) -> float:
+    """Mean fraction of the sensor's pixels that the stamps adding flux at ``samples`` (:func:`live_stamps`;
+    ``live``: its result when the caller has it) cover per sample (overlaps counted twice)."""
     height, width = irradiance.focal_plane.shape
     flux = np.asarray(irradiance.stamp_flux)
     if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0:
         return 0.0
     h, w = flux.shape[2:]
-    which, stamp = live_stamps(irradiance, samples)
+    which, stamp = live_stamps(irradiance, samples) if live is None else live
     origin = np.asarray(irradiance.stamp_origin)[samples[which], stamp].astype(np.int64)      # [P, (x0, y0)]
     cols = np.clip(origin[:, 0] + w, 0, width) - np.clip(origin[:, 0], 0, width)
     rows = np.clip(origin[:, 1] + h, 0, height) - np.clip(origin[:, 1], 0, height)
