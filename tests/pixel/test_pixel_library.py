@@ -358,3 +358,30 @@ def test_preset_on_background_rises_with_light_as_measured(tmp_path, scenes):
                                            duration_s, duration_s / 4))
         on_hz[lux] = np.sum(ev["p"] > 0) / side**2 / duration_s
     assert on_hz[lux_hi] - on_hz[lux_lo] == pytest.approx(on_hi - on_lo, rel=0.15)
+
+
+#: each preset's cited read-out rate [event/s]: Finateu et al. 2020 (IMX636), the SilkyEvCam VGA specification (PPS3MVCD),
+#: iniVation's DAVIS346 datasheet, iniVation's biasing guide ("about 1M Events Per Second (EPS) for the DVS128")
+CITED_READOUT_EPS = {"prophesee_gen4": 1.066e9, "prophesee_gen3_vga": 5.0e7, "davis346": 1.2e7, "dvs128": 1.0e6}
+
+
+@pytest.mark.parametrize("name", sorted(CITED_READOUT_EPS))
+def test_preset_reads_out_at_its_cited_rate(tmp_path, name):
+    # 40 000 events at random pixels and times, offered at twice the cited rate, through the preset's arbiter: it reads
+    # out the cited rate within 5 % and drops the rest (no events left pending).
+    from evsda.blocks.ports import TriggeredEvents
+    from evsda.graph import RunInfo
+    width, height, pitch = PRESETS[name]
+    cited = CITED_READOUT_EPS[name]
+    arbiter = include_preset(tmp_path, name).nodes["sensor/arbiter"].block
+    rng = np.random.default_rng(1)
+    n = 40_000
+    duration_ns = int(n / (2 * cited) * 1e9)
+    t, x, y = rng.integers(0, duration_ns, n), rng.integers(0, width, n), rng.integers(0, height, n)
+    order = np.lexsort((x, y, t))
+    events = TriggeredEvents(FocalPlane(width, height, pitch, 1.0), t[order], x[order].astype(np.uint16),
+                             y[order].astype(np.uint16), np.ones(n, np.int8), np.zeros(n, np.uint8))
+    arbiter.setup(RunInfo(duration_ns=duration_ns, window_ns=duration_ns))
+    out = arbiter.step(Window(0, 0, duration_ns), events=events)["events"]
+    assert out.t_readout_ns.size / (duration_ns * 1e-9) == pytest.approx(cited, rel=0.05)
+    assert out.t_readout_ns.size + out.n_dropped == n and arbiter.n_pending == 0
