@@ -30,7 +30,10 @@ import numba
 import numpy as np
 
 from .comparator import TOLERANCE
-from .pixel_loop import ACCEPT, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y, _advance
+from .crossing import power
+from .dense_loop import _prefetch
+from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y, _advance,
+                         relaxed_by)
 
 #: margin for rounding in the loop's closed forms [ln of current]; values are O(10), their rounding ~1e-14
 ROUNDING_MARGIN = 1e-9
@@ -84,17 +87,95 @@ def select_pixels(real, count, next_step, applied, touched, changed, n_end, base
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def take_quietly(real, count, pixels, lo, hi, steps, inputs, leak_hz, dt, large):
-    """Give ``pixels[i]`` the changes ``lo[i] .. hi[i] - 1`` (``steps``, ``inputs`` rows) without looking
+def take_quietly_reference(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large):
+    """Give ``pixels[i]`` the changes ``lo[i] .. end - 1`` (``steps``, ``inputs`` rows) without looking
     for comparator events between them: the compiled loop's own updates (:func:`.pixel_loop._advance`
     to the step before each change, then the new input), less its search for the next crossing after
-    each, which finds none where the deferral bound held past the next change."""
+    each, which finds none where the deferral bound held past the next change. One pixel after the
+    other: the reference of :func:`take_quietly` (tested)."""
     for i in range(pixels.size):
         r, c = real[pixels[i]], count[pixels[i]]
-        for k in range(lo[i], hi[i]):
+        for k in range(lo[i], end):
             _advance(r, c, steps[k] - 1, leak_hz, dt, large)
             row = inputs[k]
             r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
+
+
+_AHEAD = 8                 # pixels whose state rows are fetched ahead of their turn (scattered rows: memory latency)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _fetch_row(real, count, pixel):
+    """Ask for a pixel's state rows ahead of use (no effect on results)."""
+    _prefetch(real, pixel, 0)
+    _prefetch(real, pixel, real.shape[1] - 1)
+    _prefetch(count, pixel, 0)
+
+
+# fields of the pixels swept together by take_quietly (rows of its table)
+(S_L, S_M, S_LEAK, S_PARA_C, S_TH_ON, S_SCALE, N_SWEPT) = range(7)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large):
+    """:func:`take_quietly_reference`, change by change over every pixel that takes it.
+
+    A pixel's first change relaxes it from its own step at its own input; every later one from
+    the step before the change before it, at that change's input: the same ``j`` and ``a^j`` for
+    every pixel taking it. So after each pixel's first change (taken alone) the pixels taking change
+    ``k`` (those with ``lo < k``, a prefix once ordered by ``lo``) take it together, ``a^j`` computed
+    once, in a loop over their fields gathered into contiguous rows that the compiler vectorises.
+    Each pixel goes through the same arithmetic in the same order (:func:`.pixel_loop.relaxed_by`;
+    :mod:`.fastmath`'s functions give the same bits in vectorised loops), so its state is the
+    reference's bit for bit (tested).
+    """
+    n = pixels.size
+    if n == 0:
+        return
+    first = lo.min()
+    starts = np.zeros(end - first + 1, np.int64)       # pixels ordered by lo (a counting sort): rank[i] is pixel i's place
+    for i in range(n):
+        starts[lo[i] - first + 1] += 1
+    starts = np.cumsum(starts)
+    rank = np.empty(n, np.int64)
+    for i in range(n):
+        rank[i] = starts[lo[i] - first]
+        starts[lo[i] - first] += 1
+    starts[1:] = starts[:-1].copy()
+    starts[0] = 0
+    f = np.empty((N_SWEPT, n))
+    for i in range(n):                                 # in the pixels' order: the state tables' order
+        if i + _AHEAD < n:
+            _fetch_row(real, count, pixels[i + _AHEAD])
+        r, c, s = real[pixels[i]], count[pixels[i]], rank[i]
+        _advance(r, c, steps[lo[i]] - 1, leak_hz, dt, large)          # its first change, alone
+        f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s] = r[L_], r[M_], r[C_LEAK], r[C_PARA]
+        f[S_TH_ON, s], f[S_SCALE, s] = r[TH_ON], r[NOISE_SCALE]
+    for k in range(first + 1, end):
+        m = starts[k - first]                          # the pixels with lo < k
+        j = steps[k] - steps[k - 1]                    # from the step before change k - 1 to the one before k
+        if j > 0:
+            row = inputs[k - 1]
+            _sweep(f[S_L, :m], f[S_M, :m], f[S_LEAK, :m], f[S_PARA_C, :m], f[S_TH_ON, :m], f[S_SCALE, :m],
+                   power(row[LOG_A], j), row[Y], row[LOG_A], row[PARA], j, leak_hz, dt, large)
+    last = inputs[end - 1]
+    for i in range(n):
+        if i + _AHEAD < n:
+            _fetch_row(real, count, pixels[i + _AHEAD])
+        r, s = real[pixels[i]], rank[i]
+        r[L_], r[M_], r[C_LEAK], r[C_PARA] = f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s]
+        r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = last[FLUX], last[Y], last[LOG_A], last[PARA], last[ACCEPT]
+        count[pixels[i], STEP] = steps[end - 1] - 1
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _sweep(filtered, memorised, c_leak, c_para, th_on, noise_scale, retention, y, log_a, para, j, leak_hz, dt, large):
+    """Every pixel of the rows ``j > 0`` steps on at the input ``y, log_a, para`` (:func:`.pixel_loop.relaxed_by`,
+    ``retention = a^j``)."""
+    for i in range(filtered.size):
+        filtered[i], memorised[i], c_leak[i], c_para[i] = relaxed_by(
+            retention, filtered[i], memorised[i], c_leak[i], c_para[i], y, log_a, para, th_on[i], noise_scale[i], j,
+            leak_hz, dt, large)
 
 
 class SharedChanges:
@@ -154,8 +235,8 @@ class SharedChanges:
         if not quiet.any():
             return
         pixels, lo = pixels[quiet], lo[quiet]
-        take_quietly(self.s["real"], self.s["count"], pixels, lo, np.full(pixels.size, kept - 1, np.int64),
-                     self.s["shared_step"], self.s["shared_input"], leak_hz, dt, large)
+        take_quietly(self.s["real"], self.s["count"], pixels, lo, np.int64(kept - 1), self.s["shared_step"],
+                     self.s["shared_input"], leak_hz, dt, large)
         self.s["applied"][pixels] = int(self.s["shared_base"]) + kept - 1
 
     def taken(self, pixels: np.ndarray) -> None:

@@ -77,3 +77,32 @@ def test_pixels_read_the_same_state(monkeypatch):
     *_, fast = run(0.04, True, monkeypatch, duration_s=0.12)      # pixel_field gives them their pending changes
     for key in reference:
         np.testing.assert_array_equal(reference[key], fast[key])
+
+
+@pytest.mark.parametrize("large", [False, True])
+def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large):
+    # take_quietly sweeps the pixels change by change (vectorised); its reference takes one pixel's changes after
+    # the other: the same state bit for bit, also for pixels already at or past a change's step (no relaxation)
+    from evsda.blocks.pixel.deferred import take_quietly, take_quietly_reference
+    from evsda.blocks.pixel.pixel_loop import COUNT, L_, LOG_A, M_, NOISE_SCALE, PARA, REAL, STEP, TH_ON, Y
+
+    rng = np.random.default_rng(5)
+    n, k = 3000, 40
+    real = rng.normal(size=(n, len(REAL)))
+    real[:, L_], real[:, M_], real[:, Y] = rng.normal(-2, 3, n), rng.normal(-2, 3, n), rng.normal(-2, 3, n)
+    real[:, LOG_A] = -10.0 ** rng.uniform(-9, 1, n)
+    real[:, PARA], real[:, TH_ON], real[:, NOISE_SCALE] = rng.uniform(0, 5, n), rng.uniform(0.05, 0.5, n), 1.0
+    count = rng.integers(0, 100, size=(n, len(COUNT)))
+    steps = np.cumsum(rng.integers(1, 3000, k)) + 50
+    inputs = rng.normal(size=(k, len(REAL)))
+    inputs[:, LOG_A] = -10.0 ** rng.uniform(-9, 1, k)
+    inputs[:, PARA] = rng.uniform(0, 5, k)
+    count[:, STEP] = steps[0] + rng.integers(-60, 400, n)           # some at or past the first changes' steps
+    pixels = np.sort(rng.choice(n, 2000, replace=False))
+    lo = rng.integers(0, k - 1, pixels.size)
+    end = np.int64(k - 1)
+    fast_real, fast_count = real.copy(), count.copy()
+    take_quietly(fast_real, fast_count, pixels, lo, end, steps, inputs, 0.3, 1e-6, large)
+    take_quietly_reference(real, count, pixels, lo, end, steps, inputs, 0.3, 1e-6, large)
+    np.testing.assert_array_equal(fast_real.view(np.int64), real.view(np.int64))
+    np.testing.assert_array_equal(fast_count, count)
