@@ -33,7 +33,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import quad
 from scipy.special import j1
 
 from evsda.graph.files import read_text

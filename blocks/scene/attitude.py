@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from .geometry import NS_PER_S, unit
 
@@ -142,6 +141,7 @@ class Tumble:
         k = 0 if index >= 0 else -1
         while k != index + step:
             if k not in self._segments:
+                from scipy.integrate import solve_ivp   # here: scipy.integrate costs 0.4-1 s to import; only tumbling needs it
                 if k in (0, -1):
                     start = self._start
                 else:
