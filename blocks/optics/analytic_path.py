@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
-from .paths import conditions_key, representative_conditions
+from .paths import ZENITH_BIN_RAD, conditions_key, representative_conditions
 from .psf import long_exposure_profile
 from .render import RadialRenderer
 
@@ -44,29 +44,41 @@ def radial_stamps(angles: np.ndarray, offset_rad: np.ndarray, theta: np.ndarray,
       the sub-pixel's solid angle ``sub_area`` [sr].
     """
     n, q, last = angles.size, oversample, theta.size - 1
-    per_step = last / (theta[last] - theta[0])
+    first_theta, last_theta = theta[0], theta[last]
+    per_step = last / (last_theta - first_theta)
     slope = (profile[1:] - profile[:-1]) / (theta[1:] - theta[:-1])
     out = np.empty((offset_rad.shape[0], size, size))
     intensity = np.empty((n, n))
+    dx2, r, guess = np.empty(n), np.empty(n), np.empty(n, np.int64)
     for f in range(offset_rad.shape[0]):
+        for ix in range(n):
+            dx = angles[ix] - offset_rad[f, 0]
+            dx2[ix] = dx * dx
         for iy in range(n):
             dy = angles[iy] - offset_rad[f, 1]
+            dy2 = dy * dy
+            # a row's radii and first guesses of their brackets in loops without branches (SIMD), then the brackets
             for ix in range(n):
-                dx = angles[ix] - offset_rad[f, 0]
-                r = np.sqrt(dx * dx + dy * dy)
-                if r > theta[last]:
-                    intensity[iy, ix] = 0.0
-                elif r == theta[last]:
-                    intensity[iy, ix] = profile[last]
-                elif r <= theta[0]:
-                    intensity[iy, ix] = profile[0]
+                r[ix] = np.sqrt(dx2[ix] + dy2)
+            for ix in range(n):
+                steps = (r[ix] - first_theta) * per_step
+                guess[ix] = min(int(steps), last - 1) if steps < last else last - 1
+            row = intensity[iy]
+            for ix in range(n):
+                radius = r[ix]
+                if radius > last_theta:
+                    row[ix] = 0.0
+                elif radius == last_theta:
+                    row[ix] = profile[last]
+                elif radius <= first_theta:
+                    row[ix] = profile[0]
                 else:
-                    j = min(int((r - theta[0]) * per_step), last - 1)
-                    while j > 0 and theta[j] > r:
+                    j = guess[ix]
+                    while j > 0 and theta[j] > radius:
                         j -= 1
-                    while j < last - 1 and theta[j + 1] <= r:
+                    while j < last - 1 and theta[j + 1] <= radius:
                         j += 1
-                    intensity[iy, ix] = profile[j] if theta[j] == r else slope[j] * (r - theta[j]) + profile[j]
+                    row[ix] = profile[j] if theta[j] == radius else slope[j] * (radius - theta[j]) + profile[j]
         for a in range(size):
             for b in range(size):
                 total = 0.0
@@ -131,9 +143,13 @@ class AnalyticPath:
         (the other arguments, those of every path's ``render``, do not change an analytic PSF)."""
         size = self.imager.geometry.stamp_size
         out = np.zeros((len(zenith_rad), size, size))
-        keys = [self._zenith_key(z) for z in zenith_rad]
-        for key in sorted(set(keys)):
-            frames = np.array([i for i, k in enumerate(keys) if k == key], dtype=int)
+        # each frame's zenith-angle bin, conditions_key's numbers array-wise (-1: no turbulence)
+        zenith_rad = np.asarray(zenith_rad, dtype=float)
+        turbulent = np.isfinite(zenith_rad) & (self.imager.atmosphere is not None)
+        with np.errstate(invalid="ignore"):
+            bins = np.where(turbulent, np.floor(zenith_rad / ZENITH_BIN_RAD), -1.0).astype(np.int64)
+        for key in np.unique(bins):
+            frames = np.flatnonzero(bins == key)
             out[frames] = self.stamps(self.renderer(zenith_rad[frames[0]]), offset[frames])
         return out
 

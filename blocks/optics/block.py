@@ -16,7 +16,7 @@ from evsda.graph.params import DataFile
 from .atmosphere import Atmosphere
 from .imaging import Imager
 from .telescope import Telescope
-from .truth import truth_table
+from .truth import truth_rows
 
 
 class PointSourceOptics(Block):
@@ -263,30 +263,32 @@ class PointSourceOptics(Block):
         t_s = t_ns * 1e-9
         collected = self.telescope.collecting_area_m2 * self.params.throughput      # [m^2]
 
-        tracks, kinds = [], []
+        ids, kinds, held = [], [], []
         for i, src in enumerate(sources):
-            samples = self._held_samples(str(i), src, t_ns)
-            for j, source_id in enumerate(np.asarray(src.source_id)):
-                tracks.append((f"{i}:{source_id}", {name: v[:, j] for name, v in samples.items()}))
-                kinds.append(int(src.kind[j]))
+            held.append(self._held_samples(str(i), src, t_ns))
+            ids += [f"{i}:{source_id}" for source_id in np.asarray(src.source_id)]
+            kinds += [int(kind) for kind in np.asarray(src.kind)]
+        # every track's held samples side by side, (render times, tracks) per quantity
+        columns = {name: np.concatenate([samples[name] for samples in held], axis=1) for name in held[0]}
 
         sky = np.zeros(len(t_ns))
         if background is not None and len(background.t_ns):
             k = np.clip(np.searchsorted(np.asarray(background.t_ns), t_ns, side="right") - 1, 0, None)
             sky = np.asarray(background.photon_flux_per_pixel, dtype=float)[k] * collected
 
-        zenith_first = next((float(tr["zenith"][0]) for _, tr in tracks if len(tr["zenith"])), np.nan)
+        zenith_first = float(columns["zenith"][0, 0]) if columns["zenith"].size else np.nan
         geometry = imager.ensure_geometry(zenith_first)
         size = geometry.stamp_size
+        visible = (np.isfinite(columns["x"]) & np.isfinite(columns["y"])
+                   & (np.nan_to_num(columns["flux"]) > 0))                      # (render times, tracks)
         jobs = []
-        for key, tr in tracks:
-            visible = np.isfinite(tr["x"]) & np.isfinite(tr["y"]) & (np.nan_to_num(tr["flux"]) > 0)
-            if visible.any():
-                idx = np.nonzero(visible)[0]
-                # what the pixels see of each frame: apparent rate, collected flux, sky per pixel
-                seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx]], axis=1)
-                jobs.append((len(jobs), key, tr, idx, seen))
-                imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
+        for j in np.flatnonzero(visible.any(axis=0)):                             # tracks in order
+            key, tr = ids[j], {name: values[:, j] for name, values in columns.items()}
+            idx = np.nonzero(visible[:, j])[0]
+            # what the pixels see of each frame: apparent rate, collected flux, sky per pixel
+            seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx]], axis=1)
+            jobs.append((len(jobs), key, tr, idx, seen))
+            imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)
@@ -319,6 +321,5 @@ class PointSourceOptics(Block):
         if len(t_ns):
             in_view = {key for _, key, _, idx, _ in jobs if idx[-1] == len(t_ns) - 1}
             imager.forget(sorted(imager.holding() - in_view))
-        truth = truth_table(focal_plane, t_ns, [key.partition(":")[2] for key, _ in tracks], kinds,
-                            [tr for _, tr in tracks])
+        truth = truth_rows(focal_plane, t_ns, [key.partition(":")[2] for key in ids], kinds, columns)
         return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux), "truth": truth}

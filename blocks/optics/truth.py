@@ -17,19 +17,21 @@ def truth_table(focal_plane: FocalPlane, t_ns: np.ndarray, ids: list[str], kinds
                 tracks: list[dict[str, np.ndarray]]) -> Truth:
     """The rows of the sources ``ids`` (kinds ``kinds``) whose held samples ``tracks`` (``x``, ``y``,
     ``flux``, ``magnitude``, ``range``, each ``[n_t]`` at ``t_ns``) put them on the detector."""
+    names = ("x", "y", "flux", "magnitude", "range")
+    columns = {name: np.stack([tr[name] for tr in tracks], axis=1) if tracks else np.zeros((len(t_ns), 0))
+               for name in names}
+    return truth_rows(focal_plane, t_ns, ids, kinds, columns)
+
+
+def truth_rows(focal_plane: FocalPlane, t_ns: np.ndarray, ids: list[str], kinds: list[int],
+               columns: dict[str, np.ndarray]) -> Truth:
+    """:func:`truth_table` from every source's held samples side by side: ``columns[name]`` (n_t, sources)."""
     t_ns = np.asarray(t_ns, np.int64)
-    if tracks:
-        x = np.stack([tr["x"] for tr in tracks], axis=1)
-        y = np.stack([tr["y"] for tr in tracks], axis=1)
-        on_detector = np.isfinite(x) & np.isfinite(y)
-        time_index, source = np.nonzero(on_detector)     # row-major: sorted by time, then source
-    else:
-        time_index = source = np.zeros(0, np.int64)
+    on_detector = np.isfinite(columns["x"]) & np.isfinite(columns["y"])
+    time_index, source = np.nonzero(on_detector)         # row-major: sorted by time, then source
 
     def column(name: str) -> np.ndarray:
-        if not tracks:
-            return np.zeros(0, np.float32)
-        return np.stack([tr[name] for tr in tracks], axis=1)[time_index, source].astype(np.float32)
+        return np.asarray(columns[name])[time_index, source].astype(np.float32)
 
     return Truth(focal_plane, np.asarray(ids, dtype=str), np.asarray(kinds, dtype=np.int8), t_ns[time_index],
                  source.astype(np.int32), column("x"), column("y"), column("magnitude"), column("flux"),
