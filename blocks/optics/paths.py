@@ -55,10 +55,13 @@ from __future__ import annotations
 
 import logging
 import zlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from evsda.blocks.threads import worker_threads
 
 from .fft_screens import fft_phase_screens
 from .pixel_view import averaged_frames, footprint_speeds
@@ -352,23 +355,36 @@ class PathChooser:
 
     def _reference_distances(self, key: tuple, zenith_rad: float, range_m: float) -> list[float]:
         """Distances [1] between pupil-path and reference stamps fed the same fresh screens, one frame each,
-        until their mean is clear of the tolerance (``REFERENCE_PROBE_FRAMES``)."""
+        until their mean is clear of the tolerance (``REFERENCE_PROBE_FRAMES``).
+
+        Each frame's screens have their own seed (the probe's name), so frames are measured on every core
+        (:func:`.worker_threads`): the first ``REFERENCE_PROBE_FRAMES[0]`` together, then as many at a time
+        as there are threads, the stopping rule applied frame by frame in order (a frame past the stop is
+        dropped), so the distances are those of one frame at a time."""
         imager, reference = self.imager, self.imager.reference
-        measured = []
         offset = np.zeros((1, 2))
         least, most = REFERENCE_PROBE_FRAMES
-        while len(measured) < most:
-            probe = f"__probe {key} {len(measured)}"
+
+        def distance(frame: int) -> float:
+            probe = f"__probe {key} {frame}"
             field = reference.field(probe, 0.0, *imager.boresight, zenith_rad, range_m, slack=1.0)
             phase = reference.pupil_phase(probe, 0.0, *imager.boresight, zenith_rad, range_m)
             del reference.screens[probe]
             stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
             fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
-            measured.append(float(total_variation(fast, stamp, stamp.sum())[0]))
-            if len(measured) >= least:
-                error = np.std(measured, ddof=1) / np.sqrt(len(measured))
-                if abs(np.mean(measured) - imager.tolerance) > 2 * error:
-                    break
+            return float(total_variation(fast, stamp, stamp.sum())[0])
+
+        threads = worker_threads()
+        measured = []
+        with ThreadPoolExecutor(threads) as pool:
+            while len(measured) < most:
+                batch = least - len(measured) if len(measured) < least else min(threads, most - len(measured))
+                for value in pool.map(distance, range(len(measured), len(measured) + batch)):
+                    measured.append(value)
+                    if len(measured) >= least:
+                        error = np.std(measured, ddof=1) / np.sqrt(len(measured))
+                        if abs(np.mean(measured) - imager.tolerance) > 2 * error:
+                            return measured
         return measured
 
     def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
