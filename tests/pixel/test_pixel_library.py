@@ -407,3 +407,21 @@ def test_aer_preset_reads_a_full_array_flash_without_loss(tmp_path, name):
     out = arbiter.step(Window(0, 0, duration_ns), events=events)["events"]
     assert out.t_readout_ns.size == n and out.n_dropped == 0
     assert out.t_readout_ns[-1] * 1e-9 == pytest.approx(n / CITED_READOUT_EPS[name], rel=0.01)
+
+
+def test_gen4_preset_refractory_period_is_the_documented_one(tmp_path, scenes):
+    # Noise2Params' EVK4 (IMX636, factory-default biases) recordings carry a 79 us refractory period. The Gen4 preset's
+    # pixels (noise off), lit at 100 lx and stepped 10^4-fold: the photoreceptor passes a threshold every ~1 us, so the ON
+    # burst comes out one refractory period apart, 79 us between a pixel's successive events.
+    pitch = PRESETS["prophesee_gen4"][2]
+    p = include_preset(tmp_path, "prophesee_gen4").nodes["sensor/pixel"].block.params
+    block = DvsPixel(p, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0,
+                     noise_rate_spread_decades=0.0, seed=3)
+    fp = FocalPlane(4, 4, pitch, 0.5)
+    flux = 100.0 / p.luminous_efficacy_lm_per_W * pitch**2 * scenes.WAVELENGTH_M / 1.98644586e-25
+    ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [0, 10_000_000], [flux, flux * 1e4]),
+                                       0.02, 0.02))
+    on = (ev["p"] > 0) & (ev["t"] >= 10_000_000)
+    gaps = [np.diff(np.sort(ev["t"][on & (ev["x"] == x) & (ev["y"] == y)])) for x in range(4) for y in range(4)]
+    gaps = np.concatenate(gaps)
+    assert gaps.size > 16 * 5 and np.all(gaps == 79_000)
