@@ -121,7 +121,8 @@ def column(src: PointSources, j: int) -> PointSources:
     pick = slice(j, j + 1)
     return PointSources(src.focal_plane, src.wavelength_m, src.t_ns, src.source_id[pick], src.kind[pick],
                         src.x_px[:, pick], src.y_px[:, pick], src.photon_flux[:, pick], src.magnitude[:, pick],
-                        src.range_m[:, pick], src.zenith_angle_rad)
+                        src.range_m[:, pick], src.zenith_angle_rad, src.boresight_azimuth_rad,
+                        src.field_rotation_rad)
 
 
 def optics_table(fov: float, simulated_s: float) -> None:

@@ -157,8 +157,9 @@ def path_errors(frames: int) -> None:
         for k in range(frames):
             t, xy = 0.05 * k, FOCAL_PLANE.width_px / 2 + rng.uniform(-0.5, 0.5, 2)
             offset = xy[None] - np.round(xy[None])
-            field = imager.reference.field("s", t, *xy, ZENITH, RANGE)
-            phase = imager.reference.pupil_phase("s", t, *xy, ZENITH, RANGE)
+            sight = imager.sight(*xy, ZENITH)
+            field = imager.reference.field("s", t, sight, ZENITH, RANGE)
+            phase = imager.reference.pupil_phase("s", t, sight, ZENITH, RANGE)
             reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
             flux = reference.sum()
             stamps = {"pupil_fft": imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset),

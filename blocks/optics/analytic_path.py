@@ -138,7 +138,7 @@ class AnalyticPath:
             self._renderers[key] = RadialRenderer(s, theta, profile)
         return self._renderers[key]
 
-    def render(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
+    def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         """Stamps (F, M, M) [1] at sub-pixel ``offset`` (F, 2), frames grouped by zenith-angle bin
         (the other arguments, those of every path's ``render``, do not change an analytic PSF)."""
         size = self.imager.geometry.stamp_size

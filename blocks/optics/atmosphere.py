@@ -61,11 +61,13 @@ class Layer:
     altitude_m: float            # height above the observer [m]
     cn2_dh: float                # turbulence integral J = Cn^2 dh [m^(1/3)]
     wind_speed_m_s: float        # [m/s]
-    wind_direction_rad: float    # direction the air moves toward, from the focal plane's +x (columns) toward +y [rad]
+    # direction the air moves toward, from the focal plane's +x (columns) toward +y at the run's first render time
+    # (the screens' frame, fixed to the ground: Imager.sight) [rad]
+    wind_direction_rad: float
 
     @property
     def wind_m_s(self) -> np.ndarray:
-        """Wind vector (x, y) [m/s] in focal-plane axes."""
+        """Wind vector (x, y) [m/s] in the screens' frame (the focal plane's axes at the first render time)."""
         return self.wind_speed_m_s * np.array([np.cos(self.wind_direction_rad), np.sin(self.wind_direction_rad)])
 
 
@@ -173,7 +175,8 @@ def read_profile_table(path: str | Path) -> tuple[Layer, ...]:
     """Layers from a CSV with columns ``altitude_m, cn2_dh_m13, wind_speed_m_s, wind_direction_deg``.
 
     Lines starting with ``#`` are comments. ``cn2_dh_m13`` is ``Cn^2 dh`` [m^(1/3)]; the wind
-    direction is measured from the focal plane's +x axis toward +y [deg].
+    direction is measured from the focal plane's +x axis toward +y at the run's first render time (the
+    screens' frame, fixed to the ground: :meth:`.Imager.sight`) [deg].
     """
     path = Path(path)
     text = read_text(path, "Cn2 profile table")        # a regular UTF-8 file (a FIFO would block)

@@ -66,7 +66,8 @@ class PointSourceOptics(Block):
         n_layers: int = Field(4, ge=1, le=32, description="Layers the Hufnagel-Valley profile is lumped into [1]")
         ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
         wind_direction_deg: float = Field(0.0, ge=-360, le=360,
-                                          description="Wind direction from the focal plane's +x toward +y [deg]")
+                                          description="Wind direction from the focal plane's +x toward +y at the first render "
+                                                      "time (the layers are fixed to the ground) [deg]")
         outer_scale_m: float = Field(25.0, gt=0, le=1e4, description="Von Karman outer scale L0 [m]")
         screen_method: Literal["fft", "zernike"] = Field(
             "fft", description="Layer screens: FFT with subharmonics, or Karhunen-Loeve Zernike modes [-]")
@@ -203,6 +204,10 @@ class PointSourceOptics(Block):
                   "magnitude": src.magnitude,
                   "zenith": np.broadcast_to(np.asarray(src.zenith_angle_rad, dtype=float)[:, None],
                                             (len(src.t_ns), n_src)),
+                  **{name: np.broadcast_to(np.asarray(np.nan if values is None else values, dtype=float)[..., None],
+                                           (len(src.t_ns), n_src))
+                     for name, values in (("azimuth", src.boresight_azimuth_rad),
+                                          ("rotation", src.field_rotation_rad))},
                   "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (len(src.t_ns), n_src))}
         fields["rate"] = self._rates(fields, held, n_src)
         index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
@@ -278,6 +283,13 @@ class PointSourceOptics(Block):
 
         zenith_first = float(columns["zenith"][0, 0]) if columns["zenith"].size else np.nan
         geometry = imager.ensure_geometry(zenith_first)
+        # the screens' frame: the boresight at the run's first render time that has it (Imager.sight)
+        if imager.frame is None and columns["zenith"].size:
+            boresight = np.stack([columns[n] for n in ("azimuth", "zenith", "rotation")], axis=-1)  # (T, tracks, 3)
+            known = np.isfinite(boresight).all(axis=-1)
+            if known.any():
+                k, j = np.argwhere(known)[0]
+                imager.set_frame(*boresight[k, j])
         size = geometry.stamp_size
         visible = (np.isfinite(columns["x"]) & np.isfinite(columns["y"])
                    & (np.nan_to_num(columns["flux"]) > 0))                      # (render times, tracks)
@@ -303,7 +315,8 @@ class PointSourceOptics(Block):
                     imager.forget([key])
                 at = idx[part]
                 o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
-                                             tr["range"][at], seen[part])
+                                             tr["range"][at], seen[part], azimuth_rad=tr["azimuth"][at],
+                                             rotation_rad=tr["rotation"][at])
                 origin[at, s] = o
                 flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
 

@@ -6,19 +6,26 @@ it): give it the telescope, the focal plane, the band's wavelength and an atmosp
 
     imager = Imager(Telescope(0.35, 0.3), focal_plane, 550e-9, Atmosphere.hufnagel_valley(),
                     PointSourceOptics.Params())
-    origin, stamps, paths = imager.render("sat", t_s, x_px, y_px, zenith_rad, range_m)
+    origin, stamps, paths = imager.render("sat", t_s, x_px, y_px, zenith_rad, range_m,
+                                          azimuth_rad=boresight_azimuth, rotation_rad=field_rotation)
 
 ``stamps[k]`` holds the fraction of the power incident on the collecting area that lands
 in each pixel of the stamp whose first pixel is ``origin[k]`` (x, y).
 
 Geometry of frozen flow (Taylor's hypothesis; Poyneer et al. 2009): layer ``l`` at
-altitude ``h`` is a screen moving with its wind ``v``; the line of sight to a source at
-sky offset ``theta`` from the boresight crosses it at slant distance ``L = h sec(zeta)``,
-so the pupil's footprint on the screen is centred at ``L theta - v t`` and, for a source
-at range ``R``, shrunk by ``1 - L/R`` (the cone of a finite-range source). A satellite
-crossing the field therefore sweeps the high layers at ``L dtheta/dt``, much faster than
-the wind. Each source sees its own screens: sources a few arcseconds apart are already
-beyond the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7).
+altitude ``h`` is a screen fixed to the ground and moving with its wind ``v``. The line of
+sight to a source at zenith angle ``z`` and azimuth ``A`` crosses it at the horizontal offset
+``h tan(z) (sin A, cos A)`` from the telescope (flat, horizontal layers), so two directions
+``theta`` apart cross it ``h theta sec z`` apart across the beam: the geometry behind the
+isoplanatic angle (Roddier 1981, Prog. Optics 19, 281; Fried 1982; Hardy 1998, Adaptive Optics
+for Astronomical Telescopes, Eq. 3.61). The pupil's footprint on the screen is centred there
+minus ``v t`` and, for a source at range ``R``, shrunk by ``1 - L/R`` (``L = h sec z`` the slant
+distance; the cone of a finite-range source). The direction is the source's own, in the ground
+frame (:meth:`Imager.sight`): a mount tracking a satellite at ``omega`` sweeps the satellite's
+footprint across each layer at ``L omega`` (77 m/s at ``L`` = 4.4 km for 1 deg/s), while the stars'
+footprints, fixed in azimuth and elevation but for the sidereal rate, move with the wind
+only. Each source sees its own screens: sources a few arcseconds apart are already beyond
+the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7).
 
 The pieces, one module each: the sampling (:mod:`.sizing`), the path choice and its error
 estimates (:mod:`.paths`), and the paths, ``airy`` and ``long_exposure``
@@ -88,6 +95,9 @@ class Imager:
         #: screens dropped so far per source that has left the view (:meth:`forget`): its next screens are the
         #: draw of this generation, never a reused seed stream
         self.generations: dict[str, int] = {}
+        #: the screens' frame: the boresight's azimuth, zenith angle and field rotation [rad] at the first render
+        #: time that has them (:meth:`set_frame`, :meth:`sight`); None until then
+        self.frame: tuple[float, float, float] | None = None
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -168,11 +178,65 @@ class Imager:
             return np.zeros(t_s.shape, dtype=np.int64)
         return np.floor(t_s / self.revisit_s + 1e-9).astype(np.int64)
 
-    def footprints(self, layer, t_s, x_px, y_px, zenith_rad, range_m):
-        """Footprint centre on a layer (F, 2) (x, y) [m] and its scale (F,) [1]."""
+    # -- where the lines of sight cross the layers --------------------------------------------------
+    def set_frame(self, azimuth_rad: float, zenith_rad: float, rotation_rad: float) -> None:
+        """Fix the screens' frame to the boresight's azimuth, zenith angle and field rotation [rad] at the run's
+        first render time that has them (:meth:`sight`); later calls leave it as it is."""
+        if self.frame is None and np.isfinite([azimuth_rad, zenith_rad, rotation_rad]).all():
+            self.frame = (float(azimuth_rad), float(zenith_rad), float(rotation_rad))
+
+    def sight(self, x_px, y_px, zenith_rad, azimuth_rad=None, rotation_rad=None) -> np.ndarray:
+        """Where each frame's line of sight crosses the layers, per metre of altitude, in the screens' frame
+        (F, 2) [1]: a layer at altitude ``h`` holds the footprint's centre at ``h sight - v t`` (:meth:`footprints`).
+
+        The source's direction follows from its pixel (inverse gnomonic projection, :mod:`evsda.blocks.scene.
+        projection`) and the boresight's azimuth ``A``, zenith angle ``z`` and field rotation ``psi`` (the image's
+        up axis turned from the local elevation direction towards increasing azimuth; ``PointSources``): with
+        ``alpha, epsilon`` its offsets along azimuth and elevation, its ENU direction is ``b + alpha a + epsilon e``
+        (``a``, ``e`` the unit azimuth and elevation directions at the boresight ``b``) and a horizontal layer
+        is crossed at ``g = (s_E, s_N) / s_U`` per metre of altitude (``tan z (sin A, cos A)``).
+
+        The screens' frame is fixed to the ground at the first render time (:meth:`set_frame`; ``A0, z0, psi0``):
+        ``g`` less the boresight's ``g0`` there, its component along ``A0`` times ``cos z0`` (the plane across the
+        beam: two directions ``theta`` apart then sit ``theta sec z0`` apart whichever way, Fried 1982), turned onto
+        the detector's axes at that time. At that time a source at pixel offset ``theta`` [rad] sits at
+        ``theta sec z0`` to first order, as a staring mount's sources always do. Not modelled: the pupil's turn
+        against the ground-fixed screens as the mount turns in azimuth or the field rotates, and its ``sec z``
+        stretch along the azimuth when ``z`` departs from ``z0`` (the footprint is read as a round aperture on
+        grids along the frame's axes; isotropic turbulence keeps the PSF's statistics).
+
+        Without the boresight's azimuth (``azimuth_rad`` None or NaN: sources given on the focal plane only) the
+        sources are taken as seen from a staring mount: ``theta sec z`` with the frame on the detector's axes.
+        """
+        x_px, y_px = np.asarray(x_px, dtype=float), np.asarray(y_px, dtype=float)
+        zenith = np.where(np.isfinite(zenith_rad), zenith_rad, 0.0)
+        theta = (np.stack([x_px, y_px], axis=-1) - self.boresight) * self.pixel_scale     # (x right, y down) [rad]
+        staring = theta / np.cos(zenith)[..., None]
+        if azimuth_rad is None or self.frame is None:
+            return staring
+        azimuth = np.asarray(azimuth_rad, dtype=float)
+        rotation = np.asarray(rotation_rad, dtype=float)
+        known = np.isfinite(azimuth) & np.isfinite(rotation)
+        xi, eta = theta[..., 0], -theta[..., 1]                                          # image right, up [rad]
+        c, s = np.cos(rotation), np.sin(rotation)
+        alpha, epsilon = xi * c + eta * s, eta * c - xi * s                               # along azimuth, elevation
+        sa, ca, sz, cz = np.sin(azimuth), np.cos(azimuth), np.sin(zenith), np.cos(zenith)
+        east = sa * sz + alpha * ca - epsilon * sa * cz
+        north = ca * sz - alpha * sa - epsilon * ca * cz
+        up = cz + epsilon * sz
+        a0, z0, psi0 = self.frame
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ge, gn = east / up - np.sin(a0) * np.tan(z0), north / up - np.cos(a0) * np.tan(z0)
+        along_azimuth = ge * np.cos(a0) - gn * np.sin(a0)                                 # [1] per metre of altitude
+        outwards = (ge * np.sin(a0) + gn * np.cos(a0)) * np.cos(z0)
+        grounded = np.stack([along_azimuth * np.cos(psi0) + outwards * np.sin(psi0),
+                             outwards * np.cos(psi0) - along_azimuth * np.sin(psi0)], axis=-1)
+        return np.where(known[..., None], grounded, staring)
+
+    def footprints(self, layer, t_s, sight, zenith_rad, range_m):
+        """Footprint centre on a layer (F, 2) (x, y) [m], ``h sight - v t`` (:meth:`sight`), and its scale (F,) [1]."""
         slant = layer.altitude_m / np.cos(zenith_rad)
-        theta = (np.stack([x_px, y_px], axis=-1) - self.boresight) * self.pixel_scale
-        centre = slant[:, None] * theta - layer.wind_m_s[None, :] * t_s[:, None]
+        centre = layer.altitude_m * np.asarray(sight, dtype=float) - layer.wind_m_s[None, :] * t_s[:, None]
         scale = np.where(np.isfinite(range_m), 1.0 - slant / np.where(np.isfinite(range_m), range_m, 1.0), 1.0)
         return centre, scale
 
@@ -204,10 +268,12 @@ class Imager:
             self.pupil.pupil_modes
 
     def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
-               zenith_rad: np.ndarray, range_m: np.ndarray,
-               seen: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+               zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None, *,
+               azimuth_rad: np.ndarray | None = None,
+               rotation_rad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame
-        (``seen``: as for :meth:`prepare`)."""
+        (``seen``: as for :meth:`prepare`; ``azimuth_rad``, ``rotation_rad``: the boresight's azimuth and the field
+        rotation of each frame, :meth:`sight`)."""
         t_s, x_px, y_px = (np.asarray(a, dtype=float) for a in (t_s, x_px, y_px))
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), t_s.shape)
         range_m = np.broadcast_to(np.asarray(range_m, dtype=float), t_s.shape)
@@ -216,14 +282,18 @@ class Imager:
         size = self.geometry.stamp_size
         stamps = np.zeros((len(t_s), size, size))
         paths = self._paths(source, zenith_rad, range_m, seen)
+        if azimuth_rad is not None:
+            azimuth_rad = np.broadcast_to(np.asarray(azimuth_rad, dtype=float), t_s.shape)
+            rotation_rad = np.broadcast_to(np.asarray(rotation_rad, dtype=float), t_s.shape)
+        sight = self.sight(x_px, y_px, zenith_rad, azimuth_rad, rotation_rad)
         for path in PATHS:
             idx = np.array([i for i, p in enumerate(paths) if p == path], dtype=int)
             if idx.size == 0:
                 continue
             with self._count_lock:
                 self.frames_rendered[path] += int(idx.size)
-            stamps[idx] = self.path_named[path].render(source, t_s[idx], x_px[idx], y_px[idx], zenith_rad[idx],
-                                                       range_m[idx], offset[idx])
+            stamps[idx] = self.path_named[path].render(source, t_s[idx], sight[idx], zenith_rad[idx], range_m[idx],
+                                                       offset[idx])
         return origin, stamps, paths
 
     # -- checkpoint -------------------------------------------------------------------------------
@@ -233,6 +303,7 @@ class Imager:
             "screens": self.pupil.state(),
             "reference_screens": self.reference.state(),
             "generations": dict(self.generations),
+            "frame": None if self.frame is None else list(self.frame),
         }
 
     def set_state(self, state: dict) -> None:
@@ -243,6 +314,8 @@ class Imager:
             self.path_named[path].forget()
         self.chooser.forget()
         self.generations = {str(k): int(v) for k, v in (state.get("generations") or {}).items()}
+        frame = state.get("frame")
+        self.frame = None if frame is None else tuple(float(v) for v in frame)
         self.pupil.modal_screens = {}
         self.pupil.set_state(state.get("screens") or {})
         self.reference.set_state(state.get("reference_screens") or {})

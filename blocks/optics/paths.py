@@ -367,8 +367,8 @@ class PathChooser:
 
         def distance(frame: int) -> float:
             probe = f"__probe {key} {frame}"
-            field = reference.field(probe, 0.0, *imager.boresight, zenith_rad, range_m, slack=1.0)
-            phase = reference.pupil_phase(probe, 0.0, *imager.boresight, zenith_rad, range_m)
+            field = reference.field(probe, 0.0, np.zeros(2), zenith_rad, range_m, slack=1.0)
+            phase = reference.pupil_phase(probe, 0.0, np.zeros(2), zenith_rad, range_m)
             del reference.screens[probe]
             stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
             fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)

@@ -285,7 +285,7 @@ def psf_stamp(graph, optics: str | None = None, time_s: float = 0.0, source_id: 
     _, magnitude, src, j = min(candidates, key=lambda c: c[:2])
     one = PointSources(src.focal_plane, src.wavelength_m, src.t_ns, src.source_id[[j]], src.kind[[j]],
                        src.x_px[:, [j]], src.y_px[:, [j]], src.photon_flux[:, [j]], src.magnitude[:, [j]],
-                       src.range_m[:, [j]], src.zenith_angle_rad)
+                       src.range_m[:, [j]], src.zenith_angle_rad, src.boresight_azimuth_rad, src.field_rotation_rad)
     block.setup(run)
     out = block.step(Window(index, t_ns, t_ns + cadence, run.epoch), sources=[one])
     irradiance, truth = out["irradiance"], out["truth"]

@@ -55,8 +55,9 @@ class PupilPath:
             self._modes = modes.reshape(self.n_zernike_modes, -1)
         return self._modes
 
-    def turbulent_phase(self, source: str, t_s, x_px, y_px, zenith_rad, range_m) -> np.ndarray:
-        """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight."""
+    def turbulent_phase(self, source: str, t_s, sight, zenith_rad, range_m) -> np.ndarray:
+        """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight
+        (``sight`` (F, 2): :meth:`.Imager.sight`)."""
         g = self.imager.geometry
         frames = len(t_s)
         phase_t = np.zeros((frames, g.n_pupil, g.n_pupil))        # transposed: (F, x, y), see LayerScreen.accumulate
@@ -67,12 +68,11 @@ class PupilPath:
         k2 = (2 * np.pi / self.imager.wavelength) ** 2
         epochs = self.imager.epochs_of(t_s)
         if self.screen_method == "zernike":
-            return self._modal_phase(source, t_s, x_px, y_px, zenith_rad, range_m, epochs)
+            return self._modal_phase(source, t_s, sight, zenith_rad, range_m, epochs)
         for layer, screen in zip(self.imager.atmosphere.layers, self._layer_screens(source)):
             if layer.cn2_dh <= 0:
                 continue
-            centre, scale = self.imager.footprints(layer, t_s, x_px, y_px, np.where(turbulent, zenith_rad, 0.0),
-                                                   range_m)
+            centre, scale = self.imager.footprints(layer, t_s, sight, np.where(turbulent, zenith_rad, 0.0), range_m)
             rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
             cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
             # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
@@ -80,7 +80,7 @@ class PupilPath:
             screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase_t)
         return np.ascontiguousarray(phase_t.transpose(0, 2, 1))
 
-    def _modal_phase(self, source, t_s, x_px, y_px, zenith_rad, range_m, epochs) -> np.ndarray:
+    def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:
         """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
         g = self.imager.geometry
         turbulent = np.isfinite(zenith_rad)
@@ -90,15 +90,15 @@ class PupilPath:
         for layer, screen in zip(self.imager.atmosphere.layers, self._modal_screens(source)):
             if layer.cn2_dh <= 0:
                 continue
-            centre, scale = self.imager.footprints(layer, t_s, x_px, y_px, zenith, range_m)
+            centre, scale = self.imager.footprints(layer, t_s, sight, zenith, range_m)
             # r0^(-5/6) of this layer times (footprint diameter s D)^(5/6): Noll's covariance for s D / r0
             weight = (np.sqrt(0.423 * k2 / np.cos(zenith) * layer.cn2_dh)
                       * (scale * self.imager.telescope.diameter_m) ** (5 / 6))
             coefficients += np.where(turbulent, weight, 0.0)[:, None] * screen.coefficients(centre, epochs)
         return (coefficients @ self.pupil_modes).reshape(len(t_s), g.n_pupil, g.n_pupil)
 
-    def render(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
-        phase = self.turbulent_phase(source, t_s, x_px, y_px, zenith_rad, range_m)
+    def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
+        phase = self.turbulent_phase(source, t_s, sight, zenith_rad, range_m)
         phase += self.imager.defocus(range_m)
         return self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase, offset)
 

@@ -51,9 +51,10 @@ class ReferencePath:
         index = {i: grid.planes_m.index(z) + 1 for i, z in layer_planes.items()}
         return geometry, grid, index
 
-    def field(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
+    def field(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float,
                         range_m: float, slack: float = 1.3) -> np.ndarray:
-        """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude.
+        """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude (``sight`` (2,):
+        where the line of sight crosses the layers, :meth:`.Imager.sight`).
 
         New screens are ``slack`` times the grid wide (:meth:`_screens`)."""
         g = self.imager.geometry
@@ -66,8 +67,8 @@ class ReferencePath:
             k2 = (2 * np.pi / self.imager.wavelength) ** 2
             for i, plane in index.items():
                 layer, screen = self.imager.atmosphere.layers[i], per_layer[i]
-                centre, _ = self.imager.footprints(layer, np.array([t_s]), np.array([x_px]), np.array([y_px]),
-                                             np.array([zenith_rad]), np.array([np.inf]))
+                centre, _ = self.imager.footprints(layer, np.array([t_s]), np.reshape(sight, (1, 2)),
+                                                   np.array([zenith_rad]), np.array([np.inf]))
                 axis = (np.arange(grid.n) - grid.n // 2) * spacing[plane]
                 rows = ((centre[0, 1] + axis) / screen.delta)[None]
                 cols = ((centre[0, 0] + axis) / screen.delta)[None]
@@ -84,7 +85,7 @@ class ReferencePath:
         # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)
         return pupil * (1j * self.imager.wavelength * distance / erf(2 * np.pi) ** 2) * self.imager.pupil_amplitude
 
-    def pupil_phase(self, source: str, t_s: float, x_px: float, y_px: float, zenith_rad: float,
+    def pupil_phase(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float,
                               range_m: float) -> np.ndarray:
         """The pupil path's phase (n, n) [rad] for the screens the reference path used at this instant.
 
@@ -103,8 +104,8 @@ class ReferencePath:
         xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
         for i in index:
             layer, screen = self.imager.atmosphere.layers[i], per_layer[i]
-            centre, scale = self.imager.footprints(layer, np.array([t_s]), np.array([x_px]), np.array([y_px]),
-                                             np.array([zenith_rad]), np.array([geometry.distance_m]))
+            centre, scale = self.imager.footprints(layer, np.array([t_s]), np.reshape(sight, (1, 2)),
+                                                   np.array([zenith_rad]), np.array([geometry.distance_m]))
             rows = ((centre[0, 1] + scale[0] * xp) / screen.delta)[None]
             cols = ((centre[0, 0] + scale[0] * xp) / screen.delta)[None]
             weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
@@ -128,10 +129,10 @@ class ReferencePath:
                                          update="extend" if np.isfinite(L0) else "regenerate")
         return screens
 
-    def render(self, source, t_s, x_px, y_px, zenith_rad, range_m, offset) -> np.ndarray:
+    def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         out = np.empty((len(t_s), self.imager.geometry.stamp_size, self.imager.geometry.stamp_size))
         for f in range(len(t_s)):
-            field = self.field(source, t_s[f], x_px[f], y_px[f], zenith_rad[f], range_m[f])
+            field = self.field(source, t_s[f], sight[f], zenith_rad[f], range_m[f])
             out[f] = self.imager.pupil_renderer.stamps_from_field(field[None], offset[f:f + 1])[0]
         return out
 

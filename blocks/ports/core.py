@@ -56,7 +56,10 @@ class PointSources(PortValue):
     """Unresolved sources on the focal plane and their flux at the aperture versus time.
 
     Arrays are ``[n_t, n_src]``; positions are ``NaN`` while a source is outside the
-    field of view, below the horizon or otherwise not observable.
+    field of view, below the horizon or otherwise not observable. The boresight's azimuth
+    and the field rotation place each source's line of sight in the ground frame (the optics'
+    layer footprints, :meth:`evsda.blocks.optics.imaging.Imager.sight`); without them the
+    optics takes the sources as seen from a staring mount.
     """
 
     unit = "photon s^-1 m^-2"
@@ -71,6 +74,11 @@ class PointSources(PortValue):
     magnitude: np.ndarray                    # float64 [n_t, n_src] apparent magnitude in the band [mag]
     range_m: np.ndarray                      # float64 [n_t, n_src] observer-source distance [m] (inf for stars)
     zenith_angle_rad: np.ndarray             # float64 [n_t] boresight zenith angle [rad]; NaN above the atmosphere (space observer)
+    #: float64 [n_t] boresight azimuth, from north through east [rad]; NaN from space (None: unknown)
+    boresight_azimuth_rad: np.ndarray | None = None
+    #: float64 [n_t] the image's up axis turned from the local elevation direction at the boresight towards
+    #: increasing azimuth [rad]: the roll for azimuth/elevation pointings; NaN from space (None: unknown)
+    field_rotation_rad: np.ndarray | None = None
 
     @property
     def n_sources(self) -> int:

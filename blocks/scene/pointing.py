@@ -187,6 +187,26 @@ class PointingModel:
         w = ((t_ns - k * step) / step)[:, None]
         return unit((1 - w) * b0 + w * b1)
 
+    def horizon(self, t_ns, b: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The boresight's azimuth (from north through east) and the field rotation [rad] at
+        ``t_ns``, for the sensor frame's boresight ``b`` and image up ``u`` ([n, 3], GCRS); NaN from space.
+
+        The field rotation is the angle from the local elevation direction at the boresight (``d b / d el``,
+        :func:`direction_from_azel`) to ``u``, positive towards increasing azimuth: the roll for ``stare``,
+        ``track`` from the ground and azimuth/elevation scans; for ``sidereal`` it also holds the parallactic
+        angle, which turns through the run.
+        """
+        n = len(b)
+        if not self.observer.observer.is_ground:
+            return np.full(n, np.nan), np.full(n, np.nan)
+        east, north, up = self.observer.enu(t_ns)
+        azimuth, elevation = azel_from_enu(*(np.einsum("ij,ij->i", b, axis) for axis in (east, north, up)))
+        _, rising = direction_from_azel(azimuth, elevation)
+        rising = rising[:, :1] * east + rising[:, 1:2] * north + rising[:, 2:] * up
+        turning = np.cos(azimuth)[:, None] * east - np.sin(azimuth)[:, None] * north
+        rotation = np.arctan2(np.einsum("ij,ij->i", u, turning), np.einsum("ij,ij->i", u, rising))
+        return azimuth, rotation
+
     def zenith_angle(self, t_ns, b: np.ndarray) -> np.ndarray:
         """Zenith angle of the boresight [rad]; NaN for a space observer (no atmosphere)."""
         if not self.observer.observer.is_ground:

@@ -202,4 +202,5 @@ class Satellite(Block):
             focal_plane=focal_plane, wavelength_m=view.band.effective_wavelength_m, t_ns=t_ns,
             source_id=np.array([orbit.catalog_number]), kind=np.array([SourceKind.SATELLITE], dtype=np.int8),
             x_px=x[:, None], y_px=y[:, None], photon_flux=s.photon_flux[:, None], magnitude=s.magnitude[:, None],
-            range_m=s.range_m[:, None], zenith_angle_rad=s.zenith_angle_rad)}
+            range_m=s.range_m[:, None], zenith_angle_rad=s.zenith_angle_rad,
+            boresight_azimuth_rad=s.boresight_azimuth_rad, field_rotation_rad=s.field_rotation_rad)}

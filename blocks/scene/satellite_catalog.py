@@ -246,13 +246,16 @@ class SatelliteCatalog(Block):
             x[rows[seen], j], y[rows[seen], j] = s.x_px[seen], s.y_px[seen]
             flux[rows, j], magnitude[rows, j], range_m[rows, j] = s.photon_flux, s.magnitude, s.range_m
         t = t_ns.astype(np.float64)
-        zenith = self._pointing_model.zenith_angle(t, self._pointing_model.frame(t)[0]) if n_t else np.zeros(0)
+        b, _, u = self._pointing_model.frame(t) if n_t else (np.zeros((0, 3)),) * 3
+        zenith = self._pointing_model.zenith_angle(t, b) if n_t else np.zeros(0)
+        azimuth, rotation = self._pointing_model.horizon(t, b, u) if n_t else (np.zeros(0), np.zeros(0))
         band = radiometry.BANDS[self.params.band]
         return {"sources": PointSources(
             focal_plane=focal_plane, wavelength_m=band.effective_wavelength_m, t_ns=t_ns,
             source_id=np.array([c.obj.object_id for c in self.crossings], dtype=str),
             kind=np.full(n_src, SourceKind.SATELLITE, dtype=np.int8), x_px=x, y_px=y, photon_flux=flux,
-            magnitude=magnitude, range_m=range_m, zenith_angle_rad=zenith)}
+            magnitude=magnitude, range_m=range_m, zenith_angle_rad=zenith, boresight_azimuth_rad=azimuth,
+            field_rotation_rad=rotation)}
 
 
 def at(epoch: datetime, t_ns: int) -> datetime:

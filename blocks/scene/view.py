@@ -61,6 +61,8 @@ class ViewSamples:
     boresight_angle_rad: np.ndarray  # angle between the satellite and the boresight [rad]
     outside_angle_rad: np.ndarray    # angle from the satellite to the nearest point of the field [rad]
     zenith_angle_rad: np.ndarray     # boresight zenith angle (NaN from space) [rad]
+    boresight_azimuth_rad: np.ndarray  # boresight azimuth, from north through east (NaN from space) [rad]
+    field_rotation_rad: np.ndarray   # image up from the local elevation towards azimuth (NaN from space) [rad]
     photon_flux: np.ndarray          # at the aperture, after the atmosphere [photon s^-1 m^-2]
     magnitude: np.ndarray            # apparent magnitude in the band [mag]
 
@@ -132,6 +134,7 @@ class SatelliteView:
         to_observer = unit(r_obs - r_sat)
         phase = np.arccos(np.clip(np.einsum("ij,ij->i", to_sun, to_observer), -1.0, 1.0))
         zenith_boresight = self.pointing_model.zenith_angle(t, b)
+        azimuth_boresight, field_rotation = self.pointing_model.horizon(t, b, u)
         if isinstance(self.reflector, FacetReflector):
             # the attitude at the emission time: light leaves the body range/c before it arrives
             reflectance = self.reflector.reflectance_m2_sr(t - range_m / C_M_PER_S * NS_PER_S, r_sat, v_sat, to_sun,
@@ -144,7 +147,8 @@ class SatelliteView:
             observer_dark=dark, azimuth_rad=azimuth, elevation_rad=elevation, sun_elevation_rad=sun_elevation,
             range_m=range_m, phase_angle_rad=phase, boresight_angle_rad=np.arccos(np.clip(sb, -1.0, 1.0)),
             outside_angle_rad=projection.angle_outside(xi, eta, sb, self.focal_plane, b, r, u, s),
-            zenith_angle_rad=zenith_boresight, photon_flux=flux, magnitude=radiometry.magnitude(flux, self.band))
+            zenith_angle_rad=zenith_boresight, boresight_azimuth_rad=azimuth_boresight,
+            field_rotation_rad=field_rotation, photon_flux=flux, magnitude=radiometry.magnitude(flux, self.band))
 
     def _photon_flux(self, phase, to_sun, to_observer, r_sat, r_sun, range_m, fraction, elevation):
         """Paper Eq. 1-2 with the reflector's phase function, the penumbra and the atmosphere."""

@@ -262,8 +262,9 @@ def _paths_apart(atmosphere, diameter, frames=4, distance=5e5):
     errors = []
     for k in range(frames):
         t = 0.05 * k
-        field = imager.reference.field("s", t, 320.0, 240.0, zenith, distance)
-        phase = imager.reference.pupil_phase("s", t, 320.0, 240.0, zenith, distance)
+        sight = imager.sight(320.0, 240.0, zenith)
+        field = imager.reference.field("s", t, sight, zenith, distance)
+        phase = imager.reference.pupil_phase("s", t, sight, zenith, distance)
         offset = np.array([[0.2, -0.1]])
         reference = imager.pupil_renderer.stamps_from_field(field[None], offset)
         fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)

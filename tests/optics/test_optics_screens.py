@@ -330,8 +330,8 @@ def test_zernike_screens_reproduce_noll_residuals_on_the_pupil():
     zenith = np.deg2rad(30)
     g = imager.ensure_geometry(zenith)
     t = 1.0 * np.arange(frames)                           # the wind carries each footprint 17 D from the last
-    phase = imager.pupil.turbulent_phase("s", t, np.full(frames, 320.0), np.full(frames, 240.0), np.full(frames, zenith),
-                                   np.full(frames, np.inf))
+    sight = imager.sight(np.full(frames, 320.0), np.full(frames, 240.0), np.full(frames, zenith))
+    phase = imager.pupil.turbulent_phase("s", t, sight, np.full(frames, zenith), np.full(frames, np.inf))
     x = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
     xx, yy = np.meshgrid(x, x)
     inside = np.hypot(xx, yy) <= 0.15
