@@ -107,13 +107,13 @@ class PupilRenderer:
         self.dtype = dtype
         self._local = threading.local()
 
-    def _workspace(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """This thread's padded buffers for ``frames <= STAMP_CHUNK`` frames (sources render on several threads)."""
+    def _workspace(self, frames: int) -> tuple[np.ndarray, np.ndarray]:
+        """This thread's padded spectra and PSFs for ``frames <= STAMP_CHUNK`` frames (sources render on several
+        threads)."""
         buffers = getattr(self._local, "buffers", None)
         if buffers is None:
             size, real = self.padded, self.b_real.dtype
-            buffers = self._local.buffers = (np.zeros((STAMP_CHUNK, self.n, size), self.dtype),
-                                             np.zeros((STAMP_CHUNK, size, size), self.dtype),
+            buffers = self._local.buffers = (np.zeros((STAMP_CHUNK, size, size), self.dtype),
                                              np.zeros((STAMP_CHUNK, size, size), real))
         return tuple(b[:frames] for b in buffers)
 
@@ -129,46 +129,48 @@ class PupilRenderer:
         """Pixel energy fractions ``(F, M, M)`` from pupil ``amplitude`` (n, n) or (F, n, n) and ``phase`` (F, n, n).
 
         The sub-pixel offset's tilt is added to the phase before ``exp(i phase)`` (one complex
-        field, no separate tilt products).
+        field, no separate tilt products), written straight into the padded spectra's buffer.
         """
         out = np.empty((len(phase), self.sampler.size, self.sampler.size))
         for sl in _chunks(len(phase)):
-            out[sl] = self._integrate(self._field(amplitude if amplitude.ndim == 2 else amplitude[sl], phase[sl],
-                                                  offset_px[sl]))
+            grid, psf = self._workspace(len(phase[sl]))
+            self._field(amplitude if amplitude.ndim == 2 else amplitude[sl], phase[sl], offset_px[sl],
+                        grid[:, :self.n, :self.n])
+            out[sl] = self._integrate(grid, psf)
         return out
 
-    def _field(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
-        """``amplitude exp(i (phase + tilt))`` (F, n, n) in single precision."""
+    def _field(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray, field: np.ndarray) -> None:
+        """``field = amplitude exp(i (phase + tilt))`` (F, n, n) in single precision."""
         theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
         k = 2 * np.pi / self.wavelength
         real = self.b_real.dtype
         total = np.empty(phase.shape, real)
         tilted_phase(np.ascontiguousarray(phase, dtype=float), k * theta[:, 1], k * theta[:, 0], self.x, total)
-        field = np.empty(total.shape, dtype=self.dtype)
         np.cos(total, out=field.real)
         np.sin(total, out=field.imag)
         field *= amplitude.astype(real)
-        return field
 
     def stamps_from_field(self, field: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
         ey, ex = self.tilt(offset_px)
         out = np.empty((len(field), self.sampler.size, self.sampler.size))
         for sl in _chunks(len(field)):
-            out[sl] = self._integrate(field[sl].astype(self.dtype) * ey[sl, :, None] * ex[sl, None, :])
+            grid, psf = self._workspace(len(field[sl]))
+            grid[:, :self.n, :self.n] = field[sl].astype(self.dtype) * ey[sl, :, None] * ex[sl, None, :]
+            out[sl] = self._integrate(grid, psf)
         return out
 
-    def _integrate(self, tilted: np.ndarray) -> np.ndarray:
-        """Pixel energy fractions of tilted pupil fields (F, n, n), ``F <= STAMP_CHUNK``: padded FFT, ``|.|^2``,
-        then ``B_y PSF B_x^T``."""
-        n, frames = self.n, len(tilted)
-        rows, grid, psf = self._workspace(frames)
-        # the zero-padded FFTs, in place in this thread's buffers (the same transforms of the same values
-        # as scipy's own padding)
-        rows[:, :, :n] = tilted
-        rows[:, :, n:] = 0
+    def _integrate(self, grid: np.ndarray, psf: np.ndarray) -> np.ndarray:
+        """Pixel energy fractions of the tilted pupil fields in ``grid[:, :n, :n]`` (F, L, L), ``F <= STAMP_CHUNK``:
+        padded FFT, ``|.|^2`` into ``psf``, then ``B_y PSF B_x^T``."""
+        n = self.n
+        # the zero-padded FFTs in place in this thread's buffer (the same transforms of the same values, line by
+        # line in the same order, as scipy's own padding): along x on the pupil's n rows, then along y
+        grid[:, :n, n:] = 0
+        rows = grid[:, :n]
         along_x = sfft.fft(rows, axis=-1, workers=1, overwrite_x=True)
-        grid[:, :n] = along_x
+        if not np.may_share_memory(along_x, grid):                      # a scipy that does not transform in place
+            rows[...] = along_x
         grid[:, n:] = 0
         spectrum = sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
         squared_modulus(spectrum, psf)                                   # (F, L, L), up to delta^4/lambda^2
