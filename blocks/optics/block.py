@@ -234,8 +234,8 @@ class PointSourceOptics(Block):
     def _rates(fields: dict, held: dict | None, n_src: int) -> np.ndarray:
         """Apparent rate [pixel/s] at each input sample: the distance from the sample before (the held one at
         a window's start) over the time between them; a track's first sample takes the slowest rate of the
-        input's other sources, or where none has one (the run's first sample) its own rate to its next sample
-        (NaN without one)."""
+        input's other sources, NaN (still) where none has one (the run's first sample): a rate to the next
+        sample would depend on whether the window holds it."""
         n_t = len(fields["t"])
         if not n_t or not n_src:
             return np.full((n_t, n_src), np.nan)
@@ -250,10 +250,6 @@ class PointSourceOptics(Block):
         if first.any():
             slowest = np.where(np.isnan(rate), np.inf, rate).min(axis=1, initial=np.inf)
             rate = np.where(first, np.where(np.isfinite(slowest), slowest, np.nan)[:, None], rate)
-        # where no source has one yet (the run's first sample), the track's rate to its next sample
-        unknown = np.isnan(rate[:-1]) & np.isfinite(x[1:-1])
-        if unknown.any():
-            rate[:-1] = np.where(unknown, rate[1:], rate[:-1])
         return rate
 
     def step(self, window: Window, sources: list[PointSources] | PointSources,
