@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from evsda.blocks.pixel import DvsPixel
-from evsda.blocks.pixel.drive_kernel import drive_constants, drive_rows
+from evsda.blocks.pixel.drive_kernel import drive_constants, drive_into, drive_rows
 from evsda.blocks.pixel.fastmath import exp_, log1p_, log_
 from evsda.blocks.pixel.model import PixelModel
 from evsda.blocks.pixel.pixel_loop import ACCEPT, FLUX, LOG_A, PARA, REAL, Y
@@ -54,6 +54,11 @@ def test_compiled_drive_agrees_with_the_numpy_model(params):
     flux = np.concatenate([[0.0], 10.0 ** np.linspace(0, 13, 2001)])           # dark to saturating [photon/s]
     rows = np.empty((flux.size, len(REAL)))
     drive_rows(flux, drive_constants(model), rows)
+    one_by_one = np.empty_like(rows)
+    for row, value in zip(one_by_one, flux):                # the scalar function, one flux at a time: same bits
+        drive_into(row, value, drive_constants(model))
+    np.testing.assert_array_equal(rows[:, [FLUX, Y, LOG_A, PARA, ACCEPT]].view(np.int64),
+                                  one_by_one[:, [FLUX, Y, LOG_A, PARA, ACCEPT]].view(np.int64))
     drive = model.drive(flux)
     np.testing.assert_array_equal(rows[:, FLUX], flux)
     np.testing.assert_allclose(rows[:, Y], drive.y, rtol=1e-14, atol=1e-15)    # ln x near x = 1: absolute
