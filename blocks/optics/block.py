@@ -14,7 +14,7 @@ from evsda.graph import Block, BlockParams, Input, InputError, Output, Parameter
 from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
-from .imaging import Imager
+from .imaging import Imager, line_of_sight
 from .telescope import Telescope
 from .truth import truth_rows
 
@@ -209,7 +209,8 @@ class PointSourceOptics(Block):
                      for name, values in (("azimuth", src.boresight_azimuth_rad),
                                           ("rotation", src.field_rotation_rad))},
                   "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (len(src.t_ns), n_src))}
-        fields["rate"] = self._rates(fields, held, n_src)
+        fields["rate"] = self._rates(fields, held, n_src, self._apparent_distance)
+        fields["sky_rate"] = self._rates(fields, held, n_src, self._sky_distance(src.focal_plane))
         index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
         out = {}
         for name, values in fields.items():
@@ -231,26 +232,56 @@ class PointSourceOptics(Block):
         return out
 
     @staticmethod
-    def _rates(fields: dict, held: dict | None, n_src: int) -> np.ndarray:
-        """Apparent rate [pixel/s] at each input sample: the distance from the sample before (the held one at
-        a window's start) over the time between them; a track's first sample takes the slowest rate of the
-        input's other sources, NaN (still) where none has one (the run's first sample): a rate to the next
-        sample would depend on whether the window holds it."""
+    def _rates(fields: dict, held: dict | None, n_src: int, distance) -> np.ndarray:
+        """A rate [pixel/s] at each input sample: ``distance(before, after)`` [pixel] from the sample before (the held
+        one at a window's start), each a dict of (samples, sources) arrays, over the time between them; a track's
+        first sample takes the slowest rate of the input's other sources, NaN (still) where none has one (the run's
+        first sample): a rate to the next sample would depend on whether the window holds it."""
         n_t = len(fields["t"])
         if not n_t or not n_src:
             return np.full((n_t, n_src), np.nan)
-        x, y, t = (np.asarray(fields[n], dtype=float).reshape(n_t, n_src) for n in ("x", "y", "t"))
-        before = [np.asarray(held[n], dtype=float)[None] if held is not None and n in held
-                  and np.asarray(held[n]).shape == (n_src,) else np.full((1, n_src), np.nan) for n in ("x", "y", "t")]
-        x, y, t = (np.concatenate([b, a]) for b, a in zip(before, (x, y, t)))
+        names = ("x", "y", "t", "zenith", "azimuth", "rotation")
+        both = {}
+        for n in names:
+            values = np.asarray(fields[n], dtype=float).reshape(n_t, n_src)
+            before = np.asarray(held[n], dtype=float)[None] if held is not None and n in held \
+                and np.asarray(held[n]).shape == (n_src,) else np.full((1, n_src), np.nan)
+            both[n] = np.concatenate([before, values])
+        x, t = both["x"], both["t"]
         with np.errstate(invalid="ignore", divide="ignore"):
-            rate = np.hypot(np.diff(x, axis=0), np.diff(y, axis=0)) / (np.diff(t, axis=0) * 1e-9)
+            rate = distance({n: v[:-1] for n, v in both.items()}, {n: v[1:] for n, v in both.items()}) \
+                / (np.diff(t, axis=0) * 1e-9)
         # a track's first sample: the slowest rate of the input's other sources then (a star field moves as one)
         first = np.isnan(rate) & np.isfinite(x[1:])
         if first.any():
             slowest = np.where(np.isnan(rate), np.inf, rate).min(axis=1, initial=np.inf)
             rate = np.where(first, np.where(np.isfinite(slowest), slowest, np.nan)[:, None], rate)
         return rate
+
+    @staticmethod
+    def _apparent_distance(before: dict, after: dict) -> np.ndarray:
+        """How far a source moved on the detector [pixel]."""
+        return np.hypot(after["x"] - before["x"], after["y"] - before["y"])
+
+    @staticmethod
+    def _sky_distance(focal_plane: FocalPlane):
+        """How far a source's line of sight turned in the ground frame (azimuth/elevation), in pixels at the
+        boresight [pixel] (:func:`.line_of_sight`; the chord ``2 asin(|u1 - u2| / 2)`` keeps a sidereal step of
+        1e-7 rad exact); where the boresight's azimuth is unknown, the distance on the detector (a stare)."""
+        centre = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
+        scale = focal_plane.pixel_scale_rad
+
+        def distance(before: dict, after: dict) -> np.ndarray:
+            units = []
+            for d in (before, after):
+                theta = (np.stack([d["x"], d["y"]], axis=-1) - centre) * scale
+                u = np.stack(line_of_sight(theta, d["zenith"], d["azimuth"], d["rotation"]), axis=-1)
+                units.append(u / np.linalg.norm(u, axis=-1, keepdims=True))
+            chord = np.linalg.norm(units[1] - units[0], axis=-1)
+            turned = 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0)) / scale
+            known = np.isfinite(before["azimuth"]) & np.isfinite(after["azimuth"])
+            return np.where(known, turned, PointSourceOptics._apparent_distance(before, after))
+        return distance
 
     def step(self, window: Window, sources: list[PointSources] | PointSources,
              background: SkyBackground | None = None) -> dict:
@@ -293,8 +324,9 @@ class PointSourceOptics(Block):
         for j in np.flatnonzero(visible.any(axis=0)):                             # tracks in order
             key, tr = ids[j], {name: values[:, j] for name, values in columns.items()}
             idx = np.nonzero(visible[:, j])[0]
-            # what the pixels see of each frame: apparent rate, collected flux, sky per pixel
-            seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx]], axis=1)
+            # what the pixels see of each frame: apparent rate, collected flux, sky per pixel; and the rate of its
+            # line of sight in the ground frame, which moves its footprints through the layers
+            seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx], tr["sky_rate"][idx]], axis=1)
             jobs.append((len(jobs), key, tr, idx, seen))
             imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the

@@ -59,6 +59,19 @@ if TYPE_CHECKING:
     from .telescope import Telescope
 
 
+def line_of_sight(theta: np.ndarray, zenith_rad, azimuth_rad, rotation_rad) -> tuple[np.ndarray, ...]:
+    """East, north and up components (not normalised) of the directions at detector offsets ``theta`` (..., 2)
+    (x right, y down) [rad] from a boresight at zenith angle ``z``, azimuth ``A`` (from north through east) and
+    field rotation ``psi`` (the image's up axis turned from the local elevation direction towards increasing
+    azimuth) [rad]: ``b + alpha a + epsilon e`` (inverse gnomonic projection, Calabretta & Greisen 2002 Sec. 5.1.1),
+    ``alpha, epsilon`` the offsets along azimuth and elevation, ``a``, ``e`` their unit vectors at the boresight."""
+    xi, eta = theta[..., 0], -theta[..., 1]                                              # image right, up [rad]
+    c, s = np.cos(rotation_rad), np.sin(rotation_rad)
+    alpha, epsilon = xi * c + eta * s, eta * c - xi * s                                   # along azimuth, elevation
+    sa, ca, sz, cz = np.sin(azimuth_rad), np.cos(azimuth_rad), np.sin(zenith_rad), np.cos(zenith_rad)
+    return sa * sz + alpha * ca - epsilon * sa * cz, ca * sz - alpha * sa - epsilon * ca * cz, cz + epsilon * sz
+
+
 class Imager:
     """Point-source imaging through turbulence with a choice of PSF paths (:mod:`.paths`).
 
@@ -132,9 +145,11 @@ class Imager:
         """Stamps from pupil phases or fields on the run's pupil grid (``pupil_fft``, ``reference``, the probes)."""
         if self._pupil_renderer is None:
             g = self.geometry
+            # the amplitude first: a thread that finds the renderer made (the reference probes run on threads)
+            # must find the amplitude too
+            self._amplitude = self.telescope.pupil(g.n_pupil, g.delta_m)
             self._pupil_renderer = PupilRenderer(self.sampler, g.n_pupil, g.delta_m, self.wavelength,
                                                  self.telescope.collecting_area_m2)
-            self._amplitude = self.telescope.pupil(g.n_pupil, g.delta_m)
         return self._pupil_renderer
 
     @property
@@ -217,13 +232,7 @@ class Imager:
         azimuth = np.asarray(azimuth_rad, dtype=float)
         rotation = np.asarray(rotation_rad, dtype=float)
         known = np.isfinite(azimuth) & np.isfinite(rotation)
-        xi, eta = theta[..., 0], -theta[..., 1]                                          # image right, up [rad]
-        c, s = np.cos(rotation), np.sin(rotation)
-        alpha, epsilon = xi * c + eta * s, eta * c - xi * s                               # along azimuth, elevation
-        sa, ca, sz, cz = np.sin(azimuth), np.cos(azimuth), np.sin(zenith), np.cos(zenith)
-        east = sa * sz + alpha * ca - epsilon * sa * cz
-        north = ca * sz - alpha * sa - epsilon * ca * cz
-        up = cz + epsilon * sz
+        east, north, up = line_of_sight(theta, zenith, azimuth, rotation)
         a0, z0, psi0 = self.frame
         with np.errstate(invalid="ignore", divide="ignore"):
             ge, gn = east / up - np.sin(a0) * np.tan(z0), north / up - np.cos(a0) * np.tan(z0)

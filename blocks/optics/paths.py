@@ -37,7 +37,9 @@ choice is a pure function of the bin and of the run's seed.
 **What the pixels see** (with a detector, the block's ``detector``: :mod:`.pixel_view`). The
 error that matters is that of the image the pixels respond to, the irradiance low-passed by the
 photoreceptor, not that of one render time. Bins then also hold the source's apparent rate, its
-flux and the sky (factors of 2), and each bin's estimate is taken at the bin's worst edge:
+flux, the sky and the rate its line of sight turns in the ground frame (factors of 2; the last moves
+its footprints through the layers, :meth:`.Imager.sight`: on a tracking mount the satellite's, not the
+streaking stars'), and each bin's estimate is taken at the bin's worst edge:
 
 * a source that cannot move any pixel's filtered log intensity by the array's smallest threshold,
   even with all of its flux on one pixel above the darkest sky of the bin for the longest time its
@@ -45,7 +47,7 @@ flux and the sky (factors of 2), and each bin's estimate is taken at the bin's w
   its own; the long-exposure PSF gives its mean irradiance);
 * otherwise the pixel's filter (time constant ``tau`` at the brightest current the source can make)
   averages ``K_eff`` independent short exposures (:func:`.pixel_view.averaged_frames`, at the
-  slowest footprint speeds the bin allows), and an analytic path's error is its distance from the
+  slowest footprint speeds the bin's line-of-sight rate allows), and an analytic path's error is its distance from the
   mean of ``K_eff`` pupil-path frames: ``sqrt(b^2 + s^2 / K)`` fitted to the probe's distances of
   means of 1, 2, 3, 4, 6, 8, 12 and 24 frames held at one position, averaged over 8 positions
   (``b``: the bias left when the turbulence is averaged away, ``s``: one frame's fluctuation).
@@ -135,22 +137,28 @@ def conditions_key(zenith_rad: float, range_m: float, turbulent: bool) -> tuple[
     return z, r
 
 
-def seen_key(rate_px_s: float, source_photon_s: float, sky_photon_s: float) -> tuple[int, int, int]:
+def seen_key(rate_px_s: float, source_photon_s: float, sky_photon_s: float,
+             sight_rate_px_s: float | None = None) -> tuple[int, int, int, int]:
     """Bin of what the pixels see: factors of ``SEEN_BIN_RATIO`` of the apparent rate (-1 below
-    ``STILL_RATE_PX_S`` or unknown), of the source's collected flux and of the sky per pixel (-1 below 1)."""
+    ``STILL_RATE_PX_S`` or unknown), of the source's collected flux and of the sky per pixel (-1 below 1),
+    and of the rate its line of sight turns in the ground frame [pixel/s] (as the apparent rate; a staring
+    mount's, the apparent rate, when not given)."""
     def log_bin(value: float, least: float) -> int:
         return int(np.floor(np.log(value) / np.log(SEEN_BIN_RATIO))) if value >= least else -1
     rate = float(rate_px_s) if np.isfinite(rate_px_s) else 0.0
-    return log_bin(rate, STILL_RATE_PX_S), log_bin(float(source_photon_s), 1.0), log_bin(float(sky_photon_s), 1.0)
+    sight = rate if sight_rate_px_s is None else float(sight_rate_px_s) if np.isfinite(sight_rate_px_s) else 0.0
+    return (log_bin(rate, STILL_RATE_PX_S), log_bin(float(source_photon_s), 1.0), log_bin(float(sky_photon_s), 1.0),
+            log_bin(sight, STILL_RATE_PX_S))
 
 
-def seen_edges(key: tuple[int, int, int]) -> tuple[float, float, float, float]:
+def seen_edges(key: tuple[int, int, int, int]) -> tuple[float, float, float, float, float]:
     """The bin's worst edges: slowest rate [pixel/s], brightest source [photon/s], darkest and brightest sky
-    [photon/s per pixel] (each the one that makes the pixels see more of the turbulence)."""
-    rate, flux, sky = key
+    [photon/s per pixel] (each the one that makes the pixels see more of the turbulence), and the slowest turn
+    of the line of sight [pixel/s]."""
+    rate, flux, sky, sight = key
     edge = SEEN_BIN_RATIO
     return (0.0 if rate < 0 else edge**rate, edge ** (flux + 1) if flux >= 0 else 1.0,
-            0.0 if sky < 0 else edge**sky, 1.0 if sky < 0 else edge ** (sky + 1))
+            0.0 if sky < 0 else edge**sky, 1.0 if sky < 0 else edge ** (sky + 1), 0.0 if sight < 0 else edge**sight)
 
 
 def fit_averaged(frames: np.ndarray, distances: np.ndarray) -> tuple[float, float]:
@@ -193,7 +201,8 @@ class PathChooser:
 
     def key(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> tuple:
         """The bin of these conditions (:func:`conditions_key`), with what the pixels see
-        (``seen``: rate [pixel/s], source flux [photon/s], sky [photon/s per pixel]; :func:`seen_key`)
+        (``seen``: rate [pixel/s], source flux [photon/s], sky [photon/s per pixel] and, optionally, the line of
+        sight's rate in the ground frame [pixel/s]; :func:`seen_key`)
         when the chooser knows the detector and decides (``psf_path: auto``) in turbulence."""
         key = conditions_key(zenith_rad, range_m, self.imager.turbulent(zenith_rad))
         if seen is None or self.pixels is None or self.forced_path != "auto" or key[0] < 0:
@@ -201,7 +210,7 @@ class PathChooser:
         return key + seen_key(*seen)
 
     def keys(self, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> list[tuple]:
-        """:meth:`key` of every frame (``seen`` (F, 3) or None), the same numbers computed array-wise."""
+        """:meth:`key` of every frame (``seen`` (F, 3) or (F, 4), or None), the same numbers computed array-wise."""
         z, r = np.asarray(zenith_rad, dtype=float), np.asarray(range_m, dtype=float)
         turbulent = np.isfinite(z) & (self.imager.atmosphere is not None)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -213,8 +222,9 @@ class PathChooser:
             return base
         seen = np.asarray(seen, dtype=float)
         rate = np.where(np.isfinite(seen[:, 0]), seen[:, 0], 0.0)
+        sight = rate if seen.shape[1] < 4 else np.where(np.isfinite(seen[:, 3]), seen[:, 3], 0.0)
         bins = []
-        for value, least in ((rate, STILL_RATE_PX_S), (seen[:, 1], 1.0), (seen[:, 2], 1.0)):
+        for value, least in ((rate, STILL_RATE_PX_S), (seen[:, 1], 1.0), (seen[:, 2], 1.0), (sight, STILL_RATE_PX_S)):
             with np.errstate(invalid="ignore", divide="ignore"):
                 logs = np.floor(np.log(np.where(value >= least, value, 1.0)) / np.log(SEEN_BIN_RATIO))
             bins.append(np.where(value >= least, logs, -1.0).astype(np.int64).tolist())
@@ -299,11 +309,12 @@ class PathChooser:
         self._estimates[cache] = (estimates, fits)
         return self._estimates[cache]
 
-    def _choose_seen(self, zenith_rad: float, range_m: float, seen: tuple[int, int, int], context: str) -> PathChoice:
+    def _choose_seen(self, zenith_rad: float, range_m: float, seen: tuple[int, int, int, int],
+                     context: str) -> PathChoice:
         """The choice for a bin of what the pixels see (module docstring): ``long_exposure`` for a source no pixel
         can see, else the cheapest path whose distance from the mean of the frames the pixels average is in tolerance."""
         imager, pixels = self.imager, self.pixels
-        rate_px_s, source, sky_low, sky_high = seen_edges(seen)
+        rate_px_s, source, sky_low, sky_high, sight_px_s = seen_edges(seen)
         step = pixels.seen_step(source, sky_low, rate_px_s)
         if step < pixels.threshold_min:          # no probe needed: whatever the PSF, no pixel fires
             reason = (f"path 'long_exposure': the source cannot make a pixel fire: at most {source:.3g} photon/s on "
@@ -316,13 +327,14 @@ class PathChooser:
         cn2 = np.array([layer.cn2_dh for layer in atmosphere.layers])
         speeds = footprint_speeds(np.array([layer.altitude_m for layer in atmosphere.layers]),
                                   np.array([layer.wind_speed_m_s for layer in atmosphere.layers]), zenith_rad,
-                                  rate_px_s * imager.pixel_scale)
+                                  sight_px_s * imager.pixel_scale)
         k_eff = averaged_frames(tau, cn2 / cn2.sum(), speeds, imager.telescope.diameter_m)
         estimates = dict(instantaneous)
         for name, fit in fits.items():
             estimates[name] = averaged_distance(fit, k_eff) + estimates["pupil_fft"]
         seen_context = (f"{context}; the pixels average {k_eff:.3g} short exposures: tau {tau * 1e3:.3g} ms at "
-                        f"{source:.3g} photon/s on a pixel, rate >= {rate_px_s:.3g} pixel/s")
+                        f"{source:.3g} photon/s on a pixel, rate >= {rate_px_s:.3g} pixel/s, line of sight "
+                        f">= {sight_px_s:.3g} pixel/s")
         return pick(estimates, imager.tolerance, seen_context)
 
     def pupil_error(self, zenith_rad: float, range_m: float) -> float:

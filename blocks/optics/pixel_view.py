@@ -17,7 +17,8 @@ at the pixel's current), and it fires only when its log intensity moves by a thr
 The turbulence of one layer decorrelates as its footprint moves across the pupil: frozen flow
 (Taylor's hypothesis) with the footprint's velocity in the optics' own kinematics
 (:meth:`.Imager.footprints`: ``L omega - v_wind``, ``L`` the slant distance and ``omega`` the
-source's angular rate on the sky). The image's tilt, the largest part of a short exposure's
+rate of the source's line of sight in the ground frame: its apparent rate on a staring mount, the
+mount's rate for a tracked satellite, the sidereal rate for a star seen from a tracking mount). The image's tilt, the largest part of a short exposure's
 departure from the long exposure when the pixels are larger than ``lambda / r0``, changes over a
 shift of one aperture diameter ``D`` (the tilt's temporal spectrum has its corner at
 ``0.3 v / D``, Conan, Rousset & Madec 1995, JOSA A 12, 1559), the speckle over ``0.31 r0``

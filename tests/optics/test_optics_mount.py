@@ -91,3 +91,22 @@ def test_tracked_run_does_not_depend_on_windows_threads_or_resume(params, monkey
     resumed.set_state(state)
     tail = resumed.step(windows[1], sources=[tracked(windows[1])])["irradiance"].stamp_flux
     np.testing.assert_array_equal(tail, whole[10:])
+
+
+def test_path_choice_reads_the_line_of_sight_rate_not_the_streak(params):
+    """The pixels see a streaking star and a still satellite; the layers see the reverse: the chooser's bins keep
+    the apparent rate (the pixels' dwell) and the line of sight's rate in the ground frame (footprint speeds)."""
+    window = windows_of(0.02, 0.02)[0]
+    block = PointSourceOptics(**params)
+    block.setup(RunInfo(duration_ns=window.stop_ns))
+    held = block._held_samples("0", tracked(window), window.sample_times_ns(CADENCE_NS))
+    turn_px_s = TURN_RAD_S / FOCAL_PLANE.pixel_scale_rad                   # 3000 pixel/s
+    satellite, star = 0, 1
+    later = slice(1, None)                                                 # the run's first sample: still (NaN)
+    np.testing.assert_allclose(held["rate"][later, satellite], 0.0, atol=1e-9)
+    np.testing.assert_allclose(held["sky_rate"][later, satellite], turn_px_s, rtol=1e-6)
+    np.testing.assert_allclose(held["rate"][later, star], turn_px_s, rtol=1e-3)  # gnomonic tan over 80 pixels
+    assert np.abs(held["sky_rate"][later, star]).max() < 1e-3
+    # read as a stare, the line of sight turns with the apparent rate
+    staring = block._held_samples("1", tracked(window, mount=False), window.sample_times_ns(CADENCE_NS))
+    np.testing.assert_array_equal(staring["sky_rate"], staring["rate"])
