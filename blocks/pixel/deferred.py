@@ -26,8 +26,6 @@ rounding tolerance and a margin for floating-point rounding), the pixel cannot f
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
@@ -41,47 +39,21 @@ from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCAL
 ROUNDING_MARGIN = 1e-9
 
 
-#: a bound found for a pixel is kept for later windows while the background's later changes stay within this of the
-#: ``Y`` it had when the bound was found [ln of current] (0.05 of Gen4's thresholds; the tracked pass's sky moves
-#: ~3e-4 a window) and its parasitic rate within this fraction of its rate then [1]
-ENVELOPE_Y = 0.01
-ENVELOPE_PARA = 0.01
-_LONGEST_QUIET = np.int64(1) << np.int64(40)          # longest stretch a bound is kept for [steps]
-
-
 @numba.njit(cache=True, error_model="numpy")
-def _cannot_fire(r, step, y_high, y_low, para_high, n_end, leak_dt, dt):
-    """Whether a pixel (state row ``r`` at ``step``) provably cannot fire before ``n_end`` under pending changes whose
-    largest and smallest ``Y`` and largest parasitic rate are ``y_high``, ``y_low``, ``para_high`` (the module's bound).
-
-    Monotone: it holds also for any smaller ``n_end`` and ``y_high``, larger ``y_low`` and smaller ``para_high``
-    (each operation rounds monotonically)."""
-    high = max(r[L_], r[Y], y_high)
-    low = min(r[L_], r[Y], y_low)
-    drift = (leak_dt * r[NOISE_SCALE] + max(r[PARA], para_high) * dt) * r[TH_ON]
+def _cannot_fire(r, step, k, y_high, y_low, para_high, n_end, leak_dt, dt):
+    """Whether a pixel (state row ``r`` at ``step``) provably cannot fire before ``n_end`` under its
+    pending changes from index ``k`` of the suffix tables (see the module's bound)."""
+    high = max(r[L_], r[Y], y_high[k])
+    low = min(r[L_], r[Y], y_low[k])
+    drift = (leak_dt * r[NOISE_SCALE] + max(r[PARA], para_high[k]) * dt) * r[TH_ON]
     rise = high - r[M_] + drift * max(n_end - 1 - step, 0)
     fall = low - r[M_]
     return rise < r[TH_ON] - TOLERANCE - ROUNDING_MARGIN and fall > -(r[TH_OFF] - TOLERANCE) + ROUNDING_MARGIN
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _quiet_until(r, step, y_high, y_low, para_high, n_end, leak_dt, dt):
-    """The latest step ``>= n_end`` before which the pixel provably cannot fire under the given bounds on its pending
-    changes (:func:`_cannot_fire`, checked there), or -1 where that is not shown."""
-    high = max(r[L_], r[Y], y_high)
-    drift = (leak_dt * r[NOISE_SCALE] + max(r[PARA], para_high) * dt) * r[TH_ON]
-    room = (r[TH_ON] - TOLERANCE - ROUNDING_MARGIN - (high - r[M_])) / drift         # steps of drift left [steps]
-    until = n_end + _LONGEST_QUIET
-    if room < float(_LONGEST_QUIET):                   # (inf, for no drift, is not; NaN is not either)
-        until = min(step + np.int64(max(math.floor(room), 0.0)), until)
-    if until < n_end or not _cannot_fire(r, step, y_high, y_low, para_high, until, leak_dt, dt):
-        return np.int64(-1)
-    return until
-
-
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
 def select_pixels(real, count, next_step, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
-                  leak_dt, dt, defer, quiet, envelope):
+                  leak_dt, dt, defer):
     """The pixels a window must process, in order, and whether each takes pending background changes.
 
     A pixel is processed when it is due before ``n_end`` (``next_step``), has its own input
@@ -89,41 +61,24 @@ def select_pixels(real, count, next_step, applied, touched, changed, n_end, base
     with background changes it has not taken (``applied < end``) that could make it fire
     (:func:`_cannot_fire`; ``y_high``, ``y_low``, ``para_high``: :meth:`SharedChanges.suffix_bounds`).
     ``defer`` False takes every change to every pixel at once (the reference the tests compare with).
-
-    ``quiet`` (per pixel) keeps, from the window a pixel was last checked in, a step before which
-    it cannot fire under its pending changes and any later ones within ``envelope`` (``Y`` between
-    ``envelope[0]`` and ``envelope[1]``, parasitic rate up to ``envelope[2]``; the caller resets
-    ``quiet`` to -1 when a change leaves it): while ``n_end`` has not passed it, the pixel is
-    left alone without reading its state. Since the bound is monotone, the pixels chosen are those
-    the check itself would choose (tested). Processed pixels and those under stamps get -1.
     Returns ``(pixels, takes)``: ``takes`` marks those away from the stamps with pending changes.
     """
     n = next_step.size
     pixels = np.empty(n, np.int64)
     takes = np.empty(n, np.bool_)
     m, it, ic = 0, 0, 0
-    stamped = touched[0] if touched.size else n          # the next pixel under stamps
     for p in range(n):
-        if p != stamped and next_step[p] >= n_end and quiet[p] >= n_end:
-            continue                                   # most pixels: nothing due, a bound kept (only 16 B read)
-        under = p == stamped
+        under = it < touched.size and touched[it] == p
         if under:
             it += 1
-            stamped = touched[it] if it < touched.size else n
         own = ic < changed.size and changed[ic] == p
         if own:
             ic += 1
         busy = own or next_step[p] < n_end
         behind = (not under) and applied[p] < end
-        if behind and not busy and quiet[p] < n_end:
-            k = applied[p] - base
-            busy = not defer or not _cannot_fire(real[p], count[p, STEP], y_high[k], y_low[k], para_high[k], n_end,
-                                                 leak_dt, dt)
-            if not busy:
-                quiet[p] = _quiet_until(real[p], count[p, STEP], max(y_high[k], envelope[1]),
-                                        min(y_low[k], envelope[0]), max(para_high[k], envelope[2]), n_end, leak_dt, dt)
-        if busy or under:
-            quiet[p] = -1
+        if behind and not busy:
+            busy = not defer or not _cannot_fire(real[p], count[p, STEP], applied[p] - base, y_high, y_low, para_high, n_end,
+                                    leak_dt, dt)
         if busy:
             pixels[m] = p
             takes[m] = behind

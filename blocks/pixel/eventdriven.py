@@ -34,7 +34,7 @@ from evsda.blocks.threads import worker_threads
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
-from .deferred import ENVELOPE_PARA, ENVELOPE_Y, SharedChanges, select_pixels
+from .deferred import SharedChanges, select_pixels
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
 from .own_changes import own_changes
@@ -51,9 +51,6 @@ class EventDrivenPixels:
 
     #: leave background changes out of pixels they cannot make fire (:mod:`.deferred`); False: the reference
     defer_background = True
-    #: keep each deferred pixel's bound for later windows (:func:`.deferred.select_pixels`); False: every pixel behind is
-    #: checked again every window (the reference the tests compare with)
-    remember_quiet = True
 
     def __init__(self, model: PixelModel, state: dict):
         self.model = model
@@ -65,8 +62,6 @@ class EventDrivenPixels:
                            np.int64(model.refractory_steps), q,
                            np.int64(state["key"]), p.threshold_redraw,
                            p.threshold_on, p.threshold_off, p.threshold_sigma, p.threshold_floor)
-        self._quiet: np.ndarray | None = None            # see _quiet_steps
-        self._envelope = np.zeros(3)                     # Y range and parasitic rate the quiet steps hold for
 
     def _inputs(self, flux: np.ndarray) -> np.ndarray:
         """Rows of the state table's input columns for photon fluxes ``flux`` (Eqs. 12-16, 19-20).
@@ -139,14 +134,11 @@ class EventDrivenPixels:
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
         kept = s["shared_step"].size                          # changes from before this window
         if shared.size:
-            rows = self._inputs(background[shared])
-            history.append(steps[shared], rows)
-            self._hold_envelope(rows)
+            history.append(steps[shared], self._inputs(background[shared]))
         leak_hz, dt, large = self._constants[:3]
         pixels, takes = select_pixels(s["real"], s["count"], s["next"], s["applied"], touched, changed, np.int64(n_end),
                                       np.int64(s["shared_base"]), np.int64(history.end),
-                                      *history.suffix_bounds(Y, PARA), leak_hz * dt, dt, self.defer_background,
-                                      self._quiet_steps(), self._envelope)
+                                      *history.suffix_bounds(Y, PARA), leak_hz * dt, dt, self.defer_background)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
         taking = pixels[takes]
         history.take_all_but_last(taking, kept, leak_hz, dt, large)
@@ -160,31 +152,11 @@ class EventDrivenPixels:
         history.taken(touched)
         history.prune()
 
-    def _quiet_steps(self) -> np.ndarray:
-        """Per pixel, the step before which it is known not to fire under pending background changes
-        (:func:`.deferred.select_pixels`; -1: not known). Not part of the state: a fresh engine finds them again."""
-        n = self.s["real"].shape[0]
-        if self._quiet is None or self._quiet.size != n or not self.remember_quiet:
-            self._quiet = np.full(n, -1, np.int64)
-        return self._quiet
-
-    def _hold_envelope(self, rows: np.ndarray) -> None:
-        """Keep the pixels' known quiet steps while the background's new changes (input ``rows``) stay within the
-        envelope they were found for; else forget them and centre a new envelope on the latest change."""
-        e = self._envelope
-        if (e[1] - e[0] > 0 and rows[:, Y].min() >= e[0] and rows[:, Y].max() <= e[1]
-                and rows[:, PARA].max() <= e[2]):
-            return
-        y, para = rows[-1, Y], rows[-1, PARA]
-        self._envelope = np.array([y - ENVELOPE_Y, y + ENVELOPE_Y, para * (1.0 + ENVELOPE_PARA)])
-        self._quiet_steps().fill(-1)
-
     def take_pending(self) -> None:
         """Give every pixel the background changes it was left out of (its state then reads as if it took each
         at once; events are unaffected either way)."""
         history = SharedChanges(self.s, len(REAL))
         self._catch_up(history, history.behind(np.arange(self.s["real"].shape[0])))
-        self._quiet_steps().fill(-1)
 
     def _catch_up(self, history: SharedChanges, pixels: np.ndarray) -> None:
         """Give ``pixels`` the background changes they have not taken (all before the present window).
@@ -231,7 +203,6 @@ class EventDrivenPixels:
 
             self._run(off.size, kernel, log)
         s["off_background"] = np.flatnonzero(off_background)
-        self._quiet_steps().fill(-1)
 
     def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
         """The event-driven loop (:func:`.pixel_loop.run_chunk`) over ``pixels``, pixel ``pixels[i]`` with the

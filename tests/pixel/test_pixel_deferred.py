@@ -107,27 +107,3 @@ def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large):
     np.testing.assert_array_equal(fast_real.view(np.int64), real.view(np.int64))
     np.testing.assert_array_equal(fast_count, count)
 
-
-@pytest.mark.parametrize("form", ["small_signal", "large_signal"])
-def test_remembered_bounds_choose_the_pixels_the_bound_chooses(monkeypatch, form):
-    # select_pixels skips a pixel whose bound, found in an earlier window for its pending changes and any later ones
-    # within an envelope, still holds; it must leave out exactly the pixels the check itself leaves out, every window
-    # (the sky drifts inside the envelope, then jumps out of it at 0.13 s and 0.21 s)
-    def applied_per_window(remember):
-        monkeypatch.setattr(EventDrivenPixels, "remember_quiet", remember)
-        block = DvsPixel(seed=11, lowpass_form=form, **NOISY)
-        block.setup(RunInfo(duration_ns=300_000_000))
-        out, skipped = [], 0
-        for i in range(10):
-            window = Window.from_seconds(i * 0.03, (i + 1) * 0.03, index=i)
-            e = block.step(window, irradiance=irradiance(window))["events"]
-            out.append((block.pixels["applied"].copy(), e.t_ns, e.x, e.y, e.p))
-            quiet = block._engine._quiet
-            skipped = max(skipped, int(np.sum(quiet >= (window.stop_ns + 30_000_000) // 1000)))   # 1 us steps: next window
-        return out, skipped
-    remembered, skipped = applied_per_window(True)
-    checked, _ = applied_per_window(False)
-    assert skipped > FP.width_px * FP.height_px // 2              # most pixels were left alone on a kept bound
-    for a, b in zip(remembered, checked):
-        for u, v in zip(a, b):
-            np.testing.assert_array_equal(u, v)
