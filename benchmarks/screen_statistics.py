@@ -15,7 +15,10 @@ references are exact for the grid:
    (piston removed; Noll 1976 Table IV's values are its ``L0 -> inf`` limit, printed beside);
 3. drift along a long walk: the lag-1 and footprint structure functions and the piston-removed
    variance in each tenth of the walk, and the structure function of one point's values over the
-   whole walk at lags up to half of it (a repeating screen would dip back towards 0);
+   whole walk at lags of 1 to 4096 samples (the large scales: :mod:`.large_scales`; a repeating
+   screen would dip back towards 0), with the spread of the per-walk values against a Gaussian
+   field's, ``sqrt(2 sum_(i,j) c_ij^2) / N`` with ``c_ij = (D(s+k) + D(s-k))/2 - D(s)``, ``s = j - i``
+   (how far one walk's statistics stand for the ensemble's);
 4. image wander: a footprint drifting diagonally (0.3, 0.4 samples per frame, 3000 frames, as the
    wind carries a static star's), the RMS difference between the mean tilts of the two halves.
 
@@ -23,6 +26,7 @@ Every figure is the mean over ``--seeds`` independent screens with its standard 
 spread of the per-screen values / sqrt(seeds)), and the deviation in standard errors.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/screen_statistics.py [--seeds 200] [--columns 10000]
+    ... --without-large-scales     # the conditional draws alone (outer scale L0, no modes): the screens before
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import time
 import numpy as np
 
 from evsda.blocks.optics.kolmogorov import structure_function
+from evsda.blocks.optics import layer_screen
 from evsda.blocks.optics.layer_screen import LayerScreen
 from evsda.blocks.optics.screen_kernels import MARGIN
 from evsda.blocks.optics.zernike import NOLL_1976_RESIDUALS, zernike_basis
@@ -132,7 +137,11 @@ def main() -> None:
     parser.add_argument("--across", type=int, default=12, help="footprint width [samples]")
     parser.add_argument("--speed", type=float, default=1.0, help="columns per frame")
     parser.add_argument("--seam-screens", type=int, default=2000, help="screens for the seam statistics")
+    parser.add_argument("--without-large-scales", action="store_true",
+                        help="the conditional draws alone, with von Karman's L0 (the screens before the modes)")
     args = parser.parse_args()
+    if args.without_large_scales:
+        layer_screen.split_outer_scale = lambda n, delta, L0: L0
     across = args.across
     lags = np.array([1, 2, 4, 8, across])
     t0 = time.process_time()
@@ -152,8 +161,10 @@ def main() -> None:
             series.append(point)
     cpu = time.process_time() - t0
     n = window_width(across)
+    L1 = LayerScreen(n, DELTA_M, (0,), L0=L0_M).L1
     print(f"{args.seeds} screens, window {n} samples for a {across}-sample footprint, {args.columns} columns walked "
-          f"{args.speed:g} per frame; delta {DELTA_M} m, L0 {L0_M} m, r0 = 1 m; {cpu:.1f} s CPU")
+          f"{args.speed:g} per frame; delta {DELTA_M} m, L0 {L0_M} m, r0 = 1 m; conditional draws' outer scale "
+          f"L1 {L1:.2f} m{' (no large-scale modes)' if L1 == L0_M else ''}; {cpu:.1f} s CPU")
     expected = structure_function(lags * DELTA_M, 1.0, L0_M)
     names = [f"lag {k}" for k in lags]
     report(f"1. structure function [rad^2], pairs across the seam (regenerated | extended), along the walk "
@@ -177,14 +188,30 @@ def main() -> None:
               f"{slope.mean():+.5f} +- {slope.std(ddof=1) / np.sqrt(len(slope)):.5f}")
     if series:
         s = np.array(series)
-        long_lags = np.array([k for k in (1, 4, 16, 64, 256, 1000, 2000, 4000) if k <= s.shape[1] // 2])
+        long_lags = np.array([k for k in (1, 4, 16, 64, 256, 1024, 2048, 4096) if k <= s.shape[1] // 2])
         per = np.array([[np.mean((x[k:] - x[:-k]) ** 2) for k in long_lags] for x in s])
-        report("   one point's values over the walk: structure function at long lags", per,
-               structure_function(long_lags * DELTA_M, 1.0, L0_M), [f"lag {k}" for k in long_lags])
+        expected = structure_function(long_lags * DELTA_M, 1.0, L0_M)
+        report("   one point's values over the walk: structure function at long lags", per, expected,
+               [f"lag {k}" for k in long_lags])
+        spread = per.std(axis=0, ddof=1) / expected
+        gaussian = [gaussian_spread(k, s.shape[1]) / x for k, x in zip(long_lags, expected)]
+        print("     spread of one walk's value / von Karman's: " + "  ".join(
+            f"lag {k}: {a:.3f} (Gaussian field {b:.3f})" for k, a, b in zip(long_lags, spread, gaussian)))
     shifts = np.array([wander(seed, across) for seed in range(min(args.seeds, 150))])
     rms = np.sqrt(np.mean(shifts**2, axis=0))
     print(f"4. image wander, {len(shifts)} drifting footprints: RMS difference of the halves' mean tilts "
           f"x {rms[0]:.4f}, y {rms[1]:.4f} rad/sample (+- {rms.mean() / np.sqrt(2 * len(shifts)):.4f})")
+
+
+def gaussian_spread(lag: int, length: int) -> float:
+    """Standard deviation [rad^2] of one walk's mean squared difference at ``lag`` over ``length`` samples of a
+    Gaussian field with von Karman's structure function D: ``Var = (2 / N^2) sum_(i,j) c_ij^2`` (Isserlis), with
+    ``c_ij = (D(s + lag) + D(s - lag)) / 2 - D(s)`` the covariance of two differences ``s = j - i`` apart."""
+    n = length - lag
+    s = np.arange(-(n - 1), n)
+    d = lambda k: structure_function(np.abs(k) * DELTA_M, 1.0, L0_M)
+    c = 0.5 * (d(s + lag) + d(s - lag)) - d(s)
+    return float(np.sqrt(2 * np.sum((n - np.abs(s)) * c**2)) / n)
 
 
 def wander(seed: int, across: int, frames: int = 3000, velocity=(0.3, 0.4)) -> np.ndarray:

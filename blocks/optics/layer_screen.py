@@ -2,8 +2,10 @@
 
 The window holds the ``n x n`` cubic B-spline coefficients, spaced ``delta`` [m], of a screen
 drawn for ``r0 = 1 m`` (multiply by ``r0^(-5/6)`` for a layer of Fried parameter ``r0``): the
-spline through them takes von Karman statistics on the grid (:mod:`.autoregressive`). Its first sample sits
-at the absolute index ``origin`` (row, column) of the unbounded screen, so a footprint
+spline through them takes the statistics of von Karman's screen of the shorter outer scale ``L1``
+on the grid (:mod:`.autoregressive`), and the scales beyond it are random Fourier modes added to
+the coefficients where a frame reads them (:mod:`.large_scales`): together, von Karman's of ``L0``.
+Its first sample sits at the absolute index ``origin`` (row, column) of the unbounded screen, so a footprint
 is addressed in absolute screen coordinates ``[delta]`` that do not depend on when the
 window moved. When a footprint would leave the window the screen is
 
@@ -45,7 +47,8 @@ from scipy.ndimage import correlate1d
 
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_phase_screen_corner
-from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, sample_grids_transposed
+from .large_scales import SEED_WORD, LargeScales, split_outer_scale
+from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans, sample_grids_transposed
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -77,6 +80,11 @@ class LayerScreen:
             raise ValueError("extending a screen needs a finite outer scale L0")
         self.n, self.delta, self.seed = int(n), float(delta), tuple(int(s) for s in seed)
         self.L0, self.update = float(L0), update
+        # the conditional draws make von Karman's screen of outer scale L1 <= L0, the rest are large-scale modes;
+        # windows wider than SELF_START_SAMPLES keep L0: cut from FFT screens with subharmonics, their stencil
+        # reaching back 127 columns and more (the reference path's: a modes' sum over their whole window per read)
+        self.L1 = split_outer_scale(self.n, self.delta, self.L0) if self.n <= SELF_START_SAMPLES else self.L0
+        self._large: tuple[int, LargeScales] | None = None     # (epoch, its modes)
         self.coefficients: np.ndarray | None = None   # B-spline coefficients of the window [rad, r0 = 1 m]
         self.origin = np.zeros(2, dtype=np.int64)
         self.epoch = -1            # revisit period the screen belongs to
@@ -99,7 +107,7 @@ class LayerScreen:
         """B-spline coefficients of a window cut from an FFT screen twice as wide (cf. Johansson & Gavel 1994: the
         low orders kept), prefiltered where the truncated filter has every sample it needs."""
         n, half = self.n, PREFILTER_HALF_WIDTH
-        cut = fft_phase_screen_corner(self._rng, max(2 * n, n + 2 * half), n + 2 * half, self.delta, 1.0, self.L0)
+        cut = fft_phase_screen_corner(self._rng, max(2 * n, n + 2 * half), n + 2 * half, self.delta, 1.0, self.L1)
         coefficients = correlate1d(correlate1d(cut, _TAPS, axis=0), _TAPS, axis=1)
         return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
 
@@ -111,14 +119,14 @@ class LayerScreen:
         # the first columns exactly, then one conditional column at a time, each on the stencil the columns
         # made so far allow (the operators change where the stencil gains a column: 4, 8, 16, ...); the window
         # keeps the last n
-        canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L0)
+        canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L1)
                                     @ self._rng.standard_normal(FULL_COLUMNS * n)).reshape(FULL_COLUMNS, n).T
         made = FULL_COLUMNS
         while made < width:
             stop = made + 1
             while stop < width and stencil_width(min(stop, n)) == stencil_width(min(made, n)):
                 stop += 1
-            operator = extension_operator(n, 1, self.delta, self.L0, min(made, n))
+            operator = extension_operator(n, 1, self.delta, self.L1, min(made, n))
             steps = np.arange(made, stop, dtype=np.int64)
             extend_columns(canvas, np.zeros_like(steps), steps - n, np.full_like(steps, RIGHT), operator.A, operator.B,
                            operator.stencil_rows, operator.stencil_cols, self._rng.standard_normal(n * len(steps)), n)
@@ -189,7 +197,7 @@ class LayerScreen:
         canvas = np.empty(tuple(np.maximum(before.max(axis=0), after) + n - lo))    # only windows are written and read
         top, left = self.origin - lo
         canvas[top:top + n, left:left + n] = self.coefficients
-        operator = extension_operator(n, 1, self.delta, self.L0, n)
+        operator = extension_operator(n, 1, self.delta, self.L1, n)
         noise = self._rng.standard_normal(n * len(sides))
         extend_columns(canvas, before[:, 0] - lo[0], before[:, 1] - lo[1], sides.astype(np.int64), operator.A,
                        operator.B, operator.stencil_rows, operator.stencil_cols, noise, n)
@@ -197,6 +205,31 @@ class LayerScreen:
         top, left = after - lo
         self.coefficients = np.ascontiguousarray(canvas[top:top + n, left:left + n])
         return canvas, lo
+
+    def _with_large_scales(self, coefficients: np.ndarray, top: int, left: int, rows: np.ndarray,
+                           cols: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """``coefficients`` (first sample at absolute (``top``, ``left``)) with the present epoch's large-scale modes
+        (:mod:`.large_scales`; drawn from their own generator seeded by ``(seed, epoch)``) added where the frames'
+        grids ``rows`` (F, ny), ``cols`` (F, nx) [samples] read them (an array defined there only), with ``top`` and
+        ``left``, so the reads' arithmetic is unchanged."""
+        if self.L1 == self.L0:
+            return coefficients, top, left
+        if self._large is None or self._large[0] != self.epoch:
+            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+                [*self.seed, self.epoch & 0xFFFFFFFF, SEED_WORD])))
+            self._large = (self.epoch, LargeScales(rng, self.delta, self.L0, self.L1))
+        # in each row, the columns from the first to the last any frame reads there (a diagonal walk reads a band)
+        height, width = coefficients.shape
+        first, stop = np.empty(height, np.int64), np.empty(height, np.int64)
+        read_spans(rows, cols, top, left, height, width, first, stop)
+        return self._large[1].added(coefficients, top, left, first, stop), top, left
+
+    def spline_coefficients(self) -> np.ndarray:
+        """The window's B-spline coefficients [rad, r0 = 1 m] with the large-scale modes: the screen the reads see."""
+        n = self.n
+        return self._with_large_scales(self.coefficients, int(self.origin[0]), int(self.origin[1]),
+                                       self.origin[0] + np.array([[1.0, n - 3]]),
+                                       self.origin[1] + np.array([[1.0, n - 3]]))[0]
 
     # -- sampling ---------------------------------------------------------------------------------
     def accumulate(self, rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray, weight: np.ndarray,
@@ -212,6 +245,8 @@ class LayerScreen:
         weight = np.ascontiguousarray(weight, dtype=float)
 
         def read(coefficients, top, left, first, stop):
+            coefficients, top, left = self._with_large_scales(coefficients, top, left, rows[first:stop],
+                                                              cols[first:stop])
             if not sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
                 raise ValueError("screen sampled outside its window")
 
@@ -228,7 +263,9 @@ class LayerScreen:
         rows = np.ascontiguousarray(np.atleast_2d(rows), dtype=float)
         cols = np.ascontiguousarray(np.atleast_2d(cols), dtype=float)
         out_t = np.zeros((rows.shape[0], cols.shape[1], rows.shape[1]))
-        if not sample_grids_transposed(self.coefficients, int(self.origin[0]), int(self.origin[1]), rows, cols,
+        coefficients, top, left = self._with_large_scales(self.coefficients, int(self.origin[0]), int(self.origin[1]),
+                                                          rows, cols)
+        if not sample_grids_transposed(coefficients, top, left, rows, cols,
                                        np.ones(rows.shape[0]), 0, rows.shape[0], out_t):
             raise ValueError("screen sampled outside its window")
         return out_t.transpose(0, 2, 1)

@@ -226,3 +226,65 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
             for i in range(ny):
                 target[i] += g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
     return True
+
+
+@jit
+def mode_phasors(low_cos, low_sin, high_cos, high_sin, first_high, start, count, stride, cos_out, sin_out):
+    """``cos`` and ``sin`` of each mode's phase ``w[k] p`` at integer positions ``p = start .. start + count - 1``
+    [samples] into ``cos_out``, ``sin_out`` (K, count), from ``p = stride h + l``: ``low_*[k, l]`` at ``w l`` and
+    ``high_*[k, h - first_high]`` at ``w stride h`` by the angle-addition formulas (each value from its own ``h`` and
+    ``l`` only, wherever it lies in the output)."""
+    for k in range(low_cos.shape[0]):
+        for i in range(count):
+            p = start + i
+            h = p // stride
+            low = p - stride * h
+            ch, sh = high_cos[k, h - first_high], high_sin[k, h - first_high]
+            cl, sl = low_cos[k, low], low_sin[k, low]
+            cos_out[k, i] = ch * cl - sh * sl
+            sin_out[k, i] = sh * cl + ch * sl
+
+
+@jit
+def read_spans(rows, cols, top, left, height, width, first, stop):
+    """In each row of an array (first sample at absolute (``top``, ``left``), ``height x width``), the columns
+    ``first[r] .. stop[r] - 1`` that the frames' grids ``rows`` (F, ny), ``cols`` (F, nx) [samples] read with the
+    4-tap spline, a sample either side (positions are rounded when read), clipped to the array (``first = width``,
+    ``stop = 0`` where no frame reads)."""
+    first[:] = width
+    stop[:] = 0
+    for f in range(rows.shape[0]):
+        r0 = min(max(math.floor(rows[f, 0]) - 2 - top, 0), height)
+        r1 = min(max(math.floor(rows[f, rows.shape[1] - 1]) + 4 - top, 0), height)
+        c0 = min(max(math.floor(cols[f, 0]) - 2 - left, 0), width)
+        c1 = min(max(math.floor(cols[f, cols.shape[1] - 1]) + 4 - left, 0), width)
+        for r in range(r0, r1):
+            first[r] = min(first[r], c0)
+            stop[r] = max(stop[r], c1)
+
+
+@jit
+def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
+    """``out[r, c] = source[r, c] + sum_k a[k] cos(y_r + x_c) + b[k] sin(y_r + x_c)`` for ``first[r] <= c < stop[r]``
+    (``out`` may be ``source``), from the cosines and sines of the modes' phases along y (K, H) and x (K, W)
+    [:mod:`.large_scales`].
+
+    With ``u = a cos y + b sin y`` and ``v = b cos y - a sin y`` each term is ``u cos x + v sin x``. No
+    reassociation: every value is the same sum in the same order (k ascending) wherever it lies in ``out``.
+    """
+    height = source.shape[0]
+    modes = a.shape[0]
+    acc = np.empty(source.shape[1])
+    for r in range(height):
+        c0, c1 = first[r], stop[r]
+        if c1 <= c0:
+            continue
+        acc[c0:c1] = 0.0
+        for k in range(modes):
+            u = a[k] * cos_y[k, r] + b[k] * sin_y[k, r]
+            v = b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
+            cx, sx = cos_x[k], sin_x[k]
+            for c in range(c0, c1):
+                acc[c] += u * cx[c] + v * sx[c]
+        for c in range(c0, c1):
+            out[r, c] = source[r, c] + acc[c]

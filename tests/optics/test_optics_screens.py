@@ -242,16 +242,18 @@ def test_spline_sampling_matches_scipy_map_coordinates():
     sampled = screen.sample(rows, cols)
     for f in range(4):
         r, c = np.meshgrid(rows[f] - screen.origin[0], cols[f] - screen.origin[1], indexing="ij")
-        np.testing.assert_allclose(sampled[f], map_coordinates(screen.coefficients, [r, c], order=3, prefilter=False),
-                                   rtol=0, atol=1e-12 * np.abs(screen.coefficients).max())
+        coefficients = screen.spline_coefficients()
+        np.testing.assert_allclose(sampled[f], map_coordinates(coefficients, [r, c], order=3, prefilter=False),
+                                   rtol=0, atol=1e-12 * np.abs(coefficients).max())
 
 
 def test_regenerated_screen_interpolates_its_fft_screen():
     # a regeneration prefilters an FFT screen (Unser 1999 Eq. 10, truncated at 16 samples): the spline through the
     # coefficients takes the FFT screen's values on the grid, within the truncation's 2 sqrt(3) |z1|^17 / (1 - |z1|)
-    # per axis of its largest value
+    # per axis of its largest value; such wide windows keep the one outer scale L0 (no large-scale modes)
     n = SELF_START_SAMPLES + 2                           # wider windows (the reference path's) are cut from FFT screens
     screen = LayerScreen(n, 0.02, (5,), L0=25.0)
+    assert screen.L1 == 25.0 and LayerScreen(SELF_START_SAMPLES, 0.02, (5,), L0=25.0).L1 < 25.0
     screen.cover(np.array([10.0, 10.0]), np.array([20.0, 20.0]))
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([5, 0, 0])))
     values = fft_phase_screens(rng, 2 * n, 0.02, 1.0, 25.0)[0]

@@ -1,0 +1,73 @@
+"""Large scales of walked screens: the modes added to the conditional draws (blocks/optics/large_scales.py)."""
+
+import numpy as np
+import pytest
+
+from evsda.blocks.optics.kolmogorov import structure_function, von_karman_covariance
+from evsda.blocks.optics.large_scales import LargeScales, cells, split_outer_scale
+from evsda.blocks.optics.layer_screen import LayerScreen
+
+DELTA, L0 = 0.02, 25.0
+
+
+def grid_values(coefficients: np.ndarray) -> np.ndarray:
+    """The cubic B-spline's values on the grid, ``(b x b) * c`` with ``b = [1, 4, 1] / 6`` (Unser 1999 Eq. 4)."""
+    rows = (coefficients[:-2] + 4 * coefficients[1:-1] + coefficients[2:]) / 6
+    return (rows[:, :-2] + 4 * rows[:, 1:-1] + rows[:, 2:]) / 6
+
+
+def test_modes_carry_the_difference_of_two_von_karman_spectra():
+    # the rings' powers add up to B(0; L0) - B(0; L1), and over many draws the modes' structure function along x, along
+    # y and diagonally is D(r; L0) - D(r; L1) (von Karman's closed form, kolmogorov.structure_function) within 3 SE
+    L1 = split_outer_scale(24, DELTA, L0)
+    c = cells(L0, L1)
+    assert c.power.sum() == pytest.approx(von_karman_covariance(0.0, 1.0, L0) - von_karman_covariance(0.0, 1.0, L1),
+                                          rel=1e-12)
+    assert np.all(c.power > 0)
+    lags = np.array([1, 16, 64, 256, 1024])
+    draws = 600
+    along_x, along_y, diagonal = [], [], []
+    for seed in range(draws):
+        modes = LargeScales(np.random.default_rng(seed), DELTA, L0, L1)
+        row = grid_values(modes.add_to(np.zeros((3, 1027)), -1, -1))[0]          # values at x = 0 .. 1024
+        column = grid_values(modes.add_to(np.zeros((1027, 3)), -1, -1))[:, 0]
+        corner = grid_values(modes.add_to(np.zeros((67, 67)), -1, -1))
+        along_x.append((row[lags] - row[0]) ** 2)
+        along_y.append((column[lags] - column[0]) ** 2)
+        diagonal.append((corner[64, 64] - corner[0, 0]) ** 2)
+    expected = structure_function(lags * DELTA, 1.0, L0) - structure_function(lags * DELTA, 1.0, L1)
+    for values in (np.array(along_x), np.array(along_y)):
+        error = values.std(axis=0, ddof=1) / np.sqrt(draws)
+        assert np.all(np.abs(values.mean(axis=0) - expected) < 3 * error), (values.mean(axis=0) / expected, error)
+    r = 64 * np.sqrt(2) * DELTA
+    assert np.mean(diagonal) == pytest.approx(structure_function(r, 1.0, L0) - structure_function(r, 1.0, L1),
+                                              abs=3 * np.std(diagonal, ddof=1) / np.sqrt(draws))
+
+
+def test_modes_are_the_same_wherever_an_array_holds_them():
+    # a value depends on its absolute position only (batches and windows read the same screen)
+    modes = LargeScales(np.random.default_rng(3), DELTA, L0, split_outer_scale(24, DELTA, L0))
+    whole = modes.add_to(np.zeros((40, 700)), -70, -130)
+    part = modes.add_to(np.zeros((9, 100)), -50, 300)
+    np.testing.assert_array_equal(part, whole[20:29, 430:530])
+
+
+def test_walked_screens_keep_the_large_scales():
+    # one point of a 24-sample screen (a 12-sample footprint's) walked 1200 columns: its structure function at 16, 64
+    # and 256 samples (5 and 21 footprints) within 3 SE of von Karman's; the conditional draws alone, whose stencil
+    # reaches back 15 columns, gave 0.92 and 0.78 at 64 and 256 (-6 and -11 SE)
+    lags = np.array([16, 64, 256])
+    seeds, columns = 250, 1200
+    rows = np.full((columns, 1), 100.0)
+    cols = 100.0 + np.arange(columns)[:, None] + np.array([[0.0, 12.0]])
+    per = []
+    for seed in range(seeds):
+        out_t = np.zeros((columns, 2, 1))
+        LayerScreen(24, DELTA, (seed,), L0=L0).accumulate(rows, cols, np.zeros(columns, np.int64), np.ones(columns),
+                                                          out_t)
+        v = out_t[:, 0, 0]
+        per.append([np.mean((v[k:] - v[:-k]) ** 2) for k in lags])
+    per = np.array(per)
+    expected = structure_function(lags * DELTA, 1.0, L0)
+    error = per.std(axis=0, ddof=1) / np.sqrt(seeds)
+    assert np.all(np.abs(per.mean(axis=0) - expected) < 3 * error), (per.mean(axis=0) / expected, error / expected)
