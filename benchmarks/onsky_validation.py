@@ -54,6 +54,8 @@ from scipy import optimize
 
 from evsda.blocks.detection.analytic import EventLimit
 from evsda.blocks.detection.study import analytic_limits, design_limit, parse_ladder, run_design
+from evsda.blocks.scene import spectra
+from evsda.graph.graphfile import load_graph
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 ELECTRON_C = 1.602176634e-19                # [C]
@@ -110,7 +112,7 @@ SUN_BP_RP = 0.82                             # the Sun's Gaia BP - RP (Casagrand
 #: G - V = c0 + c1 x + c2 x^2 + c3 x^3, x = BP - RP (Riello et al. 2021, A&A 649, A3, Table C.2; sigma 0.030 mag)
 G_MINUS_V_COEFFS = (-0.02704, 0.01424, -0.2156, 0.01426)
 SCAN_RATES_DEG_S = (0.5, 1.0, 2.0, 4.0)      # rates at which the scan setup's contrast limit is printed [deg/s]
-BROADBAND_FACTORS = (1.5, 2.0)                # electrons of the unfiltered band over the V band's, for the Gen4 what-if [1]
+SILICON_DEPTHS_M = (2e-6, 5e-6)              # other collection depths of the presets' assumed silicon response [m]
 BANDWIDTH_SLOWER = (0.1, 0.3, 3.0)           # factors by which the sensitivity lines slow the photoreceptor [1]
 SCAN_PIXEL_ARCSEC = 15.47                    # 15 um at 200 mm [arcsec]
 SCAN_SWATH_DEG = 480 * SCAN_PIXEL_ARCSEC / 3600.0   # the VGA's short side swept across the sky [deg]
@@ -263,10 +265,23 @@ def print_what_the_misses_ask(hvga: Setup, gen4: Setup) -> None:
     pixel_area_m2 = 4.86e-6 ** 2
     print(f"{gen4.graph}: {gen4.measured_text} asks a dark current of {j:.3g} A/m^2 = {j * pixel_area_m2 * 1e15:.3g} fA "
           f"= {j * pixel_area_m2 / ELECTRON_C:.0f} e-/s on a 4.86 um pixel (preset: measured 5.5 fA = 34 300 e-/s)")
-    qe4 = design_limit(gen4.path).d.pixel.params.quantum_efficiency
-    for b in BROADBAND_FACTORS:
-        print(f"  {gen4.graph} if the unfiltered 400-1000 nm response gave {b:g}x the V-band electrons (QE x fill "
-              f"{qe4:g} -> {b * qe4:.3g}): V {predicted_limit(gen4, [f'sensor/pixel.quantum_efficiency={b * qe4:.6g}']):.2f}")
+
+
+def print_band(setups, what_if) -> None:
+    """The detectors' spectral response (evsda.blocks.scene.spectra): photons counted over the V band's, for sunlight
+    (the sky) and a field star; for the setups ``what_if`` (those of a sensor with nothing fitted: a fitted sensor's
+    dark current would be refitted), how the prediction moves with the assumed silicon depth or behind a V filter."""
+    for setup in setups:
+        spec = load_graph(setup.path).nodes["sensor/camera"].block.focal_plane.spectral_response
+        star = float(spectra.star_band_factor(spec, spectra.FIELD_STAR_B_V))
+        moves = []
+        if spec.detector == "silicon" and setup in what_if:
+            moves = [f"depth {d * 1e6:g} um V {predicted_limit(setup, [f'sensor/camera.silicon_depth_m={d:g}']):.2f}"
+                     for d in SILICON_DEPTHS_M]
+            moves.append(f"behind a V filter V {predicted_limit(setup, ['sensor/camera.filter=V']):.2f}")
+        print(f"  {setup.graph}: response {spec.detector} ({spec.silicon_depth_m * 1e6:g} um), band factor sunlight "
+              f"{spectra.sun_band_factor(spec):.2f}, a B-V {spectra.FIELD_STAR_B_V} star {star:.2f}; "
+              + "; ".join(moves))
 
 
 def run(argv: list[str] | None = None) -> int:
@@ -327,6 +342,8 @@ def run(argv: list[str] | None = None) -> int:
     print_sensitivities(fitted, scan)
     print_criterion_sensitivity(SETUPS[3], GEN4)
     print_what_the_misses_ask(SETUPS[1], GEN4)
+    print("spectral response (the presets' silicon curve is assumed: no measured QE(lambda) of these sensors found):")
+    print_band(SETUPS, what_if=(GEN4,))
     print(f"all: {time.perf_counter() - start:.0f} s wall, {cpu_s() - cpu0:.0f} CPU s; load average {load0:.1f} "
           f"before, {os.getloadavg()[0]:.1f} after; {os.cpu_count()} cores")
     return 0

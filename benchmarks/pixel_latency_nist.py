@@ -10,7 +10,9 @@ camera; ranges over ROIs and, for the IMX636, both cameras; outlying ROIs left o
 
 The LED's wavelength (their bench has a 523 nm and a 680 nm LED) and its off level are not stated next
 to the figures; the simulation takes the LED fully off (the pixel at its dark current) and shows both
-wavelengths (photons per watt differ by 1.3x). As NIST's figures give the median over a 10 x 10-pixel ROI, the
+wavelengths (photons per watt differ by 1.3x), each weighted by the preset detector's response there (its
+``quantum_efficiency`` is the QE at 550 nm; a silicon response of 3 um gives 1.05 at 523 nm, 0.55 at 681 nm:
+:func:`led_response`). As NIST's figures give the median over a 10 x 10-pixel ROI, the
 preset's pixels run as a 10 x 10 array, noise off, with the preset's threshold spread, settled on the off level;
 the latency is the median over the pixels of the first ON event after the rise (50 ms lit) and of the first OFF
 event after the fall (0.2 s simulated). The spread matters for OFF: after the ON burst a pixel's memory lies a
@@ -37,6 +39,7 @@ from scipy import constants, optimize
 from evsda.blocks.pixel import DvsPixel, lowpass
 from evsda.blocks.pixel.model import PixelModel
 from evsda.blocks.ports import FocalPlane, Irradiance
+from evsda.blocks.scene import spectra
 from evsda.graph import Window
 from evsda.graph.graphfile import load_graph
 
@@ -61,6 +64,16 @@ SMALL_SIGNAL_FIT = {"prophesee_gen4": {"cutoff_exponent": 0.599, "cutoff_saturat
                                            "lowpass_form": "small_signal", "dark_current_density_A_m2": 1.55e-6}}
 
 
+def led_response(name: str, wavelength_m: float) -> float:
+    """The preset detector's response at an LED's wavelength, relative to the wavelength at which its
+    ``quantum_efficiency`` is given (:func:`evsda.blocks.scene.spectra.response`; 1 for a V-band preset)."""
+    graph = load_graph(f"library:sensors/{name}.yaml", overrides={"camera.focal_length_m": 1.0})
+    spec = graph.nodes["camera"].block.focal_plane.spectral_response
+    if spec.is_v_band:
+        return 1.0
+    return float(np.interp(wavelength_m * 1e9, spectra.GRID_NM, spectra.response(spec)))
+
+
 def preset_pixel(name: str, saturation_scale: float = 1.0, **cutoff) -> tuple[DvsPixel, float]:
     """The preset's pixel with noise off (cutoff_saturation times ``saturation_scale``, other pixel parameters, e.g.
     ``cutoff_*`` and ``lowpass_form``, as given), and its pitch [m]."""
@@ -79,7 +92,7 @@ def step_latencies_us(name: str, irradiance_w_m2: float, wavelength_m: float,
     """(ON, OFF) latency [us] of the preset's pixels to an LED going on for 50 ms from off, then off: the medians
     over a :data:`ROI_SIDE` square of pixels of their first events (inf: a pixel without one in 0.2 s)."""
     block, pitch_m = preset_pixel(name, saturation_scale, **cutoff)
-    photons_s = irradiance_w_m2 * pitch_m**2 * wavelength_m / (constants.h * constants.c)
+    photons_s = irradiance_w_m2 * pitch_m**2 * wavelength_m / (constants.h * constants.c) * led_response(name, wavelength_m)
     fp = FocalPlane(ROI_SIDE, ROI_SIDE, pitch_m, 1.0)
     rise_ns, fall_ns = int(HALF_PERIOD_S * 1e9), int(2 * HALF_PERIOD_S * 1e9)
     t = np.array([0, rise_ns, fall_ns], dtype=np.int64)
@@ -167,7 +180,8 @@ def row_currents(name: str, **pixel) -> tuple[np.ndarray, float, DvsPixel]:
     logs = []
     for wavelength_m in LED_WAVELENGTHS_M:
         model = PixelModel(block.params, pitch_m**2, wavelength_m)
-        photons_s = np.asarray(IRRADIANCES_W_M2) * pitch_m**2 * wavelength_m / (constants.h * constants.c)
+        photons_s = (np.asarray(IRRADIANCES_W_M2) * pitch_m**2 * wavelength_m / (constants.h * constants.c)
+                     * led_response(name, wavelength_m))
         logs.append(np.log(model.normalised_current(photons_s)))
     return np.exp(np.array(logs)), float(model.normalised_current(np.zeros(1))[0]), block
 

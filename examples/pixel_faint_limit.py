@@ -5,7 +5,8 @@ its dark current ``I_dark``; the photoreceptor, logarithmic down to its dark cur
 contrast ``ln(1 + I_s / (I_sky + I_dark))`` (Eq. 12-15), and the pixel fires once that reaches
 its threshold ``theta`` (Eq. 17). This prints, for each sensor preset behind a lens of
 ``--aperture-m`` and ``--focal-m`` under a sky of ``--sky-mag`` mag/arcsec^2, the contrast of
-stars of V 6-12 with ``--psf-fraction`` of their light in the brightest pixel, the faintest
+stars of V 6-12 (B - V 0.66, in the preset detector's spectral response) with ``--psf-fraction`` of
+their light in the brightest pixel, the faintest
 V that reaches ``theta``, and the dark current that would let ``--target-v`` reach it. It
 ignores the bandwidth (a static star, e.g. under sidereal tracking), optics losses and
 turbulence: an upper bound on what the simulation can detect.
@@ -21,6 +22,7 @@ import numpy as np
 from scipy import constants
 
 from evsda.blocks.pixel.model import PixelModel
+from evsda.blocks.scene import spectra
 from evsda.blocks.scene.radiometry import V_BAND
 from evsda.graph.graphfile import load_graph
 
@@ -33,15 +35,18 @@ def star_and_sky(name: str, aperture_m: float, focal_m: float, sky_mag: float, p
     """A preset's pixel behind the lens: its parameters, pitch, and electrons per second from dark, sky and V = 0."""
     graph = load_graph(f"library:sensors/{name}.yaml", overrides={"camera.focal_length_m": focal_m})
     pitch = graph.nodes["camera"].block.params.pixel_pitch_m
+    response = graph.nodes["camera"].block.focal_plane.spectral_response
     params = graph.nodes["pixel"].block.params
     model = PixelModel(params, pitch**2, WAVELENGTH_M)
     zero = V_BAND.zero_point_photon_flux * np.pi * (aperture_m / 2) ** 2      # V = 0 through the aperture [photon/s]
     pixel_arcsec = pitch / focal_m * RAD_TO_ARCSEC
     qe = params.quantum_efficiency
+    # photons of the detector's response over V's (1 for a V-band preset): a sunlight-coloured sky, a field star
+    sky_band, star_band = spectra.sun_band_factor(response), float(spectra.star_band_factor(response, spectra.FIELD_STAR_B_V))
     return {"params": params, "pitch_m": pitch, "pixel_arcsec": pixel_arcsec,
             "dark_e": model.dark_current_A / constants.e,
-            "sky_e": zero * 10 ** (-0.4 * sky_mag) * pixel_arcsec**2 * qe,
-            "star0_e": zero * psf_fraction * qe}                                  # a V = 0 star in its brightest pixel
+            "sky_e": zero * 10 ** (-0.4 * sky_mag) * pixel_arcsec**2 * qe * sky_band,
+            "star0_e": zero * psf_fraction * qe * star_band}                      # a V = 0 star in its brightest pixel
 
 
 def contrast(pixel: dict, v_mag) -> np.ndarray:

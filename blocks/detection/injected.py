@@ -7,7 +7,9 @@ source leaving the inner area (``margin_px`` from the edges) re-enters on the op
 its position is NaN at the sample where it wraps, so its path breaks there as a source leaving
 the field and another entering. The photon flux at the aperture is the V zero point of
 :data:`evsda.blocks.scene.radiometry.V_BAND` times ``10^(-0.4 (V + extinction_mag))``
-(Pogson); the magnitude reported is ``V`` (above the atmosphere, as a catalogue gives it).
+(Pogson), in the detector's response: times the band factor of a star of colour ``b_minus_v``
+(:func:`evsda.blocks.scene.spectra.star_band_factor`, 1 for a V-band detector); the magnitude
+reported is ``V`` (above the atmosphere, as a catalogue gives it).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 from pydantic import Field
 
 from evsda.blocks.ports import FocalPlane, PointSources, SourceKind
+from evsda.blocks.scene import spectra
 from evsda.blocks.scene.radiometry import V_BAND, photon_flux_of_magnitude
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, Window
 
@@ -39,6 +42,9 @@ class InjectedSources(Block):
         direction_deg: float = Field(30.0, description="Direction of motion from +x towards +y [deg]")
         extinction_mag: float = Field(0.0, ge=0, le=10, description="Extinction between the source and the "
                                                                     "aperture [mag]")
+        b_minus_v: float = Field(spectra.FIELD_STAR_B_V, ge=-0.4, le=2.4, description="Colour of the sources: "
+                                 "blackbodies at the temperature of this B - V (default: the mean field star's, "
+                                 "near the Sun's 0.65); sets their photons outside the V band [mag]")
         zenith_angle_deg: float | None = Field(0.0, ge=0, lt=90, description="Zenith angle of the line of sight "
                                                "for the optics' turbulence; null for an observer in space [deg]")
         margin_px: float = Field(8.0, ge=0, description="Sources stay this far inside the detector's edges [pixel]")
@@ -110,10 +116,12 @@ class InjectedSources(Block):
         wrapped = (np.floor(previous / size) != laps).any(axis=-1)
         xy[wrapped] = np.nan
         n_t, n = t.size, self.params.n_sources
-        flux = float(photon_flux_of_magnitude(self.params.magnitude + self.params.extinction_mag, V_BAND))
+        response = focal_plane.spectral_response
+        flux = float(photon_flux_of_magnitude(self.params.magnitude + self.params.extinction_mag, V_BAND)
+                     * spectra.star_band_factor(response, self.params.b_minus_v))
         zenith = np.nan if self.params.zenith_angle_deg is None else math.radians(self.params.zenith_angle_deg)
         sources = PointSources(
-            focal_plane, V_BAND.effective_wavelength_m, t, np.array([f"INJ{i:04d}" for i in range(n)]),
+            focal_plane, spectra.effective_wavelength_m(response), t, np.array([f"INJ{i:04d}" for i in range(n)]),
             np.full(n, SourceKind.SATELLITE, np.int8), xy[..., 0], xy[..., 1], np.full((n_t, n), flux),
             np.full((n_t, n), self.params.magnitude), np.full((n_t, n), np.inf), np.full(n_t, zenith))
         return {"sources": sources}

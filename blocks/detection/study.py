@@ -211,7 +211,7 @@ def psf_table(optics_block, focal_plane, wavelength_m: float, zenith_rad: float)
     phases = (np.arange(n) + 0.5) / n - 0.5
     px, py = np.meshgrid(phases, phases)
     side = 4096
-    fp = FocalPlane(side, side, focal_plane.pixel_pitch_m, focal_plane.focal_length_m)
+    fp = FocalPlane(side, side, focal_plane.pixel_pitch_m, focal_plane.focal_length_m, focal_plane.spectral_response)
     centre = side // 2
     cadence = max(1, round(NS_PER_S / optics.params.render_rate_hz))
     duration = max(cadence, round(PSF_SECONDS * NS_PER_S))

@@ -14,6 +14,7 @@ from .core import (
     PointSources,
     SkyBackground,
     SourceKind,
+    SpectralResponse,
     TriggeredEvents,
     Truth,
     add_stamp,
@@ -22,7 +23,7 @@ from .detection import Detections
 from .scene import Observer, Orbit, Pointing
 
 __all__ = [
-    "EventCause", "Events", "FocalPlane", "Frame", "Irradiance", "Metrics", "PointSources",
+    "EventCause", "Events", "FocalPlane", "SpectralResponse", "Frame", "Irradiance", "Metrics", "PointSources",
     "SkyBackground", "SourceKind", "TriggeredEvents", "Truth", "add_stamp",
     "Observer", "Orbit", "Pointing", "Detections",
 ]

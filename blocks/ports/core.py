@@ -22,14 +22,38 @@ from evsda.graph.ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 
 
 @dataclass(frozen=True, eq=False)
+class SpectralResponse(PortValue):
+    """Which photons a detector counts: its quantum efficiency's shape against wavelength.
+
+    ``detector = "V"``: the Johnson V band as the response (Bessell 1990, peak 1), i.e. a detector that counts
+    V-band photons, evsda's model where a preset has no spectral curve. ``"silicon"``: a silicon photodiode
+    collecting the carriers made within ``silicon_depth_m`` of its surface, ``1 - exp(-alpha d)`` with
+    silicon's absorption (Green 2008; :mod:`evsda.blocks.scene.spectra`), 1 at 550 nm: the pixel's
+    ``quantum_efficiency`` is the QE there (times the fill factor). ``filter``: ``"V"`` puts a V filter in front.
+    """
+
+    unit = "1"
+    detector: str = "V"
+    silicon_depth_m: float = 0.0
+    filter: str = "none"
+
+    @property
+    def is_v_band(self) -> bool:
+        """The detector counts V-band photons (no spectral curve): fluxes are the V band's."""
+        return self.detector == "V" and self.filter == "none"
+
+
+@dataclass(frozen=True, eq=False)
 class FocalPlane(PortValue):
-    """Detector geometry behind the telescope: pixel grid, pitch and focal length."""
+    """Detector geometry behind the telescope: pixel grid, pitch and focal length, and the detector's
+    spectral response (which photons the scene counts for it)."""
 
     unit = "pixel"
     width_px: int
     height_px: int
     pixel_pitch_m: float
     focal_length_m: float
+    spectral_response: SpectralResponse = SpectralResponse()
 
     @property
     def pixel_scale_rad(self) -> float:

@@ -27,14 +27,20 @@ class StarCatalog:
     pm_dec_mas_yr: np.ndarray         # proper motion in Dec [mas/yr]
     parallax_mas: np.ndarray          # [mas]
     epoch_jyear: float = HIPPARCOS_EPOCH_JYEAR
+    b_v: np.ndarray | None = None     # Johnson B - V [mag]; NaN (or None: all) where not known
 
     def __len__(self) -> int:
         return int(self.vmag.shape[0])
 
+    @property
+    def colour(self) -> np.ndarray:
+        """B - V of every star, NaN where not known [mag]."""
+        return np.full(len(self), np.nan) if self.b_v is None else self.b_v
+
     def select(self, mask: np.ndarray) -> "StarCatalog":
         return StarCatalog(self.name[mask], self.vmag[mask], self.ra_deg[mask], self.dec_deg[mask],
                            self.pm_ra_mas_yr[mask], self.pm_dec_mas_yr[mask], self.parallax_mas[mask],
-                           self.epoch_jyear)
+                           self.epoch_jyear, self.colour[mask])
 
     def unit_vectors(self) -> np.ndarray:
         """ICRS unit vectors at the catalogue epoch, ``[n, 3]``."""
@@ -44,7 +50,8 @@ class StarCatalog:
 
 @functools.lru_cache(maxsize=4)
 def load_hipparcos(path: str) -> StarCatalog:
-    """Read ``hip_main.dat`` (pipe-separated, optionally gzipped): fields HIP, Vmag, RAdeg, DEdeg, Plx, pmRA, pmDE.
+    """Read ``hip_main.dat`` (pipe-separated, optionally gzipped): fields HIP, Vmag, RAdeg, DEdeg, Plx, pmRA, pmDE
+    and B-V (H37; NaN where blank).
 
     Stars without an astrometric solution (blank RA) are skipped; a missing parallax or
     proper motion counts as 0.
@@ -61,13 +68,22 @@ def load_hipparcos(path: str) -> StarCatalog:
                 fields = line.split("|")
                 if len(fields) < 14 or not fields[8].strip() or not fields[5].strip():
                     continue
-                rows.append((fields[1].strip(), *_numbers(fields, path, number)))
+                rows.append((fields[1].strip(), *_numbers(fields, path, number), _colour(fields)))
     except (OSError, EOFError) as exc:      # gzip raises BadGzipFile (an OSError) or EOFError for a damaged file
         raise ParameterError(f"star catalogue {path} cannot be read ({exc.strerror or type(exc).__name__})") from None
     if not rows:
         raise ParameterError(f"star catalogue {path!r} holds no Hipparcos records")
-    hip, *columns = zip(*rows)
-    return StarCatalog(np.array([f"HIP {h}" for h in hip]), *(np.array(column) for column in columns))
+    hip, *columns, b_v = zip(*rows)
+    return StarCatalog(np.array([f"HIP {h}" for h in hip]), *(np.array(column) for column in columns),
+                       b_v=np.array(b_v))
+
+
+def _colour(fields: list[str]) -> float:
+    """B - V (Hipparcos field H37) of a record, NaN if blank, absent or not a number [mag]."""
+    try:
+        return float(fields[37])
+    except (IndexError, ValueError):
+        return float("nan")
 
 
 #: the numeric fields read from a hip_main.dat record, by their Hipparcos field numbers H5 (Vmag), H8 (RAdeg),

@@ -15,7 +15,7 @@ from evsda.graph import NS_PER_S, Block, BlockParams, GraphError, Input, Output,
 from evsda.graph.graphfile import read_yaml
 from evsda.graph.params import DataFile, describe_validation_error
 
-from . import facets, radiometry
+from . import facets, radiometry, spectra
 from .passes import PassReport, find_passes, require_pass
 from .pointing import check_sampling
 from .reflectors import FacetReflector, attitude_law
@@ -199,7 +199,8 @@ class Satellite(Block):
         x[hidden] = np.nan
         y[hidden] = np.nan
         return {"sources": PointSources(
-            focal_plane=focal_plane, wavelength_m=view.band.effective_wavelength_m, t_ns=t_ns,
+            focal_plane=focal_plane, wavelength_m=spectra.effective_wavelength_m(focal_plane.spectral_response),
+            t_ns=t_ns,
             source_id=np.array([orbit.catalog_number]), kind=np.array([SourceKind.SATELLITE], dtype=np.int8),
             x_px=x[:, None], y_px=y[:, None], photon_flux=s.photon_flux[:, None], magnitude=s.magnitude[:, None],
             range_m=s.range_m[:, None], zenith_angle_rad=s.zenith_angle_rad,

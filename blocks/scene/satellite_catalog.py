@@ -19,7 +19,7 @@ from evsda.blocks.ports.scene import Observer, Orbit, Pointing
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, RunInfo, SceneError, Window
 from evsda.graph.params import DataFile
 
-from . import radiometry
+from . import radiometry, spectra
 from .element_sets import (Catalog, CatalogObject, apply_properties, epoch_jd, epoch_utc, guess_format, read_catalog,
                            read_text)
 from .geometry import satrec_track
@@ -249,9 +249,9 @@ class SatelliteCatalog(Block):
         b, _, u = self._pointing_model.frame(t) if n_t else (np.zeros((0, 3)),) * 3
         zenith = self._pointing_model.zenith_angle(t, b) if n_t else np.zeros(0)
         azimuth, rotation = self._pointing_model.horizon(t, b, u) if n_t else (np.zeros(0), np.zeros(0))
-        band = radiometry.BANDS[self.params.band]
         return {"sources": PointSources(
-            focal_plane=focal_plane, wavelength_m=band.effective_wavelength_m, t_ns=t_ns,
+            focal_plane=focal_plane, wavelength_m=spectra.effective_wavelength_m(focal_plane.spectral_response),
+            t_ns=t_ns,
             source_id=np.array([c.obj.object_id for c in self.crossings], dtype=str),
             kind=np.full(n_src, SourceKind.SATELLITE, dtype=np.int8), x_px=x, y_px=y, photon_flux=flux,
             magnitude=magnitude, range_m=range_m, zenith_angle_rad=zenith, boresight_azimuth_rad=azimuth,

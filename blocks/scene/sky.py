@@ -11,7 +11,7 @@ from evsda.blocks.ports import FocalPlane, SkyBackground
 from evsda.blocks.ports.scene import Observer, Pointing
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, SceneError, Window
 
-from . import radiometry
+from . import radiometry, spectra
 from .geometry import ObserverModel
 from .moon import MOON_MEAN_DISTANCE_M, MOON_RADIUS_M, MoonModel, MoonSamples, require_ephemeris
 from .moonlight import magnitude_of_nanolamberts, moonlight_nanolamberts
@@ -24,12 +24,15 @@ ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
 
 def sky_photon_flux_per_pixel(surface_brightness_mag_arcsec2, focal_plane: FocalPlane,
                               band: radiometry.Band = radiometry.V_BAND) -> np.ndarray:
-    """Photon flux [photon s^-1 m^-2 pixel^-1] of a sky of ``mu`` mag/arcsec^2 over one pixel's solid angle.
+    """Photon flux [photon s^-1 m^-2 pixel^-1] of a sky of ``mu`` mag/arcsec^2 over one pixel's solid angle,
+    in the detector's response.
 
-    ``N = N0 10**(-0.4 mu) Omega_pix`` with ``Omega_pix = (pitch / f)^2`` in arcsec^2.
+    ``N = N0 10**(-0.4 mu) Omega_pix kappa`` with ``Omega_pix = (pitch / f)^2`` in arcsec^2 and the band
+    factor ``kappa`` of a sunlight-coloured sky (:func:`.spectra.sun_band_factor`; 1 for a V-band detector).
     """
     omega_arcsec2 = (focal_plane.pixel_scale_rad * ARCSEC_PER_RAD) ** 2
-    return radiometry.photon_flux_of_magnitude(surface_brightness_mag_arcsec2, band) * omega_arcsec2
+    kappa = spectra.sun_band_factor(focal_plane.spectral_response)
+    return radiometry.photon_flux_of_magnitude(surface_brightness_mag_arcsec2, band) * omega_arcsec2 * kappa
 
 
 def sky_brightness_at_zenith_angle(zenith_mag_arcsec2: float, zenith_angle_rad, extinction_mag_per_airmass: float):

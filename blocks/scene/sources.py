@@ -15,7 +15,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from evsda import library
-from evsda.blocks.ports import FocalPlane
+from evsda.blocks.ports import FocalPlane, SpectralResponse
 from evsda.blocks.ports.scene import AZEL, GROUND, RADEC, SPACE, TRACK, Observer, Orbit, Pointing
 from evsda.graph import Block, BlockParams, Footprint, Input, Output, ParameterError, RunInfo, UserError, Window
 from evsda.graph.files import read_text
@@ -158,7 +158,9 @@ class Camera(Block):
     """The focal plane behind the telescope: pixel grid, pitch and focal length (or field of view).
 
     Give ``focal_length_m``, or ``fov_x_deg`` (full horizontal field), from which
-    ``f = width * pitch / (2 tan(fov/2))``.
+    ``f = width * pitch / (2 tan(fov/2))``. The detector's spectral response (which photons the scene counts
+    for it, :class:`~evsda.blocks.ports.SpectralResponse` and :mod:`evsda.blocks.scene.spectra`) travels
+    with the focal plane.
     """
 
     type_name = "camera"
@@ -170,12 +172,21 @@ class Camera(Block):
         focal_length_m: float | None = Field(None, gt=0, description="Effective focal length [m]")
         fov_x_deg: float | None = Field(None, gt=0, lt=180, description="Full horizontal field of view, "
                                                                        "instead of the focal length [deg]")
+        spectral_response: Literal["V", "silicon"] = Field(
+            "V", description="Which photons the detector counts: 'V' the V band (no spectral curve), 'silicon' a "
+                             "silicon photodiode's quantum efficiency against wavelength, 1 at 550 nm (the pixel's "
+                             "quantum_efficiency is the QE there) [-]")
+        silicon_depth_m: float = Field(3e-6, gt=0, le=1e-3, description="Depth of silicon whose carriers the "
+                                       "photodiode collects (spectral_response: silicon) [m]")
+        filter: Literal["none", "V"] = Field("none", description="Filter in front of a silicon detector [-]")
 
         @model_validator(mode="after")
         def _one_scale(self):
             if (self.focal_length_m is None) == (self.fov_x_deg is None):
                 raise ValueError("give exactly one of focal_length_m and fov_x_deg (the telescope's focal length: "
                                  "scenes set it on a sensor preset's camera, set: {camera.focal_length_m: ...})")
+            if self.filter != "none" and self.spectral_response == "V":
+                raise ValueError("a filter needs spectral_response: silicon (the 'V' response is already the V band)")
             return self
 
     outputs = {"focal_plane": Output(FocalPlane, "the detector geometry")}
@@ -190,7 +201,10 @@ class Camera(Block):
         focal = p.focal_length_m
         if focal is None:
             focal = p.width_px * p.pixel_pitch_m / (2.0 * math.tan(math.radians(p.fov_x_deg) / 2.0))
-        return FocalPlane(p.width_px, p.height_px, p.pixel_pitch_m, focal)
+        if p.spectral_response == "V":
+            return FocalPlane(p.width_px, p.height_px, p.pixel_pitch_m, focal)
+        return FocalPlane(p.width_px, p.height_px, p.pixel_pitch_m, focal,
+                          SpectralResponse("silicon", p.silicon_depth_m, p.filter))
 
     def step(self, window: Window) -> dict:
         return {"focal_plane": self.focal_plane}

@@ -15,7 +15,7 @@ from evsda.blocks.ports.scene import Observer, Pointing
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, Window
 from evsda.graph.params import DataFile
 
-from . import projection, radiometry
+from . import projection, radiometry, spectra
 from .catalog import StarCatalog, load_hipparcos
 from .ephemeris import timescale
 from .geometry import KnotGrid, ObserverModel, unit
@@ -42,7 +42,7 @@ class StarField(Block):
 
     Apparent places come from Skyfield (proper motion, parallax, aberration,
     deflection) on ``knot_step_s`` knots, linearly interpolated in between (aberration
-    changes by <1e-4 arcsec/s). Photon flux in V at the aperture: ``N0 10**(-0.4 V)``
+    changes by <1e-4 arcsec/s). Photon flux at the aperture: ``N0 10**(-0.4 V)`` (V band)
     times the transmission at each star's own airmass. Positions are NaN outside the
     detector (plus ``margin_px``) and below the horizon or behind the Earth.
     """
@@ -173,7 +173,7 @@ class StarField(Block):
         self._prepare(window, observer, pointing, focal_plane)
         t_ns = window.sample_times_ns(self.cadence_ns)
         x, y = self.project(t_ns)
-        stars, band = self._stars, radiometry.V_BAND
+        stars = self._stars
         k, w = self._knot_weights(t_ns)
         flux, mag = (self._between_knots(k, w, self._knot_photometry, m) for m in (1, 2))
         margin = self.params.margin_px
@@ -191,7 +191,8 @@ class StarField(Block):
         azimuth, rotation = self._pointing.horizon(t_ns, b, u)
         n = len(stars)
         return {"sources": PointSources(
-            focal_plane=focal_plane, wavelength_m=band.effective_wavelength_m, t_ns=t_ns, source_id=stars.name,
+            focal_plane=focal_plane, wavelength_m=spectra.effective_wavelength_m(focal_plane.spectral_response),
+            t_ns=t_ns, source_id=stars.name,
             kind=np.full(n, SourceKind.STAR, dtype=np.int8), x_px=x, y_px=y, photon_flux=flux, magnitude=mag,
             range_m=np.full((len(t_ns), n), np.inf), zenith_angle_rad=self._pointing.zenith_angle(t_ns, b),
             boresight_azimuth_rad=azimuth, field_rotation_rad=rotation)}
@@ -215,8 +216,11 @@ class StarField(Block):
         """Visibility (1/0), photon flux and magnitude of every star at knot ``k``.
 
         The flux at the aperture is ``N0 10**(-0.4 V)`` times the transmission at the
-        star's own airmass (ground); between knots, 10 s apart by default, it is
-        interpolated linearly: a star's airmass changes by ~1e-3 in that time.
+        star's own airmass (ground), in the detector's response: times the band factor of
+        the star's B - V (:func:`.spectra.star_band_factor`; synthetic stars and catalogue
+        stars without a colour take :data:`.spectra.FIELD_STAR_B_V`); the magnitude stays V.
+        Between knots, 10 s apart by default, it is interpolated linearly: a star's airmass
+        changes by ~1e-3 in that time.
         """
         cached = self._photometry_cache.get(k)
         if cached is not None:
@@ -225,6 +229,7 @@ class StarField(Block):
         (places,) = self._places.values(np.array([k]))
         band, stars = radiometry.V_BAND, self._stars
         flux = radiometry.photon_flux_of_magnitude(stars.vmag, band)
+        kappa = spectra.star_band_factor(self._focal_plane.spectral_response, stars.colour)
         observer = self._observer.observer
         if observer.is_ground:
             _, _, up = self._observer.enu(t)
@@ -238,7 +243,7 @@ class StarField(Block):
             distance = np.linalg.norm(r_obs[0])
             limb = np.arcsin(min(1.0, (EARTH_RADIUS_M + observer.min_grazing_altitude_m) / distance))
             visible = (np.arccos(np.clip(places[0] @ (-r_obs[0] / distance), -1, 1)) > limb).astype(float)
-        result = (visible, flux, radiometry.magnitude(flux, band))
+        result = (visible, flux * kappa, radiometry.magnitude(flux, band))
         self._photometry_cache[k] = result
         return result
 
@@ -300,7 +305,7 @@ def _catalog_of(drawn: dict) -> StarCatalog:
 def _concatenate(a: StarCatalog, b: StarCatalog) -> StarCatalog:
     return StarCatalog(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in
                          ("name", "vmag", "ra_deg", "dec_deg", "pm_ra_mas_yr", "pm_dec_mas_yr", "parallax_mas")),
-                       epoch_jyear=a.epoch_jyear)
+                       epoch_jyear=a.epoch_jyear, b_v=np.concatenate([a.colour, b.colour]))
 
 
 def _near_track(vectors: np.ndarray, boresights: np.ndarray, reach: float) -> np.ndarray:

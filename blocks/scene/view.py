@@ -18,7 +18,7 @@ import numpy as np
 from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import Observer, Orbit, Pointing
 
-from . import projection, radiometry
+from . import projection, radiometry, spectra
 from .geometry import C_M_PER_S, NS_PER_S, ObserverModel, Track, apparent_position, satellite_track, sun_track, unit
 from .pointing import PointingModel, azel_from_enu
 from .reflectors import FacetReflector
@@ -63,7 +63,7 @@ class ViewSamples:
     zenith_angle_rad: np.ndarray     # boresight zenith angle (NaN from space) [rad]
     boresight_azimuth_rad: np.ndarray  # boresight azimuth, from north through east (NaN from space) [rad]
     field_rotation_rad: np.ndarray   # image up from the local elevation towards azimuth (NaN from space) [rad]
-    photon_flux: np.ndarray          # at the aperture, after the atmosphere [photon s^-1 m^-2]
+    photon_flux: np.ndarray          # at the aperture, after the atmosphere, in the detector's response [photon s^-1 m^-2]
     magnitude: np.ndarray            # apparent magnitude in the band [mag]
 
     @property
@@ -148,7 +148,8 @@ class SatelliteView:
             range_m=range_m, phase_angle_rad=phase, boresight_angle_rad=np.arccos(np.clip(sb, -1.0, 1.0)),
             outside_angle_rad=projection.angle_outside(xi, eta, sb, self.focal_plane, b, r, u, s),
             zenith_angle_rad=zenith_boresight, boresight_azimuth_rad=azimuth_boresight,
-            field_rotation_rad=field_rotation, photon_flux=flux, magnitude=radiometry.magnitude(flux, self.band))
+            field_rotation_rad=field_rotation, magnitude=radiometry.magnitude(flux, self.band),
+            photon_flux=flux * spectra.sun_band_factor(self.focal_plane.spectral_response))
 
     def _photon_flux(self, phase, to_sun, to_observer, r_sat, r_sun, range_m, fraction, elevation):
         """Paper Eq. 1-2 with the reflector's phase function, the penumbra and the atmosphere."""

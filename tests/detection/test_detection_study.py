@@ -67,13 +67,14 @@ def test_bad_ladders_and_designs_are_one_message(designs, tmp_path, capsys):
 
 
 def test_a_psf_far_smaller_than_a_pixel_is_refused(designs, tmp_path, capsys):
-    """A 5 mm focal length puts 619 arcsec on a pixel of the 61 mm lens (lambda/D 1.9 arcsec)."""
+    """A 5 mm focal length puts 619 arcsec on a pixel of the 61 mm lens (lambda/D 1.9 arcsec at the Gen3 silicon
+    response's 568 nm)."""
     events, _ = designs
     code = main(["run", str(events), "-o", str(tmp_path / "run"), "--set", "sensor/camera.focal_length_m=0.005",
                  *SMALL])
     assert code == 2
     err = capsys.readouterr().err
-    assert "far smaller than a pixel" in err and "1.88 arcsec" in err and "Traceback" not in err
+    assert "far smaller than a pixel" in err and "1.93 arcsec" in err and "Traceback" not in err
 
 
 def test_a_star_field_ladder_beyond_its_stars_is_refused(designs, tmp_path, capsys):
