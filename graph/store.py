@@ -396,7 +396,7 @@ class RunStore:
     def focal_plane(self):
         if "events" not in self.group or "focal_plane" not in self.group["events"].attrs:
             return None
-        return event_stream_type().geometry_type()(**self.group["events"].attrs["focal_plane"])
+        return event_stream_type().geometry_type().from_arrays({}, dict(self.group["events"].attrs["focal_plane"]))
 
     def iter_events(self, chunk_size: int = EVENT_CHUNK, start: int = 0, stop: int | None = None
                     ) -> Iterator[dict[str, np.ndarray]]:
