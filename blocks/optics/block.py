@@ -336,10 +336,10 @@ class PointSourceOptics(Block):
 
         def render(job):
             s, key, tr, idx, seen = job
-            # each stretch of consecutive render times in view; one after a render time out of view (this
-            # window's or the last one's, whose screens the window's end dropped) gets new screens
+            # each stretch of consecutive render times in view; one back after more than hold_ns out of view
+            # (since this window's last stretch or the render time the imager last saw it) gets new screens
             for part in np.split(np.arange(len(idx)), np.flatnonzero(np.diff(idx) > 1) + 1):
-                if idx[part[0]] > 0:
+                if not imager.keeps(key, t_ns[idx[part[0]]]):
                     imager.forget([key])
                 at = idx[part]
                 o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
@@ -347,6 +347,7 @@ class PointSourceOptics(Block):
                                              rotation_rad=tr["rotation"][at])
                 origin[at, s] = o
                 flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
+                imager.seen(key, t_ns[at[-1]])
 
         # sources are independent (own screens, own slots of the output): render them on every core
         threads = min(worker_threads(), len(jobs))
@@ -357,10 +358,10 @@ class PointSourceOptics(Block):
             for job in jobs:
                 render(job)
 
-        # screens of the sources out of view at the window's last render time are dropped (a 60 s pupil_fft pass
-        # sweeps 1586 stars, ~96 kB of screens each): the rule reads render times only, so windows cannot change it
+        # screens of the sources out of view for hold_ns at the window's last render time are dropped (a 60 s
+        # pupil_fft pass sweeps 1586 stars, ~32 kB of screens each): the rule reads render times only, so windows
+        # cannot change it
         if len(t_ns):
-            in_view = {key for _, key, _, idx, _ in jobs if idx[-1] == len(t_ns) - 1}
-            imager.forget(sorted(imager.holding() - in_view))
+            imager.release(t_ns[-1])
         truth = truth_rows(focal_plane, t_ns, [key.partition(":")[2] for key in ids], kinds, columns)
         return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux), "truth": truth}

@@ -58,6 +58,10 @@ if TYPE_CHECKING:
     from .pixel_view import PixelView
     from .telescope import Telescope
 
+#: longest a source's screens are kept out of view when no layer's wind limits it sooner [s]: what sources that never
+#: come back hold (a 60 s tracked pass sweeps ~26 stars a second out of view)
+MAX_HOLD_S = 1.0
+
 
 def line_of_sight(theta: np.ndarray, zenith_rad, azimuth_rad, rotation_rad) -> tuple[np.ndarray, ...]:
     """East, north and up components (not normalised) of the directions at detector offsets ``theta`` (..., 2)
@@ -111,6 +115,8 @@ class Imager:
         #: the screens' frame: the boresight's azimuth, zenith angle and field rotation [rad] at the first render
         #: time that has them (:meth:`set_frame`, :meth:`sight`); None until then
         self.frame: tuple[float, float, float] | None = None
+        #: the last render time [ns] at which each source whose screens are held was in view (:meth:`release`)
+        self.last_seen_ns: dict[str, int] = {}
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -184,8 +190,42 @@ class Imager:
         for source in sources:
             held = [store.pop(source, None) for store in (self.pupil.screens, self.pupil.modal_screens,
                                                           self.reference.screens)]
+            self.last_seen_ns.pop(source, None)
             if any(h is not None for h in held):
                 self.generations[source] = self.generations.get(source, 0) + 1
+
+    @property
+    def hold_ns(self) -> int:
+        """How long [ns] a source's screens are kept after its last render time in view.
+
+        Frozen flow carries a layer's footprint ``|v| t`` across its screen; a screen's window holds
+        ``n delta`` of it (:mod:`.sizing`), so after ``min over layers of n delta / |v|`` some layer's
+        footprint has left the window it had and would need the screen continued farther than the
+        screen kept: the screens are dropped then (a layer without wind limits nothing); at most
+        ``MAX_HOLD_S`` (the memory held for sources that never come back).
+        """
+        limit = MAX_HOLD_S
+        if self.atmosphere is not None and self.geometry is not None:
+            for layer, n, delta in zip(self.atmosphere.layers, self.geometry.layer_n, self.geometry.layer_delta_m):
+                if layer.cn2_dh > 0 and layer.wind_speed_m_s > 0:
+                    limit = min(limit, n * delta / layer.wind_speed_m_s)
+        return int(round(limit * 1e9))
+
+    def keeps(self, source: str, t_ns: int) -> bool:
+        """Whether a source in view again at render time ``t_ns`` continues its held screens (:attr:`hold_ns`)."""
+        seen = self.last_seen_ns.get(source)
+        return seen is not None and int(t_ns) - seen <= self.hold_ns
+
+    def seen(self, source: str, t_ns: int) -> None:
+        """Record render time ``t_ns`` [ns] as the last a source was in view, if it holds screens."""
+        if source in self.pupil.screens or source in self.pupil.modal_screens or source in self.reference.screens:
+            self.last_seen_ns[source] = int(t_ns)
+
+    def release(self, t_ns: int) -> None:
+        """Drop the screens of sources not in view since ``hold_ns`` or more before render time ``t_ns``: none can
+        keep them at a later render time. Reads render times only, so windows and resumes do not change it."""
+        gone = [s for s in sorted(self.holding()) if int(t_ns) - self.last_seen_ns.get(s, -2**62) >= self.hold_ns]
+        self.forget(gone)
 
     def epochs_of(self, t_s: np.ndarray) -> np.ndarray:
         """Screen epoch of each time [1]: all screens are redrawn every ``screen_revisit_s``."""
@@ -313,6 +353,7 @@ class Imager:
             "reference_screens": self.reference.state(),
             "generations": dict(self.generations),
             "frame": None if self.frame is None else list(self.frame),
+            "last_seen_ns": dict(self.last_seen_ns),
         }
 
     def set_state(self, state: dict) -> None:
@@ -325,6 +366,7 @@ class Imager:
         self.generations = {str(k): int(v) for k, v in (state.get("generations") or {}).items()}
         frame = state.get("frame")
         self.frame = None if frame is None else tuple(float(v) for v in frame)
+        self.last_seen_ns = {str(k): int(v) for k, v in (state.get("last_seen_ns") or {}).items()}
         self.pupil.modal_screens = {}
         self.pupil.set_state(state.get("screens") or {})
         self.reference.set_state(state.get("reference_screens") or {})
