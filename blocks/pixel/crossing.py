@@ -160,12 +160,23 @@ def stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off, lar
     ``j_max`` (0 for ``retention`` 0), and ``delta j`` between 0 and ``delta j_max``; the range
     is widened far beyond the rounding of ``g``. False means "not shown", not "crosses".
     """
+    return band_holds(j_max, retention, relaxed_at(j_max, retention, d, log_a, large), c, d, log_a, delta, theta_on,
+                      theta_off)
+
+
+@inline
+def relaxed_at(j_max, retention, d, log_a, large):
+    """The relaxation :func:`stays_in_band` bounds ``g`` with: :func:`relaxation` at ``j_max`` (0 for ``retention`` 0)."""
+    if large:
+        return relaxation(d, large_weight(d), float(j_max) * log_a, retention, True) if retention > 0.0 else 0.0
+    return d * retention
+
+
+@inline
+def band_holds(j_max, retention, relaxed, c, d, log_a, delta, theta_on, theta_off):
+    """:func:`stays_in_band` given its relaxation ``relaxed`` (:func:`relaxed_at`)."""
     span = delta * float(j_max)
     margin = _ROUNDING * (abs(c) + abs(d) + span)
-    if large:
-        relaxed = relaxation(d, large_weight(d), float(j_max) * log_a, retention, True) if retention > 0.0 else 0.0
-    else:
-        relaxed = d * retention
     return ((delta >= 0.0) & (log_a <= 0.0) & (retention >= 0.0) & (c + max(d, relaxed) + span + margin < theta_on)
             & (c + min(d, relaxed) - margin > -theta_off))
 
@@ -179,12 +190,23 @@ def first_crossing_one(j0, c, d, log_a, delta, theta_on, theta_off, horizon, lar
     tested. Returns ``(j, polarity)``, ``(NEVER, 0)`` where there is none. ``large``: the
     large-signal filter (:func:`relaxation`).
     """
+    j, polarity, _, _, _ = first_crossing_known(j0, c, d, log_a, delta, theta_on, theta_off, horizon, large)
+    return j, polarity
+
+
+@jit
+def first_crossing_known(j0, c, d, log_a, delta, theta_on, theta_off, horizon, large=False):
+    """:func:`first_crossing_one`, also returning ``(j_max, a^j_max, relaxation)``, the retention and the
+    relaxation its bound took (``j_max = max(min(horizon, J_LIMIT), j0)``; :func:`relaxed_at`): a caller
+    that relaxes the pixel by ``j_max`` steps next takes them from there (the same bits)."""
     horizon = min(horizon, J_LIMIT)
     j_max = max(horizon, j0)
     retention = power(log_a, j_max)
-    if stays_in_band(j_max, retention, c, d, log_a, delta, theta_on, theta_off, large):
-        return NEVER, 0
-    return search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_max, retention, large)
+    relaxed = relaxed_at(j_max, retention, d, log_a, large)
+    if band_holds(j_max, retention, relaxed, c, d, log_a, delta, theta_on, theta_off):
+        return NEVER, 0, j_max, retention, relaxed
+    j, polarity = search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_max, retention, large)
+    return j, polarity, j_max, retention, relaxed
 
 
 @inline

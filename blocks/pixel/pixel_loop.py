@@ -33,7 +33,7 @@ import numpy as np
 
 from .comparator import TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import NEVER, first_crossing_one, large_weight, power, relaxation
+from .crossing import NEVER, first_crossing_known, large_weight, power, relaxation
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -73,7 +73,7 @@ def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, cre
         c[:] = 0
         c[STEP], c[READY] = n_start - 1, n_start
         c[SHOT_NEXT] = c[STEP] + shot_gap(key, pixel, c[SHOT_COUNT], q * real[pixel, NOISE_SCALE])
-        c[CMP_NEXT] = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt, large)
+        c[CMP_NEXT], _, _, _ = _schedule(real[pixel], c, NEVER, leak_hz * dt, dt, large)
         next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
 
 
@@ -91,19 +91,28 @@ def next_crossing(step, ready, y, memorised, filtered, log_a, para, th_on, th_of
     The pixel is at ``step`` with the given state and input and may fire from ``ready`` on;
     ``large``: the large-signal filter.
     """
+    t, _, _, _ = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
+                                  t_change, leak_dt, dt, large)
+    return t
+
+
+@jit
+def next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change, leak_dt,
+                        dt, large):
+    """:func:`next_crossing`, also returning ``(j, a^j, relaxation)`` from its bound (:func:`.crossing.first_crossing_known`)."""
     drift = (leak_dt * noise_scale + para * dt) * th_on
     j0 = max(ready - step, np.int64(1))
     horizon = NEVER if t_change >= NEVER else t_change - 1 - step
-    j, _ = first_crossing_one(j0, y - memorised, filtered - y, log_a, drift, th_on - TOLERANCE, th_off - TOLERANCE,
-                              horizon, large)
-    return NEVER if j >= NEVER else step + j
+    j, _, j_known, known, relaxed = first_crossing_known(j0, y - memorised, filtered - y, log_a, drift,
+                                                         th_on - TOLERANCE, th_off - TOLERANCE, horizon, large)
+    return (NEVER if j >= NEVER else step + j), j_known, known, relaxed
 
 
 @jit
 def _schedule(r, c, t_change, leak_dt, dt, large):
-    """:func:`next_crossing` of the pixel with state rows ``r``, ``c``."""
-    return next_crossing(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
-                         r[NOISE_SCALE], t_change, leak_dt, dt, large)
+    """:func:`next_crossing_known` of the pixel with state rows ``r``, ``c``: ``(step, j, a^j, relaxation)``."""
+    return next_crossing_known(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
+                               r[NOISE_SCALE], t_change, leak_dt, dt, large)
 
 
 @inline
@@ -122,10 +131,16 @@ def relaxed_by(retention, filtered, memorised, c_leak, c_para, y, log_a, para, t
         filtered = y + relaxation(d, large_weight(d), j * log_a, retention, True)
     else:
         filtered = y + (filtered - y) * retention
+    return (filtered,) + drifted(memorised, c_leak, c_para, para, th_on, noise_scale, j, leak_hz, dt)
+
+
+@inline
+def drifted(memorised, c_leak, c_para, para, th_on, noise_scale, j, leak_hz, dt):
+    """``(M, c_leak, c_para)`` after ``j`` steps of leak and parasitic drift (Eqs. 18, 19; :func:`relaxed_by`)."""
     scale = th_on * j * dt
     leak = leak_hz * noise_scale * scale
     para = para * scale
-    return filtered, memorised - (leak + para), c_leak + leak, c_para + para
+    return memorised - (leak + para), c_leak + leak, c_para + para
 
 
 @jit
@@ -135,6 +150,23 @@ def _advance(r, c, t, leak_hz, dt, large):
     if j > 0:
         r[L_], r[M_], r[C_LEAK], r[C_PARA] = relaxed(r[L_], r[M_], r[C_LEAK], r[C_PARA], r[Y], r[LOG_A], r[PARA],
                                                      r[TH_ON], r[NOISE_SCALE], j, leak_hz, dt, large)
+    c[STEP] = t
+
+
+@jit
+def _advance_known(r, c, t, leak_hz, dt, large, j_known, known, relaxed):
+    """:func:`_advance`, taking ``a^j`` from ``known = a^j_known`` and, in the large-signal form, ``L - Y`` from
+    ``relaxed`` (the pixel's last schedule's bound, at its present input: :func:`.crossing.first_crossing_known`)
+    when ``j = j_known``: the same bits, without their ``exp`` and ``log``."""
+    j = t - c[STEP]
+    if j > 0 and j == j_known and large and known > 0.0:
+        r[L_] = r[Y] + relaxed
+        r[M_], r[C_LEAK], r[C_PARA] = drifted(r[M_], r[C_LEAK], r[C_PARA], r[PARA], r[TH_ON], r[NOISE_SCALE], j,
+                                              leak_hz, dt)
+    elif j > 0:
+        retention = known if j == j_known else power(r[LOG_A], j)
+        r[L_], r[M_], r[C_LEAK], r[C_PARA] = relaxed_by(retention, r[L_], r[M_], r[C_LEAK], r[C_PARA], r[Y], r[LOG_A],
+                                                        r[PARA], r[TH_ON], r[NOISE_SCALE], j, leak_hz, dt, large)
     c[STEP] = t
 
 
@@ -208,6 +240,7 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
     ptr, end = lo, hi
     t_change = change_step[ptr] if ptr < end else NEVER
     cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
+    j_known, known, relaxed = np.int64(-1), 0.0, 0.0     # what its schedule's bound took (none: from the state)
     while True:
         t_settle = _settle_step(c)
         t_event = min(cmp_next, c[SHOT_NEXT], t_settle)
@@ -244,14 +277,14 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
                 c[SHOT_COUNT] += 1
                 c[SHOT_NEXT] = t_event + shot_gap(key, pixel, c[SHOT_COUNT], q * r[NOISE_SCALE])
         elif ptr < end:                                       # the next input takes over
-            _advance(r, c, t_change - 1, leak_hz, dt, large)
+            _advance_known(r, c, t_change - 1, leak_hz, dt, large, j_known, known, relaxed)
             row = change_input[ptr]
             r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
             ptr += 1
             t_change = change_step[ptr] if ptr < end else NEVER
         else:
             break
-        cmp_next = _schedule(r, c, t_change, leak_dt, dt, large)
+        cmp_next, j_known, known, relaxed = _schedule(r, c, t_change, leak_dt, dt, large)
         if ptr == stop:
             break
     c[CMP_NEXT] = cmp_next
