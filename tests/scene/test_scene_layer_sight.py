@@ -60,8 +60,8 @@ def test_boresight_azimuth_and_zenith_of_a_track_match_skyfield(iss, graz, gen4,
     observer = ObserverModel(graz, pass_start, KNOT).skyfield_observer()
     el, az = skyfield_altaz(observer, pass_start, t_ns, planets()["earth"] + earth_satellite(iss.line1, iss.line2))
     arcsec = np.radians(1 / 3600)
-    assert np.abs(np.angle(np.exp(1j * (azimuth - az)))).max() * np.cos(el).max() < 1 * arcsec
-    assert np.abs((np.pi / 2 - zenith) - el).max() < 1 * arcsec
+    assert np.abs(np.angle(np.exp(1j * (azimuth - az)))).max() * np.cos(el).max() < 0.05 * arcsec  # 0.004 measured
+    assert np.abs((np.pi / 2 - zenith) - el).max() < 0.05 * arcsec                                 # 0.001
     np.testing.assert_allclose(rotation, np.radians(20.0), atol=1e-9)       # image up = elevation, turned by the roll
 
 
@@ -74,7 +74,7 @@ def test_field_rotation_of_a_sidereal_field_against_skyfield(graz, pass_start):
     el0, az0 = skyfield_altaz(observer, pass_start, t_ns, Star(ra_hours=ra / 15, dec_degrees=dec))
     el1, az1 = skyfield_altaz(observer, pass_start, t_ns, Star(ra_hours=ra / 15, dec_degrees=dec + 1 / 60))
     expected = np.arctan2(np.angle(np.exp(1j * (az1 - az0))) * np.cos(el0), el1 - el0)
-    assert np.abs(np.angle(np.exp(1j * (rotation - expected)))).max() < 1e-3      # 1 arcmin step: ~1e-4 curvature
+    assert np.abs(np.angle(np.exp(1j * (rotation - expected)))).max() < 1e-3      # 3.6e-4 measured (the 1' step)
     assert np.abs(np.angle(np.exp(1j * (azimuth - az0)))).max() < np.radians(1 / 3600)
     assert abs(rotation[1] - rotation[0]) > np.radians(1)                  # the parallactic angle turns
 
@@ -102,8 +102,8 @@ def test_tracked_satellite_sweeps_the_layer_and_stars_ride_the_wind(iss, graz, g
     speed = np.hypot(*np.diff(satellite, axis=0).T) / (dt_ns / 1e9)         # [m/s]
     expected = h / np.cos(zenith[0]) * omega
     # across the beam at t0 exactly; cos z drifts by < 0.3 % over the second (z changes by ~1 deg)
-    np.testing.assert_allclose(speed[:2], expected[:2], rtol=2e-3)
-    np.testing.assert_allclose(speed, expected, rtol=3e-2)
+    np.testing.assert_allclose(speed[:2], expected[:2], rtol=1e-4)      # 1e-5 measured
+    np.testing.assert_allclose(speed, expected, rtol=3e-3)              # 3e-4 measured
     assert speed.min() > 50.0                                              # L omega = 7.7 km x 12 mrad/s
     # the star: sidereal rate only, though it streaks across the detector at ~1 deg/s
     star_speed = np.hypot(*np.diff(fixed, axis=0).T) / (dt_ns / 1e9)
@@ -158,9 +158,9 @@ def test_two_sources_keep_footprints_h_theta_sec_z_apart(graz, gen4, pass_start,
         theta = np.arccos(np.dot(directions[0], directions[1]))            # true angle between the sources
         c = h * im.sight(x, y, np.repeat(zenith, 2), np.repeat(azimuth, 2), np.repeat(rotation, 2))
         gap = c[1] - c[0]
-        assert np.hypot(*gap) == pytest.approx(h * theta / np.cos(zenith[0]), rel=5e-3)
+        assert np.hypot(*gap) == pytest.approx(h * theta / np.cos(zenith[0]), rel=2e-3)      # <= 4.4e-4 measured
         # and along the detector's direction between them (the screens' frame is the detector's at t0)
-        assert np.degrees(np.arctan2(gap[1], gap[0]) - np.arctan2(dy, dx)) == pytest.approx(0.0, abs=0.5)
+        assert np.degrees(np.arctan2(gap[1], gap[0]) - np.arctan2(dy, dx)) == pytest.approx(0.0, abs=0.1)
 
 
 def test_without_the_boresight_the_old_staring_footprints(gen4):
