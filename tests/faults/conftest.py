@@ -14,7 +14,6 @@ import pytest
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))       # faultkit, for the tests (pytest runs with --import-mode=importlib)
-from faultkit import graph_file
 
 PLUGIN = HERE.parent / "framework" / "plugin" / "evsda_testblocks.py"
 DRIVER = HERE / "fault_driver.py"
@@ -70,12 +69,11 @@ def evsda(env):
 
 
 @pytest.fixture(scope="session")
-def reference(tmp_path_factory, env):
-    """An uninterrupted run of the fault graph (events, products and metrics to compare with)."""
-    folder = tmp_path_factory.mktemp("reference")
-    path = graph_file(folder)
-    subprocess.run([sys.executable, "-m", "evsda.graph.cli", "run", str(path), "-o", str(folder / "ref.zarr"), "-q"],
-                   env=env, check=True, capture_output=True, timeout=60)
-    return folder / "ref.zarr"
+def reference(tmp_path_factory, registered):
+    """An uninterrupted run of the fault graph (events, products and metrics to compare with), in this process:
+    the command's runs are compared with it, so it also checks that they equal the library's."""
+    from faultkit import run_in_process
+
+    return run_in_process(tmp_path_factory.mktemp("reference"), "ref.zarr")
 
 
