@@ -6,7 +6,7 @@ Prints the study's table (simulated m50 and m90 with their errors, the analytic 
 wall-clock time of the event design's study alone and of the frame design's, with the load average, and writes
 the event-versus-frame figure and table into the study folder.
 
-    python benchmarks/limiting_magnitude.py [--magnitudes 3.5:13:0.5] [--jobs 2] [--out DIR] [--png FILE]
+    python benchmarks/limiting_magnitude.py [--magnitudes 5:14.5:0.5] [--jobs 2] [--out DIR] [--png FILE]
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def timed(argv: list[str]) -> tuple[int, float, float, float]:
 
 def run(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--magnitudes", default="3.5:13:0.5", help="the ladder (20 rungs by default) [V mag]")
+    parser.add_argument("--magnitudes", default="5:14.5:0.5", help="the ladder (20 rungs by default) [V mag]")
     parser.add_argument("--jobs", type=int, default=2, help="points run at once")
     parser.add_argument("--out", help="study folder (default: a temporary one; an existing one is resumed)")
     parser.add_argument("--png", help="event-versus-frame figure (default: in the study folder)")
