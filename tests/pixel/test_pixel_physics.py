@@ -131,7 +131,9 @@ def test_counter_random_numbers_are_uniform_and_independent():
 
 def test_first_crossing_matches_stepping():
     c, d, log_a, delta, th_on, th_off, j0, horizon = crossing_cases(1, 5000, 0.2, 0.5, 0.8)
-    j, pol = crossing.first_crossing(j0, c, d, log_a, delta, th_on, th_off, horizon)
+    # large=False passed as a runtime bool, as the pixel kernels pass it: omitted, Numba would compile a second
+    # specialisation of the whole search (Literal False) for this test alone
+    j, pol = crossing.first_crossing(j0, c, d, log_a, delta, th_on, th_off, horizon, False)
     steps = np.arange(1, CROSSING_HORIZON_STEPS + 1)
     g = c[:, None] + d[:, None] * np.exp(steps[None] * log_a[:, None]) + delta[:, None] * steps[None]
     found, first = first_hits(g, th_on, th_off, j0, horizon)
