@@ -32,6 +32,10 @@ simulated limiting-magnitude study and its analytic cross-check): a stricter cri
 The scan (setup 3) is compared on the contrast limit: its stars are streaks hundreds of pixels long in a 5 s slice,
 which a point-source matching pipeline does not find at any brightness.
 
+The sensors count the photons of their presets' spectral response (unfiltered silicon for the Gen3 VGA and Gen4, an
+assumed curve: evsda.blocks.scene.spectra), not V-band photons; the script prints each setup's band factor and, for
+the Gen4, how its prediction moves with the assumed silicon depth or behind a V filter.
+
 The one fitted number is the Gen3 VGA dark current (``--fit``: the value at which setup 1's matched-star limit is
 V 9.8; ``library/sensors/prophesee_gen3_vga.yaml`` holds it). Everything else stays as the presets give it.
 
