@@ -55,6 +55,23 @@ def evsda_cli(plugin_dir):
     return run
 
 
+@pytest.fixture
+def evsda_main(plugin, capsys):
+    """Run ``evsda`` through its ``main()`` in this process (the test plugin registered), for follow-up commands
+    whose process start (~1.5 s CPU) checks nothing new: returns a CompletedProcess (returncode, stdout, stderr)."""
+    from evsda.graph.cli import main
+
+    def run(*args, check=False):
+        capsys.readouterr()
+        status = main([str(a) for a in args])
+        out, err = capsys.readouterr()
+        if check and status != 0:
+            raise AssertionError(f"evsda {' '.join(map(str, args))} failed:\n{err}")
+        return subprocess.CompletedProcess(args, status, out, err)
+
+    return run
+
+
 def write(path: Path, text: str) -> Path:
     path.write_text(textwrap.dedent(text))
     return path

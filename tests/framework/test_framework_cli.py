@@ -76,13 +76,14 @@ def test_run_writes_a_store_refuses_to_overwrite_and_reruns_from_a_store(evsda_c
     assert len(a["x"]) > 0 and all(np.array_equal(a[k], b[k]) for k in a)
 
 
-def test_schema_is_written_checked_and_detects_staleness(evsda_cli, tmp_path):
+def test_schema_is_written_checked_and_detects_staleness(evsda_cli, evsda_main, tmp_path):
+    """Written by a new process; checked through main() in this one."""
     folder = tmp_path / "schema"
     assert evsda_cli("schema", "--dir", folder).returncode == 0
-    assert evsda_cli("schema", "--check", "--dir", folder).returncode == 0
+    assert evsda_main("schema", "--check", "--dir", folder).returncode == 0
     graph_file = folder / "graph.schema.json"
     graph_file.write_text(graph_file.read_text().replace('"title"', '"titel"', 1))
-    proc = evsda_cli("schema", "--check", "--dir", folder)
+    proc = evsda_main("schema", "--check", "--dir", folder)
     assert proc.returncode == 1 and "graph.schema.json is out of date" in proc.stderr
 
 
@@ -141,14 +142,15 @@ def test_verbose_and_quiet_go_before_or_after_the_command(evsda_cli, tmp_path):
     assert evsda_cli("blocks", "-v", check=True).stdout == evsda_cli("-v", "blocks", check=True).stdout
 
 
-def test_run_json_and_info_say_what_the_store_holds(evsda_cli, plugin, tmp_path):
+def test_run_json_and_info_say_what_the_store_holds(evsda_cli, evsda_main, tmp_path):
+    """The run in a new process; `evsda info` on its store through main() in this one."""
     import json
     good = write(tmp_path / "good.yaml", GOOD)
     out = tmp_path / "a.zarr"
     report = json.loads(evsda_cli("run", good, "-o", out, "-q", "--json", check=True).stdout)
     store = RunStore.open(out)
     assert report["store"] == str(out) and report["events"] == store.n_events > 0 and report["windows"] == 3
-    info = json.loads(evsda_cli("info", out, "--json", check=True).stdout)
+    info = json.loads(evsda_main("info", out, "--json", check=True).stdout)
     assert info["complete"] and not info["resumable"] and info["seed"] == 3 and info["graph"] == "good"
     assert info["duration_s"] == pytest.approx(0.03) and info["n_windows"] == 3
     causes = np.bincount(store.read_events()["cause"], minlength=4)
@@ -156,15 +158,15 @@ def test_run_json_and_info_say_what_the_store_holds(evsda_cli, plugin, tmp_path)
                                        enumerate(["signal", "leak", "parasitic", "shot"]) if causes[i]}
     assert sum(info["events_by_cause"].values()) == info["events"] == store.n_events
     assert "ramp.samples" in info["products"] and info["products"]["ramp.samples"] == 3
-    text = evsda_cli("info", out, check=True).stdout
+    text = evsda_main("info", out, check=True).stdout
     assert f"{out}: complete: 3 of 3 windows" in text and "seed         3" in text
     from evsda.graph.executor import run_graph
     from evsda.graph.graphfile import load_graph
     partial = tmp_path / "p.zarr"
     run_graph(load_graph(good), partial, max_windows=1, checkpoint_every_s=0, progress=False)
-    info = json.loads(evsda_cli("info", partial, "--json", check=True).stdout)
+    info = json.loads(evsda_main("info", partial, "--json", check=True).stdout)
     assert not info["complete"] and info["resumable"] and info["windows"] == 1 and info["checkpoint"]
-    missing = evsda_cli("info", tmp_path / "nope.zarr")
+    missing = evsda_main("info", tmp_path / "nope.zarr")
     assert missing.returncode == 2 and missing.stderr.startswith("evsda: error:") and "Traceback" not in missing.stderr
 
 
