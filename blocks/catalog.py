@@ -34,3 +34,33 @@ BLOCKS = {
     "frame_detector": "evsda.blocks.detection.frame_detector:FrameDetector",
     "detection_scoring": "evsda.blocks.detection.scoring:DetectionScoring",
 }
+
+
+def package_exports(package: str):
+    """A block package's names, imported on first use (PEP 562): ``(__getattr__, __dir__, __all__)``.
+
+    ``from evsda.blocks.scene import Satellite`` imports ``evsda.blocks.scene.satellite`` only then, and
+    the package's ``BLOCKS`` (its block classes in the order above) imports all of them; importing the
+    package, or one of its commands or library modules, imports no block, so ``evsda`` starts without
+    them (docs/speed.md, fixed costs).
+    """
+    import sys
+    from importlib import import_module
+
+    specs = {spec.partition(":")[2]: spec.partition(":")[0]
+             for spec in BLOCKS.values() if spec.startswith(package + ".")}
+
+    def __getattr__(name: str):
+        module = sys.modules[package]
+        if name == "BLOCKS":
+            return [getattr(module, class_name) for class_name in specs]
+        if name not in specs:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        value = getattr(import_module(specs[name]), name)
+        setattr(module, name, value)
+        return value
+
+    def __dir__() -> list[str]:
+        return sorted(set(vars(sys.modules[package])) | set(specs) | {"BLOCKS"})
+
+    return __getattr__, __dir__, [*specs, "BLOCKS"]

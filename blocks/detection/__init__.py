@@ -1,9 +1,6 @@
 """Detection on a sensor's output without ground truth, its scoring against the truth, and the
 limiting-magnitude study: injected sources, the event detector, the frame detector, scoring."""
 
-from .event_detector import EventDetector
-from .frame_detector import FrameDetector
-from .injected import InjectedSources
-from .scoring import DetectionScoring
+from evsda.blocks.catalog import package_exports
 
-BLOCKS: list = [InjectedSources, EventDetector, FrameDetector, DetectionScoring]
+__getattr__, __dir__, __all__ = package_exports(__name__)   # blocks imported on first use

@@ -7,6 +7,6 @@ Library modules (usable without a graph): :mod:`.zernike`, :mod:`.karhunen_loeve
 :mod:`.reference_path`, :mod:`.imaging`. The block is :class:`.block.PointSourceOptics`.
 """
 
-from .block import PointSourceOptics
+from evsda.blocks.catalog import package_exports
 
-BLOCKS: list = [PointSourceOptics]
+__getattr__, __dir__, __all__ = package_exports(__name__)   # blocks imported on first use

@@ -1,10 +1,5 @@
 """Readout blocks (paper Sec. 2.5 and 3): arbiters, the frame-sensor baseline, metrics."""
 
-from .arbiters import ColumnBurstArbiter, IdealReadout, RowScanArbiter
-from .frame_sensor import FrameSensor
-from .metrics import EventMetrics
-from .object_metrics import ObjectMetrics
-from .photometry import FramePhotometry
+from evsda.blocks.catalog import package_exports
 
-BLOCKS: list = [IdealReadout, RowScanArbiter, ColumnBurstArbiter, EventMetrics, ObjectMetrics, FrameSensor,
-                FramePhotometry]
+__getattr__, __dir__, __all__ = package_exports(__name__)   # blocks imported on first use

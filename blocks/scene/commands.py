@@ -8,9 +8,6 @@ from evsda.graph import NS_PER_S, UserError, Window
 from evsda.graph.commands import Command, add_figure_options
 from evsda.graph.files import check_figure_output, save_figure
 
-from .passes import find_passes
-from .satellite import Satellite
-
 
 def upstream_values(graph, block_name: str, window: Window) -> dict:
     """The inputs of ``block_name`` for one window, by running the blocks upstream of it once."""
@@ -56,6 +53,9 @@ class PlotPass(Command):
     def run(self, args: argparse.Namespace) -> int:
         from evsda.graph.graphfile import load_graph
 
+        from .passes import find_passes      # here, not at the top: `evsda` starts without the scene's modules
+        from .satellite import Satellite
+
         check_figure_output(args.output, args.overwrite, args.dpi)
         graph = load_graph(args.graph, args.set)
         run = graph.run_info()
@@ -65,7 +65,7 @@ class PlotPass(Command):
         if not satellites:
             raise UserError(f"{args.graph}: the graph has no satellite block to plot")
         name = args.satellite or satellites[0]
-        block: Satellite = graph.nodes[name].block
+        block = graph.nodes[name].block
         window = Window(0, 0, min(run.window_ns, run.duration_ns), run.epoch)
         inputs = upstream_values(graph, name, window)
         view = block.view(window, **inputs)

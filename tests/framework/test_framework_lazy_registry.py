@@ -9,6 +9,8 @@ import pkgutil
 import subprocess
 import sys
 
+import pytest
+
 import evsda.blocks
 from evsda.blocks.catalog import BLOCKS
 from evsda.graph import Block, registry
@@ -31,6 +33,37 @@ def test_a_graph_imports_only_the_blocks_it_names():
     for package in ("optics", "pixel", "readout", "detection"):
         assert not any(m.startswith(f"evsda.blocks.{package}") for m in seen["modules"]), package
     assert set(BLOCKS) <= set(seen["names"])                 # every type is still listed, unimported
+
+CLI_START = """
+import json, sys
+import evsda.graph.cli
+from evsda.graph.commands import contributed_commands
+names = [command.name for command in contributed_commands()]
+print(json.dumps({"modules": sorted(sys.modules), "names": names}))
+"""
+
+
+def test_the_command_line_starts_without_importing_any_block():
+    """`evsda` (every contributed command loaded) imports no block module, nor scipy.stats or numba that
+    the detection blocks need: each CLI start paid ~1 s of CPU for them (issue 13.3)."""
+    out = subprocess.run([sys.executable, "-c", CLI_START], capture_output=True, text=True, check=True)
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert {"plot-pass", "plot-psf", "export", "limiting-magnitude"} <= set(seen["names"])
+    imported = set(seen["modules"])
+    assert not imported & {spec.partition(":")[0] for spec in BLOCKS.values()}
+    assert not imported & {"scipy.stats", "numba", "skyfield"}
+
+
+def test_a_package_gives_its_blocks_on_first_use():
+    """`from evsda.blocks.<stage> import Class` and the package's BLOCKS still work (imported lazily)."""
+    import evsda.blocks.readout as readout
+    from evsda.blocks.scene import Satellite, spectra
+
+    assert Satellite.type_name == "satellite" and spectra.__name__ == "evsda.blocks.scene.spectra"
+    assert [block.type_name for block in readout.BLOCKS] == [n for n, s in BLOCKS.items() if ".readout." in s]
+    assert {"BLOCKS", "FrameSensor"} <= set(dir(readout))
+    with pytest.raises(ImportError, match="cannot import name 'NoSuchBlock'"):
+        from evsda.blocks.readout import NoSuchBlock  # noqa: F401
 
 
 def test_the_index_names_every_builtin_block_by_its_type():
