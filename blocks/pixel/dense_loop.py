@@ -44,6 +44,7 @@ from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, 
 TILE = 128                   # pixels swept together (64: ~5 % more CPU, 256: the same)
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
 _STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
+_FIRST, _ONE = np.int64(0), np.int64(1)     # run_pixel's bounds typed int64, not literals: one compile serves all
 # per-pixel fields of a tile (rows of the sweep's tables)
 (F_FLUX, F_L, F_M, F_LEAK, F_PARA_C, F_Y, F_LOG_A, F_PARA, F_ACCEPT, F_TH_ON, F_TH_OFF, F_SCALE, F_RETAIN, F_NOW,
  F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
@@ -70,34 +71,21 @@ def _prefetch(typingctx, array, row, column):
 
 @jit
 def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, large, drive_k):
-    """:func:`_sweep_law` with the cutoff law's ``square_law`` and the filter's form ``large`` constants: one loop
-    for each."""
-    if large:
-        if drive_k[SQUARE_LAW] != 0.0:
-            return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, True, True)
-        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, False, True)
+    """:func:`_drive_law` then :func:`_sweep_law`, each with its constant (the cutoff law's ``square_law``, the
+    filter's form ``large``): two copies of each compiled, not four of the whole sweep (3x the compile time)."""
     if drive_k[SQUARE_LAW] != 0.0:
-        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, True, False)
-    return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, False, False)
+        _drive_law(fs, n, drive_k, True)
+    else:
+        _drive_law(fs, n, drive_k, False)
+    if large:
+        return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, True)
+    return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, False)
 
 
 @inline
-def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law, large):
-    """Take the sample at ``t_now`` for the active pixels ``0 .. n - 1`` of a tile, where it is quiet.
-
-    ``fs``/``js``: the tile's float and integer tables (flattened ``[field, TILE]``);
-    ``F_NOW``/``F_NEXT`` hold this and the next sample's flux (``last``: there is none).
-    ``F_RETAIN`` is the filter's retention ``a^j`` over the ``I_SPAN = j`` steps from the
-    pixel's last step to this sample. A pixel whose flux holds still while its comparator
-    is scheduled without a horizon (``I_OPEN``) waits; one with an event due before its
-    change is marked ``_STEPPED`` in ``I_ACTIVE`` (:func:`run_pixel` takes the sample); one
-    whose next sample does not change it leaves (``I_LEAVE``). Returns the numbers of pixels
-    whose crossing is left to solve (``_SOLVE`` in ``I_CMP``) and of pixels stepped.
-    """
-    leak_dt = leak_hz * dt
-    n_solve = n_stepped = 0
-    step = t_now - 1
-    # the drive of this sample's flux first, in three loops (short loops overlap more pixels' work)
+def _drive_law(fs, n, drive_k, square_law):
+    """The drive (``F_NEW_*``) of the flux ``F_NOW`` of pixels ``0 .. n - 1`` of a tile, in three loops (short loops
+    overlap more pixels' work)."""
     for i in range(n):
         fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = drive_log(fs[F_NOW * TILE + i], drive_k)    # x, ln x
     for i in range(n):
@@ -108,6 +96,25 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, drive_k, square_law,
                                                             fs[F_NEW_LOG_A * TILE + i], drive_k)
         fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i] = new_y, new_log_a
         fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
+
+
+@inline
+def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, large):
+    """Take the sample at ``t_now`` for the active pixels ``0 .. n - 1`` of a tile, where it is quiet.
+
+    ``fs``/``js``: the tile's float and integer tables (flattened ``[field, TILE]``);
+    ``F_NOW``/``F_NEXT`` hold this and the next sample's flux (``last``: there is none),
+    ``F_NEW_*`` the drive of ``F_NOW`` (:func:`_drive_law`).
+    ``F_RETAIN`` is the filter's retention ``a^j`` over the ``I_SPAN = j`` steps from the
+    pixel's last step to this sample. A pixel whose flux holds still while its comparator
+    is scheduled without a horizon (``I_OPEN``) waits; one with an event due before its
+    change is marked ``_STEPPED`` in ``I_ACTIVE`` (:func:`run_pixel` takes the sample); one
+    whose next sample does not change it leaves (``I_LEAVE``). Returns the numbers of pixels
+    whose crossing is left to solve (``_SOLVE`` in ``I_CMP``) and of pixels stepped.
+    """
+    leak_dt = leak_hz * dt
+    n_solve = n_stepped = 0
+    step = t_now - 1
     for i in range(n):      # all loads first, then no branches: every pixel computes, the quiet ones keep the result
         flux, held, following = fs[F_NOW * TILE + i], fs[F_FLUX * TILE + i], fs[F_NEXT * TILE + i]
         filtered, memorised = fs[F_L * TILE + i], fs[F_M * TILE + i]
@@ -234,7 +241,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
     change_input = np.empty((max(n_samples, 2), n_real))
     saved_r = np.empty(n_real)
     saved_c = np.empty(n_count, np.int64)
-    n_events = 0
+    n_events = _FIRST                                         # int64, not Literal[int](0): see _FIRST
     lost = 0.0
     for t0 in range(0, columns.size, TILE):
         n = min(TILE, columns.size - t0)
@@ -282,10 +289,10 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                     row[FLUX], row[Y], row[LOG_A] = fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i], \
                         fs[F_NEW_LOG_A * TILE + i]
                     row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
-                    n_events, lost, done = run_pixel(r, c, pixel, 0, 1 if last else 2, 1, change_step, change_input,
-                                                     n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on,
-                                                     th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
-                                                     ev_cause, n_events, lost, saved_r, saved_c)
+                    n_events, lost, done = run_pixel(r, c, pixel, _FIRST, 1 if last else 2, _ONE, change_step,
+                                                     change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
+                                                     th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel,
+                                                     ev_pol, ev_cause, n_events, lost, saved_r, saved_c)
                     if not done:
                         break
                     _from_state(fs, js, i, r, c, t_next)        # at step steps[k] - 1: the sweep's retention
@@ -298,7 +305,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
             _to_state(fs, js, i, r, c)
             leave = js[I_LEAVE * TILE + i]
             held = r[FLUX]
-            n_changes = 0
+            n_changes = _FIRST                        # int64 from the start: one compile of run_pixel
             if leave < NEVER:                                 # its samples from the one it left the sweep at
                 for k in range(n_samples):
                     if steps[k] >= leave:
@@ -309,10 +316,10 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                             n_changes += 1
                             held = flux
             if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c)) < n_end:
-                n_events, lost, done = run_pixel(r, c, pixel, 0, n_changes, n_changes + 1, change_step, change_input,
-                                                 n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
-                                                 th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events,
-                                                 lost, saved_r, saved_c)
+                n_events, lost, done = run_pixel(r, c, pixel, _FIRST, n_changes, n_changes + 1, change_step,
+                                                 change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
+                                                 th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
+                                                 ev_cause, n_events, lost, saved_r, saved_c)
                 if not done:
                     break
             off_background[column] = held != background[n_samples - 1]

@@ -303,7 +303,7 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
     written, pixels done, events lost in the pixels)``: the chunk stops before a pixel whose
     events would overflow the buffers.
     """
-    n_events = 0
+    n_events = np.int64(0)                     # int64, not Literal[int](0): one compile of run_pixel serves all
     lost = 0.0
     saved_r = np.empty(real.shape[1])
     saved_c = np.empty(count.shape[1], np.int64)
