@@ -84,14 +84,15 @@ def test_an_export_larger_than_the_free_space_is_refused_before_writing(capsys, 
 
 
 @pytest.mark.parametrize("nth", [1, 30])
-def test_a_run_stopped_by_a_full_disk_says_what_is_kept_and_resumes(evsda, reference, tmp_path, nth):
-    """A store wrapper raises ENOSPC from the nth chunk write on (the first: before any commit)."""
+def test_a_run_stopped_by_a_full_disk_says_what_is_kept_and_resumes(evsda, reference, capsys, tmp_path, nth):
+    """A store wrapper raises ENOSPC from the nth chunk write on (the first: before any commit). The resume is the
+    same command through evsda's main() in this process (resuming in a new process: tests/faults/test_faults_kills.py)."""
     graph, store = graph_file(tmp_path), tmp_path / "run.zarr"
     full = evsda.fault(r"/c/", nth, "enospc", "run", graph, "-o", store, "-q", "--checkpoint-every", "0")
     line = one_line_error(full, f"writing run store {store} failed: no space left on the device")
     assert ("nothing was committed yet" in line) if nth == 1 else ("windows are committed" in line)
-    resumed = evsda("run", graph, "-o", store, "--resume", "-q")
-    assert resumed.returncode == 0, resumed.stderr
+    status, lines = cli(capsys, "run", graph, "-o", store, "--resume", "-q")
+    assert status == 0, lines
     assert_identical(store, reference)
 
 
