@@ -50,7 +50,6 @@ _FIRST, _ONE = np.int64(0), np.int64(1)     # run_pixel's bounds typed int64, no
  F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
 (I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
 jit = numba.njit(cache=True, error_model="numpy")
-inline = numba.njit(cache=True, error_model="numpy", inline="always")
 
 
 @intrinsic
@@ -72,7 +71,9 @@ def _prefetch(typingctx, array, row, column):
 @jit
 def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, large, drive_k):
     """:func:`_drive_law` then :func:`_sweep_law`, each with its constant (the cutoff law's ``square_law``, the
-    filter's form ``large``): two copies of each compiled, not four of the whole sweep (3x the compile time)."""
+    filter's form ``large``, typed ``Literal[bool]``: a compiled loop for each value, as constant as when inlined).
+
+    Compiled apart, not inlined: four inlined copies of the whole sweep took 4x the compile time (same loops)."""
     if drive_k[SQUARE_LAW] != 0.0:
         _drive_law(fs, n, drive_k, True)
     else:
@@ -82,7 +83,7 @@ def _sweep(fs, js, n, t_now, t_next, last, leak_hz, dt, large, drive_k):
     return _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, False)
 
 
-@inline
+@jit
 def _drive_law(fs, n, drive_k, square_law):
     """The drive (``F_NEW_*``) of the flux ``F_NOW`` of pixels ``0 .. n - 1`` of a tile, in three loops (short loops
     overlap more pixels' work)."""
@@ -98,7 +99,7 @@ def _drive_law(fs, n, drive_k, square_law):
         fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i] = new_para, new_accept
 
 
-@inline
+@jit
 def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, large):
     """Take the sample at ``t_now`` for the active pixels ``0 .. n - 1`` of a tile, where it is quiet.
 
