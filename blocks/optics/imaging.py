@@ -180,16 +180,19 @@ class Imager:
         generation ``g`` (screens dropped so far, :meth:`forget`) as the word ``family + 2 g``."""
         return (*self.seed, zlib.crc32(source.encode()), family + 2 * self.generations.get(source, 0))
 
+    def _screen_stores(self) -> tuple[dict, ...]:
+        """The dicts that hold screens by source: the pupil path's (FFT and modal) and the reference path's."""
+        return self.pupil.screens, self.pupil.modal_screens, self.reference.screens
+
     def holding(self) -> set[str]:
         """Sources whose screens are held (pupil or reference path)."""
-        return set(self.pupil.screens) | set(self.pupil.modal_screens) | set(self.reference.screens)
+        return set().union(*self._screen_stores())
 
     def forget(self, sources) -> None:
         """Drop the screens of sources that have left the view; one that comes back gets a new independent
         draw (its generation, :meth:`source_seed`). A source with no screens is left as it is."""
         for source in sources:
-            held = [store.pop(source, None) for store in (self.pupil.screens, self.pupil.modal_screens,
-                                                          self.reference.screens)]
+            held = [store.pop(source, None) for store in self._screen_stores()]
             self.last_seen_ns.pop(source, None)
             if any(h is not None for h in held):
                 self.generations[source] = self.generations.get(source, 0) + 1
@@ -218,7 +221,7 @@ class Imager:
 
     def seen(self, source: str, t_ns: int) -> None:
         """Record render time ``t_ns`` [ns] as the last a source was in view, if it holds screens."""
-        if source in self.pupil.screens or source in self.pupil.modal_screens or source in self.reference.screens:
+        if any(source in store for store in self._screen_stores()):
             self.last_seen_ns[source] = int(t_ns)
 
     def release(self, t_ns: int) -> None:

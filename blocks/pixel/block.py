@@ -12,8 +12,8 @@ from .eventdriven import EventDrivenPixels
 from .eventlog import EventLog
 from .model import PixelModel
 from .params import DvsPixelParams
-from .sampling import (DENSE_FRACTION, dense_block_rows, dense_frames, dense_stamps, live_stamps, sample_steps,
-                       stamp_coverage, stamp_pixels, window_steps)
+from .sampling import (DENSE_FRACTION, dense_block_rows, dense_frames, dense_stamps, has_stamps, live_stamps,
+                       sample_steps, stamp_coverage, stamp_pixels, window_steps)
 
 #: memory the pixel block holds per sensor pixel, for the limits checked before a run [byte]
 STATE_BYTES_PER_PIXEL = 400
@@ -151,7 +151,8 @@ class DvsPixel(Block):
         if self._engine is None or self._engine.s is not self.pixels:
             self._engine = EventDrivenPixels(model, self.pixels)
         background = np.asarray(irradiance.background, dtype=float)[samples]
-        live = live_stamps(irradiance, samples) if self._sparse_input(irradiance, samples) else None
+        # the live stamps, found once for both the path choice and the sparse path
+        live = live_stamps(irradiance, samples) if has_stamps(irradiance, samples) else None
         if self._dense(irradiance, samples, live):
             height, width = irradiance.focal_plane.shape
             self._engine.run_dense_window(background, steps, lambda r0, r1: dense_stamps(irradiance, samples, r0, r1),
@@ -159,13 +160,6 @@ class DvsPixel(Block):
         else:
             self._engine.run_window(self.held_background, background, steps, stamp_pixels(irradiance, samples, live),
                                     n_end, log)
-
-    @staticmethod
-    def _sparse_input(irradiance: Irradiance, samples: np.ndarray) -> bool:
-        """Whether the window has stamps to look at (:func:`.live_stamps` is then found once, for both the
-        path choice and the sparse path)."""
-        flux = np.asarray(irradiance.stamp_flux)
-        return samples.size > 0 and flux.ndim == 4 and flux.shape[1] > 0 and flux.shape[2] * flux.shape[3] > 0
 
     def _dense(self, irradiance: Irradiance, samples: np.ndarray, live) -> bool:
         """Whether this window's input takes the dense path (``input_path``, or ``auto``: stamps covering

@@ -72,6 +72,12 @@ def _adds_flux(flux, samples, out):
                     break
 
 
+def has_stamps(irradiance: Irradiance, samples: np.ndarray) -> bool:
+    """Whether ``samples`` is not empty and the irradiance carries stamps of at least one pixel."""
+    flux = np.asarray(irradiance.stamp_flux)
+    return samples.size > 0 and flux.ndim == 4 and flux.shape[1] * flux.shape[2] * flux.shape[3] > 0
+
+
 def stamp_pixels(irradiance: Irradiance, samples: np.ndarray, live=None) -> StampPixels:
     """The stamps of ``samples`` as sparse (sample, pixel, flux) triples, clipped to the sensor and summed.
 
@@ -81,7 +87,7 @@ def stamp_pixels(irradiance: Irradiance, samples: np.ndarray, live=None) -> Stam
     height, width = irradiance.focal_plane.shape
     flux = np.asarray(irradiance.stamp_flux)
     empty = np.zeros(0, np.int64)
-    if samples.size == 0 or flux.ndim != 4 or flux.shape[1] == 0 or flux.shape[2] * flux.shape[3] == 0:
+    if not has_stamps(irradiance, samples):
         return StampPixels(empty, empty, np.zeros(0))
     which, stamp = live_stamps(irradiance, samples) if live is None else live
     if which.size == 0:
@@ -194,7 +200,7 @@ def dense_stamps(irradiance: Irradiance, samples: np.ndarray, row0: int, row1: i
         return video[:, row0 * width:row1 * width]
     summed = np.zeros((samples.size, (row1 - row0) * width))
     flux = np.asarray(irradiance.stamp_flux)
-    if flux.ndim == 4 and flux.shape[1] * flux.shape[2] * flux.shape[3] and samples.size:
+    if has_stamps(irradiance, samples):
         _sum_stamps(flux, np.asarray(irradiance.stamp_origin, dtype=np.int64), np.asarray(samples, dtype=np.int64),
                     row0, row1, width, summed)
     return summed
