@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 import yaml
+from scipy import special
 
 from evsda.blocks.pixel import DvsPixel
 from evsda.blocks.ports import FocalPlane, Irradiance
@@ -317,6 +318,28 @@ def test_davis346_threshold_reproduces_the_datasheet_half_response(tmp_path, sce
     assert down_off == pytest.approx(0.5, abs=0.04) and down_on == 0.0
     assert _fraction_responding(scenes, p, pitch, 1 + off)[0] > 0.95
     assert _fraction_responding(scenes, p, pitch, 1 / (1 + on))[1] < 0.05
+
+
+#: Lichtsteiner, Posch & Delbruck 2008 (DVS128): "array mismatch of 2.1 % in relative intensity event threshold", the
+#: standard deviation over the pixels of the relative intensity change that fires one [1 = ln units for small changes].
+DVS128_THRESHOLD_MISMATCH = 0.021
+
+
+def test_dvs128_s_curve_width_reproduces_the_measured_threshold_mismatch(tmp_path, scenes):
+    # The DVS128 preset's pixels (2 500, noise off) through the model, read as a mismatch is read off a step-response
+    # S-curve: the steps that fire 15.9 % and 84.1 % of the pixels lie one standard deviation either side of the median
+    # threshold. Steps of theta -/+ 0.021 in ln (the preset's median theta 0.2 is assumed; only the width is measured)
+    # fire 15.9 % / 84.1 % of them within the binomial error (0.7 %) and the sample's spread; the probit of the two
+    # fractions gives back sigma = 2.1 % within 10 %. OFF does not fire on a rise.
+    pitch = PRESETS["dvs128"][2]
+    p = include_preset(tmp_path, "dvs128").nodes["sensor/pixel"].block.params
+    steps = np.array([p.threshold_on - DVS128_THRESHOLD_MISMATCH, p.threshold_on + DVS128_THRESHOLD_MISMATCH])
+    fired = [_fraction_responding(scenes, p, pitch, math.exp(step)) for step in steps]
+    low, high = fired[0][0], fired[1][0]
+    assert low == pytest.approx(0.159, abs=0.03) and high == pytest.approx(0.841, abs=0.03)
+    probit = special.ndtri([low, high])                     # the normal quantiles of the two fractions
+    assert (steps[1] - steps[0]) / (probit[1] - probit[0]) == pytest.approx(DVS128_THRESHOLD_MISMATCH, rel=0.10)
+    assert fired[0][1] == 0.0 and fired[1][1] == 0.0
 
 
 def test_davis346_dark_background_activity_is_the_measured_rate(tmp_path, scenes):
