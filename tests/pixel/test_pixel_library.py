@@ -11,9 +11,10 @@ import math
 import numpy as np
 import pytest
 import yaml
-from scipy import special
+from scipy import optimize, special
 
 from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.model import PixelModel
 from evsda.blocks.ports import FocalPlane, Irradiance
 from evsda.graph import Window
 from evsda.graph.graphfile import load_graph
@@ -22,6 +23,7 @@ from evsda.library import resolve
 PRESETS = {"prophesee_gen4": (1280, 720, 4.86e-6), "davis346": (346, 260, 18.5e-6),
            "prophesee_gen3_vga": (640, 480, 15e-6), "cooled_bsi": (1280, 720, 4.86e-6), "dvs128": (128, 128, 40e-6)}
 LUX_PER_W_AT_555NM = 683.0          # SI definition of the candela [lm W^-1]
+ELECTRON_C = 1.602176634e-19        # elementary charge [C]
 #: Lichtsteiner et al. 2008's DVS128 bandwidth curves ("fast" biases), read off the figure iniVation's application
 #: note on pixel bandwidth reproduces: a 300 cd/m^2 LED through an f/1.2 lens (image illuminance pi L / (4 N^2) =
 #: 164 lx), attenuated by 0-3 decades; for each, the last stimulus frequency with events and the first without
@@ -222,8 +224,6 @@ MEASURED_DARK_CURRENT_A = {"prophesee_gen4": 5.5e-15, "cooled_bsi": 5.5e-15, "dv
 def test_preset_dark_current_is_the_measured_one(tmp_path, name):
     # The preset stores a density at dark_reference_temperature_K; on its own pitch and at that
     # temperature it must give back the measured per-pixel current it cites.
-    from evsda.blocks.pixel.model import PixelModel
-
     pitch = PRESETS[name][2]
     reference_K = include_preset(tmp_path, name).nodes["sensor/pixel"].block.params.dark_reference_temperature_K
     p = include_preset(tmp_path, name, temperature_K=reference_K).nodes["sensor/pixel"].block.params
@@ -288,16 +288,21 @@ def test_preset_threshold_is_the_vendor_nominal_contrast(tmp_path, name):
 DAVIS346_CONTRAST_AT_HALF_RESPONSE = {"ON": 0.143, "OFF": 0.225}
 
 
-def _fraction_responding(scenes, params, pitch_m, factor, side=50):
+def _photons_per_s(lux, pitch_m):
+    """Photon flux on a ``pitch_m`` pixel under ``lux`` of 555 nm light [photon/s]."""
+    return lux / LUX_PER_W_AT_555NM * pitch_m**2 * 555e-9 / 1.98644586e-25
+
+
+def _fraction_responding(scenes, params, pitch_m, factor, side=50, lux=100.0):
     """Fraction of ``side`` x ``side`` noise-free preset pixels firing ON and OFF after the light steps by ``factor``.
 
-    100 lx on the pixel (the dark current then shifts the step by < 0.01 % of ln), the step at 20 ms, 80 ms after
-    it to settle (the preset's cutoff there is 3 kHz).
+    ``lux`` on the pixel (100 lx: the dark current then shifts the step by < 0.01 % of ln), the step at 20 ms, 80 ms
+    after it to settle (the preset's cutoff at 100 lx is 3 kHz).
     """
     block = DvsPixel(params, leak_rate_hz=0.0, shot_noise_rate_hz=0.0, parasitic_rate_per_lux_hz=0.0,
                      noise_rate_spread_decades=0.0, seed=3)
     fp = FocalPlane(side, side, pitch_m, 0.5)
-    flux = 100.0 / LUX_PER_W_AT_555NM * pitch_m**2 * 555e-9 / 1.98644586e-25
+    flux = _photons_per_s(lux, pitch_m)
     ev = scenes.concat(scenes.simulate(block, lambda a, b: scenes.uniform(fp, [0, 20_000_000], [flux, flux * factor]),
                                        0.1, 0.1))
     fired = lambda sign: np.unique(ev["y"][ev["p"] == sign] * side + ev["x"][ev["p"] == sign]).size / side**2
@@ -318,6 +323,32 @@ def test_davis346_threshold_reproduces_the_datasheet_half_response(tmp_path, sce
     assert down_off == pytest.approx(0.5, abs=0.04) and down_on == 0.0
     assert _fraction_responding(scenes, p, pitch, 1 + off)[0] > 0.95
     assert _fraction_responding(scenes, p, pitch, 1 / (1 + on))[1] < 0.05
+
+
+def test_gen4_s_curves_give_back_the_measured_dark_current(tmp_path, scenes):
+    # McReynolds et al. 2024 (SPIE, doi 10.1117/12.3022308; abstract) read the IMX636's dark current, 5.5 fA, off S-curves
+    # taken at several illuminances: the contrast that fires half the pixels rises in dim light ("the apparent anomalous
+    # result ... that theta changes with illumination"), because a step (1 + C) of the photocurrent I_p moves the
+    # photoreceptor, logarithmic in I_p + I_dark down to the dark current (Delbruck & Mead 1994), by
+    # ln((I_p (1 + C) + I_dark) / (I_p + I_dark)): C_half = (e^theta - 1)(1 + I_dark / I_p). The same reading on the
+    # preset's pixels (2 500, noise off): the half-response contrast found by bisection at 100 lx on the pixel and at the
+    # illuminance whose photocurrent equals the preset's dark current (C_half doubles there), the dark current solved
+    # from their ratio, gives back 5.5 fA within 5 %.
+    pitch = PRESETS["prophesee_gen4"][2]
+    p = include_preset(tmp_path, "prophesee_gen4").nodes["sensor/pixel"].block.params
+    dark_a = PixelModel(p, pitch**2, scenes.WAVELENGTH_M).dark_current_A
+    amps_per_lux = p.quantum_efficiency * ELECTRON_C * _photons_per_s(1.0, pitch)
+
+    def half_response(lux):
+        on_fraction = lambda c: _fraction_responding(scenes, p, pitch, 1.0 + c, lux=lux)[0] - 0.5
+        return optimize.brentq(on_fraction, 0.05, 2.0, xtol=1e-3)
+
+    lux_dim = dark_a / amps_per_lux                         # 0.77 lx: I_p = I_dark
+    bright, dim = half_response(100.0), half_response(lux_dim)
+    ratio = dim / bright
+    inferred_a = (ratio - 1.0) / (1.0 / (amps_per_lux * lux_dim) - ratio / (amps_per_lux * 100.0))
+    assert bright == pytest.approx(0.25, abs=0.01) and ratio == pytest.approx(2.0, rel=0.05)
+    assert dark_a == pytest.approx(MEASURED_DARK_CURRENT_A["prophesee_gen4"], rel=1e-4) and inferred_a == pytest.approx(dark_a, rel=0.05)
 
 
 #: Lichtsteiner, Posch & Delbruck 2008 (DVS128): "array mismatch of 2.1 % in relative intensity event threshold", the
