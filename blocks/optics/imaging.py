@@ -167,13 +167,19 @@ class Imager:
     # -- what every path shares -------------------------------------------------------------------
     def defocus(self, range_m: np.ndarray) -> np.ndarray:
         """Pupil phase [rad] of a finite-range source for a telescope focused at infinity, ``pi r^2/(lambda R)``."""
+        if self.focus == "source":
+            return np.zeros((len(range_m), 1, 1))
         g = self.geometry
         x = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
         r2 = x[None, :] ** 2 + x[:, None] ** 2
+        return self.defocus_curvature(range_m)[:, None, None] * r2[None]
+
+    def defocus_curvature(self, range_m: np.ndarray) -> np.ndarray:
+        """``c`` [rad m^-2] of :meth:`defocus`'s phase ``c r^2``: ``pi / (lambda R)``, 0 when focused on the source."""
         if self.focus == "source":
-            return np.zeros((len(range_m), 1, 1))
+            return np.zeros(len(range_m))
         curvature = np.where(np.isfinite(range_m), 1.0 / np.asarray(range_m, dtype=float), 0.0)
-        return np.pi / self.wavelength * curvature[:, None, None] * r2[None]
+        return np.pi / self.wavelength * curvature
 
     def source_seed(self, source: str, family: int) -> tuple:
         """Seed of a source's screens: family 0 the pupil path's, 1 the reference path's, in the source's

@@ -57,7 +57,7 @@ class PupilPath:
 
     def turbulent_phase(self, source: str, t_s, sight, zenith_rad, range_m) -> np.ndarray:
         """Phase [rad] over the pupil grid (F, n, n): the sum of every layer's screen along the line of sight
-        (``sight`` (F, 2): :meth:`.Imager.sight`)."""
+        (``sight`` (F, 2): :meth:`.Imager.sight`); FFT screens give a transposed view (the stamps read it as it is)."""
         g = self.imager.geometry
         frames = len(t_s)
         phase_t = np.zeros((frames, g.n_pupil, g.n_pupil))        # transposed: (F, x, y), see LayerScreen.accumulate
@@ -78,7 +78,7 @@ class PupilPath:
             # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
             weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
             screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase_t)
-        return np.ascontiguousarray(phase_t.transpose(0, 2, 1))
+        return phase_t.transpose(0, 2, 1)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:
         """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
@@ -99,8 +99,8 @@ class PupilPath:
 
     def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         phase = self.turbulent_phase(source, t_s, sight, zenith_rad, range_m)
-        phase += self.imager.defocus(range_m)
-        return self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase, offset)
+        return self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase, offset,
+                                                 self.imager.defocus_curvature(range_m))
 
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:

@@ -91,6 +91,7 @@ class PupilRenderer:
                  area_m2: float, dtype=np.complex64):
         self.sampler, self.n, self.delta, self.wavelength, self.area = sampler, n_pupil, delta_m, wavelength_m, area_m2
         self.x = (np.arange(n_pupil) - n_pupil // 2) * delta_m
+        self.r2 = self.x[None, :] ** 2 + self.x[:, None] ** 2                 # r^2 [m^2] on the pupil grid (y, x)
         size = sfft.next_fast_len(2 * n_pupil)
         self.padded = size
         lags = sfft.fftfreq(size) * size                                 # FFT order
@@ -107,14 +108,15 @@ class PupilRenderer:
         self.dtype = dtype
         self._local = threading.local()
 
-    def _workspace(self, frames: int) -> tuple[np.ndarray, np.ndarray]:
-        """This thread's padded spectra and PSFs for ``frames <= STAMP_CHUNK`` frames (sources render on several
-        threads)."""
+    def _workspace(self, frames: int) -> tuple[np.ndarray, ...]:
+        """This thread's buffers for ``frames <= STAMP_CHUNK`` frames (sources render on several threads): padded
+        spectra, their PSFs, and the tilted phase's cosine and sine on the pupil grid."""
         buffers = getattr(self._local, "buffers", None)
         if buffers is None:
-            size, real = self.padded, self.b_real.dtype
+            size, n, real = self.padded, self.n, self.b_real.dtype
             buffers = self._local.buffers = (np.zeros((STAMP_CHUNK, size, size), self.dtype),
-                                             np.zeros((STAMP_CHUNK, size, size), real))
+                                             np.zeros((STAMP_CHUNK, size, size), real),
+                                             np.zeros((STAMP_CHUNK, n, n), real), np.zeros((STAMP_CHUNK, n, n), real))
         return tuple(b[:frames] for b in buffers)
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -125,48 +127,50 @@ class PupilRenderer:
         ey = np.exp(1j * k * theta[:, 1, None] * self.x[None, :]).astype(self.dtype)
         return ey, ex
 
-    def stamps(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
-        """Pixel energy fractions ``(F, M, M)`` from pupil ``amplitude`` (n, n) or (F, n, n) and ``phase`` (F, n, n).
+    def stamps(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray,
+               curvature_rad_m2: np.ndarray | None = None) -> np.ndarray:
+        """Pixel energy fractions ``(F, M, M)`` from pupil ``amplitude`` (n, n) or (F, n, n) and ``phase`` (F, n, n)
+        [rad] (any strides) plus, if given, a defocus ``curvature_rad_m2 r^2`` (F,) [rad m^-2].
 
-        The sub-pixel offset's tilt is added to the phase before ``exp(i phase)`` (one complex
-        field, no separate tilt products), written straight into the padded spectra's buffer.
+        The defocus and the sub-pixel offset's tilt are added to the phase before ``exp(i phase)`` (one
+        complex field, no separate tilt products), written straight into the padded spectra's buffer.
         """
-        out = np.empty((len(phase), self.sampler.size, self.sampler.size))
-        for sl in _chunks(len(phase)):
-            grid, psf = self._workspace(len(phase[sl]))
-            self._field(amplitude if amplitude.ndim == 2 else amplitude[sl], phase[sl], offset_px[sl],
-                        grid[:, :self.n, :self.n])
-            out[sl] = self._integrate(grid, psf)
-        return out
-
-    def _field(self, amplitude: np.ndarray, phase: np.ndarray, offset_px: np.ndarray, field: np.ndarray) -> None:
-        """``field = amplitude exp(i (phase + tilt))`` (F, n, n) in single precision."""
+        real = self.b_real.dtype
+        amplitude, phase = amplitude.astype(real), np.asarray(phase, dtype=float)
+        curvature = np.zeros(len(phase)) if curvature_rad_m2 is None else np.asarray(curvature_rad_m2, dtype=float)
         theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
         k = 2 * np.pi / self.wavelength
-        real = self.b_real.dtype
-        total = np.empty(phase.shape, real)
-        tilted_phase(np.ascontiguousarray(phase, dtype=float), k * theta[:, 1], k * theta[:, 0], self.x, total)
-        np.cos(total, out=field.real)
-        np.sin(total, out=field.imag)
-        field *= amplitude.astype(real)
+        ky, kx = k * theta[:, 1], k * theta[:, 0]
+        out = np.empty((len(phase), self.sampler.size, self.sampler.size))
+        for sl in _chunks(len(phase)):
+            grid, psf, cosine, sine = self._workspace(len(phase[sl]))
+            # numpy's cos and sin of the tilted phase (rounded to single precision) on contiguous buffers, then
+            # the field and the padding's zeros written into the FFT buffer in one pass
+            tilted_phase(phase[sl], curvature[sl], self.r2, ky[sl], kx[sl], self.x, cosine)
+            np.sin(cosine, out=sine)
+            np.cos(cosine, out=cosine)
+            pupil_field(amplitude[None] if amplitude.ndim == 2 else amplitude[sl], cosine, sine, grid)
+            out[sl] = self._integrate(grid, psf)
+        return out
 
     def stamps_from_field(self, field: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
         ey, ex = self.tilt(offset_px)
         out = np.empty((len(field), self.sampler.size, self.sampler.size))
         for sl in _chunks(len(field)):
-            grid, psf = self._workspace(len(field[sl]))
+            grid, psf = self._workspace(len(field[sl]))[:2]
             grid[:, :self.n, :self.n] = field[sl].astype(self.dtype) * ey[sl, :, None] * ex[sl, None, :]
+            grid[:, :self.n, self.n:] = 0
             out[sl] = self._integrate(grid, psf)
         return out
 
     def _integrate(self, grid: np.ndarray, psf: np.ndarray) -> np.ndarray:
-        """Pixel energy fractions of the tilted pupil fields in ``grid[:, :n, :n]`` (F, L, L), ``F <= STAMP_CHUNK``:
+        """Pixel energy fractions of the tilted pupil fields in ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]``
+        zero), ``F <= STAMP_CHUNK``:
         padded FFT, ``|.|^2`` into ``psf``, then ``B_y PSF B_x^T``."""
         n = self.n
         # the zero-padded FFTs in place in this thread's buffer (the same transforms of the same values, line by
         # line in the same order, as scipy's own padding): along x on the pupil's n rows, then along y
-        grid[:, :n, n:] = 0
         rows = grid[:, :n]
         along_x = sfft.fft(rows, axis=-1, workers=1, overwrite_x=True)
         if not np.may_share_memory(along_x, grid):                      # a scipy that does not transform in place
@@ -193,16 +197,34 @@ def _chunks(frames: int):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def tilted_phase(phase, ky, kx, x, out):
-    """``out[f, i, j] = (phase[f, i, j] + ky[f] x[i]) + kx[f] x[j]`` [rad], rounded to ``out``'s precision: the tilt
-    ``k theta . r`` of a sub-pixel offset added to the phase in one pass (numpy's broadcast sums, bit for bit)."""
+def tilted_phase(phase, curvature, r2, ky, kx, x, out):
+    """``out[f, i, j] = ((phase[f, i, j] + curvature[f] r2[i, j]) + ky[f] x[i]) + kx[f] x[j]`` [rad], rounded to
+    ``out``'s precision: a defocus ``c r^2`` and the tilt ``k theta . r`` of a sub-pixel offset added to the phase in
+    one pass (numpy's broadcast sums, bit for bit). ``phase`` may be a strided view (the screens' transposed sum)."""
     frames, rows, cols = phase.shape
     for f in range(frames):
         for i in range(rows):
             along_y = ky[f] * x[i]
-            source, target = phase[f, i], out[f, i]
+            target = out[f, i]
             for j in range(cols):
-                target[j] = (source[j] + along_y) + kx[f] * x[j]
+                target[j] = ((phase[f, i, j] + curvature[f] * r2[i, j]) + along_y) + kx[f] * x[j]
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def pupil_field(amplitude, cosine, sine, grid):
+    """``grid[f, :n, :n] = amplitude (cosine + i sine)`` and ``grid[f, :n, n:] = 0`` for (F, n, n) ``cosine``, ``sine``
+    and ``amplitude`` (1, n, n) or (F, n, n): numpy's product of the complex field with a real amplitude, bit for bit
+    (an imaginary part of zero adds only signed zeros)."""
+    frames, n = cosine.shape[0], cosine.shape[1]
+    size = grid.shape[2]
+    for f in range(frames):
+        a = amplitude[f if amplitude.shape[0] > 1 else 0]
+        for i in range(n):
+            row, c, s, w = grid[f, i], cosine[f, i], sine[f, i], a[i]
+            for j in range(n):
+                row[j] = complex(c[j] * w[j], s[j] * w[j])
+            for j in range(n, size):
+                row[j] = 0
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

@@ -214,12 +214,16 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     out = np.empty((3, 8, 8), np.float32)
     squared_modulus(spectrum, out)
     np.testing.assert_array_equal(out, spectrum.real**2 + spectrum.imag**2)
-    # and its one-pass tilted phase is numpy's broadcast sums, rounded to single precision
+    # and its one-pass defocused, tilted phase is numpy's broadcast sums, rounded to single precision, also read
+    # from a transposed view (as the screens hand it over)
     ky, kx, x = rng.standard_normal(37) * 1e3, rng.standard_normal(37) * 1e3, renderer.x
-    tilted = np.empty(phase.shape, np.float32)
-    tilted_phase(phase, ky, kx, x, tilted)
-    np.testing.assert_array_equal(tilted, (phase + ky[:, None, None] * x[None, :, None]
-                                           + kx[:, None, None] * x[None, None, :]).astype(np.float32))
+    curvature = rng.uniform(0, 1e4, 37)
+    defocused = phase + curvature[:, None, None] * renderer.r2[None]
+    expected = (defocused + ky[:, None, None] * x[None, :, None] + kx[:, None, None] * x[None, None, :]).astype(np.float32)
+    for given in (phase, np.ascontiguousarray(phase.transpose(0, 2, 1)).transpose(0, 2, 1)):
+        tilted = np.empty(phase.shape, np.float32)
+        tilted_phase(given, curvature, renderer.r2, ky, kx, x, tilted)
+        np.testing.assert_array_equal(tilted, expected)
 
 
 def test_stamp_width_by_bisection_is_the_searchsorted_over_every_radius():
