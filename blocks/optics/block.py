@@ -50,7 +50,8 @@ class PointSourceOptics(Block):
         psf_path: Literal["auto", "airy", "long_exposure", "pupil_fft", "reference"] = Field(
             "auto", description="PSF path; 'auto' picks the cheapest whose error is within tolerance [-]")
         tolerance: float = Field(0.1, gt=0, lt=1,
-                                 description="Largest fraction of a source's flux a fast path may misplace [1]")
+                                 description="Largest expected fraction of a source's flux (a mean over the "
+                                             "turbulence) a fast path may misplace [1]")
         focus: Literal["source", "infinity"] = Field(
             "source", description="Focus on the source (paper Eq. 4 collimation) or at infinity [-]")
         atmosphere: Literal["hufnagel_valley", "table", "none"] = Field(

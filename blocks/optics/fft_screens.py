@@ -51,8 +51,17 @@ def fft_phase_screen_corner(rng: np.random.Generator, n: int, m: int, delta: flo
 
     ``ifft2`` transforms the columns, scaled by ``1 / n^2``, then the rows (pocketfft applies the
     whole factor on its first axis); here the rows' pass runs on the first ``m`` rows only and the
-    subharmonics are summed on them only (tests/optics/test_fft_screens.py checks the identity).
+    subharmonics are summed on them only (tests/optics/test_optics_screens.py checks the identity).
     """
+    return np.ascontiguousarray(fft_phase_screen_corners(rng, n, m, delta, r0, L0).real)
+
+
+def fft_phase_screen_corners(rng: np.random.Generator, n: int, m: int, delta: float, r0: float,
+                             L0: float = np.inf) -> np.ndarray:
+    """Both screens of :func:`fft_phase_screens` (with subharmonics), their first ``m x m`` samples, as the real
+    and imaginary parts of one complex ``m x m`` array [rad]: the real part is :func:`fft_phase_screen_corner`'s
+    screen bit for bit, the imaginary part an independent screen of the same statistics from the same draws
+    (Lane, Glindemann & Dainty 1992; Johansson & Gavel 1994): two screens for the draws and transforms of one."""
     n, m = int(n), int(m)
     amplitude, low = _spectra(n, float(delta), float(r0), float(L0), True)
     columns = sfft.ifft(_coefficients(rng, amplitude), axis=0, norm="forward", workers=1, overwrite_x=True)[:m]
@@ -61,7 +70,7 @@ def fft_phase_screen_corner(rng: np.random.Generator, n: int, m: int, delta: flo
     columns.imag *= scale
     screen = sfft.ifft(columns, axis=1, norm="forward", workers=1, overwrite_x=True)
     screen += _subharmonics(rng, *low, rows=m)
-    return np.ascontiguousarray(screen.real[:, :m])
+    return screen[:, :m]
 
 
 def _coefficients(rng: np.random.Generator, amplitude: np.ndarray) -> np.ndarray:

@@ -46,7 +46,7 @@ import numpy as np
 from scipy.ndimage import correlate1d
 
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
-from .fft_screens import fft_phase_screen_corner
+from .fft_screens import fft_phase_screen_corners
 from .large_scales import SEED_WORD, LargeScales, split_outer_scale
 from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans, sample_grids_transposed
 
@@ -72,10 +72,18 @@ def prefilter_taps() -> np.ndarray:
 _TAPS = prefilter_taps()
 
 
+def _prefiltered(samples: np.ndarray) -> np.ndarray:
+    """B-spline coefficients of the inner ``n x n`` of ``(n + 2 PREFILTER_HALF_WIDTH)`` square screen samples."""
+    half, n = PREFILTER_HALF_WIDTH, samples.shape[0] - 2 * PREFILTER_HALF_WIDTH
+    coefficients = correlate1d(correlate1d(samples, _TAPS, axis=0), _TAPS, axis=1)
+    return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
+
+
 class LayerScreen:
     """Frozen-flow phase screen of one layer seen by one source (phase for ``r0 = 1 m``)."""
 
-    def __init__(self, n: int, delta: float, seed: tuple[int, ...], *, L0: float = 25.0, update: str = "extend"):
+    def __init__(self, n: int, delta: float, seed: tuple[int, ...], *, L0: float = 25.0, update: str = "extend",
+                 keep_twin: bool = False):
         if update == "extend" and not np.isfinite(L0):
             raise ValueError("extending a screen needs a finite outer scale L0")
         self.n, self.delta, self.seed = int(n), float(delta), tuple(int(s) for s in seed)
@@ -90,6 +98,8 @@ class LayerScreen:
         self.epoch = -1            # revisit period the screen belongs to
         self.n_regenerations = 0   # regenerations within the epoch (footprint ran off, or jumped far)
         self._rng = np.random.Generator(np.random.PCG64(0))
+        # with keep_twin, the other (imaginary) half of the last FFT draw, for twin(): (samples, origin, epoch, count)
+        self.keep_twin, self._twin = bool(keep_twin), None
 
     # -- creation -------------------------------------------------------------------------------
     def regenerate(self, centre: np.ndarray, epoch: int) -> None:
@@ -105,11 +115,30 @@ class LayerScreen:
 
     def _cut_from_fft(self) -> np.ndarray:
         """B-spline coefficients of a window cut from an FFT screen twice as wide (cf. Johansson & Gavel 1994: the
-        low orders kept), prefiltered where the truncated filter has every sample it needs."""
+        low orders kept), prefiltered where the truncated filter has every sample it needs. The draw's other
+        screen, its imaginary half, is kept for :meth:`twin` when the screen was made with ``keep_twin``."""
         n, half = self.n, PREFILTER_HALF_WIDTH
-        cut = fft_phase_screen_corner(self._rng, max(2 * n, n + 2 * half), n + 2 * half, self.delta, 1.0, self.L1)
-        coefficients = correlate1d(correlate1d(cut, _TAPS, axis=0), _TAPS, axis=1)
-        return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
+        cut = fft_phase_screen_corners(self._rng, max(2 * n, n + 2 * half), n + 2 * half, self.delta, 1.0, self.L1)
+        if self.keep_twin:
+            self._twin = (np.ascontiguousarray(cut.imag), self.origin.copy(), self.epoch, self.n_regenerations)
+        return _prefiltered(np.ascontiguousarray(cut.real))
+
+    def twin(self, seed: tuple[int, ...]) -> LayerScreen | None:
+        """A screen of the same window made from the imaginary half of this screen's FFT draw (made with
+        ``keep_twin``; None otherwise, or once the window has moved): independent of this one and of the same
+        statistics, as the real and imaginary parts of one complex Gaussian FFT screen are (Lane, Glindemann &
+        Dainty 1992), for no draw or transform of its own. ``seed`` seeds its own later draws."""
+        if self._twin is None:
+            return None
+        samples, origin, epoch, count = self._twin
+        if not np.array_equal(origin, self.origin) or epoch != self.epoch or count != self.n_regenerations:
+            return None
+        twin = LayerScreen(self.n, self.delta, seed, L0=self.L0, update=self.update)
+        twin.epoch, twin.n_regenerations, twin.origin = epoch, count, origin.copy()
+        twin._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+            [*twin.seed, epoch & 0xFFFFFFFF, count])))
+        twin.coefficients = _prefiltered(samples)
+        return twin
 
     def _fresh(self) -> np.ndarray:
         """B-spline coefficients of a window made by conditional draws from a few exact columns."""

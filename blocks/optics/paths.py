@@ -21,7 +21,9 @@ distance between pixel-integrated stamps of total flux ``F``).
   alone misplaces ``E|dF|/2F = sigma_I / sqrt(2 pi)`` of the flux, with the
   aperture-averaged ``sigma_I`` of :meth:`.Atmosphere.scintillation_index`; the block takes
   the larger of that and the distance measured on a few reference propagations fed the
-  same screens (:meth:`.PathChooser.pupil_error`). The source's own Fresnel number
+  same screens (:meth:`.PathChooser.pupil_error`), decided with the mean's standard error
+  (:func:`pupil_verdict`: the ~100x slower reference is taken only when the probes show the pupil
+  path's error above the tolerance). The source's own Fresnel number
   ``N_F = D^2 / (lambda R)`` only sets the defocus of a telescope focused at infinity,
   which the pupil path includes exactly (Fresnel approximation); in vacuum the two paths
   are the same physics.
@@ -84,10 +86,14 @@ ZENITH_BIN_RAD = np.deg2rad(1.0)
 RANGE_BIN_RATIO = 1.05
 #: the pupil path's error against the reference is measured on coarser bins: 10 degrees, factors of 2 in range
 PUPIL_ERROR_ZENITH_BIN_RAD = np.deg2rad(10.0)
-#: reference propagations per pupil-error bin: at least the first, more (up to the second) while the
-#: tolerance lies within two standard errors of their mean, so a close call is decided on the mean
-#: error rather than on the luck of three frames
-REFERENCE_PROBE_FRAMES = (3, 12)
+#: reference propagations per pupil-error bin, made in pairs (the two halves of each FFT draw,
+#: :meth:`.ReferencePath.probe_pair`): at least the first, then two more at a time, up to the second,
+#: while :func:`pupil_verdict` is open
+REFERENCE_PROBE_FRAMES = (4, 24)
+#: standard errors of the mean by which the measured pupil error must clear the tolerance: below it, to take
+#: the pupil path before the cap; above it on every frame, to reject it for the ~100x slower reference [1]
+ACCEPT_STANDARD_ERRORS = 2.0
+REJECT_STANDARD_ERRORS = 3.0
 #: frames per mean in the averaging fit (divisors of PROBE_FRAMES) [1]
 AVERAGED_GROUPS = (1, 2, 3, 4, 6, 8, 12, 24)
 #: positions (the probe's first sub-pixel offsets) the averaging fit holds its frames at [1]
@@ -117,15 +123,73 @@ def scintillation_error(sigma_i2: float) -> float:
     return float(np.sqrt(max(sigma_i2, 0.0)) / np.sqrt(2 * np.pi))
 
 
-def pick(estimates: dict[str, float], tolerance: float, context: str) -> PathChoice:
-    """The cheapest path whose estimated error is within ``tolerance`` (the reference otherwise)."""
+def pick(estimates: dict[str, float], tolerance: float, context: str,
+         kept: dict[str, str] | None = None) -> PathChoice:
+    """The cheapest path whose estimated error is within ``tolerance`` (the reference otherwise); ``kept``: paths
+    within it by a verdict on their estimate's precision though the estimate is above it, each with why."""
+    kept = kept or {}
     for path in PATHS:
-        if estimates.get(path, np.inf) <= tolerance:
+        if estimates.get(path, np.inf) <= tolerance or path in kept:
             break
     others = ", ".join(f"{p} {estimates[p]:.3g}" for p in PATHS if p in estimates and p != path)
-    reason = (f"path '{path}': estimated error {estimates.get(path, 0.0):.3g} <= tolerance {tolerance:g} "
-              f"({context}; other paths: {others})")
+    error = estimates.get(path, 0.0)
+    if path == "reference":
+        reason = f"path 'reference': no faster path within tolerance {tolerance:g} ({context}; other paths: {others})"
+    else:
+        verdict = kept[path] if path in kept and error > tolerance else f"<= tolerance {tolerance:g}"
+        reason = f"path '{path}': estimated error {error:.3g} {verdict} ({context}; other paths: {others})"
     return PathChoice(path, dict(estimates), reason)
+
+
+@dataclass(frozen=True)
+class PupilError:
+    """The pupil path's error against the reference in one bin: ``error``, the larger of the measured mean and
+    the scintillation term [1]; the mean's ``standard_error`` [1] over ``frames`` reference frames; ``within``:
+    :func:`pupil_verdict`'s answer; ``verdict``: why, in words."""
+
+    error: float
+    standard_error: float
+    frames: int
+    within: bool
+    verdict: str
+
+
+def pupil_verdict(distances: list[float], scintillation: float, tolerance: float,
+                  frames: tuple[int, int] = REFERENCE_PROBE_FRAMES) -> tuple[bool, str] | None:
+    """Whether the pupil path is within ``tolerance`` from the reference frames measured so far, with why; None
+    while the probes should measure more.
+
+    The tolerance is the user's budget for the *expected* fraction of the flux a path misplaces, and the frames
+    measure it with a standard error ``se`` (their spread / sqrt(count)); the scintillation term is a floor:
+
+    * within, once ``frames[0]`` frames are in, when ``max(mean + 2 se, scintillation) <= tolerance``
+      (:data:`ACCEPT_STANDARD_ERRORS`): the error is clearly within the budget;
+    * beyond when the scintillation term alone is above it (no frame needed), or on all ``frames[1]`` frames
+      when ``mean - 3 se > tolerance`` (:data:`REJECT_STANDARD_ERRORS`): the error is shown to exceed the
+      budget, and only then is the ~100x slower reference taken (rejecting on fewer frames would save probe
+      time only where the run then costs ~100x more; a few frames of a skewed distribution understate its
+      spread);
+    * otherwise within at ``frames[1]`` frames: the error cannot be told from the budget at the probes'
+      precision (the mean is at most ``tolerance + 3 se``), and a path ~100x slower is not taken on that (by the
+      mean alone, an error equal to the tolerance would go either way by the seed).
+    """
+    if scintillation > tolerance:
+        return False, f"> tolerance {tolerance:g}: the scintillation term alone exceeds it"
+    n = len(distances)
+    if n < frames[0]:
+        return None
+    mean = float(np.mean(distances))
+    se = float(np.std(distances, ddof=1) / np.sqrt(n))
+    high = max(mean + ACCEPT_STANDARD_ERRORS * se, scintillation)
+    if high <= tolerance:
+        return True, f"<= tolerance {tolerance:g} at {ACCEPT_STANDARD_ERRORS:g} standard errors ({high:.3g})"
+    if n < frames[1]:
+        return None
+    low = max(mean - REJECT_STANDARD_ERRORS * se, scintillation)
+    if low > tolerance:
+        return False, f"> tolerance {tolerance:g} at {REJECT_STANDARD_ERRORS:g} standard errors ({low:.3g})"
+    return True, (f"+- {se:.2g} (1 SE) is not shown above tolerance {tolerance:g} on {n} reference frames "
+                  f"(mean - {REJECT_STANDARD_ERRORS:g} SE = {low:.3g}): within the budget at the probes' precision")
 
 
 def conditions_key(zenith_rad: float, range_m: float, turbulent: bool) -> tuple[int, int]:
@@ -248,7 +312,8 @@ class PathChooser:
             elif len(key) > 2:
                 choice = self._choose_seen(zenith, range_rep, key[2:], context)
             else:
-                choice = pick(self.estimate_errors(zenith, range_rep), self.imager.tolerance, context)
+                choice = pick(self.estimate_errors(zenith, range_rep), self.imager.tolerance, context,
+                              self.kept(zenith, range_rep))
             self._choices[key] = choice
             LOG.info("%s%s: %s", self.imager.label, f" source {source}" if source else "", choice.reason)
         return self._choices[key]
@@ -335,20 +400,30 @@ class PathChooser:
         seen_context = (f"{context}; the pixels average {k_eff:.3g} short exposures: tau {tau * 1e3:.3g} ms at "
                         f"{source:.3g} photon/s on a pixel, rate >= {rate_px_s:.3g} pixel/s, line of sight "
                         f">= {sight_px_s:.3g} pixel/s")
-        return pick(estimates, imager.tolerance, seen_context)
+        return pick(estimates, imager.tolerance, seen_context, self.kept(zenith_rad, range_m))
 
     def pupil_error(self, zenith_rad: float, range_m: float) -> float:
-        """Estimated error of ``pupil_fft`` against ``reference`` [1] (module docstring), kept per coarse bin.
+        """Estimated error of ``pupil_fft`` against ``reference`` [1] (module docstring): :meth:`pupil_estimate`'s."""
+        return self.pupil_estimate(zenith_rad, range_m).error
+
+    def kept(self, zenith_rad: float, range_m: float) -> dict[str, str]:
+        """``{'pupil_fft': why}`` where the pupil path is within tolerance by :func:`pupil_verdict` (else empty)."""
+        if not self.imager.turbulent(zenith_rad):
+            return {}
+        estimate = self.pupil_estimate(zenith_rad, range_m)
+        return {"pupil_fft": estimate.verdict} if estimate.within else {}
+
+    def pupil_estimate(self, zenith_rad: float, range_m: float) -> PupilError:
+        """The pupil path's error against the reference (:class:`PupilError`), kept per coarse bin.
 
         The larger of the scintillation term ``sigma_I / sqrt(2 pi)`` and the mean distance
         between the two paths over independent screens at the bin's conditions (each path fed
-        the same screens, :meth:`.ReferencePath.pupil_phase`): ``REFERENCE_PROBE_FRAMES[0]`` of them,
-        and more, up to ``REFERENCE_PROBE_FRAMES[1]``, while the tolerance lies within two
-        standard errors of their mean. A scintillation term above the tolerance settles it alone.
+        the same screens, :meth:`.ReferencePath.pupil_phase`), measured frame pair by frame pair until
+        :func:`pupil_verdict` decides. A scintillation term above the tolerance settles it alone.
         """
         imager = self.imager
         if not imager.turbulent(zenith_rad):
-            return 0.0
+            return PupilError(0.0, 0.0, 0, True, "(no turbulence)")
         z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
         r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
         key = (z_bin, r_bin)
@@ -358,46 +433,55 @@ class PathChooser:
             sigma2 = imager.atmosphere.scintillation_index(imager.telescope.diameter_m, imager.wavelength, zenith,
                                                            distance)
             scintillation = scintillation_error(sigma2)
-            measured = [] if scintillation > imager.tolerance else self._reference_distances(key, zenith, distance)
-            self._pupil_errors[key] = max(float(np.mean(measured)) if measured else 0.0, scintillation)
-            LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g "
-                     "(%d reference frames; scintillation index %.3g)", imager.label, np.rad2deg(zenith), distance,
-                     self._pupil_errors[key], len(measured), sigma2)
+            measured, (within, verdict) = self._reference_distances(key, zenith, distance, scintillation)
+            n = len(measured)
+            se = float(np.std(measured, ddof=1) / np.sqrt(n)) if n > 1 else 0.0
+            error = max(float(np.mean(measured)) if n else 0.0, scintillation)
+            self._pupil_errors[key] = PupilError(error, se, n, within, verdict)
+            LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g +- %.2g "
+                     "(%d reference frames; scintillation index %.3g): %s pupil_fft", imager.label,
+                     np.rad2deg(zenith), distance, error, se, n, sigma2, "keeps" if within else "rejects")
         return self._pupil_errors[key]
 
-    def _reference_distances(self, key: tuple, zenith_rad: float, range_m: float) -> list[float]:
-        """Distances [1] between pupil-path and reference stamps fed the same fresh screens, one frame each,
-        until their mean is clear of the tolerance (``REFERENCE_PROBE_FRAMES``).
+    def _reference_distances(self, key: tuple, zenith_rad: float, range_m: float,
+                             scintillation: float) -> tuple[list[float], tuple[bool, str]]:
+        """Distances [1] between pupil-path and reference stamps fed the same fresh screens, one frame each, until
+        :func:`pupil_verdict` decides, and its verdict.
 
-        Each frame's screens have their own seed (the probe's name), so frames are measured on every core
-        (:func:`.worker_threads`): the first ``REFERENCE_PROBE_FRAMES[0]`` together, then as many at a time
-        as there are threads, the stopping rule applied frame by frame in order (a frame past the stop is
-        dropped), so the distances are those of one frame at a time."""
+        Frames come in pairs whose screens are the two halves of the same FFT draws
+        (:meth:`.ReferencePath.probe_pair`); each pair's screens have their own seed (the probe's name), so
+        pairs are measured on every core (:func:`.worker_threads`): the first ``REFERENCE_PROBE_FRAMES[0]``
+        frames together, then a pair per thread at a time, the verdict taken pair by pair in order (pairs past
+        it are dropped), so the frames and the verdict are those of one pair at a time, whatever the threads."""
         imager, reference = self.imager, self.imager.reference
         offset = np.zeros((1, 2))
         least, most = REFERENCE_PROBE_FRAMES
+        tolerance = imager.tolerance
+        verdict = pupil_verdict([], scintillation, tolerance)
+        if verdict is not None:
+            return [], verdict
 
-        def distance(frame: int) -> float:
-            probe = f"__probe {key} {frame}"
-            field = reference.field(probe, 0.0, np.zeros(2), zenith_rad, range_m, slack=1.0)
-            phase = reference.pupil_phase(probe, 0.0, np.zeros(2), zenith_rad, range_m)
-            del reference.screens[probe]
-            stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
-            fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
-            return float(total_variation(fast, stamp, stamp.sum())[0])
+        def distances(pair: int) -> list[float]:
+            names = (f"__probe {key} {2 * pair}", f"__probe {key} {2 * pair + 1}")
+            out = []
+            for field, phase in reference.probe_pair(names, zenith_rad, range_m):
+                stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
+                fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
+                out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
+            return out
 
         threads = worker_threads()
-        measured = []
+        measured: list[float] = []
         with ThreadPoolExecutor(threads) as pool:
-            while len(measured) < most:
-                batch = least - len(measured) if len(measured) < least else min(threads, most - len(measured))
-                for value in pool.map(distance, range(len(measured), len(measured) + batch)):
-                    measured.append(value)
-                    if len(measured) >= least:
-                        error = np.std(measured, ddof=1) / np.sqrt(len(measured))
-                        if abs(np.mean(measured) - imager.tolerance) > 2 * error:
-                            return measured
-        return measured
+            while True:
+                done = len(measured) // 2
+                batch = ((least + 1) // 2 - done if len(measured) < least
+                         else min(threads, (most - len(measured)) // 2))
+                for values in pool.map(distances, range(done, done + batch)):
+                    measured.extend(values)
+                    verdict = pupil_verdict(measured, scintillation, tolerance)
+                    if verdict is not None:
+                        return measured, verdict
 
     def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
         """Pupil phase [rad] (frames, n, n) of the probe: defocus plus independent FFT screens at the sight line's r0."""

@@ -52,18 +52,18 @@ class ReferencePath:
         return geometry, grid, index
 
     def field(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float,
-                        range_m: float, slack: float = 1.3) -> np.ndarray:
+                        range_m: float, slack: float = 1.3, keep_twin: bool = False) -> np.ndarray:
         """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude (``sight`` (2,):
         where the line of sight crosses the layers, :meth:`.Imager.sight`).
 
-        New screens are ``slack`` times the grid wide (:meth:`_screens`)."""
+        New screens are ``slack`` times the grid wide and keep their twins with ``keep_twin`` (:meth:`_screens`)."""
         g = self.imager.geometry
         geometry, grid, index = self.grid(zenith_rad, range_m)
         distance = geometry.distance_m
         spacing = grid.spacings_m
         screens = {}
         if index:
-            per_layer = self._screens(source, grid, index, slack)
+            per_layer = self._screens(source, grid, index, slack, keep_twin)
             k2 = (2 * np.pi / self.imager.wavelength) ** 2
             for i, plane in index.items():
                 layer, screen = self.imager.atmosphere.layers[i], per_layer[i]
@@ -113,9 +113,10 @@ class ReferencePath:
         return phase
 
     def _screens(self, source: str, grid: PropagationGrid, index: dict,
-                           slack: float = 1.3) -> dict[int, LayerScreen]:
+                           slack: float = 1.3, keep_twin: bool = False) -> dict[int, LayerScreen]:
         """Each layer's screen for the reference grid: ``slack`` times the grid and its margins wide
-        (room to move before an extension; path probes, which read one frame, take 1)."""
+        (room to move before an extension; path probes, which read one frame, take 1); ``keep_twin``:
+        new screens keep the other half of their FFT draw (:meth:`.LayerScreen.twin`)."""
         spacing = grid.spacings_m
         screens = self.screens.setdefault(source, {})
         for i, plane in index.items():
@@ -126,8 +127,28 @@ class ReferencePath:
                 n += n % 2
                 L0 = self.imager.outer_scale_m
                 screens[i] = LayerScreen(n, float(spacing[plane]), (*self.imager.source_seed(source, 1), i), L0=L0,
-                                         update="extend" if np.isfinite(L0) else "regenerate")
+                                         update="extend" if np.isfinite(L0) else "regenerate", keep_twin=keep_twin)
         return screens
+
+    def probe_pair(self, names: tuple[str, str], zenith_rad: float,
+                   range_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Pupil field (:meth:`field`) and pupil-path phase (:meth:`pupil_phase`) of two independent frames of the
+        path chooser's probe, at ``t = 0`` on the boresight, on screens just wide enough (``slack`` 1) named
+        ``names``, dropped after use. The second frame's screens are the imaginary halves of the first's FFT
+        draws (:meth:`.LayerScreen.twin`; screens cut from FFT screens, wider than
+        :data:`.layer_screen.SELF_START_SAMPLES`; narrower ones are drawn for each frame): two frames for one
+        frame's draws and transforms."""
+        sight = np.zeros(2)
+        first, second = names
+        frames = [(self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True),
+                   self.pupil_phase(first, 0.0, sight, zenith_rad, range_m))]
+        twins = {i: screen.twin((*self.imager.source_seed(second, 1), i))
+                 for i, screen in self.screens.pop(first, {}).items()}
+        self.screens[second] = {i: twin for i, twin in twins.items() if twin is not None}
+        frames.append((self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0),
+                       self.pupil_phase(second, 0.0, sight, zenith_rad, range_m)))
+        del self.screens[second]
+        return frames
 
     def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         out = np.empty((len(t_s), self.imager.geometry.stamp_size, self.imager.geometry.stamp_size))

@@ -10,6 +10,7 @@ from scipy.ndimage import map_coordinates, spline_filter
 from evsda.blocks.optics.autoregressive import extension_operator, spline_coefficient_covariance
 from evsda.blocks.optics.fft_screens import (
     fft_phase_screen_corner,
+    fft_phase_screen_corners,
     fft_phase_screens,
     radial_profile,
     structure_function_2d,
@@ -396,3 +397,41 @@ def test_fft_screen_corner_is_the_full_screens_corner_bit_for_bit(n, m):
     corner = fft_phase_screen_corner(corner_rng, n, m, 0.013, 0.1, 25.0)
     assert np.array_equal(corner, full[:m, :m])
     assert full_rng.bit_generator.state == corner_rng.bit_generator.state
+
+
+def test_fft_screen_halves_are_independent_von_karman_screens():
+    """The reference probes take two frames from each complex FFT draw (fft_phase_screen_corners, as cut for
+    their screens: an n x n draw, its m x m corner): the real and imaginary parts are independent screens of
+    the same statistics (Lane, Glindemann & Dainty 1992; Johansson & Gavel 1994). Each half's structure
+    function against von Karman's (Schmidt 2010 Listing 3.7's estimator, as for the FFT screens above), the
+    correlation of the halves' increments over 1 and 8 samples against 0 (the values' own correlation is
+    dominated by a few large-scale modes per draw), and the structure function of their normalised sum,
+    which independence leaves von Karman's (a correlation rho would scale it by 1 + rho)."""
+    rng = np.random.default_rng(3)
+    n, m, delta, r0, L0 = 256, 160, 0.01, 0.05, 25.0       # the probes' cut: twice the window, window + 32
+    mask = np.zeros((2 * m, 2 * m))
+    mask[:m, :m] = 1
+    sums = {"real": 0.0, "imag": 0.0, "sum": 0.0}
+    correlations = {1: [], 8: []}
+    draws = 20
+    for _ in range(draws):
+        corner = fft_phase_screen_corners(rng, n, m, delta, r0, L0)
+        halves = {"real": corner.real, "imag": corner.imag, "sum": (corner.real + corner.imag) / np.sqrt(2)}
+        for name, screen in halves.items():
+            padded = np.zeros((2 * m, 2 * m))
+            padded[:m, :m] = screen
+            sums[name] = sums[name] + structure_function_2d(padded, mask, delta)
+        for lag, found in correlations.items():
+            a, b = (np.diff(half[:, ::lag], axis=1) for half in (corner.real, corner.imag))
+            found.append(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    radii = np.array([2, 4, 8, 16, 32, 64]) * delta         # resolved scales: 2 samples to 0.4 of the corner
+    expected = structure_function(radii, r0, L0)
+    for name, total in sums.items():
+        measured = radial_profile(total / draws, delta, radii)
+        np.testing.assert_allclose(measured / expected, 1.0, atol=0.12, err_msg=name)
+    for lag, found in correlations.items():
+        found = np.array(found)
+        assert abs(found.mean()) < min(0.1, 3 * found.std(ddof=1) / np.sqrt(draws)), lag
+    # the real half is fft_phase_screen_corner's screen, bit for bit, from the same draws
+    np.testing.assert_array_equal(fft_phase_screen_corners(np.random.default_rng(4), n, m, delta, r0, L0).real,
+                                  fft_phase_screen_corner(np.random.default_rng(4), n, m, delta, r0, L0))
