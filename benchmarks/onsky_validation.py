@@ -24,9 +24,11 @@ match probability of ``MATCH_FALSE_PROBABILITY`` per star and slice in place of 
 star is counted in every slice it is found in; with star counts growing ``STAR_COUNT_SLOPE`` dex per magnitude (the
 bright side of Monet's own histogram), the limit is the magnitude brighter than which 90 % of the found stars lie
 (:meth:`~evsda.blocks.detection.analytic.EventLimit.matched_magnitude`). The 2022 figure is an "update" of the
-limiting-magnitude analysis, so the 2021 stares' limits are taken as the same statistic. Monet's G magnitudes are
-turned into V with Gaia's G - V polynomial in BP - RP (Riello et al. 2021, A&A 649, A3, Table C.2) at the Sun's
-colour. Beside it the script prints the single-pixel *contrast limit* (the best-centred pixel's rise reaches
+limiting-magnitude analysis, so the 2021 stares' limits are taken as the same statistic. Monet's G limits are
+turned into V with the G - V of the stars matched near them (``matched_g_minus_v``): the colours (Hipparcos V - I_C,
+B - V) of the bundled catalogue's faintest complete half-magnitude, each star's G - V from Riello et al. (2021, A&A
+649, A3, Table C.2)'s polynomial in V - I_C, each colour weighted by how many of its stars the setup finds (its
+electrons per V photon in the preset's response). Beside it the script prints the single-pixel *contrast limit* (the best-centred pixel's rise reaches
 theta_ON: the 2021 paper's model criterion) and what evsda's own blind event detector reaches (the 50 % point of a
 simulated limiting-magnitude study and its analytic cross-check): a stricter criterion than the measurements'.
 The scan (setup 3) is compared on the contrast limit: its stars are streaks hundreds of pixels long in a 5 s slice,
@@ -35,6 +37,10 @@ which a point-source matching pipeline does not find at any brightness.
 The sensors count the photons of their presets' spectral response (unfiltered silicon for the Gen3 VGA and Gen4, an
 assumed curve: evsda.blocks.scene.spectra), not V-band photons; the script prints each setup's band factor and, for
 the Gen4, how its prediction moves with the assumed silicon depth or behind a V filter.
+
+The scan's diagnostics: the photoreceptor of the first-order circuit (NIST's fit with the exponent held at 1,
+``benchmarks/pixel_latency_nist.py``), lenses that blur a star over 1-2 pixels (the dark current refitted with the
+blur), a search needing 2-3 ON events per crossed pixel, and the star's V photons alone: what each moves, none fitted.
 
 The one fitted number is the Gen3 VGA dark current (``--fit``: the value at which setup 1's matched-star limit is
 V 9.8; ``library/sensors/prophesee_gen3_vga.yaml`` holds it). Everything else stays as the presets give it.
@@ -46,6 +52,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
+import gzip
 import math
 import os
 import resource
@@ -54,9 +62,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from scipy import optimize
+import numpy as np
+from scipy import ndimage, optimize
 
-from evsda.blocks.detection.analytic import EventLimit
+from evsda.blocks.detection.analytic import EventLimit, PsfTable
 from evsda.blocks.detection.study import analytic_limits, design_limit, parse_ladder, run_design
 from evsda.blocks.scene import spectra
 from evsda.graph.graphfile import load_graph
@@ -85,10 +94,11 @@ class Setup:
 
     @property
     def measured_v(self) -> float | None:
-        """The measured limit in V [mag] (a G limit at the Sun's colour)."""
+        """The measured limit in V [mag]: a G limit less the G - V of the stars matched near it
+        (:func:`matched_g_minus_v`)."""
         if self.measured is None or self.band == "V":
             return self.measured
-        return self.measured - g_minus_v(SUN_BP_RP)
+        return self.measured - matched_g_minus_v(self.graph)
 
 
 SETUPS = (
@@ -115,6 +125,11 @@ CATALOGUE_END = 12.0                         # the matched stars reach G 12 in M
 SUN_BP_RP = 0.82                             # the Sun's Gaia BP - RP (Casagrande & VandenBerg 2018, MNRAS 479, L102) [mag]
 #: G - V = c0 + c1 x + c2 x^2 + c3 x^3, x = BP - RP (Riello et al. 2021, A&A 649, A3, Table C.2; sigma 0.030 mag)
 G_MINUS_V_COEFFS = (-0.02704, 0.01424, -0.2156, 0.01426)
+#: G - V = sum c_i y^i, y = V - I_C (Riello et al. 2021, Table C.2, as the Gaia DR3 documentation's photometric
+#: relationships list it, read in PyGaia's ``gbrminv_from_vminic``; sigma 0.05 mag, -0.5 < V - I_C < 6)
+G_MINUS_V_VI_COEFFS = (-0.01597, -0.02809, -0.2483, 0.03656, -0.002939)
+COLOUR_SAMPLE_V = (6.0, 6.5)                 # the Hipparcos excerpt's faintest complete half-magnitude: the colours of
+                                             # its stars stand for those of the stars matched near the limits [mag]
 SCAN_RATES_DEG_S = (0.5, 1.0, 2.0, 4.0)      # rates at which the scan setup's contrast limit is printed [deg/s]
 SILICON_DEPTHS_M = (2e-6, 5e-6)              # other collection depths of the presets' assumed silicon response [m]
 BANDWIDTH_SLOWER = (0.1, 0.3, 3.0)           # factors by which the sensitivity lines slow the photoreceptor [1]
@@ -133,6 +148,71 @@ def cpu_s() -> float:
 def g_minus_v(bp_rp: float) -> float:
     """Gaia G - Johnson V at colour ``bp_rp`` (Riello et al. 2021, Table C.2) [mag]."""
     return sum(c * bp_rp**i for i, c in enumerate(G_MINUS_V_COEFFS))
+
+
+def g_minus_v_of_vi(v_minus_i):
+    """Gaia G - Johnson V at Cousins colour ``V - I_C`` (Riello et al. 2021, Table C.2) [mag]."""
+    return sum(c * v_minus_i**i for i, c in enumerate(G_MINUS_V_VI_COEFFS))
+
+
+def colour_sample() -> tuple[np.ndarray, np.ndarray]:
+    """(B - V, V - I_C) of the bundled Hipparcos stars of V in :data:`COLOUR_SAMPLE_V` with both colours (fields
+    H37 and H40 of ``hip_main.dat``, ESA 1997) [mag]."""
+    from evsda.library import resolve
+
+    b_v, v_i = [], []
+    with gzip.open(resolve("library:stars/hip_main.dat.gz"), "rt") as rows:
+        for row in rows:
+            field = row.split("|")
+            try:
+                v, bv, vi = float(field[5]), float(field[37]), float(field[40])
+            except ValueError:
+                continue                                                    # a colour left blank
+            if COLOUR_SAMPLE_V[0] <= v < COLOUR_SAMPLE_V[1]:
+                b_v.append(bv)
+                v_i.append(vi)
+    return np.array(b_v), np.array(v_i)
+
+
+def population_limits(magnitudes: np.ndarray, found: np.ndarray, brighter_by: np.ndarray, g_minus_v_mag: np.ndarray,
+                      slope: float = STAR_COUNT_SLOPE, fraction: float = MATCHED_FRACTION,
+                      faintest_g: float = CATALOGUE_END) -> tuple[float, float]:
+    """(V, G) brighter than which ``fraction`` of the stars found lie, for a mix of colours [mag].
+
+    ``found``: the probability a star of the reference colour is found at V ``magnitudes`` (ascending grid, chance
+    matches taken out); a star of colour ``c`` gives the electrons of a reference star ``brighter_by[c]`` brighter
+    (``2.5 log10 kappa_c / kappa_ref``), so it is found with ``found(V - brighter_by[c])``; each colour of the sample
+    is an equal share of the star counts ``10^(slope V)``, its G is ``V + g_minus_v_mag[c]``, and the counted stars
+    end at G ``faintest_g`` (Monet's figure). Both quantiles come from the same found stars."""
+    m = np.asarray(magnitudes, dtype=float)
+    grid = np.arange(m[0] - 2.0, m[-1] + 2.0, 0.002)                       # common axis for V and G [mag]
+    density_v, density_g = np.zeros_like(grid), np.zeros_like(grid)
+    for shift, gv in zip(brighter_by, g_minus_v_mag):
+        p_v = np.interp(grid - shift, m, found, left=1.0, right=0.0) * 10.0 ** (slope * grid)
+        p_v = np.where(grid + gv <= faintest_g, p_v, 0.0)                  # stars matched to G faintest_g
+        density_v += p_v
+        density_g += np.interp(grid - gv, grid, p_v, left=0.0, right=0.0)  # the same stars on the G axis
+    quantile = []
+    for density in (density_v, density_g):
+        cumulative = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]))])   # trapezoids
+        quantile.append(float(np.interp(fraction * cumulative[-1], cumulative, grid)))
+    return quantile[0], quantile[1]
+
+
+@functools.cache
+def matched_g_minus_v(graph: str) -> float:
+    """G - V of the stars a setup matches near its limit: G90 - V90 of :func:`population_limits` over the colours of
+    :func:`colour_sample`, each star's G - V from its V - I_C (:func:`g_minus_v_of_vi`), its electrons from its B - V
+    (the preset's spectral response, :func:`evsda.blocks.scene.spectra.star_band_factor`) [mag]."""
+    setup = next(s for s in SETUPS if s.graph == graph)
+    b_v, v_i = colour_sample()
+    spec = load_graph(setup.path).nodes["sensor/camera"].block.focal_plane.spectral_response
+    kappa = spectra.star_band_factor(spec, b_v) / spectra.star_band_factor(spec, spectra.FIELD_STAR_B_V)
+    detector = matched_detector(setup.path)
+    m, p_d, chance = detector.detection_curve(0.0, CATALOGUE_END + 1.0)
+    found = np.clip((p_d - chance) / (1.0 - chance), 0.0, 1.0)
+    v90, g90 = population_limits(m, found, 2.5 * np.log10(kappa), g_minus_v_of_vi(v_i))
+    return g90 - v90
 
 
 def contrast_limit(path: str, overrides: list[str] = ()) -> float:
@@ -185,6 +265,14 @@ def stars_brighter_per_deg2(magnitude: float) -> float:
     return float((catalog.vmag < magnitude).sum()) / SKY_DEG2
 
 
+def seconds_per_star(magnitude: float, rate_deg_s: float) -> str:
+    """Scanning time per star brighter than ``magnitude`` in the scan's swath at ``rate_deg_s`` (the Hipparcos
+    excerpt, "<=" where the limit is fainter than it is complete) [s], as text."""
+    bound = "<= " if magnitude > CATALOG_COMPLETE_MAG else ""
+    density = stars_brighter_per_deg2(min(magnitude, CATALOG_COMPLETE_MAG))
+    return f"{bound}{1.0 / (density * SCAN_SWATH_DEG * rate_deg_s):.1f} s"
+
+
 def scan_rate_overrides(rate_deg_s: float) -> list[str]:
     """The scan setup at another rate: sources, render cadence and the detector's velocity search moved with it."""
     rate_px_s = rate_deg_s * 3600.0 / SCAN_PIXEL_ARCSEC
@@ -209,6 +297,93 @@ def print_sensitivities(stare: Setup, scan: Setup) -> None:
         factor = f"{1 / slower:.3g}x faster" if slower < 1 else f"{slower:.3g}x slower"
         print(f"  photoreceptor {factor}: {stare.graph} "
               f"V {predicted_limit(stare, override):.2f}, {scan.graph} (contrast) {scans}")
+
+
+def print_first_order_law(stare: Setup, scan: Setup) -> None:
+    """Setup 1 and the scan with the Gen3's NIST fit redone with ``cutoff_exponent`` held at 1, the first-order
+    photoreceptor's law (``benchmarks/pixel_latency_nist.py``: ``effective_capacitance_F``): what the circuit's
+    physics, rather than the fitted exponent, says below NIST's dimmest step."""
+    from pixel_latency_nist import fit_bandwidth
+
+    law = fit_bandwidth("prophesee_gen3_vga", exponent=1.0)
+    override = ["sensor/pixel.cutoff_exponent=1", f"sensor/pixel.cutoff_saturation={law.saturation:.6g}"]
+    scans = ", ".join(f"{r:g} deg/s V {m:.2f} (one per {seconds_per_star(m, r)})" for r, m in
+                      ((r, contrast_limit(scan.path, override + scan_rate_overrides(r))) for r in SCAN_RATES_DEG_S))
+    print(f"  first-order photoreceptor (NIST refit with n = 1: cutoff_saturation {law.saturation:.4g}, chi2 "
+          f"{law.chi2:.2f}/7): {stare.graph} V {predicted_limit(stare, override):.2f}, {scan.graph} (contrast) {scans}")
+
+
+def blurred_psf(psf: PsfTable, fwhm_px: float) -> PsfTable:
+    """``psf`` convolved with a circular Gaussian of FWHM ``fwhm_px`` [pixel] (an optics blur the graph files' ideal
+    lenses lack), on a grid extended to hold it."""
+    step = float(psf.offsets_px[1] - psf.offsets_px[0])
+    sigma = fwhm_px / (2.0 * math.sqrt(2.0 * math.log(2.0)))
+    half = step * math.ceil((float(np.abs(psf.offsets_px).max()) + 4.0 * sigma) / step)   # the table's points kept
+    grid = np.arange(-half, half + step / 2, step)
+    gx, gy = np.meshgrid(grid, grid)
+    return PsfTable(grid, ndimage.gaussian_filter(psf(gx, gy), sigma / step, mode="constant"))
+
+
+def print_optics_blur(stare: Setup, scan: Setup, fwhm_px=(1.0, 2.0)) -> None:
+    """The scan with the lenses blurring a star over ``fwhm_px`` (Gaussian FWHM in 15 um pixels, the same on both
+    lenses), the Gen3 dark current refitted on setup 1 with the same blur, as the one fit would be (a what-if: the
+    examples' lenses are diffraction-limited and no blur was measured)."""
+    faintest_v = CATALOGUE_END - g_minus_v(SUN_BP_RP)
+
+    def stare_limit(log_j: float, fwhm: float) -> float:
+        d = matched_detector(stare.path, [f"{DARK_PARAM}={10 ** log_j:.6g}"]).d
+        blurred = EventLimit(dataclasses.replace(d, psf=blurred_psf(d.psf, fwhm)))
+        return blurred.matched_magnitude(MATCHED_FRACTION, STAR_COUNT_SLOPE, faintest_v)
+
+    for fwhm in fwhm_px:
+        j = 10 ** optimize.brentq(lambda lj: stare_limit(lj, fwhm) - stare.measured_v, -9.0, -4.0, xtol=0.005)
+        theta = design_limit(scan.path).d.pixel.params.threshold_on
+        scans = {1: [], 2: []}
+        for r in SCAN_RATES_DEG_S:
+            for k in scans:
+                extra = [f"{DARK_PARAM}={j:.6g}", f"sensor/pixel.threshold_on={k * theta:g}"]
+                d = design_limit(scan.path, scan_rate_overrides(r) + extra).d
+                m = EventLimit(dataclasses.replace(d, psf=blurred_psf(d.psf, fwhm))).contrast_limit()
+                scans[k].append(f"{r:g} deg/s V {m:.2f} (one per {seconds_per_star(m, r)})")
+        peak = blurred_psf(design_limit(scan.path).d.psf, fwhm).peak
+        print(f"  lenses blurring a star over {fwhm:g} px FWHM ({fwhm * 15:g} um; a pixel then holds at most {peak:.2f} "
+              f"of it): Gen3 dark current refitted {j:.3g} A/m^2; {scan.graph} (contrast) " + ", ".join(scans[1])
+              + "; with 2 ON events per crossed pixel " + ", ".join(scans[2]))
+
+
+def print_streak_criterion(scan: Setup, events_per_pixel=(2.0, 3.0)) -> None:
+    """The scan's limit when a streak must hold ``k`` ON events per crossed pixel (the best pixel's rise reaching
+    ``k theta_ON``): how a search needing more than the contrast limit's one event per pixel moves it."""
+    theta = design_limit(scan.path).d.pixel.params.threshold_on
+    for k in events_per_pixel:
+        theta_k = [f"sensor/pixel.threshold_on={k * theta:g}"]
+        limits = ", ".join(f"{r:g} deg/s V {m:.2f} (one per {seconds_per_star(m, r)})" for r, m in
+                           ((r, contrast_limit(scan.path, scan_rate_overrides(r) + theta_k)) for r in SCAN_RATES_DEG_S))
+        print(f"  a streak of {k:g} ON events per crossed pixel: {scan.graph} {limits}")
+
+
+def print_scan_band(scan: Setup) -> None:
+    """The scan with the sensor counting V photons only (``filter: V``; NIST's law unchanged, which pins the charge
+    per threshold in the LEDs' electrons): the scan's best pixel integrates the star's charge, so its limit tests the
+    star's electrons per V photon against the LEDs', the QE cancelling (a what-if: an NIR-blocking window or a
+    response narrower than the assumed silicon curve lies between)."""
+    band = ", ".join(f"{r:g} deg/s V {m:.2f} (one per {seconds_per_star(m, r)})" for r, m in
+                     ((r, contrast_limit(scan.path, scan_rate_overrides(r) + ["sensor/camera.filter=V"]))
+                      for r in SCAN_RATES_DEG_S))
+    print(f"  counting the star's V photons only (band factor 1 in place of 3.98): {scan.graph} {band}")
+
+
+def print_colours(setups) -> None:
+    """The colours behind the G -> V conversion (:func:`matched_g_minus_v`)."""
+    b_v, v_i = colour_sample()
+    gv = g_minus_v_of_vi(v_i)
+    print(f"G - V of the matched stars: the {b_v.size} Hipparcos stars of V {COLOUR_SAMPLE_V[0]:g}-{COLOUR_SAMPLE_V[1]:g} "
+          f"(mean B-V {b_v.mean():.3f}, V-I_C {v_i.mean():.3f}; G - V from V-I_C: mean {gv.mean():+.3f}, median "
+          f"{np.median(gv):+.3f}, 10-90 % {np.percentile(gv, 10):+.3f} .. {np.percentile(gv, 90):+.3f}); at the reference "
+          f"colour (the Sun's BP - RP {SUN_BP_RP}) {g_minus_v(SUN_BP_RP):+.3f}")
+    for setup in setups:
+        print(f"  {setup.graph}: G90 - V90 of the stars it finds {matched_g_minus_v(setup.graph):+.3f} -> "
+              f"{setup.measured_text} = V {setup.measured_v:.2f}")
 
 
 def chance_share_fainter(setup: Setup, g_mag: float = 11.0) -> float:
@@ -342,8 +517,13 @@ def run(argv: list[str] | None = None) -> int:
         bound = m > CATALOG_COMPLETE_MAG
         density = stars_brighter_per_deg2(min(m, CATALOG_COMPLETE_MAG))
         print(f"  {r:g} deg/s: V {m:.2f}; {'>= ' if bound else ''}{density:.3f} per deg^2; one every "
-              f"{'<= ' if bound else ''}{1.0 / (density * SCAN_SWATH_DEG * r):.1f} s")
+              f"{seconds_per_star(m, r)}")
     print_sensitivities(fitted, scan)
+    print_first_order_law(fitted, scan)
+    print_optics_blur(fitted, scan)
+    print_streak_criterion(scan)
+    print_scan_band(scan)
+    print_colours(SETUPS[3:])
     print_criterion_sensitivity(SETUPS[3], GEN4)
     print_what_the_misses_ask(SETUPS[1], GEN4)
     print("spectral response (the presets' silicon curve is assumed: no measured QE(lambda) of these sensors found):")

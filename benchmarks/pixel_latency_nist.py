@@ -24,7 +24,10 @@ large-signal filter (``lowpass_form: large_signal``, docs/pixel.md) and a fixed 
 lacks (comparator, arbiter, time stamping: the bright-light floors) as two more parameters kept out of the preset;
 the Gen4 and Gen3 VGA presets hold its result. It prints, beside it, the law fitted before (ON rows only, the
 small-signal filter), whose OFF latencies are 3-220x too slow: that form's falling step runs at the dark pixel's
-cutoff, while the measured OFF latency is about the ON one.
+cutoff, while the measured OFF latency is about the ON one. It then refits with the exponent held at 1, the
+first-order photoreceptor's law (Delbruck & Mead 1994: ``f = I / (2 pi C_eff U_T)``, :func:`effective_capacitance_F`),
+and prints the effective capacitance and the electrons per ON threshold that law implies at any current: what the
+circuit says below NIST's dimmest step.
 
     python benchmarks/pixel_latency_nist.py
 """
@@ -124,6 +127,7 @@ def main() -> None:
             print(f"{irradiance:9.3f} {on_m[0]:5d}-{on_m[1]:<5d} {sims[0][0]:7.1f}/{sims[1][0]:<7.1f} "
                   f"{off_m[0]:5d}-{off_m[1]:<5d} {sims[0][1]:8.1f}/{sims[1][1]:<8.1f}  {ratio_on:6.2f}x {ratio_off:6.3f}x")
         print_fit(name, fit_bandwidth(name))
+        print_first_order(name)
 
 
 def print_fit(name: str, fit: BandwidthFit) -> None:
@@ -155,6 +159,39 @@ def print_fit(name: str, fit: BandwidthFit) -> None:
           f"delay {t0_old * 1e6:.0f} us on both): ln(measured / model) ON "
           + " ".join(f"{r:+.3f}" for r in np.log(meas[:, 0] / (t0_old + on_old)))
           + "; OFF " + " ".join(f"{r:+.2f}" for r in np.log(meas[:, 1] / (t0_old + off_old))))
+
+
+THERMAL_VOLTAGE_V = constants.k * 300.0 / constants.e       # U_T at 300 K, NIST's room-temperature bench [V]
+
+
+def effective_capacitance_F(saturation: float, max_hz: float, reference_current_A: float) -> float:
+    """``C_eff`` of the first-order photoreceptor whose cutoff is ``f = f_max x / x_sat`` [F].
+
+    Delbruck & Mead 1994 (and Liu et al. 2002, ch. 13): the photodiode node, held by the feedback transistor (source
+    conductance ``g_s = I / U_T``, gate driven by the amplifier of gain ``-A``), relaxes at
+    ``2 pi f_3dB = I (1 + kappa A) / (C_pd U_T)``; the feedback transistor's gate-source (Miller) capacitance ``C_m``
+    adds ``C_m (1 + A) / (1 + kappa A) ~ C_m / kappa``. So ``f_3dB = I / (2 pi C_eff U_T)`` with
+    ``C_eff = (C_pd + (1 + A) C_m) / (1 + kappa A)``, constant in ``I``: the bandwidth is proportional to the current
+    (``cutoff_exponent`` 1) while the amplifier's own pole, set by its bias and not by the light, is far above it.
+    In the large-signal form a rise of ``Delta L`` (ln units) then costs ``Delta L C_eff U_T / q`` electrons,
+    whatever the current that delivers them.
+    """
+    return reference_current_A * saturation / (2.0 * np.pi * max_hz * THERMAL_VOLTAGE_V)
+
+
+def print_first_order(name: str) -> None:
+    """The same fit with ``n`` held at 1, the first-order photoreceptor's law (:func:`effective_capacitance_F`)."""
+    free, first = fit_bandwidth(name), fit_bandwidth(name, exponent=1.0)
+    params = preset_pixel(name)[0].params
+    c_eff = effective_capacitance_F(first.saturation, params.cutoff_max_hz, params.reference_current_A)
+    electrons = params.threshold_on * c_eff * THERMAL_VOLTAGE_V / constants.e
+    print(f"  first-order photoreceptor (n held at 1): cutoff_saturation {first.saturation:.4g} (x/ "
+          f"{np.exp(first.ln_saturation_err):.2f}), chi2 {first.chi2:.2f} for 7 degrees of freedom (free n: {free.chi2:.2f} "
+          f"for 6); dark-pixel cutoff {first.dark_cutoff_hz:.3g} Hz ({free.dark_cutoff_hz / first.dark_cutoff_hz:.2f}x "
+          f"below the free law's); C_eff = C_pd/(1 + kappa A) + Miller = {c_eff * 1e15:.2f} fF, "
+          f"theta_ON C_eff U_T / q = {electrons:.0f} electrons per ON threshold at any current")
+    print("  ln(measured / fit) ON: " + " ".join(f"{r:+.3f}" for r in first.on_residuals)
+          + "; OFF: " + " ".join(f"{r:+.3f}" for r in first.off_residuals))
 
 
 @dataclass(frozen=True)
@@ -221,13 +258,15 @@ def step_latencies_s(x: np.ndarray, x_dark: float, params, saturation: float, ex
     return on, off
 
 
-def fit_bandwidth(name: str, measured=None) -> BandwidthFit:
+def fit_bandwidth(name: str, measured=None, exponent: float | None = None) -> BandwidthFit:
     """Weighted least squares in ln(latency) over the five ON and five OFF rows (large-signal filter):
     ``t_ON = t0_ON + on(x; x_sat, n)``, ``t_OFF = t0_OFF + off(x; x_sat, n)`` (:func:`step_latencies_s`).
 
     ``measured``: ``{"ON": rows, "OFF": rows}``, (low, high) per irradiance, NIST's by default. Each row's sigma is
     half its ln-range (over ROIs and cameras). The bright rows keep fixed delays the model lacks, ON and OFF apart
     (the Gen3 VGA's OFF floor, ~150 us, lies below its ON one, ~360 us), fitted beside the law, kept out of the preset.
+    ``exponent``: ``n`` held at this value (1: the first-order photoreceptor, :func:`effective_capacitance_F`) and
+    not fitted (its error then 0; 7 degrees of freedom).
     """
     x, x_dark, block = row_currents(name)
     params = block.params
@@ -235,23 +274,30 @@ def fit_bandwidth(name: str, measured=None) -> BandwidthFit:
     on_s, off_s = (np.array([np.mean(r) for r in rows[pol]]) * 1e-6 for pol in ("ON", "OFF"))
     sigma = np.r_[[0.5 * np.log(hi / lo) for lo, hi in rows["ON"]], [0.5 * np.log(hi / lo) for lo, hi in rows["OFF"]]]
 
+    def full(p: np.ndarray) -> np.ndarray:          # (ln x_sat, n, t0_ON, t0_OFF), n inserted when held
+        return p if exponent is None else np.r_[p[0], exponent, p[1:]]
+
     def model_s(p: np.ndarray) -> np.ndarray:       # delay + the geometric mean over the two LEDs
+        p = full(p)
         on, off = step_latencies_s(x, x_dark, params, np.exp(p[0]), p[1], "large_signal")
         return np.r_[p[2] * 1e-6 + np.exp(np.log(on).mean(0)), p[3] * 1e-6 + np.exp(np.log(off).mean(0))]
 
     def residuals(p: np.ndarray) -> np.ndarray:
         return (np.log(np.r_[on_s, off_s]) - np.log(model_s(p))) / sigma
 
-    start = np.array([np.log(params.cutoff_saturation), params.cutoff_exponent, 1.0, 1.0])
-    sol = optimize.least_squares(residuals, start, bounds=([-np.inf, 0.05, 0.0, 0.0],
-                                                           [np.inf, 2.0, 1e6 * on_s.min(), 1e6 * off_s.min()]),
-                                 x_scale=[1.0, 0.1, 10.0, 10.0])
+    keep = [0, 1, 2, 3] if exponent is None else [0, 2, 3]
+    start = np.array([np.log(params.cutoff_saturation), params.cutoff_exponent, 1.0, 1.0])[keep]
+    low, high = np.array([-np.inf, 0.05, 0.0, 0.0]), np.array([np.inf, 2.0, 1e6 * on_s.min(), 1e6 * off_s.min()])
+    sol = optimize.least_squares(residuals, start, bounds=(low[keep], high[keep]),
+                                 x_scale=np.array([1.0, 0.1, 10.0, 10.0])[keep])
     chi2 = float(np.sum(sol.fun**2))
-    err = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * max(1.0, chi2 / (2 * x.shape[1] - 4))))
-    saturation, exponent = float(np.exp(sol.x[0])), float(sol.x[1])
-    dark_hz = float(lowpass.cutoff_hz(np.array([x_dark]), None, params.cutoff_max_hz, "power", saturation, exponent)[0])
+    err = np.sqrt(np.diag(np.linalg.inv(sol.jac.T @ sol.jac) * max(1.0, chi2 / (2 * x.shape[1] - len(keep)))))
+    err = err if exponent is None else np.r_[err[0], 0.0, err[1:]]
     resid = np.log(np.r_[on_s, off_s] / model_s(sol.x))
-    return BandwidthFit(saturation, exponent, (sol.x[2] * 1e-6, sol.x[3] * 1e-6), float(err[0]), float(err[1]),
+    p = full(sol.x)
+    saturation, n = float(np.exp(p[0])), float(p[1])
+    dark_hz = float(lowpass.cutoff_hz(np.array([x_dark]), None, params.cutoff_max_hz, "power", saturation, n)[0])
+    return BandwidthFit(saturation, n, (p[2] * 1e-6, p[3] * 1e-6), float(err[0]), float(err[1]),
                         (err[2] * 1e-6, err[3] * 1e-6), chi2, resid[:5], resid[5:], dark_hz)
 
 

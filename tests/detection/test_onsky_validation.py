@@ -134,16 +134,73 @@ def test_what_a_miss_asks_inverts_a_known_limit_against_any_parameter(monkeypatc
     assert asked == pytest.approx(0.2 * 10 ** ((setup.measured - 10.0) / 2.5), rel=0.01)
 
 
-def test_g_limits_are_compared_in_v_through_gaias_colour_polynomial():
-    # Monet's limits are Gaia G; the comparison is in V: V = G - (G - V)(BP - RP), the polynomial of Riello et al.
-    # (2021, Table C.2), which at BP - RP = 0 is its constant and makes a star of the Sun's colour (0.82) about
-    # 0.15 mag brighter in G than in V; the 2021 limits are V already.
+def test_g_limits_are_compared_in_v_through_gaias_colour_polynomials(monkeypatch):
+    # Monet's limits are Gaia G; the comparison is in V: V = G - (G - V), with G - V of the stars matched near the
+    # limit (matched_g_minus_v), each from its Hipparcos V - I_C through Riello et al. (2021, Table C.2)'s polynomial;
+    # the BP - RP polynomial of the same table gives the reference colour's (the Sun's BP - RP 0.82: about -0.15).
+    # The 2021 limits are V already.
     bench = _benchmark()
     assert bench.g_minus_v(0.0) == pytest.approx(-0.02704)
     assert bench.g_minus_v(0.82) == pytest.approx(-0.02704 + 0.01424 * 0.82 - 0.2156 * 0.82**2 + 0.01426 * 0.82**3)
+    assert bench.g_minus_v_of_vi(0.0) == pytest.approx(-0.01597)
+    assert bench.g_minus_v_of_vi(1.0) == pytest.approx(-0.01597 - 0.02809 - 0.2483 + 0.03656 - 0.002939)
+    # the two polynomials agree for a star of the Sun's colours (V - I_C 0.70, BP - RP 0.82) within their sigma
+    assert bench.g_minus_v_of_vi(0.70) == pytest.approx(bench.g_minus_v(0.82), abs=0.03)
+    monkeypatch.setattr(bench, "matched_g_minus_v", lambda graph: -0.2 if graph == bench.SETUPS[4].graph else None)
     gen4 = bench.SETUPS[4]
-    assert gen4.band == "G" and gen4.measured_v == pytest.approx(10.1 - bench.g_minus_v(0.82))
+    assert gen4.band == "G" and gen4.measured_v == pytest.approx(10.1 + 0.2)
     assert bench.SETUPS[0].measured_v == 9.8
+
+
+def test_colour_sample_is_the_catalogues_complete_faint_end():
+    # The colours standing for the matched stars': every bundled Hipparcos star of V 6-6.5 with both colours; their
+    # mean B - V is the field-star colour the synthetic stars take (0.66, docs/scene.md), their V - I_C ~0.7.
+    bench = _benchmark()
+    b_v, v_i = bench.colour_sample()
+    assert b_v.size == v_i.size > 3000
+    assert np.mean(b_v) == pytest.approx(0.66, abs=0.01) and 0.6 < np.mean(v_i) < 0.8
+
+
+def test_population_limits_are_the_closed_form_for_sharp_limits():
+    # Every reference star brighter than m0 found, none fainter, counts 10^(s V): 90 % of the found stars lie brighter
+    # than m0 + log10(0.9) / s (matched_fraction_magnitude's closed form). One colour of G - V = c: its G quantile is
+    # the V one plus c. A colour brighter_by d (more electrons per V photon) is found to m0 + d. Two colours of equal
+    # share, G - V c1 and c2, both sharp at m0: the G quantile solves 0.9 = sum_i 10^(s (G - c_i - m0)) / 2, capped at
+    # 1 each, which lies between the two one-colour values.
+    bench = _benchmark()
+    slope, m0 = 0.5, 9.0
+    grid = np.arange(0.0, 13.0 + 1e-9, 0.001)
+    found = (grid < m0).astype(float)
+    v90 = m0 + math.log10(0.9) / slope
+    v, g = bench.population_limits(grid, found, np.array([0.0]), np.array([-0.3]), faintest_g=20.0)
+    assert v == pytest.approx(v90, abs=0.01) and g == pytest.approx(v90 - 0.3, abs=0.01)
+    v, _ = bench.population_limits(grid, found, np.array([0.4]), np.array([0.0]), faintest_g=20.0)
+    assert v == pytest.approx(v90 + 0.4, abs=0.01)
+    c = np.array([-0.5, 0.0])
+    v, g = bench.population_limits(grid, found, np.zeros(2), c, faintest_g=20.0)
+
+    def share(gq):
+        return np.minimum(10.0 ** (slope * (gq - c - m0)), 1.0).mean() - 0.9
+
+    from scipy.optimize import brentq
+    assert v == pytest.approx(v90, abs=0.01)
+    assert g == pytest.approx(brentq(share, m0 - 3, m0 + 1), abs=0.01)
+    assert v90 - 0.5 < g < v90
+
+
+def test_blurred_psf_is_the_gaussian_of_the_summed_variances():
+    # A pixel-integrated Gaussian PSF of sigma s1 blurred by a Gaussian of sigma s2 is the pixel-integrated Gaussian of
+    # sigma sqrt(s1^2 + s2^2) (box * G1 * G2 = box * G12); the flux a pixel lattice catches stays 1.
+    bench = _benchmark()
+    s1, s2 = 0.4, 0.6
+    blurred = bench.blurred_psf(_gaussian_psf(s1), s2 * 2.0 * math.sqrt(2.0 * math.log(2.0)))
+    expected = _gaussian_psf(math.hypot(s1, s2))
+    offsets = np.linspace(-2.0, 2.0, 9)
+    dx, dy = np.meshgrid(offsets, offsets)
+    assert np.allclose(blurred(dx, dy), expected(dx, dy), atol=2e-3)
+    lattice = np.arange(-6.0, 6.5, 1.0) + 0.3
+    lx, ly = np.meshgrid(lattice, lattice)
+    assert blurred(lx, ly).sum() == pytest.approx(1.0, abs=0.01)
 
 
 @pytest.mark.parametrize("slope, start", [(0.5, 0.0), (0.4, 6.0)])
