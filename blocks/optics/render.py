@@ -82,9 +82,11 @@ class PupilRenderer:
     ``p^2 sinc(f_x p) sinc(f_y p) exp(-2 pi i f . theta_c)`` with ``f = k delta / lambda``, so the
     stamps are exact pixel integrals with no sub-pixel sampling. ``C`` is the inverse DFT
     of the PSF sampled by a zero-padded FFT (``L >= 2n - 1`` points, no aliasing), so the
-    two steps fold into fixed matrices ``B = A W / L`` applied to that PSF:
-    ``stamp = B_y PSF B_x^T``. The source's sub-pixel offset becomes a tilt across the pupil,
-    which keeps ``B`` fixed.
+    two steps fold into one fixed matrix ``B = A W / L`` applied to that PSF along both axes:
+    ``stamp = B PSF B^T``. ``B`` is real: ``C``'s lags ``|k| <= n - 1`` lie strictly inside
+    ``|k| < L / 2``, so the terms pair up as ``+-k`` into cosines (an even ``L``'s Nyquist lag
+    carries no term). The source's sub-pixel offset becomes a tilt across the pupil, which keeps
+    ``B`` fixed.
     """
 
     def __init__(self, sampler: StampSampler, n_pupil: int, delta_m: float, wavelength_m: float,
@@ -98,13 +100,15 @@ class PupilRenderer:
         f = lags * delta_m / wavelength_m                                # [cycles rad^-1]
         p = sampler.pixel_scale_rad
         centres = (np.arange(sampler.size) - sampler.size // 2) * p
-        a = p * np.sinc(f * p)[None, :] * np.exp(-2j * np.pi * np.outer(centres, f))
-        b = a @ np.exp(2j * np.pi * np.outer(lags, np.arange(size)) / size) / size
-        real = np.float32 if dtype == np.complex64 else np.float64
-        self.b_real, self.b_imag = b.real.astype(real), b.imag.astype(real)
-        # their transposes stored contiguous: numpy's batched matmul with a transposed (strided) right operand
+        # C's lags are |k| <= n - 1 < L / 2: an even L's Nyquist lag -L/2 holds no term (zero weight), and the
+        # sum over the symmetric lags left, p sinc(f p) cos(2 pi k (j / L - delta theta_c / lambda)), is real
+        weight = np.where(np.abs(lags) < size / 2, p * np.sinc(f * p), 0.0)
+        a = weight[None, :] * np.exp(-2j * np.pi * np.outer(centres, f))
+        b = (a @ np.exp(2j * np.pi * np.outer(lags, np.arange(size)) / size) / size).real
+        self.b = b.astype(np.float32 if dtype == np.complex64 else np.float64)
+        # its transpose stored contiguous: numpy's batched matmul with a transposed (strided) right operand
         # took 2.3x longer per frame (the same products, the same bits)
-        self.b_real_t, self.b_imag_t = np.ascontiguousarray(self.b_real.T), np.ascontiguousarray(self.b_imag.T)
+        self.b_t = np.ascontiguousarray(self.b.T)
         self.dtype = dtype
         self._local = threading.local()
 
@@ -113,7 +117,7 @@ class PupilRenderer:
         spectra, their PSFs, and the tilted phase's cosine and sine on the pupil grid."""
         buffers = getattr(self._local, "buffers", None)
         if buffers is None:
-            size, n, real = self.padded, self.n, self.b_real.dtype
+            size, n, real = self.padded, self.n, self.b.dtype
             buffers = self._local.buffers = (np.zeros((STAMP_CHUNK, size, size), self.dtype),
                                              np.zeros((STAMP_CHUNK, size, size), real),
                                              np.zeros((STAMP_CHUNK, n, n), real), np.zeros((STAMP_CHUNK, n, n), real))
@@ -135,7 +139,7 @@ class PupilRenderer:
         The defocus and the sub-pixel offset's tilt are added to the phase before ``exp(i phase)`` (one
         complex field, no separate tilt products), written straight into the padded spectra's buffer.
         """
-        real = self.b_real.dtype
+        real = self.b.dtype
         amplitude, phase = amplitude.astype(real), np.asarray(phase, dtype=float)
         curvature = np.zeros(len(phase)) if curvature_rad_m2 is None else np.asarray(curvature_rad_m2, dtype=float)
         theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
@@ -167,7 +171,7 @@ class PupilRenderer:
     def _integrate(self, grid: np.ndarray, psf: np.ndarray) -> np.ndarray:
         """Pixel energy fractions of the tilted pupil fields in ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]``
         zero), ``F <= STAMP_CHUNK``:
-        padded FFT, ``|.|^2`` into ``psf``, then ``B_y PSF B_x^T``."""
+        padded FFT, ``|.|^2`` into ``psf``, then ``B PSF B^T``."""
         n = self.n
         # the zero-padded FFTs in place in this thread's buffer (the same transforms of the same values, line by
         # line in the same order, as scipy's own padding): along x on the pupil's n rows, then along y
@@ -178,11 +182,9 @@ class PupilRenderer:
         grid[:, n:] = 0
         spectrum = sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
         squared_modulus(spectrum, psf)                                   # (F, L, L), up to delta^4/lambda^2
-        # stamp = Re(B_y PSF B_x^T), as real products frame by frame: every frame goes through the
-        # same fixed-size products whatever the batch, so results do not depend on how frames are grouped
-        along_x_re = np.matmul(psf, self.b_real_t)
-        along_x_im = np.matmul(psf, self.b_imag_t)
-        image = np.matmul(self.b_real, along_x_re) - np.matmul(self.b_imag, along_x_im)
+        # stamp = B PSF B^T frame by frame: every frame goes through the same fixed-size products whatever the
+        # batch, so results do not depend on how frames are grouped
+        image = np.matmul(self.b, np.matmul(psf, self.b_t))
         return image.astype(float) * (self.delta**2 / self.wavelength) ** 2 / self.area
 
 
