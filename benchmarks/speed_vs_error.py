@@ -27,9 +27,14 @@ afford, and prints each run's wall and CPU time beside its errors against that c
 Saves a Pareto plot (CPU time against centroid error, track-count error and detection probability) next to the
 printed table. The seed is fixed, so differences are the knobs' (plus the noise drawn
 differently where the knob changes the random streams: compare with the repeat of the
-faithful run at another seed, printed as ``seed 2``).
+faithful run at another seed, printed as ``seed 2``, and with two other draws of the optics' and
+pixels' noise, ``noise draw`` and ``noise draw 2``).
+
+``--scene FILE`` runs another scene the same way (e.g. ``examples/iss_pass.yaml``, the staring main job),
+as it is, without the event detector (no P_d); pick its rows with ``--rows``.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/speed_vs_error.py [--duration 1] [--plot speed_vs_error.png]
+    ... --scene examples/iss_pass.yaml --duration 4 --rows "seed 2" "noise draw" "render 500 Hz" --plot ''
 """
 
 from __future__ import annotations
@@ -54,14 +59,15 @@ GRAPH = Path(__file__).with_name("speed_vs_error.yaml")    # end_to_end.yaml as 
 #: the star statistics. Block random streams follow the seed and the block's name, so this variant renames the
 #: sensor and telescope sub-graphs (sensor -> sensor_b, telescope -> telescope_b) in a copy of the scene.
 NOISE_DRAW = "noise draw"
-RENAMED = {"sensor": "sensor_b", "telescope": "telescope_b"}
+RENAMED = ("sensor", "telescope")
 FAITHFUL = {"sensor/pixel.time_step_s": 1e-6, "telescope/optics.render_rate_hz": 2000,
             "telescope/optics.psf_path": "pupil_fft", "telescope/optics.screen_update": "extend",
             "sat.knot_step_s": 1.0}
 VARIANTS = [
     ("faithful", {}),
     ("seed 2", {"run.seed": 2}),
-    ("noise draw", {NOISE_DRAW: True}),
+    ("noise draw", {NOISE_DRAW: "b"}),
+    ("noise draw 2", {NOISE_DRAW: "c"}),
     ("dt 10 us", {"sensor/pixel.time_step_s": 1e-5}),
     ("dt 100 us", {"sensor/pixel.time_step_s": 1e-4}),
     ("render 1 kHz", {"telescope/optics.render_rate_hz": 1000}),
@@ -71,13 +77,20 @@ VARIANTS = [
     ("airy", {"telescope/optics.psf_path": "airy"}),
     ("regenerate", {"telescope/optics.screen_update": "regenerate"}),
     ("knots 10 s", {"sat.knot_step_s": 10.0}),
+    ("knots 60 s", {"sat.knot_step_s": 60.0}),
     ("auto", {"telescope/optics.psf_path": "auto"}),
     ("auto, no detector", {"telescope/optics.psf_path": "auto", "telescope/optics.detector": "null"}),
     ("defaults", {"telescope/optics.render_rate_hz": 1000, "telescope/optics.psf_path": "auto",
                   "sat.knot_step_s": 10.0}),
+    ("defaults at 500 Hz", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "auto",
+                            "sat.knot_step_s": 10.0}),
     ("fast", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "long_exposure",
               "sensor/pixel.time_step_s": 1e-5, "sat.knot_step_s": 10.0}),
+    # 500 Hz again on the noise draws' random numbers: compare with those rows (a paired second and third draw)
+    ("500 Hz, noise draw", {NOISE_DRAW: "b", "telescope/optics.render_rate_hz": 500}),
+    ("500 Hz, noise draw 2", {NOISE_DRAW: "c", "telescope/optics.render_rate_hz": 500}),
 ]
+FLOORS = ("seed 2", "noise draw", "noise draw 2")                      # the noise floors' rows
 TRACK_RADIUS_PX = 4.0
 BIN_NS = 50_000_000
 STAR_CENTROID_EVENTS = 5
@@ -172,23 +185,30 @@ def errors(run: dict, faithful: dict) -> dict:
             "star_centroid_px": star_centroid}
 
 
-def scene(settings: dict, renamed: bool = False) -> list[str]:
-    """``--set`` values for the scene's blocks (included as ``scene``); ``run.*`` stays as it is."""
+def scene(settings: dict, prefix: str = "scene/") -> list[str]:
+    """``--set`` values for the scene's blocks (included as ``scene`` in the benchmark graph; ``prefix`` ''
+    for a scene run as it is); a noise draw's renamed sub-graphs get their suffix; ``run.*`` stays as it is."""
+    suffix = settings.get(NOISE_DRAW)
+
     def key(k: str) -> str:
         head, _, rest = k.partition("/")
-        return "scene/" + (RENAMED.get(head, head) + "/" + rest if rest and renamed else k)
+        return prefix + (f"{head}_{suffix}/{rest}" if rest and suffix and head in RENAMED else k)
     return [f"{k if k.startswith('run.') else key(k)}={v}" for k, v in settings.items() if k != NOISE_DRAW]
 
 
-def renamed_graph(folder: Path) -> Path:
-    """A copy of the benchmark graph whose sensor and telescope sub-graphs have other names (:data:`NOISE_DRAW`)."""
-    text = GRAPH.with_name("end_to_end.yaml").read_text()
-    for old, new in RENAMED.items():
-        text = text.replace(f"as: {old}", f"as: {new}").replace(f" {old}.", f" {new}.")
-    (folder / "end_to_end.yaml").write_text(text)
-    graph = folder / GRAPH.name
-    graph.write_text(GRAPH.read_text())
-    return graph
+def renamed_graph(folder: Path, scene_file: Path, suffix: str, wrapped: bool) -> Path:
+    """A copy of the scene whose sensor and telescope sub-graphs are renamed with ``suffix`` (:data:`NOISE_DRAW`),
+    and of the benchmark graph around it where the scene is wrapped."""
+    text = scene_file.read_text()
+    for old in RENAMED:
+        text = text.replace(f"as: {old}", f"as: {old}_{suffix}").replace(f" {old}.", f" {old}_{suffix}.")
+    target = folder / suffix
+    target.mkdir(exist_ok=True)
+    (target / scene_file.name).write_text(text)
+    if not wrapped:
+        return target / scene_file.name
+    (target / GRAPH.name).write_text(GRAPH.read_text())
+    return target / GRAPH.name
 
 
 def main() -> None:
@@ -197,20 +217,28 @@ def main() -> None:
     parser.add_argument("--plot", default="speed_vs_error.png", help="Pareto plot to write (PNG)")
     parser.add_argument("--only", type=int, default=len(VARIANTS), help="run the first N combinations only")
     parser.add_argument("--rows", nargs="*", help="run only these combinations (names; the faithful one first)")
+    parser.add_argument("--scene", type=Path, help="run this scene as it is instead of the tracked pass with its "
+                                                   "detector (no P_d)")
+    parser.add_argument("--warm-s", type=float, default=0.1, help="a first run this long for the compiled caches "
+                                                                     "(0: none, e.g. where the satellite enters later) [s]")
     args = parser.parse_args()
+    wrapped = args.scene is None
+    scene_file = GRAPH.with_name("end_to_end.yaml") if wrapped else args.scene.resolve()
+    main_graph, prefix = (GRAPH, "scene/") if wrapped else (scene_file, "")
     variants = [v for v in VARIANTS[:args.only] if not args.rows or v[0] in ("faithful", *args.rows)]
-    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {GRAPH.name}, "
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {main_graph.name}, "
           f"{args.duration:g} s simulated per run; faithful: {FAITHFUL}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        run_cli(0.1, Path(tmp) / "warm.zarr", scene(FAITHFUL), GRAPH)                          # compiled caches
+        if args.warm_s:
+            run_cli(args.warm_s, Path(tmp) / "warm.zarr", scene(FAITHFUL, prefix), main_graph)  # compiled caches
         faithful = None
         for name, change in variants:
             settings = {**FAITHFUL, **change}
             store = Path(tmp) / f"{len(rows)}.zarr"
-            renamed = NOISE_DRAW in change
-            graph = renamed_graph(Path(tmp)) if renamed else GRAPH
-            timing = run_cli(args.duration, store, scene(settings, renamed), graph)
+            graph = (renamed_graph(Path(tmp), scene_file, change[NOISE_DRAW], wrapped) if NOISE_DRAW in change
+                     else main_graph)
+            timing = run_cli(args.duration, store, scene(settings, prefix), graph)
             stats = statistics(store, args.duration)
             faithful = faithful or stats
             rows.append((name, timing, stats, errors(stats, faithful)))
@@ -221,7 +249,8 @@ def main() -> None:
                   f"star events {stats['stars']['total']:6d} ({e['star_events']:+6.1%}, per star "
                   f"{e['star_count_rms']:5.1%} RMS)  star centroid {e['star_centroid_px']:5.2f} px", flush=True)
     print(f"load average at the end: {os.getloadavg()[0]:.2f}")
-    pareto(rows, args.plot)
+    if args.plot:
+        pareto(rows, args.plot)
 
 
 def pareto(rows, path: str) -> None:
@@ -234,12 +263,12 @@ def pareto(rows, path: str) -> None:
                            (axes[2], "p_d", "detection probability in the events alone [1]")):
         for name, timing, _, e in rows:
             value = e[key] if key == "p_d" else abs(e[key])
-            ax.scatter(timing["cpu_s"], value, color="C3" if name == "seed 2" else "C0")
+            ax.scatter(timing["cpu_s"], value, color="C3" if name in FLOORS else "C0")
             ax.annotate(name, (timing["cpu_s"], value), fontsize=7, xytext=(3, 3), textcoords="offset points")
         ax.set_xlabel("CPU time [s]")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    fig.suptitle("Speed against error, tracked LEO pass (red: the faithful run at another seed = noise floor)")
+    fig.suptitle("Speed against error, tracked LEO pass (red: the faithful run at another seed or noise draw = noise floor)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     print(f"Pareto plot: {path}")
