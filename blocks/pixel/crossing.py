@@ -33,6 +33,7 @@ from .fastmath import exp_, log_
 
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
 J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
+NO_STEP = np.int64(-1)                     # no step: a^j known for none (:func:`_g`)
 _NEWTON_STEPS = 12
 _ROUNDING = 1e-12                          # relative widening of the range of g against its rounding [1]
 
@@ -106,7 +107,7 @@ def comparator_input(j, c, d, log_a, delta, large=False):
 
 @jit
 def _reached(j, c, d, e, log_a, delta, level, upward, large):
-    g = c + relaxation(d, e, j * log_a, power(log_a, j), large) + delta * j
+    g = _g(j, c, d, e, log_a, delta, NO_STEP, 0.0, large)
     return g >= level if upward else g <= level
 
 
@@ -209,7 +210,7 @@ def first_crossing_known(j0, c, d, log_a, delta, theta_on, theta_off, horizon, l
     return j, polarity, j_max, retention, relaxed
 
 
-@inline
+@jit
 def _g(j, c, d, e, log_a, delta, j_known, known, large):
     """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits)."""
     return c + relaxation(d, e, j * log_a, known if j == j_known else power(log_a, j), large) + delta * j

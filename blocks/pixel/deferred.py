@@ -31,24 +31,27 @@ import numpy as np
 
 from .comparator import TOLERANCE
 from .crossing import power
-from .dense_loop import _prefetch
-from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y, _advance,
-                         relaxed_by)
+from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y,
+                         _advance, _fetch_row, relaxed_by)
 
 #: margin for rounding in the loop's closed forms [ln of current]; values are O(10), their rounding ~1e-14
 ROUNDING_MARGIN = 1e-9
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _cannot_fire(r, step, k, y_high, y_low, para_high, n_end, leak_dt, dt):
-    """Whether a pixel (state row ``r`` at ``step``) provably cannot fire before ``n_end`` under its
-    pending changes from index ``k`` of the suffix tables (see the module's bound)."""
-    high = max(r[L_], r[Y], y_high[k])
-    low = min(r[L_], r[Y], y_low[k])
-    drift = (leak_dt * r[NOISE_SCALE] + max(r[PARA], para_high[k]) * dt) * r[TH_ON]
-    rise = high - r[M_] + drift * max(n_end - 1 - step, 0)
-    fall = low - r[M_]
-    return rise < r[TH_ON] - TOLERANCE - ROUNDING_MARGIN and fall > -(r[TH_OFF] - TOLERANCE) + ROUNDING_MARGIN
+def _cannot_fire(real, p, step, k, y_high, y_low, para_high, n_end, leak_dt, dt):
+    """Whether pixel ``p`` (state row ``real[p]`` at ``step``) provably cannot fire before ``n_end`` under its
+    pending changes from index ``k`` of the suffix tables (see the module's bound).
+
+    Reads the table in place: a row view per pixel (``real[p]``) costs two atomic reference counts, for
+    every pixel of the sensor each window."""
+    filtered, y, memorised, th_on = real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON]
+    high = max(filtered, y, y_high[k])
+    low = min(filtered, y, y_low[k])
+    drift = (leak_dt * real[p, NOISE_SCALE] + max(real[p, PARA], para_high[k]) * dt) * th_on
+    rise = high - memorised + drift * max(n_end - 1 - step, 0)
+    fall = low - memorised
+    return rise < th_on - TOLERANCE - ROUNDING_MARGIN and fall > -(real[p, TH_OFF] - TOLERANCE) + ROUNDING_MARGIN
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
@@ -77,8 +80,8 @@ def select_pixels(real, count, next_step, applied, touched, changed, n_end, base
         busy = own or next_step[p] < n_end
         behind = (not under) and applied[p] < end
         if behind and not busy:
-            busy = not defer or not _cannot_fire(real[p], count[p, STEP], applied[p] - base, y_high, y_low, para_high, n_end,
-                                    leak_dt, dt)
+            busy = not defer or not _cannot_fire(real, p, count[p, STEP], applied[p] - base, y_high, y_low, para_high,
+                                                 n_end, leak_dt, dt)
         if busy:
             pixels[m] = p
             takes[m] = behind
@@ -99,17 +102,6 @@ def take_quietly_reference(real, count, pixels, lo, end, steps, inputs, leak_hz,
             _advance(r, c, steps[k] - 1, leak_hz, dt, large)
             row = inputs[k]
             r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
-
-
-_AHEAD = 8                 # pixels whose state rows are fetched ahead of their turn (scattered rows: memory latency)
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _fetch_row(real, count, pixel):
-    """Ask for a pixel's state rows ahead of use (no effect on results)."""
-    _prefetch(real, pixel, 0)
-    _prefetch(real, pixel, real.shape[1] - 1)
-    _prefetch(count, pixel, 0)
 
 
 # fields of the pixels swept together by take_quietly (rows of its table)

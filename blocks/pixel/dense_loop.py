@@ -30,16 +30,12 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from llvmlite import ir
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
 
 from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing, stays_in_band
 from .comparator import TOLERANCE
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_into, drive_log, drive_rest
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
-                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _settle_step, relaxed_by, run_pixel)
+                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _prefetch, _settle_step, relaxed_by, run_pixel)
 
 TILE = 128                   # pixels swept together (64: ~5 % more CPU, 256: the same)
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
@@ -50,22 +46,6 @@ _FIRST, _ONE = np.int64(0), np.int64(1)     # run_pixel's bounds typed int64, no
  F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
 (I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
 jit = numba.njit(cache=True, error_model="numpy")
-
-
-@intrinsic
-def _prefetch(typingctx, array, row, column):
-    """Ask the CPU to bring ``array[row, column]`` into its caches (LLVM's ``prefetch``; no effect on results)."""
-    def codegen(context, builder, signature, args):
-        array_type = signature.args[0]
-        pointer = cgutils.get_item_pointer(context, builder, array_type,
-                                           context.make_array(array_type)(context, builder, args[0]),
-                                           [args[1], args[2]], wraparound=False)
-        byte_pointer, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
-        signature_ir = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
-        function = cgutils.get_or_insert_function(builder.module, signature_ir, "llvm.prefetch.p0i8")
-        builder.call(function, [builder.bitcast(pointer, byte_pointer), i32(0), i32(3), i32(1)])   # read, keep, data
-        return context.get_dummy_value()
-    return types.void(array, row, column), codegen
 
 
 @jit

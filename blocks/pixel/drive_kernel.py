@@ -68,8 +68,9 @@ def drive_one(flux, k, square_law):
 
     ``square_law``: ``k[SQUARE_LAW] != 0``, the power cutoff law with exponent 1/2, whose
     ``(x / x_sat)^(1/2) f_max`` is ``sqrt(x f_max^2 / x_sat)`` (one rounding instead of an ``exp``
-    of a logarithm); a loop over pixels passes it as a constant (two versions of the loop), so
-    that the other is not computed. In three stages (:func:`drive_log`, :func:`drive_cutoff`,
+    of a logarithm); a loop over pixels passes it as a constant (the dense sweep: two versions of
+    its loop) or a flag the compiler takes out of the loop (:func:`drive_rows`), so that the other
+    is not computed. In three stages (:func:`drive_log`, :func:`drive_cutoff`,
     :func:`drive_rest`), which a loop over pixels may take in three loops: short loops overlap
     more pixels' work.
     """
@@ -129,16 +130,11 @@ def drive_rows(flux, k, rows):
     """:func:`drive_into` for every flux of ``flux``, into the rows of ``rows`` (the same bits: tested).
 
     In :func:`drive_one`'s three stages, each a loop over the fluxes that the compiler vectorises.
+    ``square_law`` is a run-time flag here, not a constant: the compiler takes its test out of the
+    loop (as fast as a copy of the loop per value, measured), and one loop is compiled instead of two
+    (4.0 -> 1.4 s CPU cold, ``benchmarks/pixel_compile.py``).
     """
-    if k[SQUARE_LAW] != 0.0:
-        _drive_rows_law(flux, k, rows, True)
-    else:
-        _drive_rows_law(flux, k, rows, False)
-
-
-@inline
-def _drive_rows_law(flux, k, rows, square_law):
-    """:func:`drive_rows` with ``square_law`` a constant."""
+    square_law = k[SQUARE_LAW] != 0.0
     n = flux.size
     x, log_x = np.empty(n), np.empty(n)
     for i in range(n):

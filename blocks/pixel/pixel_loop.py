@@ -30,10 +30,14 @@ import math
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from .comparator import TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import NEVER, first_crossing_known, large_weight, power, relaxation
+from .crossing import NEVER, band_holds, first_crossing_known, large_weight, power, relaxation, relaxed_at
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -44,10 +48,37 @@ COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count",
 (FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, NOISE_SCALE, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
 (STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT, OWED) = range(len(COUNT))
 GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
+LATER = NEVER + np.int64(1)                      # "no comparator event before the pixel's next change or event"
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
+_AHEAD = 8                                       # pixels whose state rows are fetched ahead of their turn
 jit = numba.njit(cache=True, error_model="numpy")
 inline = numba.njit(cache=True, error_model="numpy", inline="always")    # so that loops over pixels vectorise
+
+
+@intrinsic
+def _prefetch(typingctx, array, row, column):
+    """Ask the CPU to bring ``array[row, column]`` into its caches (LLVM's ``prefetch``; no effect on results)."""
+    def codegen(context, builder, signature, args):
+        array_type = signature.args[0]
+        pointer = cgutils.get_item_pointer(context, builder, array_type,
+                                           context.make_array(array_type)(context, builder, args[0]),
+                                           [args[1], args[2]], wraparound=False)
+        byte_pointer, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        signature_ir = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
+        function = cgutils.get_or_insert_function(builder.module, signature_ir, "llvm.prefetch.p0i8")
+        builder.call(function, [builder.bitcast(pointer, byte_pointer), i32(0), i32(3), i32(1)])   # read, keep, data
+        return context.get_dummy_value()
+    return types.void(array, row, column), codegen
+
+
+@inline
+def _fetch_row(real, count, pixel):
+    """Ask for a pixel's state rows ahead of use (no effect on results): scattered rows wait on memory."""
+    _prefetch(real, pixel, 0)
+    _prefetch(real, pixel, real.shape[1] - 1)
+    _prefetch(count, pixel, 0)
+    _prefetch(count, pixel, count.shape[1] - 1)
 
 
 @jit
@@ -113,6 +144,29 @@ def _schedule(r, c, t_change, leak_dt, dt, large):
     """:func:`next_crossing_known` of the pixel with state rows ``r``, ``c``: ``(step, j, a^j, relaxation)``."""
     return next_crossing_known(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
                                r[NOISE_SCALE], t_change, leak_dt, dt, large)
+
+
+@jit
+def _schedule_before(r, c, t_change, last, leak_dt, dt, large):
+    """:func:`_schedule` where only a crossing up to step ``last`` can be used: ``LATER`` without the search
+    when the bound (:func:`.crossing.band_holds`) shows none up to ``last``.
+
+    ``last`` is the last step at which :func:`run_pixel` would act on the crossing before something
+    else happens to the pixel (its next input change, shot-noise trial, settling step or the window's
+    end), after which it schedules the pixel again; a ``LATER`` left at the end of the call is replaced
+    by :func:`_schedule`'s search with the same state, so the stored schedule and the events are the
+    same. ``(j, a^j, relaxation)`` are the bound's, as in :func:`_schedule`.
+    """
+    step = c[STEP]
+    j_max = max(last - step, c[READY] - step, np.int64(1))
+    log_a, y, th_on = r[LOG_A], r[Y], r[TH_ON]
+    d = r[L_] - y
+    retention = power(log_a, j_max)
+    relaxed = relaxed_at(j_max, retention, d, log_a, large)
+    drift = (leak_dt * r[NOISE_SCALE] + r[PARA] * dt) * th_on
+    if band_holds(j_max, retention, relaxed, y - r[M_], d, log_a, drift, th_on - TOLERANCE, r[TH_OFF] - TOLERANCE):
+        return LATER, j_max, retention, relaxed
+    return _schedule(r, c, t_change, leak_dt, dt, large)
 
 
 @inline
@@ -284,9 +338,12 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
             t_change = change_step[ptr] if ptr < end else NEVER
         else:
             break
-        cmp_next, j_known, known, relaxed = _schedule(r, c, t_change, leak_dt, dt, large)
+        last = min(t_change - 1, n_end - 1, c[SHOT_NEXT], _settle_step(c))
+        cmp_next, j_known, known, relaxed = _schedule_before(r, c, t_change, last, leak_dt, dt, large)
         if ptr == stop:
             break
+    if cmp_next == LATER:               # the stored schedule is the search's (the pixel's next call starts from it)
+        cmp_next = _schedule(r, c, t_change, leak_dt, dt, large)[0]
     c[CMP_NEXT] = cmp_next
     return n_events, lost, True
 
@@ -308,6 +365,8 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
     saved_r = np.empty(real.shape[1])
     saved_c = np.empty(count.shape[1], np.int64)
     for i in range(pixels.size):
+        if i + _AHEAD < pixels.size:
+            _fetch_row(real, count, pixels[i + _AHEAD])
         pixel = pixels[i]
         r, c = real[pixel], count[pixel]
         n_events, lost, done = run_pixel(r, c, pixel, change_lo[i], change_hi[i], change_hi[i] + 1, change_step,
