@@ -457,7 +457,7 @@ class PathChooser:
         offset = np.zeros((1, 2))
         least, most = REFERENCE_PROBE_FRAMES
         tolerance = imager.tolerance
-        verdict = pupil_verdict([], scintillation, tolerance)
+        verdict = pupil_verdict([], scintillation, tolerance, (least, most))
         if verdict is not None:
             return [], verdict
 
@@ -476,10 +476,10 @@ class PathChooser:
             while True:
                 done = len(measured) // 2
                 batch = ((least + 1) // 2 - done if len(measured) < least
-                         else min(threads, (most - len(measured)) // 2))
+                         else min(threads, (most - len(measured) + 1) // 2))
                 for values in pool.map(distances, range(done, done + batch)):
                     measured.extend(values)
-                    verdict = pupil_verdict(measured, scintillation, tolerance)
+                    verdict = pupil_verdict(measured, scintillation, tolerance, (least, most))
                     if verdict is not None:
                         return measured, verdict
 
