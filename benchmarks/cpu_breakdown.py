@@ -7,7 +7,7 @@ call's own, and prints the medians over ``--repeats`` runs of:
 * fixed costs: importing the command line, loading the graph (which imports the blocks it names),
   the compiled code's load from Numba's cache (every first call of a compiled function), the pixels'
   start;
-* each block's steps, and within the optics: the path choice's reference probes (``pupil_error``),
+* each block's steps, and within the optics: the path choice's reference probes (``pupil_estimate``),
   the analytic-path probes, pupil-path PSFs (phase screens, stamps), analytic (long-exposure) stamps;
 * the store's writes and commits (the executor's ``(store)``; no checkpoint before the end, as in a run
   shorter than ``evsda run``'s 30 s between checkpoints) and what is left (executor, finishing).
@@ -77,7 +77,7 @@ t = clock()
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
 spent["load the graph (imports its blocks)"] = clock() - t
 parts = {"optics": ("evsda.blocks.optics", [
-            ("paths", "PathChooser", "pupil_error", "  reference probes (pupil_fft vs Fresnel)"),
+            ("paths", "PathChooser", "pupil_estimate", "  reference probes (pupil_fft vs Fresnel)"),
             ("paths", "PathChooser", "_probe", "  all path-choice probes"),
             ("pupil_path", "PupilPath", "turbulent_phase", "  pupil path: phase screens"),
             ("render", "PupilRenderer", "stamps", "  pupil path: stamps (FFT PSFs)"),
