@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .layer_screen import LayerScreen
+from .layer_screen import LayerScreen, accumulate_layers
 from .modal_screen import ModalScreen, pupil_modes
 
 if TYPE_CHECKING:
@@ -69,15 +69,18 @@ class PupilPath:
         epochs = self.imager.epochs_of(t_s)
         if self.screen_method == "zernike":
             return self._modal_phase(source, t_s, sight, zenith_rad, range_m, epochs)
+        walked = [], [], [], []
         for layer, screen in zip(self.imager.atmosphere.layers, self._layer_screens(source)):
             if layer.cn2_dh <= 0:
                 continue
             centre, scale = self.imager.footprints(layer, t_s, sight, np.where(turbulent, zenith_rad, 0.0), range_m)
-            rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
-            cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
+            walked[0].append(screen)
+            walked[1].append((centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta)     # rows
+            walked[2].append((centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta)     # cols
             # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
             weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
-            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase_t)
+            walked[3].append(np.where(turbulent, weight, 0.0))
+        accumulate_layers(*walked[:3], epochs, walked[3], phase_t)
         return phase_t.transpose(0, 2, 1)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:
