@@ -236,7 +236,7 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     # another thread give the same bits, and its one-pass |.|^2 is numpy's real**2 + imag**2 bit for bit
     import threading
 
-    from evsda.blocks.optics.render import squared_modulus, tilted_phase
+    from evsda.blocks.optics.render import pupil_field, squared_modulus, tilted_phase
 
     telescope = Telescope(0.2, 0.0)
     renderer = PupilRenderer(StampSampler(7, 4.86e-6, 10), 42, 0.005, 550e-9, telescope.collecting_area_m2)
@@ -261,11 +261,21 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     ky, kx, x = rng.standard_normal(37) * 1e3, rng.standard_normal(37) * 1e3, renderer.x
     curvature = rng.uniform(0, 1e4, 37)
     defocused = phase + curvature[:, None, None] * renderer.r2[None]
-    expected = (defocused + ky[:, None, None] * x[None, :, None] + kx[:, None, None] * x[None, None, :]).astype(np.float32)
+    expected = (defocused + ky[:, None, None] * x[None, :, None]
+                + kx[:, None, None] * x[None, None, :]).astype(np.float32)
     for given in (phase, np.ascontiguousarray(phase.transpose(0, 2, 1)).transpose(0, 2, 1)):
         tilted = np.empty(phase.shape, np.float32)
         tilted_phase(given, curvature, renderer.r2, ky, kx, x, tilted)
         np.testing.assert_array_equal(tilted, expected)
+    # and its one-pass field is numpy's complex product with the real amplitude, the padding zeroed
+    grid = np.full((37, 50, 50), 7 + 7j, np.complex64)
+    cosine, sine = np.cos(tilted), np.sin(tilted)
+    for given in (amplitude.astype(np.float32)[None], rng.uniform(0, 1, (37, 42, 42)).astype(np.float32)):
+        pupil_field(given, cosine, sine, grid)
+        field = (cosine + 1j * sine).astype(np.complex64)
+        field *= given
+        np.testing.assert_array_equal(grid[:, :42, :42], field)
+        np.testing.assert_array_equal(grid[:, :42, 42:], 0)
 
 
 def test_stamp_width_by_bisection_is_the_searchsorted_over_every_radius():

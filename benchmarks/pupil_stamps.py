@@ -1,0 +1,160 @@
+"""Pupil-path stamps at the tracked pass's geometry (issue 13): where a stamp's CPU goes, and the MFT alternative.
+
+The geometry is the one benchmarks/end_to_end.yaml's optics log (``evsda -v run``): a 40 x 40 pupil of
+5.26 mm samples (astrograph 200 mm, obscuration 0.4), 568 nm, 7 x 7 stamps of 12.15 urad pixels, so the padded FFT is
+80 x 80 and the stamp spans 79 % of the image's period ``lambda / delta``. Turbulent phases come from
+FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1 kHz does. Prints, per PSF
+(CPU time, medians over ``--repeats`` alternated rounds, one thread):
+
+* ``PupilRenderer.stamps`` whole (phase to pixel energies);
+* its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time);
+* a matrix Fourier transform (Soummer et al. 2007, Opt. Express 15, 15935) onto the same 80 x 80
+  samples, the fewest that give an exact pixel integral (the intensity's 2n - 1 Fourier lags per
+  axis): two complex64 products per PSF, 16 PSFs in one call for the first;
+* the pixel-integration products ``B PSF B^T`` alone.
+
+``--profile`` adds where ``stamps()``'s time goes: cProfile (CPU clock) over 50 calls, each function's own time
+per PSF (the profiler adds ~1 us per call it sees, ~1 us a PSF here).
+
+``--against DIR`` adds, alternated, the same frames through another checkout's ``blocks/optics/render.py``
+from the screens' transposed sum on: a renderer without the defocus argument gets the former steps (a
+transposing copy, the defocus array added, then ``stamps``); one in four calls has a satellite's defocus.
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pupil_stamps.py [--repeats 7] [--profile] [--against DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import hashlib
+import importlib.util
+import inspect
+import os
+import pstats
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.fft as sfft
+
+from evsda.blocks.optics.fft_screens import fft_phase_screens
+from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler
+from evsda.blocks.optics.telescope import Telescope
+
+N_PUPIL, DELTA_M, WAVELENGTH_M, PIXEL_RAD, STAMP = 40, 0.2 / 38, 568.3e-9, 12.15e-6, 7
+FRAMES = 100
+
+
+def per_psf_us(work, frames: int) -> float:
+    start = time.process_time()
+    work()
+    return (time.process_time() - start) / frames * 1e6
+
+
+def render_module(checkout: Path):
+    """``blocks/optics/render.py`` of another checkout, imported on its own (Numba caches kept apart)."""
+    path = (checkout / "blocks" / "optics" / "render.py").resolve()
+    os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(os.environ.get("TMPDIR", "/tmp")) / "pupil_stamps_numba"))
+    name = "render_" + hashlib.md5(str(path).encode()).hexdigest()[:8]
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def pupil_path_render(renderer, amplitude, phase_t, offsets, curvature, r2):
+    """The pupil path from the screens' transposed sum (F, x, y) to stamps, with ``renderer``'s own steps."""
+    if "curvature_rad_m2" in inspect.signature(renderer.stamps).parameters:
+        return renderer.stamps(amplitude, phase_t.transpose(0, 2, 1), offsets, curvature)
+    phase = np.ascontiguousarray(phase_t.transpose(0, 2, 1))
+    phase += curvature[:, None, None] * r2[None]
+    return renderer.stamps(amplitude, phase, offsets)
+
+
+def profile(renderer, amplitude, phase, offsets, calls: int = 50) -> None:
+    """Each function's own CPU time per PSF inside ``stamps()`` (numpy's ufuncs and BLAS count in their caller)."""
+    profiler = cProfile.Profile(time.process_time)
+    profiler.enable()
+    for _ in range(calls):
+        renderer.stamps(amplitude, phase, offsets)
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats
+    rows = sorted(((own, f"{Path(file).name}:{name}" if line else name) for (file, line, name), (_, _, own, _, _)
+                   in stats.items()), reverse=True)
+    print(f"where stamps() goes (cProfile, own time per PSF over {calls} calls of {len(phase)} frames):")
+    for own, name in rows[:10]:
+        print(f"  {name:60s} {own / (calls * len(phase)) * 1e6:6.2f} us")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=7, help="alternated rounds (medians)")
+    parser.add_argument("--profile", action="store_true", help="each function's own time in stamps()")
+    parser.add_argument("--against", type=Path, help="another checkout: its pupil path from the screens' sum on")
+    args = parser.parse_args()
+    telescope = Telescope(0.2, 0.4)                                     # library:telescopes/astrograph_200mm.yaml
+    renderer = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
+                             telescope.collecting_area_m2)
+    amplitude = telescope.pupil(N_PUPIL, DELTA_M)
+    rng = np.random.default_rng(1)
+    phase = np.concatenate([fft_phase_screens(rng, 2 * N_PUPIL, DELTA_M, 0.07)[0][None, :N_PUPIL, :N_PUPIL]
+                            for _ in range(FRAMES)])
+    offsets = rng.uniform(-0.5, 0.5, (FRAMES, 2))
+    n, size, chunk = N_PUPIL, renderer.padded, STAMP_CHUNK
+    field = (amplitude * np.exp(1j * phase[:chunk])).astype(np.complex64)
+    grid = np.zeros((chunk, size, size), np.complex64)
+    psf = np.abs(sfft.fft2(np.pad(field, ((0, 0), (0, size - n), (0, size - n))))).astype(np.float32) ** 2
+    lags = np.arange(size)
+    w = np.exp(-2j * np.pi * np.outer(lags, np.arange(n) - n // 2) / size).astype(np.complex64)   # (L, n)
+    w_t = np.ascontiguousarray(w.T)
+
+    def fft():
+        grid[:, :n, :n] = field
+        grid[:, :n, n:] = 0
+        sfft.fft(grid[:, :n], axis=-1, workers=1, overwrite_x=True)
+        grid[:, n:] = 0
+        sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
+
+    def mft():
+        along_x = (field.reshape(chunk * n, n) @ w_t).reshape(chunk, n, size)
+        return np.matmul(w, along_x)
+
+    phase_t = np.ascontiguousarray(phase.transpose(0, 2, 1))
+    curvature = np.pi / WAVELENGTH_M * np.where(np.arange(FRAMES) % 4 == 0, 1 / 7.4e5, 0.0)
+    cases = {"stamps() whole": (lambda: renderer.stamps(amplitude, phase, offsets), FRAMES),
+             "pupil path from the screens' sum": (lambda: pupil_path_render(renderer, amplitude, phase_t, offsets,
+                                                                             curvature, renderer.r2), FRAMES),
+             "padded FFTs alone": (fft, chunk),
+             "MFT onto the same samples": (mft, chunk),
+             "products B PSF B^T alone": (lambda: np.matmul(renderer.b, np.matmul(psf, renderer.b_t)), chunk)}
+    if args.against:
+        module = render_module(args.against)
+        other = module.PupilRenderer(module.StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
+                                     telescope.collecting_area_m2)
+        cases[f"  the same, {args.against}"] = (lambda: pupil_path_render(other, amplitude, phase_t, offsets,
+                                                                           curvature, renderer.r2), FRAMES)
+        mine, theirs = cases["pupil path from the screens' sum"][0](), cases[f"  the same, {args.against}"][0]()
+        print(f"largest stamp difference {np.abs(mine - theirs).max() / theirs.max():.2g} of the peak")
+    for work, _ in cases.values():
+        work()                                                          # first calls: Numba's cache, plans
+    times = {name: [] for name in cases}
+    loads = []
+    for _ in range(args.repeats):
+        loads.append(os.getloadavg()[0])
+        for name, (work, frames) in cases.items():
+            times[name].append(statistics.median(per_psf_us(work, frames) for _ in range(20)))
+    print(f"pupil {n}^2, FFT {size}^2, stamps {STAMP}^2, one thread; medians of {args.repeats} rounds, "
+          f"load {statistics.median(loads):.1f}")
+    for name, values in times.items():
+        print(f"  {name:40s} {statistics.median(values):6.1f} us per PSF")
+    if args.profile:
+        profile(renderer, amplitude, phase, offsets)
+
+
+if __name__ == "__main__":
+    main()
+
