@@ -46,6 +46,9 @@ class PointSourceOptics(Block):
         obscuration: float = Field(0.0, ge=0, lt=0.95,
                                    description="Central obscuration diameter over the aperture diameter [1]")
         throughput: float = Field(1.0, gt=0, le=1, description="Optical transmission of the telescope [1]")
+        # 1 kHz: within the noise floor of 2 kHz on the tracked LEO pass and the staring main job; 500 Hz loses
+        # 2-16 % of the satellite's events in every noise draw (its PSF hops ~1 pixel per sample on a stare, and
+        # the tracked ISS's speckle decorrelates in ~1 ms): docs/speed.md, "Speed against error"
         render_rate_hz: float = Field(1000.0, gt=0, le=1e6, description="Rate of rendered PSF samples [Hz]")
         psf_path: Literal["auto", "airy", "long_exposure", "pupil_fft", "reference"] = Field(
             "auto", description="PSF path; 'auto' picks the cheapest whose error is within tolerance [-]")

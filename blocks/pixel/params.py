@@ -15,6 +15,8 @@ class DvsPixelParams(BlockParams):
     implementation: Literal["fast", "reference"] = Field(
         "fast", description="'fast': event-driven, exact on the time grid, for full sensors; 'reference': dense "
                             "time stepping exactly as the paper writes it, for small sensors and checks [-]")
+    # 1 us: the event-driven pixels cost per event and input change, not per step, so 10 us is no cheaper
+    # (and 100 us moves streaking stars' counts by 10 % per star): docs/speed.md, "Speed against error"
     time_step_s: float = Field(1e-6, gt=0, le=0.1, description="Pixel time step dt; event times are multiples of it "
                                                                "(rounded to whole nanoseconds) [s]")
     # photoreceptor (Eq. 12-14)

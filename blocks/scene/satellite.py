@@ -57,6 +57,8 @@ class Satellite(Block):
     class Params(BlockParams):
         cadence_s: float = Field(1e-3, ge=1e-6, le=10, description="Sample spacing of the positions and fluxes "
                                   "(at least 1 us, the events' time resolution) [s]")
+        # 10 s: the cubic Hermite error for a LEO orbit is h^4/384 omega^4 r = 0.3 mm (0.4 m at 60 s, which is within
+        # the noise floor but saves no measurable CPU): docs/speed.md, "Speed against error"
         knot_step_s: float = Field(10.0, ge=0.1, le=600, description="Spacing of the Skyfield evaluations that "
                                    "are interpolated to the cadence [s]")
         shape: Literal["sphere", "plate", "facets"] = Field("sphere", description="Reflector model: Lambertian "
