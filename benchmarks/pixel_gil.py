@@ -7,7 +7,11 @@ with a CPU-time clock, and prints, per window: the block's CPU (every thread), t
 calls on its own thread (``nogil``: they run beside other blocks' steps), and the rest, held under the
 GIL, with its largest items. The events' digest is printed to compare versions.
 
-    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2]
+``--inputs FILE`` keeps the captured inputs in FILE (pickled; read back if it exists), so that versions
+of the pixel code are stepped over the same inputs without running the pass again; ``--no-profile``
+prints the block's CPU per window (``EVSDA_THREADS=1``: the process's, one thread) without cProfile.
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2] [--inputs F] [--no-profile]
 """
 
 from __future__ import annotations
@@ -16,6 +20,8 @@ import argparse
 import cProfile
 import copy
 import hashlib
+import os
+import pickle
 import pstats
 import tempfile
 import time
@@ -53,14 +59,24 @@ def pixel_inputs(duration_s: float) -> tuple[pixel_block.DvsPixel, list]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=2.0, help="simulated seconds of the pass [s]")
+    parser.add_argument("--inputs", type=Path, help="pickle of the captured inputs: written if absent, else read")
+    parser.add_argument("--no-profile", action="store_true", help="CPU per window only, without cProfile")
     args = parser.parse_args()
-    block, inputs = pixel_inputs(args.duration)
+    if args.inputs is not None and args.inputs.exists():
+        with open(args.inputs, "rb") as f:
+            block, inputs = pickle.load(f)
+    else:
+        block, inputs = pixel_inputs(args.duration)
+        if args.inputs is not None:
+            with open(args.inputs, "wb") as f:
+                pickle.dump((block, inputs), f, protocol=5)
     digest = hashlib.sha256()
     window, irradiance = inputs[0]
     block.step(window, irradiance=irradiance)                    # start-up and compiled loops' load, not timed
     profile = cProfile.Profile(time.process_time)
     cpu = time.process_time()
-    profile.enable()
+    if not args.no_profile:
+        profile.enable()
     for window, irradiance in inputs[1:]:
         events = block.step(window, irradiance=irradiance)["events"]
         for name in ("t_ns", "x", "y", "p", "cause"):
@@ -69,6 +85,11 @@ def main() -> None:
     profile.disable()
     cpu = time.process_time() - cpu
     n = len(inputs) - 1
+    if args.no_profile:
+        load = os.getloadavg()
+        print(f"pixel block, {n} windows after the first: {cpu / n * 1e3:.1f} ms CPU a window (not profiled; "
+              f"load {load[0]:.1f}); events' digest {digest.hexdigest()[:16]}")
+        return
     kernels, held = {}, []
     for (path, _, name), (_, _, own_s, _, _) in pstats.Stats(profile).stats.items():
         if name in KERNELS:

@@ -202,12 +202,20 @@ def first_crossing_known(j0, c, d, log_a, delta, theta_on, theta_off, horizon, l
     that relaxes the pixel by ``j_max`` steps next takes them from there (the same bits)."""
     horizon = min(horizon, J_LIMIT)
     j_max = max(horizon, j0)
-    retention = power(log_a, j_max)
-    relaxed = relaxed_at(j_max, retention, d, log_a, large)
-    if band_holds(j_max, retention, relaxed, c, d, log_a, delta, theta_on, theta_off):
+    holds, retention, relaxed = band_bound(j_max, c, d, log_a, delta, theta_on, theta_off, large)
+    if holds:
         return NEVER, 0, j_max, retention, relaxed
     j, polarity = search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_max, retention, large)
     return j, polarity, j_max, retention, relaxed
+
+
+@jit
+def band_bound(j_max, c, d, log_a, delta, theta_on, theta_off, large):
+    """``(holds, a^j_max, relaxation)``: :func:`band_holds` at ``j_max`` with the retention and relaxation it
+    takes (:func:`relaxed_at`), compiled once for its callers."""
+    retention = power(log_a, j_max)
+    relaxed = relaxed_at(j_max, retention, d, log_a, large)
+    return band_holds(j_max, retention, relaxed, c, d, log_a, delta, theta_on, theta_off), retention, relaxed
 
 
 @jit

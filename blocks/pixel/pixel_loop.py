@@ -37,7 +37,7 @@ from numba.extending import intrinsic
 
 from .comparator import TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import NEVER, band_holds, first_crossing_known, large_weight, power, relaxation, relaxed_at
+from .crossing import NEVER, band_bound, first_crossing_known, large_weight, power, relaxation
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -149,7 +149,7 @@ def _schedule(r, c, t_change, leak_dt, dt, large):
 @jit
 def _schedule_before(r, c, t_change, last, leak_dt, dt, large):
     """:func:`_schedule` where only a crossing up to step ``last`` can be used: ``LATER`` without the search
-    when the bound (:func:`.crossing.band_holds`) shows none up to ``last``.
+    when the bound (:func:`.crossing.band_bound`) shows none up to ``last``.
 
     ``last`` is the last step at which :func:`run_pixel` would act on the crossing before something
     else happens to the pixel (its next input change, shot-noise trial, settling step or the window's
@@ -159,12 +159,11 @@ def _schedule_before(r, c, t_change, last, leak_dt, dt, large):
     """
     step = c[STEP]
     j_max = max(last - step, c[READY] - step, np.int64(1))
-    log_a, y, th_on = r[LOG_A], r[Y], r[TH_ON]
-    d = r[L_] - y
-    retention = power(log_a, j_max)
-    relaxed = relaxed_at(j_max, retention, d, log_a, large)
+    y, th_on = r[Y], r[TH_ON]
     drift = (leak_dt * r[NOISE_SCALE] + r[PARA] * dt) * th_on
-    if band_holds(j_max, retention, relaxed, y - r[M_], d, log_a, drift, th_on - TOLERANCE, r[TH_OFF] - TOLERANCE):
+    holds, retention, relaxed = band_bound(j_max, y - r[M_], r[L_] - y, r[LOG_A], drift, th_on - TOLERANCE,
+                                           r[TH_OFF] - TOLERANCE, large)
+    if holds:
         return LATER, j_max, retention, relaxed
     return _schedule(r, c, t_change, leak_dt, dt, large)
 

@@ -1,0 +1,41 @@
+"""The comparator schedule a pixel keeps between calls is the crossing search's, not a bound's.
+
+``run_pixel`` searches for a pixel's next comparator crossing only where the result can be used before
+the pixel's next input change, shot-noise trial or the window's end (``pixel_loop._schedule_before``:
+elsewhere a bound shows no crossing). The step it stores (``CMP_NEXT``), which the next window, the
+deferral's choice of pixels, the dense path and checkpoints read, must still be the full search from
+the pixel's state, for every pixel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel.crossing import NEVER
+from evsda.blocks.pixel.pixel_loop import CMP_NEXT, LATER, _schedule
+from evsda.graph import RunInfo, Window
+
+WINDOW_S, WINDOWS = 0.02, 4
+
+
+@pytest.mark.parametrize("form", ["small_signal", "large_signal"])
+def test_stored_schedule_is_the_search_from_each_pixels_state(scenes, form):
+    fp = scenes.focal_plane(40, 12)
+    block = DvsPixel(seed=5, leak_rate_hz=20.0, shot_noise_rate_hz=20.0, lowpass_form=form)
+    block.setup(RunInfo(duration_ns=round(WINDOWS * WINDOW_S * 1e9)))
+    n_events = 0
+    for w in range(WINDOWS):
+        window = Window.from_seconds(w * WINDOW_S, (w + 1) * WINDOW_S, index=w)
+        t = scenes.grid(window.start_ns, window.stop_ns, 1_000_000)
+        # a streak, and a sky that changes at each window's start (changes the pixels take late)
+        irradiance = scenes.moving_spot(fp, t, background=2e3 * (1.0 - 0.01 * w), velocity=(400.0, 0.0))
+        n_events += len(block.step(window, irradiance=irradiance)["events"])
+    assert n_events > 100                                   # the streak and the noise fire: schedules were used
+    real, count = block.pixels["real"], block.pixels["count"]
+    leak_hz, dt, large = block._engine._constants[:3]
+    searched = np.array([_schedule(real[p], count[p].copy(), NEVER, leak_hz * dt, dt, large)[0]
+                         for p in range(count.shape[0])])
+    assert not np.any(count[:, CMP_NEXT] == LATER)
+    np.testing.assert_array_equal(count[:, CMP_NEXT], searched)
