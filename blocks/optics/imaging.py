@@ -294,17 +294,8 @@ class Imager:
 
     def footprints(self, layer, t_s, sight, zenith_rad, range_m):
         """Footprint centre on a layer (F, 2) (x, y) [m], ``h sight - v t`` (:meth:`sight`), and its scale (F,) [1]."""
-        centre, scale = self.footprints_of([layer], t_s, sight, zenith_rad, range_m)
-        return centre[0], scale[0]
-
-    @staticmethod
-    def footprints_of(layers, t_s, sight, zenith_rad, range_m):
-        """:meth:`footprints` on several layers at once: centres (L, F, 2) [m] and scales (L, F) [1]."""
-        altitude = np.array([layer.altitude_m for layer in layers], dtype=float)
-        wind = np.array([layer.wind_m_s for layer in layers], dtype=float).reshape(len(layers), 2)
-        t_s = np.asarray(t_s, dtype=float)
-        slant = altitude[:, None] / np.cos(zenith_rad)
-        centre = altitude[:, None, None] * np.asarray(sight, dtype=float)[None] - wind[:, None, :] * t_s[None, :, None]
+        slant = layer.altitude_m / np.cos(zenith_rad)
+        centre = layer.altitude_m * np.asarray(sight, dtype=float) - layer.wind_m_s[None, :] * t_s[:, None]
         scale = np.where(np.isfinite(range_m), 1.0 - slant / np.where(np.isfinite(range_m), range_m, 1.0), 1.0)
         return centre, scale
 

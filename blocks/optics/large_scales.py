@@ -56,8 +56,6 @@ RING_RATIO = 3.0
 SECTORS = 4
 #: positions ``p = STRIDE h + l``: the modes' cosines are tabulated at ``l`` once and computed at ``STRIDE h`` per read
 STRIDE = 16
-#: positions tabulated beyond those a walk asks for, each side, when a mode's phasor table is made anew [samples]
-TABLE_MARGIN = 256
 #: last word of a large-scale draw's seed (a screen's own draws end in a regeneration count, far below it)
 SEED_WORD = 0xFFFFFFFF
 
@@ -127,22 +125,7 @@ class LargeScales:
         within = np.multiply.outer(np.r_[self.wy, self.wx], np.arange(float(STRIDE)))   # phases within a stride
         cos, sin = np.cos(within), np.sin(within)
         k = len(self.wy)
-        self._low = ((cos[:k], sin[:k]), (cos[k:], sin[k:]))
-        self._tables: dict[int, tuple[int, np.ndarray, np.ndarray]] = {}
-
-    def phasors(self, axis: int, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, int]:
-        """``cos``, ``sin`` (K, count) of each mode's phase along ``axis`` (0: rows, y; 1: columns, x) at integer
-        positions from ``start`` (returned third) to past ``lo .. hi - 1`` [samples]: a table kept per axis and
-        made anew when a walk leaves it, wider each side by ``TABLE_MARGIN`` or the extent asked for, whichever
-        is more (its values are those at each position whatever the table's extent, :meth:`_phasors`)."""
-        start, cos, sin = self._tables.get(axis, (0, None, None))
-        if cos is None or lo < start or hi > start + cos.shape[1]:
-            margin = max(TABLE_MARGIN, int(hi) - int(lo))        # a fast walk's next frames lie that far on
-            start = int(lo) - margin
-            cos, sin = self._phasors(self.wx if axis else self.wy, self._low[axis], start,
-                                     int(hi) - int(lo) + 2 * margin)
-            self._tables[axis] = (start, cos, sin)
-        return cos, sin, start
+        self._low_y, self._low_x = (cos[:k], sin[:k]), (cos[k:], sin[k:])
 
     def add_to(self, coefficients: np.ndarray, top: int, left: int) -> np.ndarray:
         """``coefficients`` (an array whose first sample is at absolute (``top``, ``left``)) plus the modes' B-spline
@@ -156,14 +139,10 @@ class LargeScales:
         row ``r`` from column ``first[r]`` to ``stop[r]`` (exclusive), the coefficients plus the modes' B-spline
         coefficients, and nothing defined elsewhere (the reads stay within those spans)."""
         height, width = coefficients.shape
+        cos_y, sin_y = self._phasors(self.wy, self._low_y, top, height)
+        cos_x, sin_x = self._phasors(self.wx, self._low_x, left, width)
         out = np.empty((height, width))
-        rows = np.flatnonzero(first < stop)
-        if not len(rows):
-            return out
-        cos_y, sin_y, y_start = self.phasors(0, top + rows[0], top + rows[-1] + 1)
-        cos_x, sin_x, x_start = self.phasors(1, left + first[rows].min(), left + stop[rows].max())
-        add_modes(coefficients, out, cos_y, sin_y, top - y_start, cos_x, sin_x, left - x_start, self.a, self.b, first,
-                  stop)
+        add_modes(coefficients, out, cos_y, sin_y, cos_x, sin_x, self.a, self.b, first, stop)
         return out
 
     @staticmethod

@@ -49,8 +49,7 @@ from scipy.ndimage import correlate1d
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_phase_screen_corners
 from .large_scales import SEED_WORD, LargeScales, split_outer_scale
-from .screen_kernels import (MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans, sample_grids_transposed,
-                             walk_layers, walk_segment)
+from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans, sample_grids_transposed
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -85,8 +84,8 @@ def _prefiltered(samples: np.ndarray) -> np.ndarray:
 def _fresh_stages(n: int, width: int) -> tuple[tuple[int, np.ndarray, np.ndarray, np.ndarray], ...]:
     """A fresh ``n``-row canvas ``width`` columns wide, grown right from its ``FULL_COLUMNS`` exact columns one
     conditional column at a time, in stages of one stencil each (it gains a column at 4, 8, 16, ...): each stage's
-    first column and its steps' window positions (rows, columns: the window's last column is the one before the
-    new) and sides, for :func:`.screen_kernels.extend_columns`."""
+    first column, and its steps' window positions (rows, columns) and sides for
+    :func:`.screen_kernels.extend_columns`."""
     stages, made = [], FULL_COLUMNS
     while made < width:
         stop = made + 1
@@ -197,137 +196,76 @@ class LayerScreen:
         self.walk(np.asarray(low, dtype=float)[None], np.asarray(high, dtype=float)[None],
                   np.array([epoch], dtype=np.int64))
 
-    def walk(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray, rows: np.ndarray | None = None,
-             cols: np.ndarray | None = None, weight: np.ndarray | None = None, out_t: np.ndarray | None = None) -> None:
+    def walk(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray, read=None) -> None:
         """Keep each box ``low[f] .. high[f]`` (F, 2) [delta] of epoch ``epochs[f]`` inside the window in turn.
 
-        With ``rows`` .. ``out_t`` (:meth:`accumulate`) each frame is read when the window holds it.
-        Coefficients are made once, in order, whatever the batching: the extensions between two
-        regenerations (a segment) take one draw of their noise and one compiled call
-        (:func:`.screen_kernels.walk_segment`), which makes them on canvases and reads the frames.
+        ``read(coefficients, top, left, first, stop)`` is called with a canvas holding the windows of
+        frames ``first .. stop - 1`` at their turn (its first sample at absolute (``top``, ``left``));
+        coefficients are made once, in order, whatever the batching.
         """
-        plan = self._plan(low, high, epochs)
-        if out_t is None:
-            rows = cols = np.empty((0, 1))
-            weight = np.empty(0)
-        self._walk_planned(plan, rows, cols, weight, out_t)
-
-    def _plan(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray) -> tuple:
-        """:func:`.screen_kernels.plan_walk` for boxes ``low .. high`` (F, 2) [delta] from the window as it is."""
         low = np.ascontiguousarray(low, dtype=float)
         high = np.ascontiguousarray(high, dtype=float)
-        plan = plan_walk(low, high, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN,
-                         self.update == "regenerate", self.origin.astype(np.int64), np.int64(self.epoch),
-                         self.coefficients is not None, CANVAS_STEPS)
-        if len(plan[0]) and plan[0][0] < 0:
+        kind, side, op_epoch, centre, before, frame_ops, starts = plan_walk(
+            low, high, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN, self.update == "regenerate",
+            self.origin.astype(np.int64), np.int64(self.epoch), self.coefficients is not None, CANVAS_STEPS)
+        if len(kind) and kind[0] < 0:
             span = np.max(high - low, axis=0)
             raise ValueError(f"a footprint of {span} samples does not fit a {self.n}-sample screen")
-        return plan
+        # frames [0, ready) need no operation; those up to the end of each canvas's operations read it
+        ready = int(np.searchsorted(frame_ops, 0, side="right"))
+        if read is not None and ready:
+            read(self.coefficients, int(self.origin[0]), int(self.origin[1]), 0, ready)
+        for a, b in zip(starts[:-1], starts[1:]):
+            first = a
+            if kind[a] == REGENERATE:
+                self.regenerate(centre[a], int(op_epoch[a]))
+                first = a + 1
+            canvas, corner = self._extend(side[first:b], before[first:b])
+            stop = int(np.searchsorted(frame_ops, b, side="right"))
+            if read is not None and stop > ready:
+                read(canvas, int(corner[0]), int(corner[1]), ready, stop)
+            ready = stop
 
-    def _walk_planned(self, plan: tuple, rows, cols, weight, out_t) -> None:
-        """The walk ``plan`` (:meth:`_plan`), segment by segment; frames read into ``out_t`` unless it is None."""
-        kind, side, op_epoch, centre, before, frame_ops, starts = plan
-        read = out_t is not None
-        if not read:
-            out_t = np.empty((0, 1, 1))
-        canvases = len(starts) - 1
-        # segments of canvases: each after the first starts with a regeneration
-        begins = [i for i in range(canvases) if i == 0 or kind[starts[i]] == REGENERATE]
-        # frames needing no operation are read from the window first (before a regeneration at the walk's start)
-        ready = 0
-        if not canvases or (kind[starts[0]] == REGENERATE and self.coefficients is not None):
-            ready = self._walk_segment(side, before, starts[:1], frame_ops, ready, True, read, rows, cols, weight,
-                                       out_t)
-        for i, j in zip(begins, begins[1:] + [canvases]):
-            first = int(starts[i])
-            regenerated = kind[first] == REGENERATE
-            if regenerated:
-                self.regenerate(centre[first], int(op_epoch[first]))
-                first += 1
-            bounds = np.r_[first, starts[i + 1:j + 1]].astype(np.int64)
-            ready = self._walk_segment(side, before, bounds, frame_ops, ready, not regenerated, read, rows, cols,
-                                       weight, out_t)
+    def _extend(self, sides: np.ndarray, before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grow the window one column per entry of ``sides`` (its origin ``before`` each step).
 
-    def _walk_segment(self, side, before, bounds, frame_ops, ready, first_read, read, rows, cols, weight,
-                      out_t) -> int:
-        """Extensions ``bounds[0] .. bounds[-1] - 1`` of a planned walk and the reads they make ready
-        (:func:`.screen_kernels.walk_segment`); returns the frames read so far."""
-        args = self._segment_args(side, before, bounds, frame_ops, ready, read, rows, cols)
-        window, origin, ready, inside = walk_segment(*args[:11], ready, first_read, read, rows, cols, weight, out_t,
-                                                     *args[11:])
-        if not inside:
-            raise ValueError("screen sampled outside its window")
-        if bounds[-1] > bounds[0]:
-            self.coefficients, self.origin = window, origin
-        return ready
-
-    def _segment_args(self, side, before, bounds, frame_ops, ready, read, rows, cols) -> tuple:
-        """The arguments of :func:`.screen_kernels.walk_segment` but for ``ready .. out_t``: the window, the
-        extensions' noise (one draw) and operator, and the large-scale modes' phasor tables over the frames that
-        the segment reads from ``ready`` on."""
-        n, steps = self.n, int(bounds[-1] - bounds[0])
-        noise = self._rng.standard_normal(n * steps)
-        if steps:
-            operator = extension_operator(n, 1, self.delta, self.L1, n)
-            a, b, stencil_rows, stencil_cols = operator.A, operator.B, operator.stencil_rows, operator.stencil_cols
-        else:
-            a = b = np.empty((0, 0))
-            stencil_rows = stencil_cols = np.empty(0, np.int64)
-        stop = int(np.searchsorted(frame_ops, bounds[-1], side="right"))
-        modes = read and stop > ready and self.L1 != self.L0
-        if modes:
-            large = self._large_scales()
-            cos_y, sin_y, y_start = large.phasors(0, math.floor(rows[ready:stop, 0].min()) - 2,
-                                                  math.floor(rows[ready:stop, -1].max()) + 4)
-            cos_x, sin_x, x_start = large.phasors(1, math.floor(cols[ready:stop, 0].min()) - 2,
-                                                  math.floor(cols[ready:stop, -1].max()) + 4)
-            mode_a, mode_b = large.a, large.b
-        else:
-            cos_y = sin_y = cos_x = sin_x = np.empty((0, 0))
-            y_start = x_start = 0
-            mode_a = mode_b = np.empty(0)
-        window = self.coefficients if self.coefficients is not None else np.empty((n, n))
-        return (window, self.origin.astype(np.int64), side, before, bounds, noise, a, b, stencil_rows, stencil_cols,
-                frame_ops, modes, cos_y, sin_y, y_start, cos_x, sin_x, x_start, mode_a, mode_b)
-
-    def _one_segment(self, plan: tuple) -> tuple[np.ndarray, bool] | None:
-        """For a walk ``plan`` that is one segment, its bounds and whether frames are first read from the window as
-        it is (after regenerating it, when the walk starts with a regeneration that no frame waits for); None for
-        other walks."""
-        kind, _, op_epoch, centre, _, frame_ops, starts = plan
-        canvases = len(starts) - 1
-        if not canvases:
-            return starts[:1], True
-        if canvases > 1 and (kind[starts[1:-1]] == REGENERATE).any():
-            return None
-        if kind[0] != REGENERATE:
-            return starts, True
-        if self.coefficients is not None and frame_ops[0] == 0:
-            return None
-        self.regenerate(centre[0], int(op_epoch[0]))
-        return np.r_[1, starts[1:]].astype(np.int64), False
-
-    def _large_scales(self) -> LargeScales:
-        """The present epoch's large-scale modes (:mod:`.large_scales`), drawn from their own generator seeded by
-        ``(seed, epoch)``."""
-        if self._large is None or self._large[0] != self.epoch:
-            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
-                [*self.seed, self.epoch & 0xFFFFFFFF, SEED_WORD])))
-            self._large = (self.epoch, LargeScales(rng, self.delta, self.L0, self.L1))
-        return self._large[1]
+        Returns a canvas holding every window of the steps and the absolute position of its first sample.
+        """
+        if not len(sides):
+            return self.coefficients, self.origin.copy()
+        n = self.n
+        moves = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)], dtype=np.int64)      # RIGHT, LEFT, DOWN, UP
+        after = before[-1] + moves[sides[-1]]
+        lo = np.minimum(before.min(axis=0), after)
+        canvas = np.empty(tuple(np.maximum(before.max(axis=0), after) + n - lo))    # only windows are written and read
+        top, left = self.origin - lo
+        canvas[top:top + n, left:left + n] = self.coefficients
+        operator = extension_operator(n, 1, self.delta, self.L1, n)
+        noise = self._rng.standard_normal(n * len(sides))
+        extend_columns(canvas, before[:, 0] - lo[0], before[:, 1] - lo[1], sides.astype(np.int64), operator.A,
+                       operator.B, operator.stencil_rows, operator.stencil_cols, noise, n)
+        self.origin = after
+        top, left = after - lo
+        self.coefficients = np.ascontiguousarray(canvas[top:top + n, left:left + n])
+        return canvas, lo
 
     def _with_large_scales(self, coefficients: np.ndarray, top: int, left: int, rows: np.ndarray,
                            cols: np.ndarray) -> tuple[np.ndarray, int, int]:
         """``coefficients`` (first sample at absolute (``top``, ``left``)) with the present epoch's large-scale modes
-        added where the frames' grids ``rows`` (F, ny), ``cols`` (F, nx) [samples] read them (an array defined there
-        only), with ``top`` and ``left``, so the reads' arithmetic is unchanged."""
+        (:mod:`.large_scales`; drawn from their own generator seeded by ``(seed, epoch)``) added where the frames'
+        grids ``rows`` (F, ny), ``cols`` (F, nx) [samples] read them (an array defined there only), with ``top`` and
+        ``left``, so the reads' arithmetic is unchanged."""
         if self.L1 == self.L0:
             return coefficients, top, left
+        if self._large is None or self._large[0] != self.epoch:
+            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
+                [*self.seed, self.epoch & 0xFFFFFFFF, SEED_WORD])))
+            self._large = (self.epoch, LargeScales(rng, self.delta, self.L0, self.L1))
         # in each row, the columns from the first to the last any frame reads there (a diagonal walk reads a band)
         height, width = coefficients.shape
         first, stop = np.empty(height, np.int64), np.empty(height, np.int64)
         read_spans(rows, cols, top, left, height, width, first, stop)
-        return self._large_scales().added(coefficients, top, left, first, stop), top, left
+        return self._large[1].added(coefficients, top, left, first, stop), top, left
 
     def spline_coefficients(self) -> np.ndarray:
         """The window's B-spline coefficients [rad, r0 = 1 m] with the large-scale modes: the screen the reads see."""
@@ -349,9 +287,15 @@ class LayerScreen:
         cols = np.ascontiguousarray(cols, dtype=float)
         weight = np.ascontiguousarray(weight, dtype=float)
 
+        def read(coefficients, top, left, first, stop):
+            coefficients, top, left = self._with_large_scales(coefficients, top, left, rows[first:stop],
+                                                              cols[first:stop])
+            if not sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
+                raise ValueError("screen sampled outside its window")
+
         low = np.stack([rows[:, 0], cols[:, 0]], axis=-1)
         high = np.stack([rows[:, -1], cols[:, -1]], axis=-1)
-        self.walk(low, high, epochs, rows, cols, weight, out_t)
+        self.walk(low, high, epochs, read)
 
     def sample(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Phase [rad, for r0 = 1 m] on separable grids of the present window: ``rows`` (F, ny), ``cols`` (F, nx) [delta].
@@ -382,46 +326,3 @@ class LayerScreen:
         self.n_regenerations = int(state["n_regenerations"])
         self._rng = np.random.Generator(np.random.PCG64(0))
         self._rng.bit_generator.state = state["rng"]
-
-
-def accumulate_layers(screens: list[LayerScreen], rows: list[np.ndarray], cols: list[np.ndarray], epochs: np.ndarray,
-                      weights: list[np.ndarray], out_t: np.ndarray) -> None:
-    """``screens[l].accumulate(rows[l], cols[l], epochs, weights[l], out_t)`` for each layer in turn, the same
-    values, with the walks that are one segment (:meth:`LayerScreen._one_segment`: all but those regenerating
-    after their first frame) made and read in one compiled call (:func:`.screen_kernels.walk_layers`) instead of
-    one per layer; the layers still add to ``out_t`` in their order."""
-    pending: list[tuple] = []
-    for screen, r, c, w in zip(screens, rows, cols, weights):
-        r, c = np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(c, dtype=float)
-        w = np.ascontiguousarray(w, dtype=float)
-        plan = screen._plan(np.stack([r[:, 0], c[:, 0]], axis=-1), np.stack([r[:, -1], c[:, -1]], axis=-1), epochs)
-        one = screen._one_segment(plan)
-        if one is None:
-            _walk_layers(pending, out_t)
-            pending = []
-            screen._walk_planned(plan, r, c, w, out_t)
-            continue
-        bounds, first_read = one
-        side, before, frame_ops = plan[1], plan[4], plan[5]
-        pending.append((screen, first_read, r, c, w,
-                        screen._segment_args(side, before, bounds, frame_ops, 0, True, r, c)))
-    _walk_layers(pending, out_t)
-
-
-def _walk_layers(jobs: list[tuple], out_t: np.ndarray) -> None:
-    """Make and read the one-segment walks ``jobs`` (screen, first read, rows, cols, weight, the rest of
-    :func:`.screen_kernels.walk_segment`'s arguments) in one compiled call, in order."""
-    if not jobs:
-        return
-    args = [tuple(job[5][k] for job in jobs) for k in range(len(jobs[0][5]))]
-    windows_out = tuple(np.empty((job[0].n, job[0].n)) for job in jobs)
-    origins_out = np.empty((len(jobs), 2), np.int64)
-    inside = walk_layers(*args[:11], np.array([job[1] for job in jobs]), tuple(job[2] for job in jobs),
-                         tuple(job[3] for job in jobs), tuple(job[4] for job in jobs), out_t,
-                         np.array(args[11]), *args[12:14], np.array(args[14], np.int64), *args[15:17],
-                         np.array(args[17], np.int64), *args[18:], windows_out, origins_out)
-    if not inside:
-        raise ValueError("screen sampled outside its window")
-    for job, bounds, window, origin in zip(jobs, args[4], windows_out, origins_out):
-        if bounds[-1] > bounds[0]:
-            job[0].coefficients, job[0].origin = window, origin

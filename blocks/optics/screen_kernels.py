@@ -264,10 +264,10 @@ def read_spans(rows, cols, top, left, height, width, first, stop):
 
 
 @jit
-def add_modes(source, out, cos_y, sin_y, y0, cos_x, sin_x, x0, a, b, first, stop):
+def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
     """``out[r, c] = source[r, c] + sum_k a[k] cos(y_r + x_c) + b[k] sin(y_r + x_c)`` for ``first[r] <= c < stop[r]``
-    (``out`` may be ``source``), from the cosines and sines of the modes' phases along y (K, rows ``r + y0``) and x
-    (K, columns ``c + x0``) [:mod:`.large_scales`].
+    (``out`` may be ``source``), from the cosines and sines of the modes' phases along y (K, H) and x (K, W)
+    [:mod:`.large_scales`].
 
     With ``u = a cos y + b sin y`` and ``v = b cos y - a sin y`` each term is ``u cos x + v sin x``. No
     reassociation: every value is the same sum in the same order (k ascending) wherever it lies in ``out``.
@@ -281,111 +281,10 @@ def add_modes(source, out, cos_y, sin_y, y0, cos_x, sin_x, x0, a, b, first, stop
             continue
         acc[c0:c1] = 0.0
         for k in range(modes):
-            u = a[k] * cos_y[k, r + y0] + b[k] * sin_y[k, r + y0]
-            v = b[k] * cos_y[k, r + y0] - a[k] * sin_y[k, r + y0]
-            cx, sx = cos_x[k, x0:], sin_x[k, x0:]
+            u = a[k] * cos_y[k, r] + b[k] * sin_y[k, r]
+            v = b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
+            cx, sx = cos_x[k], sin_x[k]
             for c in range(c0, c1):
                 acc[c] += u * cx[c] + v * sx[c]
         for c in range(c0, c1):
             out[r, c] = source[r, c] + acc[c]
-
-
-@jit
-def _read_frames(canvas, top, left, rows, cols, weight, first, stop, out_t, modes, cos_y, sin_y, y_start, cos_x,
-                 sin_x, x_start, mode_a, mode_b):
-    """Frames ``first .. stop - 1`` read from ``canvas`` (its first sample at absolute (``top``, ``left``)) into
-    ``out_t`` (:func:`sample_grids_transposed`), with the large-scale modes added where they read (``modes``; their
-    phasor tables' first entries at absolute ``y_start``, ``x_start``). False when a frame reads outside."""
-    if stop <= first:
-        return True
-    if not modes:
-        return sample_grids_transposed(canvas, top, left, rows, cols, weight, first, stop, out_t)
-    height, width = canvas.shape
-    span_first, span_stop = np.empty(height, np.int64), np.empty(height, np.int64)
-    read_spans(rows[first:stop], cols[first:stop], top, left, height, width, span_first, span_stop)
-    summed = np.empty((height, width))
-    add_modes(canvas, summed, cos_y, sin_y, top - y_start, cos_x, sin_x, left - x_start, mode_a, mode_b, span_first,
-              span_stop)
-    return sample_grids_transposed(summed, top, left, rows, cols, weight, first, stop, out_t)
-
-
-@jit
-def walk_segment(window, origin, sides, before, bounds, noise, a, b, stencil_rows, stencil_back, frame_ops, ready,
-                 first_read, read, rows, cols, weight, out_t, modes, cos_y, sin_y, y_start, cos_x, sin_x, x_start,
-                 mode_a, mode_b):
-    """Extensions ``bounds[0] .. bounds[-1] - 1`` of a walk planned by :func:`plan_walk` (no regeneration among
-    them), one canvas per ``bounds[i] .. bounds[i + 1] - 1``, and (``read``) the frames they make ready.
-
-    ``window`` (n, n) and ``origin`` (2,) are the window before the first extension; ``noise`` holds ``n``
-    standard normal draws per extension, in order; ``a``, ``b``, ``stencil_*`` the one-column
-    :func:`.autoregressive.extension_operator`. With ``first_read`` the frames from ``ready`` that need no
-    operation after ``bounds[0]`` are first read from ``window``; then each canvas is made
-    (:func:`extend_columns`: every window of its steps) and read for the frames ready at its end
-    (:func:`_read_frames`; an empty canvas is the window). A frame is read from the array it was read from
-    before the walks were compiled whole, so that its taps' fractions, ``u - top``, round alike. Returns the
-    last window, its origin, the frames read so far and whether every read stayed inside its array.
-    """
-    n = window.shape[0]
-    frames = frame_ops.shape[0]
-    moves = np.array([[0, 1], [0, -1], [1, 0], [-1, 0]], np.int64)        # RIGHT, LEFT, DOWN, UP
-    stop = ready
-    o0, o1 = origin[0], origin[1]
-    if first_read:
-        while stop < frames and frame_ops[stop] <= bounds[0]:
-            stop += 1
-        if read and not _read_frames(window, o0, o1, rows, cols, weight, ready, stop, out_t, modes, cos_y, sin_y,
-                                     y_start, cos_x, sin_x, x_start, mode_a, mode_b):
-            return window, np.array([o0, o1]), stop, False
-        ready = stop
-    for i in range(bounds.shape[0] - 1):
-        first_op, last_op = bounds[i], bounds[i + 1]
-        while stop < frames and frame_ops[stop] <= last_op:
-            stop += 1
-        if last_op <= first_op:
-            if read and not _read_frames(window, o0, o1, rows, cols, weight, ready, stop, out_t, modes, cos_y, sin_y,
-                                         y_start, cos_x, sin_x, x_start, mode_a, mode_b):
-                return window, np.array([o0, o1]), stop, False
-            ready = stop
-            continue
-        after0 = before[last_op - 1, 0] + moves[sides[last_op - 1], 0]
-        after1 = before[last_op - 1, 1] + moves[sides[last_op - 1], 1]
-        lo0, lo1, hi0, hi1 = after0, after1, after0, after1
-        for op in range(first_op, last_op):
-            lo0, lo1 = min(lo0, before[op, 0]), min(lo1, before[op, 1])
-            hi0, hi1 = max(hi0, before[op, 0]), max(hi1, before[op, 1])
-        canvas = np.empty((hi0 + n - lo0, hi1 + n - lo1))      # only windows are written and read
-        top, left = o0 - lo0, o1 - lo1
-        canvas[top:top + n, left:left + n] = window
-        count = last_op - first_op
-        tops, lefts = np.empty(count, np.int64), np.empty(count, np.int64)
-        for op in range(count):
-            tops[op], lefts[op] = before[first_op + op, 0] - lo0, before[first_op + op, 1] - lo1
-        extend_columns(canvas, tops, lefts, sides[first_op:last_op], a, b, stencil_rows, stencil_back,
-                       noise[(first_op - bounds[0]) * n:(last_op - bounds[0]) * n], n)
-        o0, o1 = after0, after1
-        window = canvas[o0 - lo0:o0 - lo0 + n, o1 - lo1:o1 - lo1 + n].copy()
-        if read and not _read_frames(canvas, lo0, lo1, rows, cols, weight, ready, stop, out_t, modes, cos_y, sin_y,
-                                     y_start, cos_x, sin_x, x_start, mode_a, mode_b):
-            return window, np.array([o0, o1]), stop, False
-        ready = stop
-    return window, np.array([o0, o1]), ready, True
-
-
-@jit
-def walk_layers(windows, origins, sides, befores, bounds, noises, a, b, stencil_rows, stencil_back, frame_ops,
-                first_read, rows, cols, weight, out_t, modes, cos_y, sin_y, y_start, cos_x, sin_x, x_start, mode_a,
-                mode_b, windows_out, origins_out):
-    """:func:`walk_segment` for several layers' one-segment walks in turn, each from its first frame and read into
-    ``out_t``: the arguments are tuples (or arrays) of one entry per layer; each layer's last window and origin go
-    to ``windows_out[l]``, ``origins_out[l]``. False as soon as a read leaves its array."""
-    for layer in range(len(windows)):
-        window, origin, ready, inside = walk_segment(
-            windows[layer], origins[layer], sides[layer], befores[layer], bounds[layer], noises[layer], a[layer],
-            b[layer], stencil_rows[layer], stencil_back[layer], frame_ops[layer], 0, first_read[layer], True,
-            rows[layer], cols[layer], weight[layer], out_t, modes[layer], cos_y[layer], sin_y[layer], y_start[layer],
-            cos_x[layer], sin_x[layer], x_start[layer], mode_a[layer], mode_b[layer])
-        if not inside:
-            return False
-        windows_out[layer][:, :] = window
-        origins_out[layer, 0], origins_out[layer, 1] = origin[0], origin[1]
-    return True

@@ -17,7 +17,7 @@ from evsda.blocks.optics.fft_screens import (
 )
 from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
-from evsda.blocks.optics.layer_screen import PREFILTER_HALF_WIDTH, SELF_START_SAMPLES, LayerScreen, accumulate_layers
+from evsda.blocks.optics.layer_screen import PREFILTER_HALF_WIDTH, SELF_START_SAMPLES, LayerScreen
 from evsda.blocks.optics.screen_kernels import MARGIN
 from evsda.blocks.optics import PointSourceOptics
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
@@ -282,35 +282,6 @@ def test_batched_walk_reads_what_frame_by_frame_covers_read():
         np.testing.assert_allclose(out[f], 2.0 * single.sample(rows[f:f + 1], cols[f:f + 1])[0], rtol=0, atol=1e-12)
     assert single.n_regenerations == batched.n_regenerations == 1
     np.testing.assert_array_equal(single.coefficients, batched.coefficients)
-
-
-def test_layers_walked_together_read_what_each_walked_alone_reads():
-    # accumulate_layers (one compiled call for the walks that are one segment) against each layer's accumulate in
-    # turn, bit for bit, over three windows of frames: layers of two sizes, a fresh start, a slow and a fast walk, a
-    # walk that turns back, one that jumps far (a regeneration after its first frame: walked alone) and a new
-    # epoch in the last window
-    frames = 40
-    t = np.arange(3 * frames)
-    paths = [np.c_[0.3 * t, -0.2 * t], np.c_[1.1 * t, 4.5 * t], np.c_[np.abs(t - 60) * 2.0, 0.5 * t],
-             np.c_[0.4 * t + 300.0 * (t >= 70), 0.1 * t]]
-    sizes, grid = [20, 38, 20, 20], 0.9 * np.arange(10)
-    epochs = (t >= 2 * frames + 10).astype(np.int64)
-    together = [LayerScreen(n, 0.02, (7, i), L0=25.0) for i, n in enumerate(sizes)]
-    alone = [LayerScreen(n, 0.02, (7, i), L0=25.0) for i, n in enumerate(sizes)]
-    for window in range(3):
-        f = slice(window * frames, (window + 1) * frames)
-        rows = [100.0 + p[f, :1] + grid for p in paths]
-        cols = [50.0 + p[f, 1:] + grid for p in paths]
-        weights = [np.full(frames, 1.0 + i) for i in range(len(paths))]
-        out_together, out_alone = np.zeros((frames, 10, 10)), np.zeros((frames, 10, 10))
-        accumulate_layers(together, rows, cols, epochs[f], weights, out_together)
-        for screen, r, c, w in zip(alone, rows, cols, weights):
-            screen.accumulate(r, c, epochs[f], w, out_alone)
-        np.testing.assert_array_equal(out_together, out_alone)
-        for a, b in zip(together, alone):
-            np.testing.assert_array_equal(a.coefficients, b.coefficients)
-            assert a.state()["rng"] == b.state()["rng"] and (a.origin == b.origin).all()
-    assert [s.n_regenerations for s in alone] == [0, 0, 0, 0] and alone[3].epoch == 1
 
 
 def _walk(screen, boxes, chunks):
