@@ -220,8 +220,16 @@ def band_bound(j_max, c, d, log_a, delta, theta_on, theta_off, large):
 
 @jit
 def _g(j, c, d, e, log_a, delta, j_known, known, large):
-    """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits)."""
-    return c + relaxation(d, e, j * log_a, known if j == j_known else power(log_a, j), large) + delta * j
+    """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits).
+
+    Where the filter has settled (``a^j`` flushed to 0, :func:`power`) the large-signal relaxation is
+    ``-ln(1 - 0 + e 0) = -ln 1 = -0`` exactly; it is taken as such, without the logarithm (the searches
+    for a pixel's next leak event, seconds ahead, evaluate ``g`` there)."""
+    x = j * log_a
+    decay = known if j == j_known else power(log_a, j)
+    if large and decay == 0.0 and x <= -707.0 and e == e:
+        return c + -0.0 + delta * j
+    return c + relaxation(d, e, x, decay, large) + delta * j
 
 
 @jit

@@ -1,4 +1,5 @@
-"""The comparator schedule a pixel keeps between calls is the crossing search's, not a bound's.
+"""The comparator schedule a pixel keeps between calls is the crossing search's, not a bound's; the
+search's shortcut for a settled filter changes no bit.
 
 ``run_pixel`` searches for a pixel's next comparator crossing only where the result can be used before
 the pixel's next input change, shot-noise trial or the window's end (``pixel_loop._schedule_before``:
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.pixel import DvsPixel, crossing
 from evsda.blocks.pixel.crossing import NEVER
 from evsda.blocks.pixel.pixel_loop import CMP_NEXT, LATER, _schedule
 from evsda.graph import RunInfo, Window
@@ -39,3 +40,20 @@ def test_stored_schedule_is_the_search_from_each_pixels_state(scenes, form):
                          for p in range(count.shape[0])])
     assert not np.any(count[:, CMP_NEXT] == LATER)
     np.testing.assert_array_equal(count[:, CMP_NEXT], searched)
+
+
+def test_settled_filter_shortcut_gives_the_comparator_input_bit_for_bit():
+    # crossing._g takes the large-signal relaxation of a settled filter (a^j flushed to 0) as -0 without its
+    # logarithm: the same bits as the full expression, on both sides of the flush and at the clamps of e^-D
+    rng = np.random.default_rng(7)
+    n = 4000
+    c, d = rng.normal(0, 2, n), rng.normal(0, 3, n) * rng.choice([1.0, 1e-6, 300.0], n)
+    log_a = -10.0 ** rng.uniform(-6, 0, n)
+    delta = rng.choice([0.0, 1e-9, 1e-6], n)
+    j = np.maximum(1, np.round(rng.uniform(0.5, 1.5, n) * 707.0 / -log_a)).astype(np.int64)   # around the flush
+    for large in (True, False):
+        for k in range(n):
+            e = crossing.large_weight(d[k]) if large else 0.0
+            got = crossing._g(j[k], c[k], d[k], e, log_a[k], delta[k], np.int64(-1), 0.0, large)
+            want = crossing.comparator_input(j[k], c[k], d[k], log_a[k], delta[k], large)
+            assert np.float64(got).tobytes() == np.float64(want).tobytes(), (k, large, got, want)
