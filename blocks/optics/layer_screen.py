@@ -80,6 +80,12 @@ def _prefiltered(samples: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
 
 
+def _generator(seed: tuple[int, ...], epoch: int, word: int) -> np.random.Generator:
+    """The random generator of a screen's draws addressed by its ``seed``, ``epoch`` and ``word`` (the regeneration
+    count within the epoch, or :data:`.large_scales.SEED_WORD` for its large-scale modes)."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence([*seed, epoch & 0xFFFFFFFF, word])))
+
+
 @lru_cache(maxsize=8)
 def _fresh_stages(n: int, width: int) -> tuple[tuple[int, np.ndarray, np.ndarray, np.ndarray], ...]:
     """A fresh ``n``-row canvas ``width`` columns wide, grown right from its ``FULL_COLUMNS`` exact columns one
@@ -126,8 +132,7 @@ class LayerScreen:
             self.n_regenerations += 1
         else:
             self.epoch, self.n_regenerations = int(epoch), 0
-        self._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
-            [*self.seed, self.epoch & 0xFFFFFFFF, self.n_regenerations])))
+        self._rng = _generator(self.seed, self.epoch, self.n_regenerations)
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
         self.coefficients = self._fresh() if self.n <= SELF_START_SAMPLES else self._cut_from_fft()
 
@@ -153,8 +158,7 @@ class LayerScreen:
             return None
         twin = LayerScreen(self.n, self.delta, seed, L0=self.L0, update=self.update)
         twin.epoch, twin.n_regenerations, twin.origin = epoch, count, origin.copy()
-        twin._rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
-            [*twin.seed, epoch & 0xFFFFFFFF, count])))
+        twin._rng = _generator(twin.seed, epoch, count)
         twin.coefficients = _prefiltered(samples)
         return twin
 
@@ -258,9 +262,8 @@ class LayerScreen:
         if self.L1 == self.L0:
             return coefficients, top, left
         if self._large is None or self._large[0] != self.epoch:
-            rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(
-                [*self.seed, self.epoch & 0xFFFFFFFF, SEED_WORD])))
-            self._large = (self.epoch, LargeScales(rng, self.delta, self.L0, self.L1))
+            self._large = (self.epoch, LargeScales(_generator(self.seed, self.epoch, SEED_WORD), self.delta, self.L0,
+                                                   self.L1))
         # in each row, the columns from the first to the last any frame reads there (a diagonal walk reads a band)
         height, width = coefficients.shape
         first, stop = np.empty(height, np.int64), np.empty(height, np.int64)

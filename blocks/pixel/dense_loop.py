@@ -9,7 +9,7 @@ two loops over the tile that the compiler vectorises, the first for the new driv
 (:func:`.drive_kernel.drive_one`), the second for the rest:
 
 * a change is *quiet* when the pixel has no event due before it and the next sample
-  changes its flux again: the pixel then relaxes to the change (:func:`.pixel_loop.relaxed`),
+  changes its flux again: the pixel then relaxes to the change (:func:`.pixel_loop.relaxed_by`),
   takes its new drive and, in the common case where the comparator input provably stays
   inside its band until the next sample (:func:`.crossing.stays_in_band`), has no crossing
   to solve; otherwise the crossing is solved exactly (:func:`.crossing.search_crossing`,

@@ -37,7 +37,7 @@ from numba.extending import intrinsic
 
 from .comparator import TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import NEVER, band_bound, first_crossing_known, large_weight, power, relaxation
+from .crossing import NEVER, NO_STEP, band_bound, first_crossing_known, large_weight, power, relaxation
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -169,16 +169,10 @@ def _schedule_before(r, c, t_change, last, leak_dt, dt, large):
 
 
 @inline
-def relaxed(filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j, leak_hz, dt, large):
-    """``(L, M, c_leak, c_para)`` after ``j > 0`` steps at constant input (Eqs. 16, 18, 19)."""
-    return relaxed_by(power(log_a, j), filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j,
-                      leak_hz, dt, large)
-
-
-@inline
 def relaxed_by(retention, filtered, memorised, c_leak, c_para, y, log_a, para, th_on, noise_scale, j, leak_hz, dt,
                large):
-    """:func:`relaxed` with the filter's ``retention = a^j`` given (``power(log_a, j)``)."""
+    """``(L, M, c_leak, c_para)`` after ``j > 0`` steps at constant input (Eqs. 16, 18, 19), the filter's
+    ``retention = a^j`` given (``power(log_a, j)``)."""
     if large:
         d = filtered - y
         filtered = y + relaxation(d, large_weight(d), j * log_a, retention, True)
@@ -198,12 +192,8 @@ def drifted(memorised, c_leak, c_para, para, th_on, noise_scale, j, leak_hz, dt)
 
 @jit
 def _advance(r, c, t, leak_hz, dt, large):
-    """Move a pixel from its last step to step ``t`` at constant input (:func:`relaxed`)."""
-    j = t - c[STEP]
-    if j > 0:
-        r[L_], r[M_], r[C_LEAK], r[C_PARA] = relaxed(r[L_], r[M_], r[C_LEAK], r[C_PARA], r[Y], r[LOG_A], r[PARA],
-                                                     r[TH_ON], r[NOISE_SCALE], j, leak_hz, dt, large)
-    c[STEP] = t
+    """Move a pixel from its last step to step ``t`` at constant input (:func:`relaxed_by`)."""
+    _advance_known(r, c, t, leak_hz, dt, large, NO_STEP, 0.0, 0.0)
 
 
 @jit
@@ -293,7 +283,7 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
     ptr, end = lo, hi
     t_change = change_step[ptr] if ptr < end else NEVER
     cmp_next = c[CMP_NEXT]              # the first crossing at the present input: valid up to any change
-    j_known, known, relaxed = np.int64(-1), 0.0, 0.0     # what its schedule's bound took (none: from the state)
+    j_known, known, relaxed = NO_STEP, 0.0, 0.0          # what its schedule's bound took (none: from the state)
     while True:
         t_settle = _settle_step(c)
         t_event = min(cmp_next, c[SHOT_NEXT], t_settle)
