@@ -17,6 +17,12 @@ and are included in the line above them. The figures are CPU seconds, so a loade
 less than wall times (cache contention still adds ~20-40 % at load 8-11); the load average is printed.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/cpu_breakdown.py [--graph G] [--duration 10] [--repeats 3]
+        [--cache cold,warm]
+
+The path choice's probe results are kept across runs (:mod:`evsda.graph.result_cache`); ``--cache`` says how
+each column runs: ``off`` (the default: every probe computed, the figures of earlier sessions), ``cold``
+(an empty cache folder for each run: computed and written) or ``warm`` (a folder filled by one unmeasured run
+first: every probe read from the disk). Several columns alternate their runs side by side.
 """
 
 from __future__ import annotations
@@ -106,8 +112,8 @@ print(json.dumps(spent))
 """
 
 
-def one_run(graph: Path, duration: float) -> dict:
-    env = {**os.environ, "EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0"}
+def one_run(graph: Path, duration: float, cache: dict[str, str]) -> dict:
+    env = {**os.environ, "EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0", **cache}
     out = subprocess.run([sys.executable, "-c", CHILD, str(graph), str(duration)], capture_output=True, text=True,
                          env=env)
     if out.returncode:
@@ -115,42 +121,66 @@ def one_run(graph: Path, duration: float) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+#: the probe-result cache (evsda.graph.result_cache) each column runs with: switched off; empty at the start of
+#: every run; filled by one run before the measured ones
+CACHE_MODES = ("off", "cold", "warm")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds [s]")
     parser.add_argument("--repeats", type=int, default=3, help="fresh runs (medians)")
+    parser.add_argument("--cache", default="off",
+                        help=f"comma-separated columns, runs alternated side by side: {', '.join(CACHE_MODES)} "
+                             "(the probe-result cache: off, empty, or filled by one run first; default off)")
     args = parser.parse_args()
-    runs, loads = [], []
-    for _ in range(args.repeats):
-        before = os.getloadavg()[0]
-        runs.append(one_run(args.graph, args.duration))
-        loads.append((before + os.getloadavg()[0]) / 2)
-        print(f"  run {len(runs)}: {runs[-1]['whole process']:.2f} s CPU, load {loads[-1]:.2f}", flush=True)
-    names = list(dict.fromkeys(k for r in runs for k in r))
-    med = {k: statistics.median(r.get(k, 0.0) for r in runs) for k in names}
-    total = med["whole process"]
-    blocks = sorted((k for k in names if k.startswith("block ")), key=lambda k: -med[k])
+    modes = args.cache.split(",")
+    if not set(modes) <= set(CACHE_MODES):
+        parser.error(f"--cache takes {', '.join(CACHE_MODES)}, got {args.cache}")
+    with tempfile.TemporaryDirectory() as tmp:
+        warm = {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/warm"}
+        if "warm" in modes:
+            one_run(args.graph, args.duration, warm)
+        runs, loads = {m: [] for m in modes}, {m: [] for m in modes}
+        for k in range(args.repeats):
+            for mode in modes:
+                cache = {"off": {"EVSDA_CACHE": "off"}, "warm": warm,
+                         "cold": {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/cold{k}"}}[mode]
+                before = os.getloadavg()[0]
+                runs[mode].append(one_run(args.graph, args.duration, cache))
+                loads[mode].append((before + os.getloadavg()[0]) / 2)
+                print(f"  run {k + 1} ({mode} cache): {runs[mode][-1]['whole process']:.2f} s CPU, "
+                      f"load {loads[mode][-1]:.2f}", flush=True)
+    every = [r for m in modes for r in runs[m]]
+    names = list(dict.fromkeys(k for r in every for k in r))
+    med = {m: {k: statistics.median(r.get(k, 0.0) for r in runs[m]) for k in names} for m in modes}
+    first = med[modes[0]]
+    total = first["whole process"]
+    blocks = sorted((k for k in names if k.startswith("block ")), key=lambda k: -first[k])
+    all_loads = [x for m in modes for x in loads[m]]
     print(f"\n{args.graph.name}, {args.duration:g} s simulated, one thread, one step at a time; "
-          f"medians of {args.repeats} fresh runs, load {statistics.median(loads):.2f} "
-          f"({min(loads):.2f}-{max(loads):.2f})")
-    print(f"  {'item':58s} {'CPU [s]':>8s} {'share':>6s}")
+          f"medians of {args.repeats} fresh runs, load {statistics.median(all_loads):.2f} "
+          f"({min(all_loads):.2f}-{max(all_loads):.2f})")
+    columns = "".join(f" {m + ' cache' if len(modes) > 1 else 'CPU [s]':>11s}" for m in modes)
+    print(f"  {'item':58s}{columns} {'share':>6s}")
 
-    def row(label, seconds):
-        print(f"  {label:58s} {seconds:8.2f} {100 * seconds / total:5.1f}%")
+    def row(label, key=None):
+        values = [med[m].get(key or label, 0.0) if not callable(key) else key(med[m]) for m in modes]
+        print(f"  {label:58s}" + "".join(f" {v:11.2f}" for v in values) + f" {100 * values[0] / total:5.1f}%")
 
-    row("whole process", total)
+    row("whole process")
     for k in ("import the command line", "load the graph (imports its blocks)", "compiled code's load (Numba cache)"):
-        row(k, med.get(k, 0.0))
-    row("run (every block, the store, the executor)", med["run (every block, the store, the executor)"])
+        row(k)
+    row("run (every block, the store, the executor)")
     for k in blocks:
-        row("  " + k, med[k])
+        row("  " + k, k)
         tag = k.split("/")[-1]
         for sub in names:
             if sub.startswith("  ") and ((tag == "optics" and "pixels'" not in sub) or (tag == "pixel" and "pixels'" in sub)):
-                row("  " + sub, med[sub])
-    rest = med["run (every block, the store, the executor)"] - sum(med[k] for k in blocks)
-    row("  executor and finishing (the rest of the run; medians need not add up)", rest)
+                row("  " + sub, sub)
+    row("  executor and finishing (the rest of the run; medians need not add up)",
+        lambda m: m["run (every block, the store, the executor)"] - sum(m[k] for k in blocks))
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import signal
 import sys
 import threading
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
 from . import __version__, registry
@@ -26,6 +27,7 @@ from .files import describe_os_error
 from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
 from .report import describe_block, describe_store, list_blocks, run_summary, store_info
+from .result_cache import cache_root
 from .store import RunStore
 from .sweep import MAX_POINTS, SAMPLING, parse_limits, read_grid, run_sweep
 from .threads import limit_blas
@@ -47,10 +49,11 @@ def cmd_run(args) -> int:
     out = Path(args.output) if args.output else Path(f"{graph.name}.zarr")
     if not args.checkpoint_every >= 0 or args.checkpoint_every == float("inf"):
         raise UserError(f"--checkpoint-every must be a finite number of seconds >= 0, got {args.checkpoint_every}")
-    result = run_graph(graph, out, resume=args.resume, overwrite=args.overwrite, reuse=args.reuse,
-                       progress=None if args.progress is None else args.progress,
-                       checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint,
-                       pipeline=args.pipeline)
+    with _cache_switch(args.cache):
+        result = run_graph(graph, out, resume=args.resume, overwrite=args.overwrite, reuse=args.reuse,
+                           progress=None if args.progress is None else args.progress,
+                           checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint,
+                           pipeline=args.pipeline)
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
     if args.json:
@@ -60,6 +63,23 @@ def cmd_run(args) -> int:
                           "units": result.metric_units, "timing_s": result.timing_s, "reused": result.reused},
                          indent=2, allow_nan=False))
     return 0
+
+
+@contextmanager
+def _cache_switch(choice: bool | None):
+    """``EVSDA_CACHE`` set by ``--cache`` / ``--no-cache`` while the command runs (a sweep's local workers, started
+    inside, inherit it), and checked before any work (:func:`.result_cache.cache_root`)."""
+    previous = os.environ.get("EVSDA_CACHE")
+    if choice is not None:
+        os.environ["EVSDA_CACHE"] = "on" if choice else "off"
+    try:
+        cache_root()
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop("EVSDA_CACHE", None)
+        else:
+            os.environ["EVSDA_CACHE"] = previous
 
 
 #: exit status of a sweep in which some points failed (the others finished; the last line counts them)
@@ -89,9 +109,10 @@ def cmd_sweep(args) -> int:
     out = Path(args.output) if args.output else Path(f"{Path(args.graph).stem}_sweep")
     report = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
     limits, max_points = parse_limits(args.limit)
-    result = run_sweep(args.graph, grid, out, overrides=args.set, jobs=args.jobs, scheduler=args.scheduler,
-                       overwrite=args.overwrite, method=args.sample, points=args.points, seed=args.seed,
-                       report=report, limits=limits, max_points=max_points)
+    with _cache_switch(args.cache):
+        result = run_sweep(args.graph, grid, out, overrides=args.set, jobs=args.jobs, scheduler=args.scheduler,
+                           overwrite=args.overwrite, method=args.sample, points=args.points, seed=args.seed,
+                           report=report, limits=limits, max_points=max_points)
     if result.failed and args.quiet:
         print(f"evsda: sweep: {result.failed} of {len(result.rows)} points failed (see {result.csv})", file=sys.stderr)
     return SWEEP_FAILED if result.failed else 0
@@ -170,9 +191,16 @@ def _limit_arg(p: argparse.ArgumentParser, sweep: bool = False) -> None:
                         + (f" of each point, points ({MAX_POINTS:.0e}) in the sweep" if sweep else ""))
 
 
+def _cache_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cache", action=argparse.BooleanOptionalAction, default=None,
+                   help="take results computed before on the same inputs (auto's path-choice probes) from the "
+                        "cache folder, EVSDA_CACHE_DIR or ~/.cache/evsda (default: on, unless EVSDA_CACHE=off)")
+
+
 def _configure_run(p: argparse.ArgumentParser) -> None:
     _graph_args(p)
     _limit_arg(p)
+    _cache_arg(p)
     p.add_argument("-o", "--output", help="run store to write (default: NAME.zarr)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in OUTPUT from its last checkpoint (from the start if nothing was committed)")
@@ -195,6 +223,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 def _configure_sweep(p: argparse.ArgumentParser) -> None:
     _graph_args(p)
     _limit_arg(p, sweep=True)
+    _cache_arg(p)
     p.add_argument("--grid", help="YAML file mapping block.param to a list of values or a range {min:, max:}")
     p.add_argument("--vary", action="append", default=[], metavar="BLOCK.PARAM=VALUES",
                    help="a parameter and its values, [v1, v2] or {min: a, max: b, log: true} (repeatable; "

@@ -60,12 +60,15 @@ from __future__ import annotations
 import logging
 import zlib
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from evsda.blocks.threads import worker_threads
+from evsda.graph.result_cache import ResultCache
 
 from .fft_screens import fft_phase_screens
 from .pixel_view import averaged_frames, footprint_speeds
@@ -102,6 +105,9 @@ AVERAGED_POSITIONS = 8
 STILL_RATE_PX_S = 1.0
 #: bins of what the pixels see: factor 2 of rate [pixel/s], source flux [photon/s] and sky [photon/s per pixel]
 SEEN_BIN_RATIO = 2.0
+#: the probes' results kept across runs (a sweep repeats conditions), keyed by their inputs
+#: (:meth:`PathChooser._remembered`) and the source of this package (the code that computes them)
+PROBE_CACHE = ResultCache("optics-path-probes", [Path(__file__).parent], ("numpy", "scipy", "numba", "llvmlite"))
 
 
 @dataclass(frozen=True)
@@ -338,12 +344,30 @@ class PathChooser:
 
     def _probe(self, zenith_rad: float, range_m: float) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
         """The instantaneous estimates of :meth:`estimate_errors` and, for each analytic path, the fit
-        ``(b, s)`` of its distance from means of frames at one position (:func:`fit_averaged`); kept per bin."""
+        ``(b, s)`` of its distance from means of frames at one position (:func:`fit_averaged`); kept per bin
+        (and across runs, :meth:`_remembered`)."""
         cache = (zenith_rad, range_m)
         if cache in self._estimates:
             return self._estimates[cache]
-        imager = self.imager
         pupil_error = self.pupil_error(zenith_rad, range_m)
+        distances, fits = self._remembered(
+            "analytic", {"zenith_rad": zenith_rad, "range_m": range_m},
+            lambda: self._analytic_distances(zenith_rad, range_m),
+            lambda value: {"distances": value[0], "fits": value[1]},
+            lambda stored: ({str(k): float(v) for k, v in stored["distances"].items()},
+                            {str(k): (float(b), float(s)) for k, (b, s) in stored["fits"].items()}))
+        estimates = {"reference": 0.0, "pupil_fft": pupil_error}
+        for name in ANALYTIC_PATHS:
+            if name in distances:
+                estimates[name] = distances[name] + pupil_error
+        self._estimates[cache] = (estimates, fits)
+        return self._estimates[cache]
+
+    def _analytic_distances(self, zenith_rad: float, range_m: float) -> tuple[dict[str, float],
+                                                                               dict[str, tuple[float, float]]]:
+        """Each analytic path's mean distance [1] from ``PROBE_FRAMES`` pupil-path stamps (one, and ``airy``
+        alone, without turbulence) and, when the chooser knows the detector, its averaging fit."""
+        imager = self.imager
         rng = np.random.Generator(np.random.PCG64(zlib.crc32(repr((zenith_rad, range_m, imager.seed)).encode())))
         offsets = rng.uniform(-0.5, 0.5, (PROBE_FRAMES, 2))
         frames = PROBE_FRAMES if imager.turbulent(zenith_rad) else 1
@@ -351,13 +375,13 @@ class PathChooser:
         phase = self._probe_phase(rng, zenith_rad, range_m, frames)
         pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, offsets)
         flux = pupil.sum(axis=(1, 2)).mean()
-        estimates = {"reference": 0.0, "pupil_fft": pupil_error}
+        distances = {}
         fits = {}
         for name in ANALYTIC_PATHS:
             analytic = imager.path_named[name].renderer(zenith_rad).stamps(offsets)
-            estimates[name] = float(total_variation(analytic, pupil, flux).mean()) + pupil_error
+            distances[name] = float(total_variation(analytic, pupil, flux).mean())
         if not imager.turbulent(zenith_rad):
-            estimates.pop("long_exposure")
+            distances.pop("long_exposure")
         elif self.pixels is not None:
             # the same screens held at each of AVERAGED_POSITIONS positions: how an analytic path's distance
             # falls as the frames at one position are averaged (a pixel's share of a PSF depends on where it sits)
@@ -371,8 +395,28 @@ class PathChooser:
                                                           analytic, flux).mean()) for k in AVERAGED_GROUPS]
             for name in ANALYTIC_PATHS:
                 fits[name] = fit_averaged(np.array(AVERAGED_GROUPS), means[name] / AVERAGED_POSITIONS)
-        self._estimates[cache] = (estimates, fits)
-        return self._estimates[cache]
+        return distances, fits
+
+    def _remembered(self, probe: str, conditions: dict, compute: Callable[[], Any], encode: Callable[[Any], Any],
+                    decode: Callable[[Any], Any]) -> Any:
+        """A probe's result, taken from the cache of probe results kept across runs (:data:`PROBE_CACHE`) when
+        the same probe was made on the same inputs before, else ``compute()``'d and kept.
+
+        The key is everything a probe reads besides the code (whose digest the cache adds): the probe's name
+        and ``conditions`` (the bin's zenith angle and range, which with the seed name its random streams), the
+        telescope, wavelength, atmosphere (every layer and the outer scale), pixel scale, sampling (the pupil
+        and stamp grids, the layers' screens), the reference grid, tolerance, focus, the run's seed, whether
+        the detector's averaging is probed, and the probes' frame counts and bins."""
+        imager = self.imager
+        key = {"probe": probe, "conditions": conditions,
+               "telescope": asdict(imager.telescope), "wavelength_m": imager.wavelength,
+               "atmosphere": None if imager.atmosphere is None else asdict(imager.atmosphere),
+               "pixel_scale_rad": imager.pixel_scale, "geometry": imager.geometry.state(),
+               "grid_size": imager.reference.grid_size, "tolerance": imager.tolerance, "focus": imager.focus,
+               "seed": list(imager.seed), "averaging": self.pixels is not None,
+               "frames": [PROBE_FRAMES, list(REFERENCE_PROBE_FRAMES), list(AVERAGED_GROUPS), AVERAGED_POSITIONS,
+                          ACCEPT_STANDARD_ERRORS, REJECT_STANDARD_ERRORS, PUPIL_ERROR_ZENITH_BIN_RAD]}
+        return PROBE_CACHE.remember(key, compute, encode, decode)
 
     def _choose_seen(self, zenith_rad: float, range_m: float, seen: tuple[int, int, int, int],
                      context: str) -> PathChoice:
@@ -433,7 +477,13 @@ class PathChooser:
             sigma2 = imager.atmosphere.scintillation_index(imager.telescope.diameter_m, imager.wavelength, zenith,
                                                            distance)
             scintillation = scintillation_error(sigma2)
-            measured, (within, verdict) = self._reference_distances(key, zenith, distance, scintillation)
+            measured, (within, verdict) = self._remembered(
+                "reference", {"bin": list(key), "zenith_rad": zenith, "range_m": distance,
+                              "scintillation": scintillation},
+                lambda: self._reference_distances(key, zenith, distance, scintillation),
+                lambda value: {"distances": value[0], "within": value[1][0], "verdict": value[1][1]},
+                lambda stored: ([float(d) for d in stored["distances"]], (bool(stored["within"]),
+                                                                         str(stored["verdict"]))))
             n = len(measured)
             se = float(np.std(measured, ddof=1) / np.sqrt(n)) if n > 1 else 0.0
             error = max(float(np.mean(measured)) if n else 0.0, scintillation)

@@ -195,3 +195,27 @@ def test_example_scenes_ship_in_the_library():
         assert library.resolve(f"library:examples/{name}").read_bytes() == (root / name).read_bytes()
     graph = load_graph("library:examples/iss_pass_low_noise.yaml")      # its include is relative to it
     assert graph.name == "iss_pass_low_noise" and "scene/iss" in graph.nodes
+
+
+def test_cache_flags_set_the_switch_for_the_command_only(evsda_main, tmp_path, monkeypatch):
+    import os
+
+    from evsda.graph import cli
+
+    seen = []
+    real = cli.run_graph
+
+    def run_graph(*args, **kwargs):
+        seen.append(os.environ.get("EVSDA_CACHE"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cli, "run_graph", run_graph)
+    monkeypatch.setenv("EVSDA_CACHE", "off")
+    good = write(tmp_path / "good.yaml", GOOD)
+    for n, flags in enumerate((["--cache"], ["--no-cache"], [])):
+        evsda_main("run", good, "-o", tmp_path / f"{n}.zarr", "-q", *flags, check=True)
+    assert seen == ["on", "off", "off"] and os.environ["EVSDA_CACHE"] == "off"
+    monkeypatch.setenv("EVSDA_CACHE", "maybe")
+    bad = evsda_main("run", good, "-o", tmp_path / "bad.zarr")
+    assert bad.returncode == 2 and "EVSDA_CACHE must be 'on' or 'off', got 'maybe'" in bad.stderr
+    assert not (tmp_path / "bad.zarr").exists() and len(seen) == 3
