@@ -105,8 +105,9 @@ AVERAGED_POSITIONS = 8
 STILL_RATE_PX_S = 1.0
 #: bins of what the pixels see: factor 2 of rate [pixel/s], source flux [photon/s] and sky [photon/s per pixel]
 SEEN_BIN_RATIO = 2.0
-#: the probes' results kept across runs (a sweep repeats conditions), keyed by their inputs
-#: (:meth:`PathChooser._remembered`) and the source of this package (the code that computes them)
+#: the probes' results kept across runs (a sweep repeats conditions), keyed by everything they read (the
+#: telescope, atmosphere, band, sampling, tolerance, seed, conditions: ``PathChooser._remembered``) and the
+#: source of this package (the code that computes them)
 PROBE_CACHE = ResultCache("optics-path-probes", [Path(__file__).parent], ("numpy", "scipy", "numba", "llvmlite"))
 
 
