@@ -7,15 +7,20 @@ probes' frame pairs made from both halves of each complex FFT draw (``both``: as
 :meth:`.LayerScreen.twin`) and the second frame of each pair drawn on its own (``one``: every frame
 its own draw, the probes' cost before). Prints the medians of ``--repeats`` rounds and each bin's
 estimate, frames and verdict. ``--all-frames`` makes every bin take all 24 frames (a tolerance no
-estimate can clear: the same count both ways, the cost per frame).
+estimate can clear: the same count both ways, the cost per frame). ``--against DIR`` alternates this tree's
+probes (pairs, as ``auto`` makes them) with those through another checkout's Fresnel propagation
+(``blocks/optics/propagation.py``, with the FFT threads it used) and its FFT screens' cut and prefilter
+(``LayerScreen._cut_from_fft`` and ``twin`` of its ``blocks/optics/layer_screen.py``), and prints how far
+the estimates of the two are apart.
 
-    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames] [--against DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import importlib.util
 import os
 import statistics
 import tempfile
@@ -24,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evsda.blocks.optics import reference_path
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.layer_screen import LayerScreen
 from evsda.blocks.optics.paths import PUPIL_ERROR_ZENITH_BIN_RAD
@@ -33,10 +39,45 @@ from evsda.graph.graphfile import load_graph
 GRAPH = Path(__file__).with_name("end_to_end.yaml")
 
 
+def checkout_module(checkout: Path, name: str):
+    """``blocks/optics/<name>.py`` of another checkout, imported inside this tree's optics package (its relative
+    imports are this tree's modules)."""
+    spec = importlib.util.spec_from_file_location(f"evsda.blocks.optics._against_{name}",
+                                                  checkout / "blocks" / "optics" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def against(checkout: Path):
+    """Patch this tree's probes to run through ``checkout``'s propagation and FFT screens' cut; returns the undo."""
+    propagation, screens = checkout_module(checkout, "propagation"), checkout_module(checkout, "layer_screen")
+    kept = reference_path.propagate, LayerScreen._cut_from_fft, LayerScreen.twin
+
+    @functools.wraps(propagation.propagate)
+    def propagate(*args, workers=None, **kwargs):            # with the FFT threads that checkout's caller used
+        return propagation.propagate(*args, **kwargs) if workers is None or not calls_with_workers(checkout) \
+            else propagation.propagate(*args, workers=workers, **kwargs)
+
+    reference_path.propagate = propagate
+    LayerScreen._cut_from_fft = screens.LayerScreen._cut_from_fft
+    LayerScreen.twin = screens.LayerScreen.twin
+
+    def undo():
+        reference_path.propagate, LayerScreen._cut_from_fft, LayerScreen.twin = kept
+    return undo
+
+
+def calls_with_workers(checkout: Path) -> bool:
+    """Whether that checkout's reference path sets the propagation's FFT threads."""
+    return "workers=" in (checkout / "blocks" / "optics" / "reference_path.py").read_text()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--all-frames", action="store_true", help="every bin takes all 24 frames")
+    parser.add_argument("--against", type=Path, help="another checkout: its propagation and FFT screens' cut")
     args = parser.parse_args()
     os.environ["EVSDA_THREADS"] = "1"
 
@@ -62,23 +103,39 @@ def main() -> None:
     conditions = [((z + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD, np.inf if r < 0 else 2.0 ** (r + 0.5)) for z, r in bins]
 
     twin = LayerScreen.twin
-    ways = {"one": lambda self, seed: None, "both": twin}
+
+    def one_draw_a_frame():
+        LayerScreen.twin = lambda self, seed: None
+        return lambda: setattr(LayerScreen, "twin", twin)
+
+    if args.against:
+        ways = {str(args.against): lambda: against(args.against), "this tree": lambda: (lambda: None)}
+    else:
+        ways = {"one draw(s) a pair": one_draw_a_frame, "both draw(s) a pair": lambda: (lambda: None)}
     times = {name: [] for name in ways}
     estimates = {}
+    loads = []
     for _ in range(args.repeats):
+        loads.append(os.getloadavg()[0])
         for name, way in ways.items():
-            LayerScreen.twin = way
+            undo = way()
             chooser._pupil_errors.clear()
             t = time.process_time()
             estimates[name] = [chooser.pupil_estimate(z, r) for z, r in conditions]
             times[name].append(time.process_time() - t)
-    LayerScreen.twin = twin
+            undo()
     for name in ways:
         found = ", ".join(f"{e.error:.3g} +- {e.standard_error:.2g} on {e.frames} ({'in' if e.within else 'out'})"
                           for e in estimates[name])
-        print(f"  {name:4s} draw(s) a pair: {statistics.median(times[name]):6.2f} s CPU (median of {args.repeats}; "
+        print(f"  {name}: {statistics.median(times[name]):6.2f} s CPU (median of {args.repeats}; "
               f"{', '.join(f'{t:.2f}' for t in times[name])}); bins {bins}: {found}")
-    print(f"  ratio both / one {statistics.median(times['both']) / statistics.median(times['one']):.2f}")
+    first, second = ways
+    print(f"  ratio {second} / {first}: {statistics.median(times[second]) / statistics.median(times[first]):.2f}; "
+          f"load {statistics.median(loads):.1f}")
+    if args.against:
+        apart = max(abs(a.error - b.error) for a, b in zip(estimates[first], estimates[second]))
+        print(f"  estimates apart by at most {apart:.2g} (frames and verdicts "
+              f"{'the same' if all((a.frames, a.within) == (b.frames, b.within) for a, b in zip(*estimates.values())) else 'DIFFERENT'})")
 
 
 if __name__ == "__main__":

@@ -73,6 +73,37 @@ def fft_phase_screen_corners(rng: np.random.Generator, n: int, m: int, delta: fl
     return screen[:, :m]
 
 
+def fft_spline_corners(rng: np.random.Generator, n: int, m: int, first: int, delta: float, r0: float,
+                       L0: float = np.inf) -> np.ndarray:
+    """Cubic B-spline coefficients (Unser 1999) of both screens of :func:`fft_phase_screen_corners` (with
+    subharmonics, the same draws: ``rng`` ends in the same state) over the samples ``first .. first + m - 1`` of
+    each axis, as the real and imaginary parts of one complex ``m x m`` array [rad]: the spline through them takes
+    the screens' values on the grid.
+
+    The inverse B-spline filter of Unser 1999 (Eq. 10, ``6 / (z + 4 + 1/z)``) is applied exactly in the Fourier
+    domain: each FFT coefficient and each subharmonic is divided by the cubic B-spline's response
+    ``(2 + cos(2 pi f delta)) / 3`` along each axis (a real, even filter: it filters the real and imaginary
+    screens alike). The piston removed is the unfiltered screen's, as in :func:`fft_phase_screen_corners`."""
+    n, m, first = int(n), int(m), int(first)
+    amplitude, low = _spectra(n, float(delta), float(r0), float(L0), True, True)
+    columns = sfft.ifft(_coefficients(rng, amplitude), axis=0, norm="forward", workers=1,
+                        overwrite_x=True)[first:first + m]
+    scale = np.float64(np.longdouble(1) / np.longdouble(n * n))  # pocketfft's factor, rounded from long double
+    columns.real *= scale
+    columns.imag *= scale
+    screen = sfft.ifft(columns, axis=1, norm="forward", workers=1, overwrite_x=True)[:, first:first + m]
+    powers, ey, ex, ey_mean, ex_mean, gains = low
+    screen += _subharmonics(rng, powers, ey[first:first + m], ex[:, first:first + m], ey_mean, ex_mean,
+                            gains=gains)
+    return screen
+
+
+def spline_response(f: np.ndarray, delta: float) -> np.ndarray:
+    """The sampled cubic B-spline's frequency response ``(2 + cos(2 pi f delta)) / 3`` [1] at frequencies ``f``
+    [cycles/m] (its samples 1/6, 2/3, 1/6; Unser 1999 Eq. 10 is the inverse)."""
+    return (2.0 + np.cos(2 * np.pi * np.asarray(f) * delta)) / 3.0
+
+
 def _coefficients(rng: np.random.Generator, amplitude: np.ndarray) -> np.ndarray:
     """Complex Gaussian Fourier coefficients of standard deviation ``amplitude``: the real parts' draws, then
     the imaginary parts'."""
@@ -85,14 +116,19 @@ def _coefficients(rng: np.random.Generator, amplitude: np.ndarray) -> np.ndarray
 
 
 @lru_cache(maxsize=64)
-def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool):
-    """Amplitudes of the ``n x n`` FFT coefficients and, with ``subharmonics``, the three levels' powers and phasors."""
+def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spline: bool = False):
+    """Amplitudes of the ``n x n`` FFT coefficients and, with ``subharmonics``, the three levels' powers and phasors;
+    with ``spline``, those of the screen's B-spline coefficients (:func:`fft_spline_corners`): the amplitudes
+    divided by :func:`spline_response` along each axis, and each level's 3 x 3 gains (iy, ix) for its draws."""
     df = 1.0 / (n * delta)
     fx = sfft.fftfreq(n, delta)
     psd = phase_psd(np.hypot(fx[:, None], fx[None, :]), r0, L0)
     psd[0, 0] = 0.0                                             # no piston
     # coefficients c_k = (a + i b) sqrt(PSD) df, times n^2 to undo ifft2's 1/n^2: sum_k c_k exp(2 pi i f_k . x)
     amplitude = np.sqrt(psd) * (df * n * n)
+    if spline:
+        inverse = 1.0 / spline_response(fx, delta)
+        amplitude *= inverse[:, None] * inverse[None, :]
     amplitude.setflags(write=False)
     if not subharmonics:
         return amplitude, None
@@ -108,18 +144,29 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool):
     ex = np.exp(2j * np.pi * np.outer(f, x))                     # rows: fx, columns: x
     for a in (*powers, ey, ex):
         a.setflags(write=False)
-    return amplitude, (tuple(powers), ey, ex, ey.mean(axis=0), ex.mean(axis=1))
+    low = (tuple(powers), ey, ex, ey.mean(axis=0), ex.mean(axis=1))
+    if not spline:
+        return amplitude, low
+    inverse = [1.0 / spline_response(f1, delta) for f1 in frequencies]
+    gains = tuple(np.outer(g, g) for g in inverse)
+    return amplitude, (*low, gains)
 
 
-def _subharmonics(rng: np.random.Generator, powers, ey, ex, ey_mean, ex_mean, rows: int | None = None) -> np.ndarray:
+def _subharmonics(rng: np.random.Generator, powers, ey, ex, ey_mean, ex_mean, rows: int | None = None,
+                  gains=None) -> np.ndarray:
     """Low-frequency complex screen from three levels of 3 x 3 subharmonics (Schmidt 2010 Listing 9.3); with
-    ``rows``, only its first ``rows`` rows (the same numbers)."""
+    ``rows``, only its first ``rows`` rows (the same numbers); with ``gains`` (3 x 3 per level), each subharmonic
+    times its gain, the piston removed that of the screen without them."""
     c = np.zeros((9, 9), dtype=complex)                          # block-diagonal: one 3 x 3 block per level
     for p, power in enumerate(powers):
         c[3 * p:3 * p + 3, 3 * p:3 * p + 3] = (rng.standard_normal((3, 3)) + 1j * rng.standard_normal((3, 3))) \
             * power                                              # c[iy, ix]
+    piston = ey_mean @ c @ ex_mean
+    if gains is not None:
+        for p, gain in enumerate(gains):
+            c[3 * p:3 * p + 3, 3 * p:3 * p + 3] *= gain
     low = (ey @ c)[:rows] @ ex                                   # the three levels in one product
-    low -= ey_mean @ c @ ex_mean                                 # no piston
+    low -= piston                                                # no piston
     return low
 
 

@@ -40,14 +40,12 @@ one canvas and reads each frame with separable 4-tap weights.
 
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import correlate1d
 
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
-from .fft_screens import fft_phase_screen_corners
+from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, LargeScales, split_outer_scale
 from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans, sample_grids_transposed
 
@@ -57,27 +55,9 @@ CANVAS_STEPS = 2048
 BURN_IN = 1
 #: widest window made by conditional draws when fresh (a 128-sample one costs ~20 ms) [samples]
 SELF_START_SAMPLES = 128
-#: half-width of the truncated inverse B-spline filter on an FFT screen: error ``|z1|^17 ~ 2e-10`` [samples]
+#: where a window cut from an FFT screen starts in it, along each axis (where a prefilter truncated at 16 samples
+#: each side put it until the filter moved to the Fourier domain: the same screens, within ~1e-10) [samples]
 PREFILTER_HALF_WIDTH = 16
-
-
-def prefilter_taps() -> np.ndarray:
-    """Unser 1999's inverse B-spline filter ``h[k] = sqrt(3) z1^|k|`` (Eq. 10) for ``|k| <= PREFILTER_HALF_WIDTH``,
-    normalised to unit sum [1]."""
-    z1 = math.sqrt(3.0) - 2.0
-    k = np.arange(-PREFILTER_HALF_WIDTH, PREFILTER_HALF_WIDTH + 1)
-    taps = math.sqrt(3.0) * z1 ** np.abs(k)
-    return taps / taps.sum()
-
-
-_TAPS = prefilter_taps()
-
-
-def _prefiltered(samples: np.ndarray) -> np.ndarray:
-    """B-spline coefficients of the inner ``n x n`` of ``(n + 2 PREFILTER_HALF_WIDTH)`` square screen samples."""
-    half, n = PREFILTER_HALF_WIDTH, samples.shape[0] - 2 * PREFILTER_HALF_WIDTH
-    coefficients = correlate1d(correlate1d(samples, _TAPS, axis=0), _TAPS, axis=1)
-    return np.ascontiguousarray(coefficients[half:half + n, half:half + n])
 
 
 def _generator(seed: tuple[int, ...], epoch: int, word: int) -> np.random.Generator:
@@ -138,13 +118,13 @@ class LayerScreen:
 
     def _cut_from_fft(self) -> np.ndarray:
         """B-spline coefficients of a window cut from an FFT screen twice as wide (cf. Johansson & Gavel 1994: the
-        low orders kept), prefiltered where the truncated filter has every sample it needs. The draw's other
-        screen, its imaginary half, is kept for :meth:`twin` when the screen was made with ``keep_twin``."""
-        n, half = self.n, PREFILTER_HALF_WIDTH
-        cut = fft_phase_screen_corners(self._rng, max(2 * n, n + 2 * half), n + 2 * half, self.delta, 1.0, self.L1)
+        low orders kept; :func:`.fft_spline_corners`). The draw's other screen, its imaginary half, is kept for
+        :meth:`twin` when the screen was made with ``keep_twin``."""
+        n, first = self.n, PREFILTER_HALF_WIDTH
+        cut = fft_spline_corners(self._rng, max(2 * n, n + 2 * first), n, first, self.delta, 1.0, self.L1)
         if self.keep_twin:
             self._twin = (np.ascontiguousarray(cut.imag), self.origin.copy(), self.epoch, self.n_regenerations)
-        return _prefiltered(np.ascontiguousarray(cut.real))
+        return np.ascontiguousarray(cut.real)
 
     def twin(self, seed: tuple[int, ...]) -> LayerScreen | None:
         """A screen of the same window made from the imaginary half of this screen's FFT draw (made with
@@ -153,13 +133,13 @@ class LayerScreen:
         Dainty 1992), for no draw or transform of its own. ``seed`` seeds its own later draws."""
         if self._twin is None:
             return None
-        samples, origin, epoch, count = self._twin
+        coefficients, origin, epoch, count = self._twin
         if not np.array_equal(origin, self.origin) or epoch != self.epoch or count != self.n_regenerations:
             return None
         twin = LayerScreen(self.n, self.delta, seed, L0=self.L0, update=self.update)
         twin.epoch, twin.n_regenerations, twin.origin = epoch, count, origin.copy()
         twin._rng = _generator(twin.seed, epoch, count)
-        twin.coefficients = _prefiltered(samples)
+        twin.coefficients = coefficients
         return twin
 
     def _fresh(self) -> np.ndarray:

@@ -16,7 +16,8 @@ analytically, so a 36 000 km propagation keeps its phases to float64 precision.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from functools import lru_cache
 
 import numpy as np
 import scipy.fft as sfft
@@ -100,11 +101,22 @@ def square_aperture_vacuum_field(x2: np.ndarray, y2: np.ndarray, width: float, w
     return edge(np.asarray(x2, dtype=float)) * edge(np.asarray(y2, dtype=float)) / (2j)
 
 
+@lru_cache(maxsize=4)
 def absorbing_boundary(n: int) -> np.ndarray:
-    """Super-Gaussian window ``exp(-(r / 0.47 N)^16)`` [1] (Schmidt 2010 Listing 9.1)."""
+    """Super-Gaussian window ``exp(-(r / 0.47 N)^16)`` [1] (Schmidt 2010 Listing 9.1); read-only, kept per ``n``."""
     i = np.arange(n) - n // 2
     r2 = i[:, None] ** 2 + i[None, :] ** 2
-    return np.exp(-((r2 / (0.47 * n) ** 2) ** 8))
+    window = np.exp(-((r2 / (0.47 * n) ** 2) ** 8))
+    window.setflags(write=False)
+    return window
+
+
+@lru_cache(maxsize=4)
+def _absorber_fft_order(n: int) -> np.ndarray:
+    """:func:`absorbing_boundary` in the FFT's order (``ifftshift``), read-only."""
+    window = sfft.ifftshift(absorbing_boundary(n))
+    window.setflags(write=False)
+    return window
 
 
 def plane_spacings(delta1: float, deltan: float, z: Sequence[float]) -> np.ndarray:
@@ -135,7 +147,6 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     total = z[-1]
     delta = plane_spacings(delta1, deltan, z)
     steps = np.diff(np.r_[0.0, z])
-    sg = absorbing_boundary(n) if absorber else None
     screens = screens or {}
     index = np.arange(n) - n // 2
     # source plane: Q1 of Eq. 4 merged with the source curvature
@@ -143,22 +154,74 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     coefficient = (delta1 - deltan) / (wavelength * total * delta1) + _inverse(source_curvature) / wavelength
     u = source * chirp(coefficient, x1, x1)
     if 0 in screens:
-        u = u * np.exp(1j * screens[0])
-    for i, dz in enumerate(steps):
-        m = delta[i + 1] / delta[i]
-        # Q2 of Eq. 4: exp(-i pi lambda dz f^2 / m) on the frequencies of plane i
-        q2_axis = np.exp(-1j * np.pi * wavelength * dz / (delta[i] * delta[i + 1]) * sfft.fftfreq(n) ** 2)
-        u = sfft.ifft2(sfft.fft2(sfft.ifftshift(u), workers=workers) * np.outer(q2_axis, q2_axis),
-                       workers=workers)
-        u = sfft.fftshift(u) / m
+        u = _times(_phasor(screens[0]), u)
+    # between the source and the observation plane the field is kept in the FFT's order (``ifftshift``): the
+    # products below are element by element, so the screens and the absorber are put in that order instead of
+    # the field being shifted back and forth at every step
+    u = sfft.ifftshift(u)
+    sg = _absorber_fft_order(n) if absorber else None
+    transfer = _transfer_functions(n, float(wavelength), tuple(delta.tolist()), tuple(steps.tolist()),
+                                   16 * n * n * len(steps) <= TRANSFER_CACHE_BYTES)
+    for i, h in enumerate(transfer):
+        # Q2 of Eq. 4 on the frequencies of plane i
+        u = sfft.fft2(u, workers=workers, overwrite_x=True)
+        u *= h
+        u = sfft.ifft2(u, workers=workers, overwrite_x=True)
+        u /= delta[i + 1] / delta[i]
         if i + 1 in screens:
-            u = u * np.exp(1j * screens[i + 1])
+            u = _times(_phasor(sfft.ifftshift(screens[i + 1])), u)
         if sg is not None:
-            u = u * sg
+            u *= sg
     # observation plane: Q3 of Eq. 4 merged with the collimation
     xn = index * deltan
     coefficient = -(delta1 - deltan) / (wavelength * total * deltan) - _inverse(collimate) / wavelength
-    return u * chirp(coefficient, xn, xn)
+    return _times(chirp(coefficient, xn, xn), sfft.fftshift(u))
+
+
+def _times(factor: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``factor * u`` written into ``factor`` (a temporary), in that order: NumPy's complex product is not
+    commutative to the last bit, and this is the order in which its elision of temporaries computed
+    ``u * np.exp(...)`` before (the same numbers)."""
+    return np.multiply(factor, u, out=factor)
+
+
+#: the transfer functions of the last two propagation plans are kept when they hold at most this many bytes
+#: (every reference frame of a path probe's bin shares its grid) [bytes]
+TRANSFER_CACHE_BYTES = 32 * 2**20
+
+
+def _transfer_functions(n: int, wavelength: float, delta: tuple[float, ...], steps: tuple[float, ...],
+                        keep: bool) -> Iterable[np.ndarray]:
+    """Each step's Q2 of Eq. 4, ``exp(-i pi lambda dz f^2 / m)`` on the frequencies of its first plane, (n, n) in the
+    FFT's order: with ``keep``, all of them, kept for the next calls (:data:`TRANSFER_CACHE_BYTES`); else made one
+    at a time."""
+    return _kept_transfer_functions(n, wavelength, delta, steps) if keep else _each_transfer_function(
+        n, wavelength, delta, steps)
+
+
+def _each_transfer_function(n: int, wavelength: float, delta: tuple[float, ...],
+                            steps: tuple[float, ...]) -> Iterator[np.ndarray]:
+    delta = np.array(delta)                     # NumPy scalars below, as in the plan's own arithmetic
+    for i, dz in enumerate(np.array(steps)):
+        q2_axis = np.exp(-1j * np.pi * wavelength * dz / (delta[i] * delta[i + 1]) * sfft.fftfreq(n) ** 2)
+        h = np.outer(q2_axis, q2_axis)
+        h.setflags(write=False)
+        yield h
+
+
+@lru_cache(maxsize=2)
+def _kept_transfer_functions(n: int, wavelength: float, delta: tuple[float, ...],
+                             steps: tuple[float, ...]) -> tuple[np.ndarray, ...]:
+    return tuple(_each_transfer_function(n, wavelength, delta, steps))
+
+
+def _phasor(phase: np.ndarray) -> np.ndarray:
+    """``exp(i phase)`` [1] as ``cos + i sin`` written into one complex array (NumPy's complex ``exp`` of ``i phase``
+    computes the same two functions, with a temporary and the factor ``exp(0)`` more)."""
+    out = np.empty(phase.shape, dtype=complex)
+    np.cos(phase, out=out.real)
+    np.sin(phase, out=out.imag)
+    return out
 
 
 def _inverse(radius: float) -> float:

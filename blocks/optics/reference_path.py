@@ -78,8 +78,10 @@ class ReferencePath:
                 screens[plane] = weight * screen.sample(rows, cols)[0]
         source_field = point_source_field(grid.n, grid.delta1_m, self.imager.wavelength, distance, geometry.roi_m,
                                           curvature=False)
+        # the FFTs on the calling thread: sources, and the path probes' frames, are rendered on every core
         field = propagate(source_field, self.imager.wavelength, grid.delta1_m, grid.deltan_m, grid.planes_m, screens,
-                          source_curvature=-distance, collimate=distance if self.imager.focus == "source" else np.inf)
+                          source_curvature=-distance, collimate=distance if self.imager.focus == "source" else np.inf,
+                          workers=1)
         start = grid.n // 2 - g.n_pupil // 2
         pupil = field[start:start + g.n_pupil, start:start + g.n_pupil]
         # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)

@@ -163,3 +163,22 @@ def test_reference_scintillation_matches_the_weak_fluctuation_rytov_variance(r0_
                                       for layer in layers)
     assert rytov < 0.3
     assert np.mean(measured) == pytest.approx(rytov, rel=0.15)
+
+
+def test_kept_transfer_functions_give_the_field_made_afresh(monkeypatch):
+    # the reference probes' frames share their grid, so the steps' transfer functions are kept between calls: the
+    # same field as with every transfer function made afresh, and a kept plan is not changed by its use
+    from evsda.blocks.optics import propagation
+    n, wavelength, delta1, deltan = 128, 0.5e-6, 2e-3, 3e-3
+    planes = [200.0, 500.0, 1000.0]
+    x = grid_coordinates(n, delta1)
+    beam = np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / 0.05**2).astype(complex)
+    spacing = plane_spacings(delta1, deltan, planes)
+    rng = np.random.default_rng(1)
+    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] for i in (0, 1, 2)}
+    kept = [propagate(beam, wavelength, delta1, deltan, planes, screens) for _ in range(2)]
+    monkeypatch.setattr(propagation, "TRANSFER_CACHE_BYTES", 0)
+    afresh = propagate(beam, wavelength, delta1, deltan, planes, screens)
+    np.testing.assert_array_equal(kept[0], afresh)
+    np.testing.assert_array_equal(kept[1], afresh)
+    assert np.abs(afresh).max() > 0

@@ -249,19 +249,23 @@ def test_spline_sampling_matches_scipy_map_coordinates():
 
 
 def test_regenerated_screen_interpolates_its_fft_screen():
-    # a regeneration prefilters an FFT screen (Unser 1999 Eq. 10, truncated at 16 samples): the spline through the
-    # coefficients takes the FFT screen's values on the grid, within the truncation's 2 sqrt(3) |z1|^17 / (1 - |z1|)
-    # per axis of its largest value; such wide windows keep the one outer scale L0 (no large-scale modes)
+    # a regeneration makes the B-spline coefficients of an FFT screen in the Fourier domain (Unser 1999 Eq. 10's
+    # inverse filter, exactly): the spline through them (Unser 1999 Eq. 4) takes the values of the FFT screen made
+    # the usual way (fft_phase_screens, Schmidt 2010 Listing 9.3) on the grid to rounding, for both halves of the
+    # draw (the twin's); such wide windows keep the one outer scale L0 (no large-scale modes)
     n = SELF_START_SAMPLES + 2                           # wider windows (the reference path's) are cut from FFT screens
-    screen = LayerScreen(n, 0.02, (5,), L0=25.0)
+    screen = LayerScreen(n, 0.02, (5,), L0=25.0, keep_twin=True)
     assert screen.L1 == 25.0 and LayerScreen(SELF_START_SAMPLES, 0.02, (5,), L0=25.0).L1 < 25.0
     screen.cover(np.array([10.0, 10.0]), np.array([20.0, 20.0]))
+    twin = screen.twin((6,))
     rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence([5, 0, 0])))
-    values = fft_phase_screens(rng, 2 * n, 0.02, 1.0, 25.0)[0]
-    window = values[PREFILTER_HALF_WIDTH:PREFILTER_HALF_WIDTH + n, PREFILTER_HALF_WIDTH:PREFILTER_HALF_WIDTH + n]
-    np.testing.assert_allclose(grid_values(screen.coefficients), window[1:-1, 1:-1], rtol=0,
-                               atol=1e-9 * np.abs(values).max())
-    assert np.abs(grid_values(screen.coefficients) - window[1:-1, 1:-1]).max() > 0      # not a copy of the values
+    for coefficients, values in zip((screen.coefficients, twin.coefficients), fft_phase_screens(rng, 2 * n, 0.02,
+                                                                                                 1.0, 25.0)):
+        window = values[PREFILTER_HALF_WIDTH:PREFILTER_HALF_WIDTH + n, PREFILTER_HALF_WIDTH:PREFILTER_HALF_WIDTH + n]
+        np.testing.assert_allclose(grid_values(coefficients), window[1:-1, 1:-1], rtol=0,
+                                   atol=1e-12 * np.abs(values).max())
+        assert np.abs(grid_values(coefficients) - window[1:-1, 1:-1]).max() > 0      # not a copy of the values
+        assert np.abs(coefficients - window).max() > 0.01 * np.abs(values).max()    # coefficients, not samples
 
 
 def test_batched_walk_reads_what_frame_by_frame_covers_read():
