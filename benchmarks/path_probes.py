@@ -1,7 +1,7 @@
 """CPU time of the path choice's reference probes (``psf_path: auto``) on the tracked pass of end_to_end.yaml.
 
 Runs one window of the pass (so that the optics block builds its imager and meets the run's
-conditions), then times, on one thread, :meth:`.PathChooser.pupil_estimate` afresh for each
+conditions), then times, on one thread with the cache of probe results across runs off, :meth:`.PathChooser.pupil_estimate` afresh for each
 pupil-error bin the run met (the Fresnel reference propagations, 4-24 per bin), alternating the
 probes' frame pairs made from both halves of each complex FFT draw (``both``: as ``auto`` does,
 :meth:`.LayerScreen.twin`) and the second frame of each pair drawn on its own (``one``: every frame
@@ -80,6 +80,7 @@ def main() -> None:
     parser.add_argument("--against", type=Path, help="another checkout: its propagation and FFT screens' cut")
     args = parser.parse_args()
     os.environ["EVSDA_THREADS"] = "1"
+    os.environ["EVSDA_CACHE"] = "off"      # the probes themselves, every round (not the results kept across runs)
 
     imagers = []
     step = PointSourceOptics.step
