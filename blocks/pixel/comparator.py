@@ -45,6 +45,9 @@ from __future__ import annotations
 import numpy as np
 
 TOLERANCE = 1e-9        # a change this close to a threshold reaches it (ln of current) [1]
+#: margin for rounding in the bounds that show a pixel cannot fire (:mod:`.deferred`); values are O(10), their
+#: rounding ~1e-14 [ln of current]
+ROUNDING_MARGIN = 1e-9
 
 
 def draw_thresholds(rng: np.random.Generator, size, mean: float, sigma: float, floor: float):

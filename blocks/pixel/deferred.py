@@ -29,13 +29,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .comparator import TOLERANCE
+from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y,
-                         _advance, _fetch_row, relaxed_by)
-
-#: margin for rounding in the loop's closed forms [ln of current]; values are O(10), their rounding ~1e-14
-ROUNDING_MARGIN = 1e-9
+                         _advance, _fetch_row, quiet_until, relaxed_by)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -55,8 +52,8 @@ def _cannot_fire(real, p, step, k, y_high, y_low, para_high, n_end, leak_dt, dt)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
-def select_pixels(real, count, next_step, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
-                  leak_dt, dt, defer):
+def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
+                  envelope, leak_dt, dt, defer, refresh):
     """The pixels a window must process, in order, and whether each takes pending background changes.
 
     A pixel is processed when it is due before ``n_end`` (``next_step``), has its own input
@@ -65,18 +62,39 @@ def select_pixels(real, count, next_step, applied, touched, changed, n_end, base
     (:func:`_cannot_fire`; ``y_high``, ``y_low``, ``para_high``: :meth:`SharedChanges.suffix_bounds`).
     ``defer`` False takes every change to every pixel at once (the reference the tests compare with).
     Returns ``(pixels, takes)``: ``takes`` marks those away from the stamps with pending changes.
+
+    ``wake[p]`` is the earlier of ``next_step[p]`` and :func:`.pixel_loop.quiet_until` under
+    ``envelope``, which holds every kept and later change: a pixel with ``wake[p] >= n_end`` and no
+    own change is neither due nor able to fire, and only ``wake`` is read of it (8 bytes, not its
+    state rows). ``refresh`` sets ``wake`` of every pixel (a new envelope) and reads them all.
     """
     n = next_step.size
     pixels = np.empty(n, np.int64)
     takes = np.empty(n, np.bool_)
     m, it, ic = 0, 0, 0
-    for p in range(n):
+    skip = defer and not refresh
+    y_env_high, y_env_low, para_env_high = envelope[0], envelope[1], envelope[2]
+    p = np.int64(-1)
+    while True:
+        p += 1
+        if skip:                          # on to the next pixel awake, under a stamp or with an own change
+            special = touched[it] if it < touched.size else n
+            if ic < changed.size and changed[ic] < special:
+                special = changed[ic]
+            while p < special and wake[p] >= n_end:
+                p += 1
+        if p >= n:
+            break
         under = it < touched.size and touched[it] == p
         if under:
             it += 1
         own = ic < changed.size and changed[ic] == p
         if own:
             ic += 1
+        if skip and not own and wake[p] >= n_end:
+            continue
+        if refresh:
+            wake[p] = min(next_step[p], quiet_until(real, count, p, y_env_high, y_env_low, para_env_high, leak_dt, dt))
         busy = own or next_step[p] < n_end
         behind = (not under) and applied[p] < end
         if behind and not busy:

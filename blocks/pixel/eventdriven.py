@@ -44,6 +44,9 @@ NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on",
          "step": "step", "ready": "ready"}                                     # public names of some fields
 _CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
 _FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
+#: room the envelope of background changes leaves around those kept, in Y (plus their spread) [ln of current]
+#: and in the parasitic rate [relative]: wider envelopes are renewed less often but show fewer pixels quiet
+_ENVELOPE_Y, _ENVELOPE_PARA = 1e-3, 1e-2
 
 
 class EventDrivenPixels:
@@ -55,6 +58,11 @@ class EventDrivenPixels:
     def __init__(self, model: PixelModel, state: dict):
         self.model = model
         self.s = state
+        # each pixel's wake step (:func:`.deferred.select_pixels`) under the envelope (y_high, y_low, para_high) of
+        # the background changes; derived from the state, not part of it: renewed from it when not fresh
+        self._wake = np.empty(state["real"].shape[0], np.int64)
+        self._envelope = np.array([-np.inf, np.inf, 0.0])
+        self._fresh = False
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._drive = drive_constants(model)
@@ -134,11 +142,17 @@ class EventDrivenPixels:
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
         kept = s["shared_step"].size                          # changes from before this window
         if shared.size:
-            history.append(steps[shared], self._inputs(background[shared]))
+            rows = self._inputs(background[shared])
+            history.append(steps[shared], rows)
+            self._fresh = self._fresh and self._holds(rows)
+        refresh = not self._fresh
+        if refresh:
+            self._renew_envelope()
         leak_hz, dt, large = self._constants[:3]
-        pixels, takes = select_pixels(s["real"], s["count"], s["next"], s["applied"], touched, changed, np.int64(n_end),
-                                      np.int64(s["shared_base"]), np.int64(history.end),
-                                      *history.suffix_bounds(Y, PARA), leak_hz * dt, dt, self.defer_background)
+        pixels, takes = select_pixels(s["real"], s["count"], s["next"], self._wake, s["applied"], touched, changed,
+                                      np.int64(n_end), np.int64(s["shared_base"]), np.int64(history.end),
+                                      *history.suffix_bounds(Y, PARA), self._envelope, leak_hz * dt, dt,
+                                      self.defer_background, refresh)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
         taking = pixels[takes]
         history.take_all_but_last(taking, kept, leak_hz, dt, large)
@@ -151,6 +165,23 @@ class EventDrivenPixels:
         history.taken(taking)
         history.taken(touched)
         history.prune()
+
+    def _holds(self, rows: np.ndarray) -> bool:
+        """Whether the envelope holds the background changes ``rows`` (their ``Y`` and parasitic rates)."""
+        y_high, y_low, para_high = self._envelope
+        return bool(np.all((rows[:, Y] <= y_high) & (rows[:, Y] >= y_low) & (rows[:, PARA] <= para_high)))
+
+    def _renew_envelope(self) -> None:
+        """An envelope around the kept background changes (none: the empty one, which any change leaves), for
+        every pixel's wake to be set under it (:func:`.deferred.select_pixels` with ``refresh``)."""
+        rows = self.s["shared_input"]
+        if rows.shape[0]:
+            y_high, y_low = rows[:, Y].max(), rows[:, Y].min()
+            room = _ENVELOPE_Y + (y_high - y_low)
+            self._envelope = np.array([y_high + room, y_low - room, rows[:, PARA].max() * (1.0 + _ENVELOPE_PARA)])
+        else:
+            self._envelope = np.array([-np.inf, np.inf, 0.0])
+        self._fresh = True
 
     def take_pending(self) -> None:
         """Give every pixel the background changes it was left out of (its state then reads as if it took each
@@ -203,6 +234,7 @@ class EventDrivenPixels:
 
             self._run(off.size, kernel, log)
         s["off_background"] = np.flatnonzero(off_background)
+        self._fresh = False                                   # the wake steps are those of the states before
 
     def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
         """The event-driven loop (:func:`.pixel_loop.run_chunk`) over ``pixels``, pixel ``pixels[i]`` with the
@@ -210,8 +242,8 @@ class EventDrivenPixels:
         s = self.s
 
         def kernel(index, buffers):
-            return run_chunk(s["real"], s["count"], s["next"], pixels[index], lo[index], hi[index], change_step,
-                             change_input, np.int64(n_end), *self._constants, *buffers)
+            return run_chunk(s["real"], s["count"], s["next"], self._wake, self._envelope, pixels[index], lo[index],
+                             hi[index], change_step, change_input, np.int64(n_end), *self._constants, *buffers)
 
         self._run(pixels.size, kernel, log)
 

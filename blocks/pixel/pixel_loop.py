@@ -35,9 +35,9 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from .comparator import TOLERANCE
+from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import NEVER, NO_STEP, band_bound, first_crossing_known, large_weight, power, relaxation
+from .crossing import J_LIMIT, NEVER, NO_STEP, band_bound, first_crossing_known, large_weight, power, relaxation
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -49,6 +49,7 @@ COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count",
 (STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT, OWED) = range(len(COUNT))
 GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
 LATER = NEVER + np.int64(1)                      # "no comparator event before the pixel's next change or event"
+SOON = -NEVER                                    # "no window's end shown quiet": the bound is checked in full
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
 _AHEAD = 8                                       # pixels whose state rows are fetched ahead of their turn
@@ -337,14 +338,42 @@ def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_
     return n_events, lost, True
 
 
+@inline
+def quiet_until(real, count, p, y_high, y_low, para_high, leak_dt, dt):
+    """The last window end ``n_end`` before which pixel ``p`` provably cannot fire under background changes whose
+    ``Y`` lie in ``[y_low, y_high]`` and parasitic rates below ``para_high`` (the envelope), taken or not; ``SOON``
+    where none is shown.
+
+    :func:`.deferred._cannot_fire`'s bound with the envelope in place of the pending changes' extremes,
+    the same expressions in the same order: each is monotone in those extremes and in the steps ``n_end - 1
+    - step`` (rounding is monotone), so wherever the envelope holds the pending changes and ``n_end`` is at
+    most the result, that bound holds too, and the pixel need not be read (:func:`.deferred.select_pixels`).
+    """
+    filtered, y, memorised, th_on = real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON]
+    if not min(filtered, y, y_low) - memorised > -(real[p, TH_OFF] - TOLERANCE) + ROUNDING_MARGIN:
+        return SOON
+    rise = max(filtered, y, y_high) - memorised
+    limit = th_on - TOLERANCE - ROUNDING_MARGIN
+    drift = (leak_dt * real[p, NOISE_SCALE] + max(real[p, PARA], para_high) * dt) * th_on
+    if not rise < limit or not drift >= 0.0:
+        return SOON
+    if drift == 0.0:
+        return NEVER
+    steps = np.int64(min((limit - rise) / drift * (1.0 - 1e-12), float(J_LIMIT)))
+    while steps > 0 and not rise + drift * steps < limit:        # the division's rounding, settled on the bound
+        steps -= 1 + (steps >> 20)
+    return count[p, STEP] + 1 + max(steps, np.int64(0))
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
-def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step, change_input, n_end,
+def run_chunk(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, change_step, change_input, n_end,
               leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
               ev_step, ev_pixel, ev_pol, ev_cause):
     """:func:`run_pixel` for each of ``pixels``, one after the other; pixel ``pixels[i]`` has the changes
     ``change_lo[i]:change_hi[i]`` (rows of ``change_input`` may be shared by many pixels).
 
-    Updates the state tables and ``next_step`` (each pixel's next event) in place and writes
+    Updates the state tables, ``next_step`` (each pixel's next event) and ``wake`` (the earlier of
+    it and :func:`quiet_until` under ``envelope = (y_high, y_low, para_high)``) in place and writes
     the events (step, pixel, polarity, cause) into the ``ev_*`` buffers. Returns ``(events
     written, pixels done, events lost in the pixels)``: the chunk stops before a pixel whose
     events would overflow the buffers.
@@ -365,4 +394,6 @@ def run_chunk(real, count, next_step, pixels, change_lo, change_hi, change_step,
         if not done:
             return n_events, i, lost
         next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
+        wake[pixel] = min(next_step[pixel], quiet_until(real, count, pixel, envelope[0], envelope[1], envelope[2],
+                                                        leak_hz * dt, dt))
     return n_events, pixels.size, lost

@@ -79,6 +79,36 @@ def test_pixels_read_the_same_state(monkeypatch):
         np.testing.assert_array_equal(reference[key], fast[key])
 
 
+@pytest.mark.parametrize("form", ["small_signal", "large_signal"])
+def test_pixels_read_only_by_their_wake_step_are_those_the_bound_leaves_out(monkeypatch, form):
+    # select_pixels reads only the wake step of a pixel shown quiet under the envelope of the background changes
+    # (pixel_loop.quiet_until); reading every pixel's bound instead (refresh) must choose the same pixels, window
+    # by window, through the sky's drift and its jumps (which renew the envelope)
+    from evsda.blocks.pixel import eventdriven
+
+    select = eventdriven.select_pixels
+    seen = {"windows": 0, "renewed": 0, "quiet": 0}
+
+    def checked(real, count, next_step, wake, applied, touched, changed, n_end, *rest):
+        *bounds, defer, refresh = rest
+        if refresh:
+            seen["renewed"] += 1
+        else:
+            seen["windows"] += 1
+            seen["quiet"] = max(seen["quiet"], int(np.sum(wake >= n_end)))
+            full = select(real, count, next_step, wake.copy(), applied, touched, changed, n_end, *bounds, defer, True)
+        out = select(real, count, next_step, wake, applied, touched, changed, n_end, *rest)
+        if not refresh:
+            for a, b in zip(full, out):
+                np.testing.assert_array_equal(a, b)
+        return out
+
+    monkeypatch.setattr(eventdriven, "select_pixels", checked)
+    run(0.02, True, monkeypatch, form=form)
+    assert seen["windows"] >= 5 and seen["renewed"] >= 3         # both kinds of window seen
+    assert seen["quiet"] > FP.width_px * FP.height_px // 2        # most pixels read by their wake step alone
+
+
 @pytest.mark.parametrize("large", [False, True])
 def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large):
     # take_quietly sweeps the pixels change by change (vectorised); its reference takes one pixel's changes after
