@@ -12,7 +12,9 @@ cannot reach a threshold before then under the changes it has not taken
 its pending changes first, at their own steps, through the same compiled loop
 (:mod:`.pixel_loop`). Because a pixel's state is only ever advanced at its own events and
 input changes, in order, the events are the same bytes as when every change is taken at
-once (the property that makes the events independent of the window length; tested).
+once (the property that makes the events independent of the window length; tested). Most pixels are
+passed over on their wake step alone (:func:`.pixel_loop.quiet_until`, under an envelope of the changes),
+without reading their state.
 
 The bound (paper Eqs. 16-19 at piecewise constant input): between updates the filtered
 log-intensity ``L`` relaxes geometrically towards the input's ``Y`` (in the large-signal form
