@@ -7,7 +7,10 @@ FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1
 (CPU time, medians over ``--repeats`` alternated rounds, one thread):
 
 * ``PupilRenderer.stamps`` whole (phase to pixel energies);
-* its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time);
+* its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time), and the
+  same in double precision (complex128), without the pruning (every row of the padded grid: ``fft2``) and through
+  numpy's own FFT (single precision since numpy 2);
+* ``stamps()`` whole in double precision (the tests' reference renderer, ``dtype=np.complex128``);
 * a matrix Fourier transform (Soummer et al. 2007, Opt. Express 15, 15935) onto the same 80 x 80
   samples, the fewest that give an exact pixel integral (the intensity's 2n - 1 Fourier lags per
   axis): two complex64 products per PSF, 16 PSFs in one call for the first;
@@ -99,6 +102,8 @@ def main() -> None:
     telescope = Telescope(0.2, 0.4)                                     # library:telescopes/astrograph_200mm.yaml
     renderer = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
                              telescope.collecting_area_m2)
+    double = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
+                           telescope.collecting_area_m2, dtype=np.complex128)
     amplitude = telescope.pupil(N_PUPIL, DELTA_M)
     rng = np.random.default_rng(1)
     phase = np.concatenate([fft_phase_screens(rng, 2 * N_PUPIL, DELTA_M, 0.07)[0][None, :N_PUPIL, :N_PUPIL]
@@ -112,12 +117,28 @@ def main() -> None:
     w = np.exp(-2j * np.pi * np.outer(lags, np.arange(n) - n // 2) / size).astype(np.complex64)   # (L, n)
     w_t = np.ascontiguousarray(w.T)
 
-    def fft():
+    grid_double = np.zeros((chunk, size, size), np.complex128)
+
+    def fft(grid=grid):
         grid[:, :n, :n] = field
         grid[:, :n, n:] = 0
         sfft.fft(grid[:, :n], axis=-1, workers=1, overwrite_x=True)
         grid[:, n:] = 0
         sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
+
+    def numpy_fft():
+        grid[:, :n, :n] = field
+        grid[:, :n, n:] = 0
+        rows = grid[:, :n]
+        np.fft.fft(rows, axis=-1, out=rows)
+        grid[:, n:] = 0
+        np.fft.fft(grid, axis=-2, out=grid)
+
+    def unpruned():
+        grid[:, :n, :n] = field
+        grid[:, :n, n:] = 0
+        grid[:, n:] = 0
+        sfft.fft2(grid, workers=1, overwrite_x=True)
 
     def mft():
         along_x = (field.reshape(chunk * n, n) @ w_t).reshape(chunk, n, size)
@@ -128,9 +149,14 @@ def main() -> None:
     cases = {"stamps() whole": (lambda: renderer.stamps(amplitude, phase, offsets), FRAMES),
              "pupil path from the screens' sum": (lambda: pupil_path_render(renderer, amplitude, phase_t, offsets,
                                                                              curvature, renderer.r2), FRAMES),
+             "stamps() whole, double precision": (lambda: double.stamps(amplitude, phase, offsets), FRAMES),
              "padded FFTs alone": (fft, chunk),
-             "MFT onto the same samples": (mft, chunk),
-             "products B PSF B^T alone": (lambda: np.matmul(renderer.b, np.matmul(psf, renderer.b_t)), chunk)}
+             "  the same in complex128": (lambda: fft(grid_double), chunk),
+             "  the same unpruned (fft2)": (unpruned, chunk)}
+    if np.lib.NumpyVersion(np.__version__) >= "2.0.0":                  # out= and single-precision FFTs
+        cases["  the same through numpy.fft"] = (numpy_fft, chunk)
+    cases["MFT onto the same samples"] = (mft, chunk)
+    cases["products B PSF B^T alone"] = (lambda: np.matmul(renderer.b, np.matmul(psf, renderer.b_t)), chunk)
     if args.against:
         module = render_module(args.against)
         other = module.PupilRenderer(module.StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,

@@ -210,6 +210,35 @@ def test_pupil_stamps_are_the_exact_pixel_integrals_of_the_fourier_series(n, siz
         np.testing.assert_allclose(fast[f], exact, rtol=0, atol=1e-6 * np.abs(exact).sum())
 
 
+@pytest.mark.parametrize("pixels_per_period", [7 * 12.15e-6 * (0.2 / 38) / 568.3e-9, 1.0])
+def test_single_precision_stamps_match_double_precision_and_conserve_flux(pixels_per_period):
+    # the tracked pass's geometry (40-sample annular pupil, 7 x 7 stamps; benchmarks/pupil_stamps.py), turbulent
+    # phases at r0 = 7 cm, sub-pixel offsets and every other frame defocused: the float32 renderer (phase rounded to
+    # single precision, complex64 FFT, float32 |.|^2 and B) against float64 within 1e-6 of each stamp's peak and of
+    # its flux; on a stamp spanning one whole period lambda/delta of the sampled pupil's image, the pixels hold all
+    # the power (Parseval): sum = delta^2 sum |A|^2 / area, to 1e-6 in single precision and 1e-12 in double
+    n, delta, wavelength, size = 40, 0.2 / 38, 568.3e-9, 7
+    telescope = Telescope(0.2, 0.4)
+    sampler = StampSampler(size, pixels_per_period * wavelength / delta / size, 9)
+    single = PupilRenderer(sampler, n, delta, wavelength, telescope.collecting_area_m2)
+    double = PupilRenderer(sampler, n, delta, wavelength, telescope.collecting_area_m2, dtype=np.complex128)
+    amplitude = telescope.pupil(n, delta)
+    rng = np.random.default_rng(7)
+    frames = 24
+    phase = np.concatenate([fft_phase_screens(rng, 2 * n, delta, 0.07)[0][None, :n, :n] for _ in range(frames)])
+    offsets = rng.uniform(-0.5, 0.5, (frames, 2))
+    curvature = np.where(np.arange(frames) % 2 == 0, np.pi / wavelength / 7.4e5, 0.0)     # a LEO at 740 km
+    fast, reference = single.stamps(amplitude, phase, offsets, curvature), double.stamps(amplitude, phase, offsets,
+                                                                                            curvature)
+    assert fast.dtype == reference.dtype == np.float64
+    assert (np.abs(fast - reference).max(axis=(1, 2)) <= 1e-6 * reference.max(axis=(1, 2))).all()
+    assert (np.abs(fast - reference).sum(axis=(1, 2)) <= 1e-6 * reference.sum(axis=(1, 2))).all()
+    if pixels_per_period == 1.0:
+        power = np.sum(amplitude**2) * delta**2 / telescope.collecting_area_m2
+        np.testing.assert_allclose(fast.sum(axis=(1, 2)), power, rtol=1e-6)
+        np.testing.assert_allclose(reference.sum(axis=(1, 2)), power, rtol=1e-12)
+
+
 def test_stamp_placement_rounds_to_the_nearest_pixel():
     origin, offset = stamp_placement(np.array([10.4, 10.6, np.nan]), np.array([3.5, -0.2, 1.0]), 5)
     np.testing.assert_array_equal(origin[:2], [[8, 2], [9, -2]])
