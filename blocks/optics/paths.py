@@ -34,7 +34,9 @@ distance between pixel-integrated stamps of total flux ``F``).
 
 :class:`PathChooser` makes these estimates once per bin of conditions (1 degree of zenith
 angle, 5 % of range; the pupil path's error on coarser bins) and keeps each choice, so a
-choice is a pure function of the bin and of the run's seed.
+choice is a pure function of the bin and of the run's seed. The probes' results are also kept
+on disk across runs (:data:`PROBE_CACHE`, keyed by everything they read and this package's source):
+a run that meets the same inputs again reads the same numbers instead of measuring them.
 
 **What the pixels see** (with a detector, the block's ``detector``: :mod:`.pixel_view`). The
 error that matters is that of the image the pixels respond to, the irradiance low-passed by the
