@@ -34,7 +34,7 @@ import numpy as np
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y,
-                         _advance, _fetch_row, quiet_until, relaxed_by)
+                         _advance, _fetch_row, quiet_until, relaxed_by, run_chunk)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -122,6 +122,23 @@ def take_quietly_reference(real, count, pixels, lo, end, steps, inputs, leak_hz,
             _advance(r, c, steps[k] - 1, leak_hz, dt, large)
             row = inputs[k]
             r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = row[FLUX], row[Y], row[LOG_A], row[PARA], row[ACCEPT]
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
+def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_end, shared_step, shared_input,
+                 change_lo, change_hi, change_step, change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
+                 th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause):
+    """:func:`take_quietly` of the ``pixels`` with ``quiet_lo >= 0`` (their changes ``quiet_lo .. quiet_end - 1``
+    of ``shared_step``, ``shared_input``), then :func:`.pixel_loop.run_chunk` of them all: one chunk's pixels
+    while their rows are in cache, in the chunks' threads. Per pixel the same arithmetic in the same order as
+    taking every pixel's quiet changes first (tested)."""
+    quiet = quiet_lo >= 0
+    if quiet.any():
+        take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
+                     large)
+    return run_chunk(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, change_step, change_input,
+                     n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
+                     ev_step, ev_pixel, ev_pol, ev_cause)
 
 
 # fields of the pixels swept together by take_quietly (rows of its table)
@@ -234,22 +251,19 @@ class SharedChanges:
         para_high = np.r_[np.maximum.accumulate(rows[::-1, para])[::-1], -np.inf]
         return y_high, y_low, para_high
 
-    def take_all_but_last(self, pixels: np.ndarray, kept: int, leak_hz: float, dt: float, large: bool) -> None:
-        """Give ``pixels`` their pending changes among the first ``kept`` kept ones, but the last of those,
-        without the crossing searches (:func:`take_quietly`).
+    def quiet_ranges(self, pixels: np.ndarray, kept: int, offset: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`ranges`, split: ``quiet_lo`` (-1: none) is each pixel's first pending change of those it takes
+        without the crossing searches (:func:`take_quietly`, from there to the last but one of the first ``kept``
+        kept changes), ``lo:hi`` the rows left to the compiled loop (:func:`take_and_run` does both).
 
-        Exact because every one of those changes was left out of the pixel in a window after it, where
+        Exact because every one of the quiet changes was left out of the pixel in a window after it, where
         the bound showed no event before that window's end, which is past the last of them; the last is
         left to the compiled loop, which looks for the pixel's next event after it.
         """
         lo = self.s["applied"][pixels] - int(self.s["shared_base"])
         quiet = lo < kept - 1
-        if not quiet.any():
-            return
-        pixels, lo = pixels[quiet], lo[quiet]
-        take_quietly(self.s["real"], self.s["count"], pixels, lo, np.int64(kept - 1), self.s["shared_step"],
-                     self.s["shared_input"], leak_hz, dt, large)
-        self.s["applied"][pixels] = int(self.s["shared_base"]) + kept - 1
+        return (offset + np.where(quiet, kept - 1, lo), np.full(pixels.size, offset + self.s["shared_step"].size, np.int64),
+                np.where(quiet, lo, -1))
 
     def taken(self, pixels: np.ndarray) -> None:
         """``pixels`` have taken every kept change."""

@@ -34,11 +34,11 @@ from evsda.blocks.threads import worker_threads
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
-from .deferred import SharedChanges, select_pixels
+from .deferred import SharedChanges, select_pixels, take_and_run
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
 from .own_changes import own_changes
-from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, run_chunk, start_pixels
+from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
@@ -148,20 +148,20 @@ class EventDrivenPixels:
         refresh = not self._fresh
         if refresh:
             self._renew_envelope()
-        leak_hz, dt, large = self._constants[:3]
+        leak_hz, dt = self._constants[:2]
         pixels, takes = select_pixels(s["real"], s["count"], s["next"], self._wake, s["applied"], touched, changed,
                                       np.int64(n_end), np.int64(s["shared_base"]), np.int64(history.end),
                                       *history.suffix_bounds(Y, PARA), self._envelope, leak_hz * dt, dt,
                                       self.defer_background, refresh)
         lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
+        quiet_lo = np.full(pixels.size, -1, np.int64)
         taking = pixels[takes]
-        history.take_all_but_last(taking, kept, leak_hz, dt, large)
-        lo[takes], hi[takes] = history.ranges(taking, own_pixel.size)
+        lo[takes], hi[takes], quiet_lo[takes] = history.quiet_ranges(taking, kept, own_pixel.size)
         where = np.searchsorted(pixels, changed)
         lo[where], hi[where] = first, first + counts
         change_step = np.concatenate([own_step, s["shared_step"]])
         change_input = np.concatenate([self._inputs(own_flux), s["shared_input"]])
-        self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log)
+        self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log, quiet_lo, kept - 1)
         history.taken(taking)
         history.taken(touched)
         history.prune()
@@ -197,11 +197,12 @@ class EventDrivenPixels:
         """
         if not pixels.size:
             return
-        history.take_all_but_last(pixels, self.s["shared_step"].size, *self._constants[:3])
-        lo, hi = history.ranges(pixels, 0)
+        kept = self.s["shared_step"].size
+        lo, hi, quiet_lo = history.quiet_ranges(pixels, kept, 0)
         steps = self.s["shared_step"]
         scratch = EventLog()
-        self._run_changes(pixels, lo, hi, steps, self.s["shared_input"], int(steps[-1]) + 1, scratch)
+        self._run_changes(pixels, lo, hi, steps, self.s["shared_input"], int(steps[-1]) + 1, scratch, quiet_lo,
+                          kept - 1)
         if scratch._chunks or scratch.n_loss:
             raise RuntimeError("a pixel left out of a background change would have fired (deferral bound violated)")
         history.taken(pixels)
@@ -236,21 +237,27 @@ class EventDrivenPixels:
         s["off_background"] = np.flatnonzero(off_background)
         self._fresh = False                                   # the wake steps are those of the states before
 
-    def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog) -> None:
+    def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog, quiet_lo,
+                     quiet_end: int) -> None:
         """The event-driven loop (:func:`.pixel_loop.run_chunk`) over ``pixels``, pixel ``pixels[i]`` with the
-        changes ``lo[i]:hi[i]`` of ``change_step``/``change_input``."""
+        changes ``lo[i]:hi[i]`` of ``change_step``/``change_input``, after the kept background changes
+        ``quiet_lo[i] .. quiet_end - 1`` (none where -1) taken quietly (:func:`.deferred.take_and_run`)."""
         s = self.s
+        quiet_lo = quiet_lo.copy()
 
         def kernel(index, buffers):
-            return run_chunk(s["real"], s["count"], s["next"], self._wake, self._envelope, pixels[index], lo[index],
-                             hi[index], change_step, change_input, np.int64(n_end), *self._constants, *buffers)
+            out = take_and_run(s["real"], s["count"], s["next"], self._wake, self._envelope, pixels[index],
+                               quiet_lo[index], np.int64(quiet_end), s["shared_step"], s["shared_input"], lo[index],
+                               hi[index], change_step, change_input, np.int64(n_end), *self._constants, *buffers)
+            quiet_lo[index] = -1             # taken: a chunk run again with more room for events takes them once
+            return out
 
         self._run(pixels.size, kernel, log)
 
     def _run(self, n_items: int, kernel, log: EventLog) -> None:
         """``kernel(index, buffers)`` over chunks of the items ``0 .. n_items - 1``, in threads.
 
-        ``kernel`` is a compiled loop (:func:`.pixel_loop.run_chunk`, :func:`.dense_loop.run_dense_chunk`)
+        ``kernel`` is a compiled loop (:func:`.deferred.take_and_run`, :func:`.dense_loop.run_dense_chunk`)
         over the pixels of ``index``, writing events into the buffers (step, pixel, polarity,
         cause) and returning ``(events written, items done, events lost)``. Pixels are
         independent, so chunks run concurrently (:func:`worker_threads` of them). A chunk that
