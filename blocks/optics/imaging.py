@@ -294,9 +294,19 @@ class Imager:
 
     def footprints(self, layer, t_s, sight, zenith_rad, range_m):
         """Footprint centre on a layer (F, 2) (x, y) [m], ``h sight - v t`` (:meth:`sight`), and its scale (F,) [1]."""
-        slant = layer.altitude_m / np.cos(zenith_rad)
-        centre = layer.altitude_m * np.asarray(sight, dtype=float) - layer.wind_m_s[None, :] * t_s[:, None]
-        scale = np.where(np.isfinite(range_m), 1.0 - slant / np.where(np.isfinite(range_m), range_m, 1.0), 1.0)
+        centre, scale = self.footprints_of([layer], t_s, sight, zenith_rad, range_m)
+        return centre[0], scale[0]
+
+    @staticmethod
+    def footprints_of(layers, t_s, sight, zenith_rad, range_m):
+        """:meth:`footprints` of every layer at once: centres (L, F, 2) [m] and scales (L, F) [1], ``1 - L / R`` for a
+        source at range ``R`` (``L = h sec z`` the slant distance to the layer)."""
+        altitude = np.array([layer.altitude_m for layer in layers])[:, None]
+        wind = np.array([layer.wind_m_s for layer in layers])[:, None, :]
+        slant = altitude / np.cos(zenith_rad)
+        centre = altitude[:, :, None] * np.asarray(sight, dtype=float) - wind * np.asarray(t_s)[:, None]
+        finite = np.isfinite(range_m)
+        scale = np.where(finite, 1.0 - slant / np.where(finite, range_m, 1.0), 1.0)
         return centre, scale
 
     # -- rendering --------------------------------------------------------------------------------

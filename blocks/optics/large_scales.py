@@ -56,6 +56,8 @@ RING_RATIO = 3.0
 SECTORS = 4
 #: positions ``p = STRIDE h + l``: the modes' cosines are tabulated at ``l`` once and computed at ``STRIDE h`` per read
 STRIDE = 16
+#: strides the modes' per-stride tables reach beyond what a walk asks for, either way (kept for the next walks) [1]
+STRIDE_MARGIN = 16
 #: last word of a large-scale draw's seed (a screen's own draws end in a regeneration count, far below it)
 SEED_WORD = 0xFFFFFFFF
 
@@ -126,6 +128,24 @@ class LargeScales:
         cos, sin = np.cos(within), np.sin(within)
         k = len(self.wy)
         self._low_y, self._low_x = (cos[:k], sin[:k]), (cos[k:], sin[k:])
+        self.low = np.ascontiguousarray(np.stack([cos[:k], sin[:k], cos[k:], sin[k:]]))     # (4, K, STRIDE)
+        self.amplitudes = np.ascontiguousarray(np.stack([self.a, self.b]))                  # (2, K)
+        self._strides = [(np.zeros((2, k, 0)), 0), (np.zeros((2, k, 0)), 0)]               # y, x: (table, first)
+
+    def strides(self, first: int, stop: int, axis: int) -> tuple[np.ndarray, int]:
+        """``cos``, ``sin`` (2, K, .) of the modes' phases along ``axis`` (0: y, 1: x) at every ``STRIDE``-th position
+        from the returned stride's index on, covering absolute positions ``first .. stop - 1`` [samples]: the tables
+        :func:`.screen_kernels.mode_phasors` completes at any position in between (each value from its own stride
+        alone, so a table is kept and reused while walks stay within it, and made ``STRIDE_MARGIN`` strides wider
+        either way when one leaves it)."""
+        low, high = first // STRIDE, (stop - 1) // STRIDE
+        table, start = self._strides[axis]
+        if low < start or high >= start + table.shape[2]:
+            low, high = low - STRIDE_MARGIN, high + STRIDE_MARGIN
+            phase = np.multiply.outer(self.wx if axis else self.wy, float(STRIDE) * np.arange(low, high + 1))
+            table, start = np.stack([np.cos(phase), np.sin(phase)]), low
+            self._strides[axis] = (table, start)
+        return table, start
 
     def add_to(self, coefficients: np.ndarray, top: int, left: int) -> np.ndarray:
         """``coefficients`` (an array whose first sample is at absolute (``top``, ``left``)) plus the modes' B-spline

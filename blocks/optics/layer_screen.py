@@ -46,8 +46,9 @@ import numpy as np
 
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
-from .large_scales import SEED_WORD, LargeScales, split_outer_scale
-from .screen_kernels import MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans, sample_grids_transposed
+from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
+from .screen_kernels import (MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans,
+                             run_extent, sample_grids_transposed, walk_canvases)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -58,6 +59,10 @@ SELF_START_SAMPLES = 128
 #: where a window cut from an FFT screen starts in it, along each axis (where a prefilter truncated at 16 samples
 #: each side put it until the filter moved to the Fourier domain: the same screens, within ~1e-10) [samples]
 PREFILTER_HALF_WIDTH = 16
+# a walk's arguments when it makes coefficients and reads nothing, or has no large-scale modes
+_NO_WEIGHT, _NO_OUTPUT = np.zeros(0), np.zeros((0, 1, 1))
+_NO_NOISE = np.zeros(0)
+_NO_MODES = (np.zeros((4, 0, STRIDE)), np.zeros((2, 0, 1)), 0, np.zeros((2, 0, 1)), 0, np.zeros((2, 0)))
 
 
 def _generator(seed: tuple[int, ...], epoch: int, word: int) -> np.random.Generator:
@@ -97,6 +102,7 @@ class LayerScreen:
         # reaching back 127 columns and more (the reference path's: a modes' sum over their whole window per read)
         self.L1 = split_outer_scale(self.n, self.delta, self.L0) if self.n <= SELF_START_SAMPLES else self.L0
         self._large: tuple[int, LargeScales] | None = None     # (epoch, its modes)
+        self._operator = None      # the one-column conditional draw (:mod:`.autoregressive`), made at first use
         self.coefficients: np.ndarray | None = None   # B-spline coefficients of the window [rad, r0 = 1 m]
         self.origin = np.zeros(2, dtype=np.int64)
         self.epoch = -1            # revisit period the screen belongs to
@@ -177,61 +183,74 @@ class LayerScreen:
         Extends or regenerates as configured; a footprint farther than 1.5 window widths from
         the window is regenerated in any case (the screen there is practically independent).
         """
-        self.walk(np.asarray(low, dtype=float)[None], np.asarray(high, dtype=float)[None],
-                  np.array([epoch], dtype=np.int64))
+        low, high = np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+        self.walk(np.array([[low[0], high[0]]]), np.array([[low[1], high[1]]]), np.array([epoch], dtype=np.int64))
 
-    def walk(self, low: np.ndarray, high: np.ndarray, epochs: np.ndarray, read=None) -> None:
-        """Keep each box ``low[f] .. high[f]`` (F, 2) [delta] of epoch ``epochs[f]`` inside the window in turn.
+    def walk(self, rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray, reads: tuple | None = None) -> None:
+        """Keep each frame's footprint, from its grid's first to last ``rows`` (F, ny) and ``cols`` (F, nx) [delta], of
+        epoch ``epochs[f]`` inside the window in turn.
 
-        ``read(coefficients, top, left, first, stop)`` is called with a canvas holding the windows of
-        frames ``first .. stop - 1`` at their turn (its first sample at absolute (``top``, ``left``));
-        coefficients are made once, in order, whatever the batching.
+        With ``reads = (weight, out_t)`` (:meth:`accumulate`) each frame's grid is read from a canvas holding its
+        window at its turn; coefficients are made once, in order, whatever the batching. Between regenerations a run
+        of canvases is made and read in one compiled call (:func:`.screen_kernels.walk_canvases`), the conditional
+        columns' noise in one draw.
         """
-        low = np.ascontiguousarray(low, dtype=float)
-        high = np.ascontiguousarray(high, dtype=float)
         kind, side, op_epoch, centre, before, frame_ops, starts = plan_walk(
-            low, high, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN, self.update == "regenerate",
-            self.origin.astype(np.int64), np.int64(self.epoch), self.coefficients is not None, CANVAS_STEPS)
+            rows, cols, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN, self.update == "regenerate",
+            self.origin, np.int64(self.epoch), self.coefficients is not None, CANVAS_STEPS)
         if len(kind) and kind[0] < 0:
-            span = np.max(high - low, axis=0)
+            span = np.max(np.stack([rows[:, -1] - rows[:, 0], cols[:, -1] - cols[:, 0]], axis=-1), axis=0)
             raise ValueError(f"a footprint of {span} samples does not fit a {self.n}-sample screen")
-        # frames [0, ready) need no operation; those up to the end of each canvas's operations read it
-        ready = int(np.searchsorted(frame_ops, 0, side="right"))
-        if read is not None and ready:
-            read(self.coefficients, int(self.origin[0]), int(self.origin[1]), 0, ready)
-        for a, b in zip(starts[:-1], starts[1:]):
-            first = a
-            if kind[a] == REGENERATE:
-                self.regenerate(centre[a], int(op_epoch[a]))
-                first = a + 1
-            canvas, corner = self._extend(side[first:b], before[first:b])
-            stop = int(np.searchsorted(frame_ops, b, side="right"))
-            if read is not None and stop > ready:
-                read(canvas, int(corner[0]), int(corner[1]), ready, stop)
-            ready = stop
+        weight, out_t = reads if reads is not None else (_NO_WEIGHT, _NO_OUTPUT)
+        regenerations = np.flatnonzero(kind[starts[:-1]] == REGENERATE) if len(kind) else ()
+        # the present window first (frames that need no operation), then each canvas up to the next regeneration,
+        # which starts the next run from the fresh window
+        edges, as_is, frame = starts[:(regenerations[0] if len(regenerations) else len(starts) - 1) + 1], True, 0
+        for i, r in enumerate(regenerations):
+            frame = self._run(edges, as_is, side, before, frame_ops, frame, rows, cols, weight, out_t)
+            a = starts[r]
+            self.regenerate(centre[a], int(op_epoch[a]))
+            following = regenerations[i + 1] if i + 1 < len(regenerations) else len(starts) - 1
+            edges, as_is = np.concatenate([[a + 1], starts[r + 1:following + 1]]), False
+        self._run(edges, as_is, side, before, frame_ops, frame, rows, cols, weight, out_t)
 
-    def _extend(self, sides: np.ndarray, before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Grow the window one column per entry of ``sides`` (its origin ``before`` each step).
+    def _run(self, edges: np.ndarray, as_is: bool, sides: np.ndarray, before: np.ndarray, frame_ops: np.ndarray,
+             frame: int, rows: np.ndarray, cols: np.ndarray, weight: np.ndarray, out_t: np.ndarray) -> int:
+        """Make and read a walk's canvases ``edges[c] .. edges[c + 1]`` (operations) from the present window (read
+        as it is first with ``as_is``) in one compiled call (:func:`.screen_kernels.walk_canvases`). Returns the
+        next frame to read."""
+        if self.coefficients is None:
+            return frame
+        first, stop, n = int(edges[0]), int(edges[-1]), self.n
+        noise = self._rng.standard_normal(n * (stop - first)) if stop > first else _NO_NOISE
+        if self._operator is None:
+            self._operator = extension_operator(n, 1, self.delta, self.L1, n)
+        operator = self._operator
+        if self.L1 == self.L0 or not len(weight):
+            tables = _NO_MODES
+        else:
+            # the per-stride tables of the modes' phasors over every canvas of the run
+            large = self._large_scales()
+            lo0, hi0, lo1, hi1 = run_extent(self.origin, before, sides, first, stop, n)
+            high_y, first_y = large.strides(lo0, hi0, 0)
+            high_x, first_x = large.strides(lo1, hi1, 1)
+            tables = (large.low, high_y, first_y, high_x, first_x, large.amplitudes)
+        window, origin = self.coefficients.copy(), self.origin.copy()
+        frame = walk_canvases(window, origin, n, sides, before, edges, as_is, noise, operator.A, operator.B,
+                              operator.stencil_rows, operator.stencil_cols, frame_ops, frame, rows, cols, weight,
+                              out_t, *tables, STRIDE)
+        self.coefficients, self.origin = window, origin
+        if frame < 0:
+            raise ValueError("screen sampled outside its window")
+        return frame
 
-        Returns a canvas holding every window of the steps and the absolute position of its first sample.
-        """
-        if not len(sides):
-            return self.coefficients, self.origin.copy()
-        n = self.n
-        moves = np.array([(0, 1), (0, -1), (1, 0), (-1, 0)], dtype=np.int64)      # RIGHT, LEFT, DOWN, UP
-        after = before[-1] + moves[sides[-1]]
-        lo = np.minimum(before.min(axis=0), after)
-        canvas = np.empty(tuple(np.maximum(before.max(axis=0), after) + n - lo))    # only windows are written and read
-        top, left = self.origin - lo
-        canvas[top:top + n, left:left + n] = self.coefficients
-        operator = extension_operator(n, 1, self.delta, self.L1, n)
-        noise = self._rng.standard_normal(n * len(sides))
-        extend_columns(canvas, before[:, 0] - lo[0], before[:, 1] - lo[1], sides.astype(np.int64), operator.A,
-                       operator.B, operator.stencil_rows, operator.stencil_cols, noise, n)
-        self.origin = after
-        top, left = after - lo
-        self.coefficients = np.ascontiguousarray(canvas[top:top + n, left:left + n])
-        return canvas, lo
+    def _large_scales(self) -> LargeScales:
+        """The present epoch's large-scale modes (:mod:`.large_scales`), drawn from their own generator seeded by
+        ``(seed, epoch)``."""
+        if self._large is None or self._large[0] != self.epoch:
+            self._large = (self.epoch, LargeScales(_generator(self.seed, self.epoch, SEED_WORD), self.delta, self.L0,
+                                                   self.L1))
+        return self._large[1]
 
     def _with_large_scales(self, coefficients: np.ndarray, top: int, left: int, rows: np.ndarray,
                            cols: np.ndarray) -> tuple[np.ndarray, int, int]:
@@ -241,14 +260,11 @@ class LayerScreen:
         ``left``, so the reads' arithmetic is unchanged."""
         if self.L1 == self.L0:
             return coefficients, top, left
-        if self._large is None or self._large[0] != self.epoch:
-            self._large = (self.epoch, LargeScales(_generator(self.seed, self.epoch, SEED_WORD), self.delta, self.L0,
-                                                   self.L1))
         # in each row, the columns from the first to the last any frame reads there (a diagonal walk reads a band)
         height, width = coefficients.shape
         first, stop = np.empty(height, np.int64), np.empty(height, np.int64)
         read_spans(rows, cols, top, left, height, width, first, stop)
-        return self._large[1].added(coefficients, top, left, first, stop), top, left
+        return self._large_scales().added(coefficients, top, left, first, stop), top, left
 
     def spline_coefficients(self) -> np.ndarray:
         """The window's B-spline coefficients [rad, r0 = 1 m] with the large-scale modes: the screen the reads see."""
@@ -269,16 +285,7 @@ class LayerScreen:
         rows = np.ascontiguousarray(rows, dtype=float)
         cols = np.ascontiguousarray(cols, dtype=float)
         weight = np.ascontiguousarray(weight, dtype=float)
-
-        def read(coefficients, top, left, first, stop):
-            coefficients, top, left = self._with_large_scales(coefficients, top, left, rows[first:stop],
-                                                              cols[first:stop])
-            if not sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
-                raise ValueError("screen sampled outside its window")
-
-        low = np.stack([rows[:, 0], cols[:, 0]], axis=-1)
-        high = np.stack([rows[:, -1], cols[:, -1]], axis=-1)
-        self.walk(low, high, epochs, read)
+        self.walk(rows, cols, epochs, (weight, out_t))
 
     def sample(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Phase [rad, for r0 = 1 m] on separable grids of the present window: ``rows`` (F, ny), ``cols`` (F, nx) [delta].

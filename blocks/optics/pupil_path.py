@@ -69,15 +69,22 @@ class PupilPath:
         epochs = self.imager.epochs_of(t_s)
         if self.screen_method == "zernike":
             return self._modal_phase(source, t_s, sight, zenith_rad, range_m, epochs)
-        for layer, screen in zip(self.imager.atmosphere.layers, self._layer_screens(source)):
-            if layer.cn2_dh <= 0:
-                continue
-            centre, scale = self.imager.footprints(layer, t_s, sight, np.where(turbulent, zenith_rad, 0.0), range_m)
-            rows = (centre[:, 1, None] + scale[:, None] * xp[None, :]) / screen.delta
-            cols = (centre[:, 0, None] + scale[:, None] * xp[None, :]) / screen.delta
-            # r0^(-5/6) of this layer (the screens are drawn for r0 = 1 m)
-            weight = np.sqrt(0.423 * k2 / np.cos(np.where(turbulent, zenith_rad, 0.0)) * layer.cn2_dh)
-            screen.accumulate(rows, cols, epochs, np.where(turbulent, weight, 0.0), phase_t)
+        turbulent_layers = [(layer, screen) for layer, screen in zip(self.imager.atmosphere.layers,
+                                                                     self._layer_screens(source)) if layer.cn2_dh > 0]
+        if not turbulent_layers:
+            return phase_t.transpose(0, 2, 1)
+        layers, screens = zip(*turbulent_layers)
+        zenith = np.where(turbulent, zenith_rad, 0.0)
+        # every layer's footprints at once (L, F, 2), (L, F), its grids [samples] (L, F, n) and weights (L, F)
+        centre, scale = self.imager.footprints_of(layers, t_s, sight, zenith, range_m)
+        delta = np.array([screen.delta for screen in screens])[:, None, None]
+        rows = (centre[:, :, 1, None] + scale[:, :, None] * xp) / delta
+        cols = (centre[:, :, 0, None] + scale[:, :, None] * xp) / delta
+        # r0^(-5/6) of each layer (the screens are drawn for r0 = 1 m)
+        weight = np.sqrt((0.423 * k2 / np.cos(zenith))[None] * np.array([layer.cn2_dh for layer in layers])[:, None])
+        weight = np.where(turbulent, weight, 0.0)
+        for i, screen in enumerate(screens):
+            screen.accumulate(rows[i], cols[i], epochs, weight[i], phase_t)
         return phase_t.transpose(0, 2, 1)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:

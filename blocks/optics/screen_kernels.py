@@ -31,8 +31,9 @@ RIGHT, LEFT, DOWN, UP = 0, 1, 2, 3
 
 
 @jit
-def plan_walk(low, high, epochs, n, margin, regenerate_only, origin, epoch, has_values, canvas_steps):
-    """Operations that keep each frame's box ``low .. high`` (F, 2) [samples] inside an ``n``-sample window.
+def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has_values, canvas_steps):
+    """Operations that keep each frame's box, from its grid's first to last ``rows`` (F, ny) and ``cols`` (F, nx)
+    [samples], inside an ``n``-sample window.
 
     Returns ``kind``, ``side``, ``op_epoch``, ``centre`` (n_ops, 2), the window origin before each
     operation ``before`` (n_ops, 2), ``frame_ops`` (F,): operations done before frame f is read, and
@@ -43,7 +44,12 @@ def plan_walk(low, high, epochs, n, margin, regenerate_only, origin, epoch, has_
     a time toward the footprint, dropping one on the opposite side. ``kind`` is -1 on a footprint
     wider than the window allows.
     """
-    frames = low.shape[0]
+    frames = rows.shape[0]
+    low = np.empty((frames, 2))
+    high = np.empty((frames, 2))
+    for f in range(frames):
+        low[f, 0], low[f, 1] = rows[f, 0], cols[f, 0]
+        high[f, 0], high[f, 1] = rows[f, rows.shape[1] - 1], cols[f, cols.shape[1] - 1]
     capacity = 16
     kind = np.empty(capacity, np.int8)
     side = np.empty(capacity, np.int8)
@@ -288,3 +294,86 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
                 acc[c] += u * cx[c] + v * sx[c]
         for c in range(c0, c1):
             out[r, c] = source[r, c] + acc[c]
+
+
+@jit
+def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, stencil_rows,
+                  stencil_back, frame_ops, frame, rows, cols, weight, out_t, low, high_y, first_high_y, high_x,
+                  first_high_x, amplitudes, stride):
+    """Make and read a run of a walk's canvases (:func:`plan_walk`'s operations ``edges[c] .. edges[c + 1] - 1``,
+    no regeneration among them; with ``as_is``, the present window before them) in one call: each canvas holds the
+    window (``window`` (n, n),
+    its first sample at absolute ``origin``, both updated) and the windows of its one-column steps
+    (:func:`extend_columns`, ``n`` normal draws per step from ``noise``, in order); then the frames from ``frame``
+    whose operations it completes (``frame_ops[f] <= canvas_stop[c]``) are read from it (:func:`sample_grids_transposed`
+    into ``out_t``; none when ``weight`` has no frames), with the large-scale modes added where they read
+    (:func:`read_spans`, :func:`add_modes`; their phasors by :func:`mode_phasors` from the per-stride tables
+    ``high_y`` (2, K, .) from stride ``first_high_y`` and ``high_x``, and ``low`` (4, K, stride): cos, sin along y,
+    then x; ``amplitudes`` (2, K), no modes when K = 0). An empty operation range is the window as it is.
+
+    The same arithmetic on the same arrays as making the canvases and reading them one call at a time. Returns the
+    next frame to read, or -1 when a grid reaches outside its canvas.
+    """
+    frames = frame_ops.shape[0]
+    reading = weight.shape[0] == frames and frames > 0
+    modes = amplitudes.shape[1]
+    used = 0
+    for c in range(-1 if as_is else 0, edges.shape[0] - 1):
+        s, e = (edges[0], edges[0]) if c < 0 else (edges[c], edges[c + 1])
+        if e > s:
+            last = sides[e - 1]
+            after0 = before[e - 1, 0] + (1 if last == DOWN else (-1 if last == UP else 0))
+            after1 = before[e - 1, 1] + (1 if last == RIGHT else (-1 if last == LEFT else 0))
+            lo0, lo1, hi0, hi1 = after0, after1, after0, after1
+            for op in range(s, e):
+                lo0, hi0 = min(lo0, before[op, 0]), max(hi0, before[op, 0])
+                lo1, hi1 = min(lo1, before[op, 1]), max(hi1, before[op, 1])
+            canvas = np.empty((hi0 + n - lo0, hi1 + n - lo1))      # only windows are written and read
+            top, left = origin[0] - lo0, origin[1] - lo1
+            canvas[top:top + n, left:left + n] = window
+            extend_columns(canvas, before[s:e, 0] - lo0, before[s:e, 1] - lo1, sides[s:e], a, b, stencil_rows,
+                           stencil_back, noise[used * n:(used + e - s) * n], n)
+            used += e - s
+            origin[0], origin[1] = after0, after1
+            window[:, :] = canvas[after0 - lo0:after0 - lo0 + n, after1 - lo1:after1 - lo1 + n]
+            top, left = lo0, lo1
+        else:
+            canvas = window
+            top, left = origin[0], origin[1]
+        stop = frame
+        while stop < frames and frame_ops[stop] <= e:
+            stop += 1
+        if reading and stop > frame:
+            if modes:
+                height, width = canvas.shape
+                first = np.empty(height, np.int64)
+                end = np.empty(height, np.int64)
+                read_spans(rows[frame:stop], cols[frame:stop], top, left, height, width, first, end)
+                cos_y, sin_y = np.empty((modes, height)), np.empty((modes, height))
+                cos_x, sin_x = np.empty((modes, width)), np.empty((modes, width))
+                mode_phasors(low[0], low[1], high_y[0], high_y[1], first_high_y, top, height, stride, cos_y, sin_y)
+                mode_phasors(low[2], low[3], high_x[0], high_x[1], first_high_x, left, width, stride, cos_x, sin_x)
+                source = canvas
+                canvas = np.empty((height, width))
+                add_modes(source, canvas, cos_y, sin_y, cos_x, sin_x, amplitudes[0], amplitudes[1], first, end)
+            if not sample_grids_transposed(canvas, top, left, rows, cols, weight, frame, stop, out_t):
+                return -1
+        frame = stop
+    return frame
+
+
+@jit
+def run_extent(origin, before, sides, first, stop, n):
+    """Absolute rows ``lo0 .. hi0 - 1`` and columns ``lo1 .. hi1 - 1`` that the canvases of a walk's operations
+    ``first .. stop - 1`` (:func:`plan_walk`), and the window at ``origin`` they start from, cover."""
+    lo0, lo1, hi0, hi1 = origin[0], origin[1], origin[0], origin[1]
+    for op in range(first, stop):
+        lo0, hi0 = min(lo0, before[op, 0]), max(hi0, before[op, 0])
+        lo1, hi1 = min(lo1, before[op, 1]), max(hi1, before[op, 1])
+    if stop > first:
+        last = sides[stop - 1]
+        after0 = before[stop - 1, 0] + (1 if last == DOWN else (-1 if last == UP else 0))
+        after1 = before[stop - 1, 1] + (1 if last == RIGHT else (-1 if last == LEFT else 0))
+        lo0, hi0 = min(lo0, after0), max(hi0, after0)
+        lo1, hi1 = min(lo1, after1), max(hi1, after1)
+    return lo0, hi0 + n, lo1, hi1 + n
