@@ -1,16 +1,15 @@
 """CPU time of the path choice's reference probes (``psf_path: auto``) on the tracked pass of end_to_end.yaml.
 
 Runs one window of the pass (so that the optics block builds its imager and meets the run's
-conditions), then times, on one thread with the cache of probe results across runs off, :meth:`.PathChooser.pupil_estimate` afresh for each
-pupil-error bin the run met (the Fresnel reference propagations, 4-24 per bin), alternating the
+conditions), then times, on one thread with the cache of probe results across runs off,
+:meth:`.PathChooser.pupil_estimate` afresh for each pupil-error bin the run met (the Fresnel reference propagations, 4-24 per bin), alternating the
 probes' frame pairs made from both halves of each complex FFT draw (``both``: as ``auto`` does,
 :meth:`.LayerScreen.twin`) and the second frame of each pair drawn on its own (``one``: every frame
 its own draw, the probes' cost before). Prints the medians of ``--repeats`` rounds and each bin's
 estimate, frames and verdict. ``--all-frames`` makes every bin take all 24 frames (a tolerance no
 estimate can clear: the same count both ways, the cost per frame). ``--against DIR`` alternates this tree's
-probes (pairs, as ``auto`` makes them) with those through another checkout's Fresnel propagation
-(``blocks/optics/propagation.py``, with the FFT threads it used) and its FFT screens' cut and prefilter
-(``LayerScreen._cut_from_fft`` and ``twin`` of its ``blocks/optics/layer_screen.py``), and prints how far
+probes (pairs, as ``auto`` makes them) with those through another checkout's reference path (its
+``blocks/optics/reference_path.py`` with its ``propagation.py`` and ``layer_screen.py``), and prints how far
 the estimates of the two are apart.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames] [--against DIR]
@@ -25,11 +24,11 @@ import os
 import statistics
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from evsda.blocks.optics import reference_path
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.layer_screen import LayerScreen
 from evsda.blocks.optics.paths import PUPIL_ERROR_ZENITH_BIN_RAD
@@ -49,28 +48,19 @@ def checkout_module(checkout: Path, name: str):
     return module
 
 
-def against(checkout: Path):
-    """Patch this tree's probes to run through ``checkout``'s propagation and FFT screens' cut; returns the undo."""
-    propagation, screens = checkout_module(checkout, "propagation"), checkout_module(checkout, "layer_screen")
-    kept = reference_path.propagate, LayerScreen._cut_from_fft, LayerScreen.twin
-
-    @functools.wraps(propagation.propagate)
-    def propagate(*args, workers=None, **kwargs):            # with the FFT threads that checkout's caller used
-        return propagation.propagate(*args, **kwargs) if workers is None or not calls_with_workers(checkout) \
-            else propagation.propagate(*args, workers=workers, **kwargs)
-
-    reference_path.propagate = propagate
-    LayerScreen._cut_from_fft = screens.LayerScreen._cut_from_fft
-    LayerScreen.twin = screens.LayerScreen.twin
+def against(checkout: Path, imager) -> Callable[[], None]:
+    """Make ``imager``'s reference path that of ``checkout`` (its ``reference_path.py``, with its ``propagation.py``
+    and ``layer_screen.py``; the rest is this tree's); returns the undo."""
+    module = checkout_module(checkout, "reference_path")
+    module.propagate = checkout_module(checkout, "propagation").propagate
+    module.LayerScreen = checkout_module(checkout, "layer_screen").LayerScreen
+    reference = imager.reference
+    kept = reference.__class__
+    reference.__class__ = module.ReferencePath
 
     def undo():
-        reference_path.propagate, LayerScreen._cut_from_fft, LayerScreen.twin = kept
+        reference.__class__ = kept
     return undo
-
-
-def calls_with_workers(checkout: Path) -> bool:
-    """Whether that checkout's reference path sets the propagation's FFT threads."""
-    return "workers=" in (checkout / "blocks" / "optics" / "reference_path.py").read_text()
 
 
 def main() -> None:
@@ -110,7 +100,7 @@ def main() -> None:
         return lambda: setattr(LayerScreen, "twin", twin)
 
     if args.against:
-        ways = {str(args.against): lambda: against(args.against), "this tree": lambda: (lambda: None)}
+        ways = {str(args.against): lambda: against(args.against, imager), "this tree": lambda: (lambda: None)}
     else:
         ways = {"one draw(s) a pair": one_draw_a_frame, "both draw(s) a pair": lambda: (lambda: None)}
     times = {name: [] for name in ways}
@@ -134,9 +124,10 @@ def main() -> None:
     print(f"  ratio {second} / {first}: {statistics.median(times[second]) / statistics.median(times[first]):.2f}; "
           f"load {statistics.median(loads):.1f}")
     if args.against:
-        apart = max(abs(a.error - b.error) for a, b in zip(estimates[first], estimates[second]))
-        print(f"  estimates apart by at most {apart:.2g} (frames and verdicts "
-              f"{'the same' if all((a.frames, a.within) == (b.frames, b.within) for a, b in zip(*estimates.values())) else 'DIFFERENT'})")
+        pairs = list(zip(*estimates.values()))
+        apart = max(abs(a.error - b.error) for a, b in pairs)
+        print(f"  estimates apart by at most {apart:.2g}; frames {[(a.frames, b.frames) for a, b in pairs]}; "
+              f"verdicts {'the same' if all(a.within == b.within for a, b in pairs) else 'DIFFERENT'}")
 
 
 if __name__ == "__main__":

@@ -216,11 +216,20 @@ def _kept_transfer_functions(n: int, wavelength: float, delta: tuple[float, ...]
 
 
 def _phasor(phase: np.ndarray) -> np.ndarray:
-    """``exp(i phase)`` [1] as ``cos + i sin`` written into one complex array (NumPy's complex ``exp`` of ``i phase``
-    computes the same two functions, with a temporary and the factor ``exp(0)`` more)."""
+    """``exp(i phase)`` [1] from the sine and cosine of the phase rounded to single precision (NumPy's vectorised
+    float32 ones: 10x faster than in double precision), scaled to unit modulus in double precision so that the
+    propagation keeps its energy exactly: a phase error of ``|phase| x 6e-8`` rad (4e-6 rad at 60 rad), far below
+    the screens' own (the pupil path rounds its phase to single precision too)."""
+    rounded = phase.astype(np.float32)
     out = np.empty(phase.shape, dtype=complex)
-    np.cos(phase, out=out.real)
-    np.sin(phase, out=out.imag)
+    cos, sin = out.real, out.imag
+    cos[...] = np.cos(rounded)
+    sin[...] = np.sin(rounded)
+    modulus = np.square(cos)
+    modulus += np.square(sin)
+    np.sqrt(modulus, out=modulus)
+    cos /= modulus
+    sin /= modulus
     return out
 
 
