@@ -12,13 +12,13 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import networkx as nx
 from evsda import library
 from pydantic import ValidationError
 
 from . import limits as limits_module
 from . import registry
 from .block import Block
-from .dag import Dag
 from .errors import ParameterError, Problem, UserError, suggest
 from .files import check_regular_file
 from .flatten import BlockNode
@@ -134,11 +134,15 @@ def _fan_in_problems(nodes: Nodes, conn: Connection, file: str, count: int) -> l
     return []
 
 
-def dependency_graph(nodes: Nodes, connections: list[Connection]) -> Dag:
+def dependency_graph(nodes: Nodes, connections: list[Connection]) -> nx.DiGraph:
     """Blocks as nodes, an edge wherever one feeds another (its ``ports``: the (output, input) pairs)."""
-    digraph = Dag(nodes)
+    digraph = nx.DiGraph()
+    digraph.add_nodes_from(nodes)
     for conn in connections:
-        digraph.add_edge(conn.src, conn.dst, (conn.src_port, conn.dst_port))
+        if digraph.has_edge(conn.src, conn.dst):
+            digraph[conn.src][conn.dst]["ports"].append((conn.src_port, conn.dst_port))
+        else:
+            digraph.add_edge(conn.src, conn.dst, ports=[(conn.src_port, conn.dst_port)])
     return digraph
 
 
@@ -167,12 +171,13 @@ def check_exposed_ports(nodes: Nodes, exposures: list[Exposure]) -> list[Problem
     return problems
 
 
-def check_cycles(file: str, digraph: Dag) -> list[Problem]:
+def check_cycles(file: str, digraph: nx.DiGraph) -> list[Problem]:
     """The blocks form a DAG."""
-    cycle = digraph.find_cycle()
-    if cycle is None:
+    try:
+        cycle = nx.find_cycle(digraph)
+    except nx.NetworkXNoCycle:
         return []
-    chain = " -> ".join(cycle)
+    chain = " -> ".join([cycle[0][0], *[edge[1] for edge in cycle]])
     return [Problem(file, "connections", f"the graph has a cycle ({chain}); blocks must form a DAG")]
 
 

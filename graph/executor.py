@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import networkx as nx
 
 from . import __version__
 from . import store as store_module
@@ -63,8 +64,8 @@ def requested_outputs(graph: Graph) -> list[tuple[str, str]]:
     if graph.outputs:
         return list(graph.outputs)
     sinks = _sinks(graph)
-    upstream = set().union(*(graph.digraph.ancestors(n) for n in sinks)) - set(sinks)
-    streams = [(n, port) for n in graph.digraph.topological_order() if n in upstream
+    upstream = set().union(*(nx.ancestors(graph.digraph, n) for n in sinks)) - set(sinks)
+    streams = [(n, port) for n in nx.topological_sort(graph.digraph) if n in upstream
                for port, spec in type(graph.nodes[n].block).outputs.items() if spec.type.record == EVENT_STREAM]
     return [(n, port) for n in sinks for port in type(graph.nodes[n].block).outputs] + streams
 
@@ -78,7 +79,7 @@ def _sinks(graph: Graph) -> list[str]:
 def upstream_hashes(graph: Graph, run: RunInfo) -> dict[str, str]:
     """For every block, a hash of its type, params, name, seed, time range and everything upstream."""
     hashes: dict[str, str] = {}
-    for name in graph.digraph.topological_order():
+    for name in nx.topological_sort(graph.digraph):
         block = graph.nodes[name].block
         inputs = sorted(
             (dport, hashes[src], sport) for src, sport, dst, dport in graph.connections if dst == name
@@ -173,9 +174,9 @@ class Executor:
         requested_blocks = {b for b, _ in self.requested}
         active = set(requested_blocks)
         for b in requested_blocks:
-            active |= self.graph.digraph.ancestors(b)
+            active |= nx.ancestors(self.graph.digraph, b)
         needed: set[str] = set(requested_blocks)
-        for name in reversed(list(self.graph.digraph.topological_order())):
+        for name in reversed(list(nx.topological_sort(self.graph.digraph))):
             if name not in needed:
                 continue
             if name not in requested_blocks:
@@ -184,7 +185,7 @@ class Executor:
                     self.loaded[name] = store
                     continue
             needed |= set(self.graph.digraph.predecessors(name))
-        return [n for n in self.graph.digraph.topological_order() if n in needed]
+        return [n for n in nx.topological_sort(self.graph.digraph) if n in needed]
 
     def _stores_products(self, name: str) -> bool:
         choice = self.graph.run.store_products

@@ -30,12 +30,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import networkx as nx
 from evsda import library
 from pydantic import ValidationError
 
 from . import checks
 from .block import Block, RunInfo
-from .dag import Dag
 from .errors import GraphError, Problem, UserError, suggest
 from .flatten import BlockNode, FlatGraph, apply_overrides, flatten, flatten_resolved, set_param
 from .limits import Limits
@@ -59,7 +59,7 @@ class Graph:
     outputs: list[Endpoint]                                # requested outputs
     exposed_inputs: dict[str, Endpoint] = field(default_factory=dict)
     exposed_outputs: dict[str, Endpoint] = field(default_factory=dict)
-    digraph: Dag = field(default_factory=Dag)
+    digraph: nx.DiGraph = field(default_factory=nx.DiGraph)
 
     @property
     def blocks(self) -> dict[str, Block]:

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import networkx as nx
 import numpy as np
 
 from .errors import GraphError, Interrupted, Problem, StoreError, UserError, clip
@@ -311,7 +312,7 @@ def _keys_reaching(graph: Graph, keys: list[str]) -> dict[str, list[str]]:
             touched = set(graph.nodes)
         else:
             block = key.partition(".")[0]
-            touched = {block} | graph.digraph.descendants(block) if block in graph.nodes else set(graph.nodes)
+            touched = {block} | nx.descendants(graph.digraph, block) if block in graph.nodes else set(graph.nodes)
         for name in touched:
             reached.setdefault(name, []).append(key)
     return reached
@@ -340,9 +341,9 @@ def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] =
     """
     graph = graph or load_graph(graph_path, list(overrides))
     requested = {block for block, _ in requested_outputs(graph)}
-    active = set(requested).union(*(graph.digraph.ancestors(b) for b in requested))
+    active = set(requested).union(*(nx.ancestors(graph.digraph, b) for b in requested))
     reached = _keys_reaching(graph, list(points[0].values) if points else [])
-    shareable = [b for b in graph.digraph.topological_order() if b in active and b not in requested]
+    shareable = [b for b in nx.topological_sort(graph.digraph) if b in active and b not in requested]
     providers, stores = _assign_providers(graph, points, shareable, active, reached)
     return providers, {q: sorted(blocks) for q, blocks in stores.items()}
 
