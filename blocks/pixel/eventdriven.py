@@ -37,7 +37,7 @@ from .model import PixelModel
 from .deferred import SharedChanges, select_pixels, take_and_run
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
-from .own_changes import own_changes
+from .own_changes import own_changes, under_stamps
 from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
@@ -47,6 +47,7 @@ _FIRST_CAPACITY = 1024                 # room for events per chunk at the first 
 #: room the envelope of background changes leaves around those kept, in Y (plus their spread) [ln of current]
 #: and in the parasitic rate [relative]: wider envelopes are renewed less often but show fewer pixels quiet
 _ENVELOPE_Y, _ENVELOPE_PARA = 1e-3, 1e-2
+_PRUNE_EVERY = 8                       # windows between forgetting the background changes every pixel has taken
 
 
 class EventDrivenPixels:
@@ -63,6 +64,8 @@ class EventDrivenPixels:
         self._wake = np.empty(state["real"].shape[0], np.int64)
         self._envelope = np.array([-np.inf, np.inf, 0.0])
         self._fresh = False
+        self._windows = 0
+        self._slot = np.full(state["real"].shape[0], -1, np.int32)    # scratch of :func:`.own_changes.under_stamps`
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._drive = drive_constants(model)
@@ -121,21 +124,17 @@ class EventDrivenPixels:
         a threshold under them before the window's end.
         """
         s = self.s
-        n = s["real"].shape[0]
         history = SharedChanges(s, len(REAL))
         empty = np.zeros(0, np.int64)
         shared = empty
         own_pixel, own_step, own_flux = empty, empty, np.zeros(0)
-        mark = np.zeros(n, np.bool_)
-        mark[s["off_background"]] = True
-        mark[stamps.pixel] = True
-        touched = np.flatnonzero(mark)                        # pixels under stamps, now or before
+        touched, stamp_row = under_stamps(s["off_background"], stamps.pixel, self._slot)   # under stamps, now or before
         self._catch_up(history, history.behind(touched))      # earlier background changes first
         if steps.size:
             shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
             if touched.size:
-                row, col, own_flux, off = own_changes(s["real"][touched, FLUX], background,
-                                                      np.searchsorted(touched, stamps.pixel), stamps.sample, stamps.flux)
+                row, col, own_flux, off = own_changes(s["real"][touched, FLUX], background, stamp_row, stamps.sample,
+                                                      stamps.flux)
                 own_pixel, own_step = touched[row], steps[col].astype(np.int64)       # sorted by pixel, then step
                 s["off_background"] = touched[off]
         first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
@@ -164,7 +163,9 @@ class EventDrivenPixels:
         self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log, quiet_lo, kept - 1)
         history.taken(taking)
         history.taken(touched)
-        history.prune()
+        self._windows += 1
+        if self._windows % _PRUNE_EVERY == 0:                # a sweep of every pixel's count, for memory only
+            history.prune()
 
     def _holds(self, rows: np.ndarray) -> bool:
         """Whether the envelope holds the background changes ``rows`` (their ``Y`` and parasitic rates)."""
@@ -188,6 +189,7 @@ class EventDrivenPixels:
         at once; events are unaffected either way)."""
         history = SharedChanges(self.s, len(REAL))
         self._catch_up(history, history.behind(np.arange(self.s["real"].shape[0])))
+        history.prune()
 
     def _catch_up(self, history: SharedChanges, pixels: np.ndarray) -> None:
         """Give ``pixels`` the background changes they have not taken (all before the present window).
@@ -206,7 +208,6 @@ class EventDrivenPixels:
         if scratch._chunks or scratch.n_loss:
             raise RuntimeError("a pixel left out of a background change would have fired (deferral bound violated)")
         history.taken(pixels)
-        history.prune()
 
     def run_dense_window(self, background: np.ndarray, steps: np.ndarray, stamps_of, block_rows: int, n_end: int,
                          log: EventLog, height: int, width: int) -> None:

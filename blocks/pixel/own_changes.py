@@ -53,3 +53,34 @@ def own_changes(held, background, row_of, sample, flux):
             previous = value
         off[i] = k_max > 0 and value != background[k_max - 1]
     return rows[:out].copy(), columns[:out].copy(), values[:out].copy(), off
+
+
+@numba.njit(cache=True, nogil=True)
+def under_stamps(before, pixel, slot):
+    """The pixels under stamps now or before, sorted, and the row of each stamp entry's pixel among them.
+
+    ``before`` (sorted, unique): the pixels whose input differed from the background at the last
+    window's end; ``pixel``: the stamp entries' pixels; ``slot``: a per-pixel scratch row of -1, left
+    as found. The same as marking both in a sensor-sized mask, listing it and looking each entry's pixel
+    up in the list, at a cost in the stamps' pixels, not the sensor's.
+    """
+    touched = np.empty(before.size + pixel.size, np.int64)
+    m = 0
+    for p in before:
+        slot[p] = 0
+        touched[m] = p
+        m += 1
+    for p in pixel:
+        if slot[p] < 0:
+            slot[p] = 0
+            touched[m] = p
+            m += 1
+    touched = np.sort(touched[:m])
+    for i in range(m):
+        slot[touched[i]] = i
+    rows = np.empty(pixel.size, np.int64)
+    for e in range(pixel.size):
+        rows[e] = slot[pixel[e]]
+    for i in range(m):
+        slot[touched[i]] = -1
+    return touched, rows

@@ -359,10 +359,17 @@ def quiet_until(real, count, p, y_high, y_low, para_high, leak_dt, dt):
         return SOON
     if drift == 0.0:
         return NEVER
-    steps = np.int64(min((limit - rise) / drift * (1.0 - 1e-12), float(J_LIMIT)))
-    while steps > 0 and not rise + drift * steps < limit:        # the division's rounding, settled on the bound
-        steps -= 1 + (steps >> 20)
-    return count[p, STEP] + 1 + max(steps, np.int64(0))
+    steps = np.int64(min((limit - rise) / drift, float(J_LIMIT)))
+    if not rise + drift * steps < limit:          # rounding: bisect between 0 steps (quiet) and these (not)
+        quiet = np.int64(0)
+        while steps - quiet > 1:
+            middle = quiet + (steps - quiet) // 2
+            if rise + drift * middle < limit:
+                quiet = middle
+            else:
+                steps = middle
+        steps = quiet
+    return count[p, STEP] + 1 + steps
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)

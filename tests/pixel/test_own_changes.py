@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from evsda.blocks.pixel.own_changes import own_changes
+from evsda.blocks.pixel.own_changes import own_changes, under_stamps
 
 
 def dense_changes(held, background, row_of, sample, flux):
@@ -32,3 +32,20 @@ def test_own_changes_match_the_dense_table(seed):
     got, want = own_changes(held, background, row_of, sample, flux), dense_changes(held, background, row_of, sample, flux)
     for a, b in zip(got, want):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_pixels_under_stamps_are_those_a_sensor_mask_lists(seed):
+    # under_stamps works in the stamps' pixels; the mask over the sensor, listed and searched, is the definition
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    before = np.unique(rng.integers(0, n, int(rng.integers(0, 40))))
+    pixel = rng.integers(0, n, int(rng.integers(0, 200)))             # entries repeat pixels across samples
+    slot = np.full(n, -1, np.int32)
+    touched, rows = under_stamps(before, pixel, slot)
+    mask = np.zeros(n, bool)
+    mask[before] = True
+    mask[pixel] = True
+    np.testing.assert_array_equal(touched, np.flatnonzero(mask))
+    np.testing.assert_array_equal(rows, np.searchsorted(np.flatnonzero(mask), pixel))
+    assert np.all(slot == -1)                                          # the scratch is left as found
