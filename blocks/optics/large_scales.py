@@ -57,7 +57,7 @@ SECTORS = 4
 #: positions ``p = STRIDE h + l``: the modes' cosines are tabulated at ``l`` once and computed at ``STRIDE h`` per read
 STRIDE = 16
 #: strides the modes' per-stride tables reach beyond what a walk asks for, either way (kept for the next walks) [1]
-STRIDE_MARGIN = 16
+STRIDE_MARGIN = 64
 #: last word of a large-scale draw's seed (a screen's own draws end in a regeneration count, far below it)
 SEED_WORD = 0xFFFFFFFF
 

@@ -47,7 +47,7 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
-from .screen_kernels import (MARGIN, REGENERATE, RIGHT, extend_columns, plan_walk, read_spans,
+from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_walk, read_spans,
                              run_extent, sample_grids_transposed, walk_canvases)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
@@ -195,22 +195,21 @@ class LayerScreen:
         of canvases is made and read in one compiled call (:func:`.screen_kernels.walk_canvases`), the conditional
         columns' noise in one draw.
         """
-        kind, side, op_epoch, centre, before, frame_ops, starts = plan_walk(
-            rows, cols, np.ascontiguousarray(epochs, dtype=np.int64), self.n, MARGIN, self.update == "regenerate",
-            self.origin, np.int64(self.epoch), self.coefficients is not None, CANVAS_STEPS)
+        kind, side, op_epoch, centre, before, frame_ops, starts, renewals = plan_walk(
+            rows, cols, epochs, self.n, MARGIN, self.update == "regenerate", self.origin, np.int64(self.epoch),
+            self.coefficients is not None, CANVAS_STEPS)
         if len(kind) and kind[0] < 0:
             span = np.max(np.stack([rows[:, -1] - rows[:, 0], cols[:, -1] - cols[:, 0]], axis=-1), axis=0)
             raise ValueError(f"a footprint of {span} samples does not fit a {self.n}-sample screen")
         weight, out_t = reads if reads is not None else (_NO_WEIGHT, _NO_OUTPUT)
-        regenerations = np.flatnonzero(kind[starts[:-1]] == REGENERATE) if len(kind) else ()
         # the present window first (frames that need no operation), then each canvas up to the next regeneration,
         # which starts the next run from the fresh window
-        edges, as_is, frame = starts[:(regenerations[0] if len(regenerations) else len(starts) - 1) + 1], True, 0
-        for i, r in enumerate(regenerations):
+        ends = [*renewals, len(starts) - 1]
+        edges, as_is, frame = starts[:ends[0] + 1], True, 0
+        for r, following in zip(ends[:-1], ends[1:]):
             frame = self._run(edges, as_is, side, before, frame_ops, frame, rows, cols, weight, out_t)
             a = starts[r]
             self.regenerate(centre[a], int(op_epoch[a]))
-            following = regenerations[i + 1] if i + 1 < len(regenerations) else len(starts) - 1
             edges, as_is = np.concatenate([[a + 1], starts[r + 1:following + 1]]), False
         self._run(edges, as_is, side, before, frame_ops, frame, rows, cols, weight, out_t)
 
@@ -285,7 +284,7 @@ class LayerScreen:
         rows = np.ascontiguousarray(rows, dtype=float)
         cols = np.ascontiguousarray(cols, dtype=float)
         weight = np.ascontiguousarray(weight, dtype=float)
-        self.walk(rows, cols, epochs, (weight, out_t))
+        self.walk(rows, cols, np.ascontiguousarray(epochs, dtype=np.int64), (weight, out_t))
 
     def sample(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Phase [rad, for r0 = 1 m] on separable grids of the present window: ``rows`` (F, ny), ``cols`` (F, nx) [delta].

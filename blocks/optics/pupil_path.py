@@ -14,6 +14,7 @@ import numpy as np
 
 from .layer_screen import LayerScreen
 from .modal_screen import ModalScreen, pupil_modes
+from .screen_kernels import footprint_grids
 
 if TYPE_CHECKING:
     from .imaging import Imager
@@ -77,9 +78,8 @@ class PupilPath:
         zenith = np.where(turbulent, zenith_rad, 0.0)
         # every layer's footprints at once (L, F, 2), (L, F), its grids [samples] (L, F, n) and weights (L, F)
         centre, scale = self.imager.footprints_of(layers, t_s, sight, zenith, range_m)
-        delta = np.array([screen.delta for screen in screens])[:, None, None]
-        rows = (centre[:, :, 1, None] + scale[:, :, None] * xp) / delta
-        cols = (centre[:, :, 0, None] + scale[:, :, None] * xp) / delta
+        rows, cols = np.empty((2, len(screens), frames, g.n_pupil))
+        footprint_grids(centre, scale, xp, np.array([screen.delta for screen in screens]), rows, cols)
         # r0^(-5/6) of each layer (the screens are drawn for r0 = 1 m)
         weight = np.sqrt((0.423 * k2 / np.cos(zenith))[None] * np.array([layer.cn2_dh for layer in layers])[:, None])
         weight = np.where(turbulent, weight, 0.0)

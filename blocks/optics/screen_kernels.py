@@ -39,7 +39,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
     operation ``before`` (n_ops, 2), ``frame_ops`` (F,): operations done before frame f is read, and
     ``starts``: the first operation of each canvas (at a regeneration, where the walk turns back on
     an axis, which would overwrite values earlier frames read, and every ``canvas_steps``), closed
-    by ``n_ops``. A window is regenerated around a footprint at a new epoch, when the footprint is
+    by ``n_ops``, and ``renewals``: the canvases (indices into ``starts``) that begin with a regeneration. A window is regenerated around a footprint at a new epoch, when the footprint is
     over 1.5 windows away, or always (``regenerate_only``); otherwise it grows one column or row at
     a time toward the footprint, dropping one on the opposite side. ``kind`` is -1 on a footprint
     wider than the window allows.
@@ -58,6 +58,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
     before = np.empty((capacity, 2), np.int64)
     frame_ops = np.empty(frames, np.int64)
     starts = [0]
+    renewals = [0]                           # canvases that start with a regeneration (after a placeholder)
     last_side = np.full(2, -1)               # last step's side on each axis in this canvas
     o0, o1 = origin[0], origin[1]
     count = 0
@@ -66,7 +67,8 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
         c1 = 0.5 * (low[f, 1] + high[f, 1])
         if high[f, 0] - low[f, 0] > n - 1 - 2 * margin or high[f, 1] - low[f, 1] > n - 1 - 2 * margin:
             kind[:1] = -1
-            return kind[:1], side[:0], op_epoch[:0], centre[:0], before[:0], frame_ops, np.zeros(1, np.int64)
+            return (kind[:1], side[:0], op_epoch[:0], centre[:0], before[:0], frame_ops, np.zeros(1, np.int64),
+                    np.zeros(0, np.int64))
         inside = (low[f, 0] >= o0 + margin and low[f, 1] >= o1 + margin
                   and high[f, 0] <= o0 + n - 1 - margin and high[f, 1] <= o1 + n - 1 - margin)
         renew = (not has_values) or epochs[f] != epoch
@@ -90,6 +92,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
         if renew:
             if count > starts[-1]:
                 starts.append(count)
+            renewals.append(len(starts) - 1)
             last_side[:] = -1
             kind[count], side[count], op_epoch[count] = REGENERATE, 0, epochs[f]
             centre[count, 0], centre[count, 1] = c0, c1
@@ -126,7 +129,8 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
         frame_ops[f] = count
     if count > starts[-1]:
         starts.append(count)
-    return kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops, np.array(starts)
+    return (kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops, np.array(starts),
+            np.array(renewals[1:]))
 
 
 @jit
@@ -377,3 +381,17 @@ def run_extent(origin, before, sides, first, stop, n):
         lo0, hi0 = min(lo0, after0), max(hi0, after0)
         lo1, hi1 = min(lo1, after1), max(hi1, after1)
     return lo0, hi0 + n, lo1, hi1 + n
+
+
+@jit
+def footprint_grids(centre, scale, xp, delta, rows, cols):
+    """Every layer's footprint grids [samples]: ``rows[l, f, i] = (centre[l, f, 1] + scale[l, f] xp[i]) / delta[l]``
+    and ``cols`` from ``centre[l, f, 0]`` (centres (L, F, 2) (x, y) [m], scales (L, F) [1], pupil coordinates ``xp``
+    [m], screen spacings ``delta`` (L,) [m])."""
+    for layer in range(centre.shape[0]):
+        d = delta[layer]
+        for f in range(centre.shape[1]):
+            cy, cx, s = centre[layer, f, 1], centre[layer, f, 0], scale[layer, f]
+            for i in range(xp.shape[0]):
+                rows[layer, f, i] = (cy + s * xp[i]) / d
+                cols[layer, f, i] = (cx + s * xp[i]) / d
