@@ -41,6 +41,7 @@ one canvas and reads each frame with separable 4-tap weights.
 from __future__ import annotations
 
 from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -62,6 +63,8 @@ PREFILTER_HALF_WIDTH = 16
 # a walk's arguments when it makes coefficients and reads nothing, or has no large-scale modes
 _NO_WEIGHT, _NO_OUTPUT = np.zeros(0), np.zeros((0, 1, 1))
 _NO_NOISE = np.zeros(0)
+_NO_OPERATOR = SimpleNamespace(A=np.zeros((0, 0)), B=np.zeros((0, 0)), stencil_rows=np.zeros(0, np.int64),
+                               stencil_cols=np.zeros(0, np.int64))
 _NO_MODES = (np.zeros((4, 0, STRIDE)), np.zeros((2, 0, 1)), 0, np.zeros((2, 0, 1)), 0, np.zeros((2, 0)))
 
 
@@ -222,9 +225,10 @@ class LayerScreen:
             return frame
         first, stop, n = int(edges[0]), int(edges[-1]), self.n
         noise = self._rng.standard_normal(n * (stop - first)) if stop > first else _NO_NOISE
-        if self._operator is None:
+        if stop > first and self._operator is None:
             self._operator = extension_operator(n, 1, self.delta, self.L1, n)
-        operator = self._operator
+        # a walk that draws no column needs no operator (a 278-sample reference window's takes seconds to make)
+        operator = self._operator if stop > first else _NO_OPERATOR
         if self.L1 == self.L0 or not len(weight):
             tables = _NO_MODES
         else:

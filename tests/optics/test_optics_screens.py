@@ -439,3 +439,21 @@ def test_fft_screen_halves_are_independent_von_karman_screens():
     # the real half is fft_phase_screen_corner's screen, bit for bit, from the same draws
     np.testing.assert_array_equal(fft_phase_screen_corners(np.random.default_rng(4), n, m, delta, r0, L0).real,
                                   fft_phase_screen_corner(np.random.default_rng(4), n, m, delta, r0, L0))
+
+
+def test_a_walk_that_draws_no_column_makes_no_extension_operator(monkeypatch):
+    # the operator of a window as wide as the reference path's (278 samples) takes seconds to make: a footprint
+    # inside the fresh window (every reference probe's) must not make it; one that runs off it does
+    from evsda.blocks.optics import layer_screen
+    made = []
+    real = layer_screen.extension_operator
+    monkeypatch.setattr(layer_screen, "extension_operator", lambda *a: made.append(a) or real(*a))
+    screen = LayerScreen(SELF_START_SAMPLES + 2, 0.02, (5,), L0=25.0)
+    screen.cover(np.array([10.0, 10.0]), np.array([20.0, 20.0]))
+    screen.cover(np.array([12.0, 12.0]), np.array([30.0, 30.0]))
+    assert not made
+    small = LayerScreen(24, 0.02, (5,), L0=25.0)
+    small.cover(np.array([0.0, 0.0]), np.array([4.0, 4.0]))           # a fresh window (its own draws' operators)
+    fresh = len(made)
+    small.cover(np.array([0.0, 20.0]), np.array([4.0, 24.0]))          # runs off the window: columns drawn
+    assert made[fresh:] == [(24, 1, 0.02, small.L1, 24)]
