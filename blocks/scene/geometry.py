@@ -42,6 +42,33 @@ def unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+class Recent:
+    """The last few results of a function of sample times, returned again for the same times.
+
+    Within one window a block asks its models for the same samples several times (the
+    pointing frame, the observer's horizon axes and position, a track's state): the
+    second and later asks are served from here, the same arrays, made read-only so that
+    no caller can change what another is given. Keyed by the times' exact values.
+    """
+
+    def __init__(self, size: int = 4):
+        self._size = size
+        self._entries: list[tuple[np.ndarray, object]] = []
+
+    def get(self, t: np.ndarray, compute: Callable[[np.ndarray], object]):
+        """``compute(t)``, or its result for equal ``t`` kept from an earlier call."""
+        for times, result in self._entries:
+            if times.shape == t.shape and np.array_equal(times, t):
+                return result
+        result = compute(t)
+        for array in (result if isinstance(result, tuple) else (result,)):
+            array.flags.writeable = False
+        kept = t.copy()
+        kept.flags.writeable = False
+        self._entries = [(kept, result), *self._entries[: self._size - 1]]
+        return result
+
+
 def hermite(t0_s: np.ndarray, h_s: float, p0, v0, p1, v1, t_s: np.ndarray):
     """Cubic Hermite interpolation of position ``p`` and velocity ``v`` between two knots.
 
@@ -86,6 +113,9 @@ class KnotGrid:
                                  f"{t[-1].utc_iso()}. Move the run's start inside DE421's span") from None
             for j, index in enumerate(missing):
                 self._cache[index] = tuple(r[j] for r in results)
+        if wanted.size == 1:      # one knot interval (the usual window): its values repeated
+            row, position = self._cache[int(wanted[0])], np.zeros(k.shape, np.intp)
+            return tuple(value[None][position] for value in row)
         rows = [self._cache[int(i)] for i in wanted]
         position = np.searchsorted(wanted, k)
         return tuple(np.stack([row[m] for row in rows])[position] for m in range(len(rows[0])))
@@ -96,10 +126,13 @@ class Track:
 
     def __init__(self, epoch: datetime, knot_step_ns: int, evaluate: Callable):
         self.grid = KnotGrid(epoch, knot_step_ns, evaluate)
+        self._recent = Recent()
 
     def state(self, t_ns) -> tuple[np.ndarray, np.ndarray]:
-        """Position [m] and velocity [m/s] at ``t_ns`` (float ns after the epoch allowed)."""
-        t_ns = np.atleast_1d(np.asarray(t_ns, dtype=np.float64))
+        """Position [m] and velocity [m/s] at ``t_ns`` (float ns after the epoch allowed; read-only arrays)."""
+        return self._recent.get(np.atleast_1d(np.asarray(t_ns, dtype=np.float64)), self._state)
+
+    def _state(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         step = self.grid.step_ns
         k = np.floor(t_ns / step).astype(np.int64)
         p0, v0 = self.grid.values(k)
@@ -142,10 +175,13 @@ class EarthRotation:
     def __init__(self, epoch: datetime, knot_step_ns: int):
         self.grid = KnotGrid(epoch, knot_step_ns, lambda t: (np.moveaxis(itrs.rotation_at(t), -1, 0)
                                                              .transpose(0, 2, 1).copy(),))
+        self._recent = Recent()
 
     def matrices(self, t_ns) -> np.ndarray:
-        """``[n, 3, 3]`` matrices taking ITRS vectors to the GCRS."""
-        t_ns = np.atleast_1d(np.asarray(t_ns, dtype=np.float64))
+        """``[n, 3, 3]`` matrices taking ITRS vectors to the GCRS (read-only)."""
+        return self._recent.get(np.atleast_1d(np.asarray(t_ns, dtype=np.float64)), self._matrices)
+
+    def _matrices(self, t_ns: np.ndarray) -> np.ndarray:
         step = self.grid.step_ns
         k = np.rint(t_ns / step).astype(np.int64)
         (m_k,) = self.grid.values(k)
@@ -183,9 +219,13 @@ class ObserverModel:
             self.enu_itrs = enu_axes_itrs(observer.latitude_deg, observer.longitude_deg)
         else:
             self.track = satellite_track(epoch, knot_step_ns, observer.line1, observer.line2)
+        self._recent_state, self._recent_enu = Recent(), Recent()
 
     def state(self, t_ns) -> tuple[np.ndarray, np.ndarray]:
-        """Geocentric GCRS position [m] and velocity [m/s]."""
+        """Geocentric GCRS position [m] and velocity [m/s] (read-only arrays)."""
+        return self._recent_state.get(np.atleast_1d(np.asarray(t_ns, dtype=np.float64)), self._state)
+
+    def _state(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if not self.observer.is_ground:
             return self.track.state(t_ns)
         m = self.rotation.matrices(t_ns)
@@ -196,8 +236,11 @@ class ObserverModel:
         """East, north and up unit vectors in the GCRS, each ``[n, 3]``.
 
         Ground: the geodetic horizon frame. Space: up is the geocentric radial direction
-        and north points to the Earth's rotation axis.
+        and north points to the Earth's rotation axis. Read-only arrays.
         """
+        return self._recent_enu.get(np.atleast_1d(np.asarray(t_ns, dtype=np.float64)), self._enu)
+
+    def _enu(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if self.observer.is_ground:
             m = self.rotation.matrices(t_ns)
             east, north, up = (m @ axis for axis in self.enu_itrs)

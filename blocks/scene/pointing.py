@@ -30,8 +30,8 @@ from evsda.blocks.ports.scene import AZEL, RADEC, RASTER, SCAN, SIDEREAL, SLEW, 
 from evsda.graph import ParameterError
 
 from . import projection
-from .geometry import (NS_PER_S, OMEGA_EARTH_RAD_S, KnotGrid, ObserverModel, aberrate, apparent_position,
-                       satellite_track, unit)
+from .geometry import (NS_PER_S, OMEGA_EARTH_RAD_S, KnotGrid, ObserverModel, Recent, aberrate,
+                       apparent_position, satellite_track, unit)
 from .scanning import Raster, Scan, Slew, unit_from_lonlat
 
 #: the scene blocks refuse a moving pointing law that moves the sky by more than this between samples [pixel]
@@ -75,6 +75,7 @@ class PointingModel:
     def __init__(self, pointing: Pointing, observer: ObserverModel, epoch: datetime, knot_step_ns: int):
         self.pointing = pointing
         self.observer = observer
+        self._recent = Recent()
         if pointing.mode == TRACK:
             if not (pointing.target_line1 and pointing.target_line2):
                 raise ParameterError("pointing: mode 'track' needs a target orbit (connect a tle_source to its "
@@ -92,8 +93,10 @@ class PointingModel:
                                  f"scan, raster or slew")
 
     def frame(self, t_ns) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Boresight, right and up unit vectors at ``t_ns``, each ``[n, 3]`` (GCRS)."""
-        t_ns = np.atleast_1d(np.asarray(t_ns, dtype=np.float64))
+        """Boresight, right and up unit vectors at ``t_ns``, each ``[n, 3]`` (GCRS; read-only arrays)."""
+        return self._recent.get(np.atleast_1d(np.asarray(t_ns, dtype=np.float64)), self._frame)
+
+    def _frame(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         p = self.pointing
         if p.mode == STARE:
             b, u = self._from_horizon(t_ns, *direction_from_azel(np.radians(p.azimuth_deg),
