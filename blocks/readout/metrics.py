@@ -171,21 +171,36 @@ class EventMetrics(Block):
                 self._stamp(points, bit)
 
     def _stamp(self, points: np.ndarray, bit: int) -> None:
-        """Set ``bit`` on every pixel whose centre is within ``track_radius_px`` of one of ``points``."""
+        """Set ``bit`` on every pixel whose centre is within ``track_radius_px`` of one of ``points``.
+
+        The pixels near the points are marked on a boolean raster of their bounding box (a path's box is
+        small: one window's stretch), or listed and deduplicated where the box would be much larger."""
         h, w = self.tracks.shape
         r = self.params.track_radius_px
-        base = np.floor(points).astype(np.int64)
-        pix = (base[:, None, :] + self._box[None]).reshape(-1, 2)
-        near = (((pix - np.repeat(points, self._box.shape[0], axis=0)) ** 2).sum(axis=1) <= r * r)
-        near &= (pix[:, 0] >= 0) & (pix[:, 0] < w) & (pix[:, 1] >= 0) & (pix[:, 1] < h)
-        pix = pix[near]
-        index = np.unique(pix[:, 1] * w + pix[:, 0])
-        tracks, sums = self.tracks.reshape(-1), self._track_sums()
+        px = np.floor(points[:, 0]).astype(np.int64)[:, None] + self._box[:, 0]      # [n_points, n_box]
+        py = np.floor(points[:, 1]).astype(np.int64)[:, None] + self._box[:, 1]
+        dx, dy = px - points[:, :1], py - points[:, 1:]
+        near = dx * dx + dy * dy <= r * r
+        near &= (px >= 0) & (px < w) & (py >= 0) & (py < h)
+        px, py = px[near], py[near]
+        if not px.size:
+            return
+        x0, y0 = int(px.min()), int(py.min())
+        shape = (int(py.max()) + 1 - y0, int(px.max()) + 1 - x0)
+        sums = self._track_sums()
+        if shape[0] * shape[1] > 4 * px.size:
+            index = np.unique(py * w + px)
+            tracks, image = self.tracks.reshape(-1), self.image.reshape(-1)
+        else:
+            index = np.zeros(shape, bool)
+            index[py - y0, px - x0] = True
+            tracks, image = self.tracks[y0:y0 + shape[0], x0:x0 + shape[1]], self.image[y0:y0 + shape[0],
+                                                                                         x0:x0 + shape[1]]
         for mark, name in ((SOURCE_BIT, "source"), (SATELLITE_BIT, "satellite")):
             if bit & mark:
-                new = index[(tracks[index] & mark) == 0]
-                sums[f"{name}_pixels"] += new.size
-                sums[f"{name}_events"] += int(self.image.reshape(-1)[new].sum())
+                new = (tracks[index] & mark) == 0
+                sums[f"{name}_pixels"] += int(np.count_nonzero(new))
+                sums[f"{name}_events"] += int(image[index][new].sum())
         tracks[index] |= np.uint8(bit)
 
     # -- the figures ----------------------------------------------------------------------------------
