@@ -46,7 +46,7 @@ from pydantic import Field, model_validator
 from evsda.blocks.ports import Events, FocalPlane, TriggeredEvents
 from evsda.graph import Block, BlockParams, Input, Output, Window
 
-from .clock import MAX_CLOCK_HZ, ceil_tick, tick_ns
+from .clock import MAX_CLOCK_HZ, ceil_tick, floor_div, floor_mod, tick_ns
 from .output_fifo import NEVER, run_fifo
 
 EVENT_FIELDS = ("t_ns", "x", "y", "p", "cause")
@@ -220,8 +220,8 @@ class RowScanArbiter(_ScanningArbiter):
 
     def _latch(self, k_t, x, y, fp):
         c = self.params.row_cycles
-        v0 = -(-k_t // c)                                   # first visit at or after the trigger
-        visit = v0 + (y.astype(np.int64) - v0) % fp.height_px
+        v0 = -floor_div(-k_t, c)                            # first visit at or after the trigger
+        visit = v0 + floor_mod(y.astype(np.int64) - v0, fp.height_px)
         return visit, visit * c, x.astype(np.int64)
 
 
@@ -247,9 +247,10 @@ class ColumnBurstArbiter(_ScanningArbiter):
         c, gw = self.params.group_cycles, self.params.group_width_px
         n_groups = -(-fp.width_px // gw)
         x = x.astype(np.int64)
-        v0 = -(-k_t // c)
-        visit = v0 + (x // gw - v0) % n_groups
-        return visit, visit * c, (x % gw) * fp.height_px + y.astype(np.int64)
+        v0 = -floor_div(-k_t, c)
+        column_group = floor_div(x, gw)
+        visit = v0 + floor_mod(column_group - v0, n_groups)
+        return visit, visit * c, (x - column_group * gw) * fp.height_px + y.astype(np.int64)
 
     def _timestamps(self, visit, grant):
         # a group's events share one latch tick, so a grant never straddles two windows

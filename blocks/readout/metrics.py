@@ -135,8 +135,11 @@ class EventMetrics(Block):
         c["delay_max_ns"] = max(c["delay_max_ns"], int(delay_ns.max()))
         k = self.params.bins_per_decade
         positive = delay_ns > 0
-        bins = np.zeros(delay_ns.size, np.int64)
-        bins[positive] = 1 + np.floor(np.log10(delay_ns[positive]) * k).astype(np.int64)
+        if positive.all():
+            bins = 1 + np.floor(np.log10(delay_ns) * k).astype(np.int64)
+        else:
+            bins = np.zeros(delay_ns.size, np.int64)
+            bins[positive] = 1 + np.floor(np.log10(delay_ns[positive]) * k).astype(np.int64)
         self.delays += np.bincount(np.minimum(bins, self.delays.size - 1), minlength=self.delays.size)
 
     def _out_of_order(self, t_a: np.ndarray, t_t: np.ndarray) -> int:
@@ -146,10 +149,16 @@ class EventMetrics(Block):
         new_group[0] = t_a[0] != o["last_t_a"]
         np.not_equal(t_a[1:], t_a[:-1], out=new_group[1:])
         running = np.maximum.accumulate(t_t)
-        start = np.maximum.accumulate(np.where(new_group, np.arange(t_a.size), 0))
-        before = np.where(start > 0, running[np.maximum(start - 1, 0)], np.iinfo(np.int64).min)
-        carried = np.where(~new_group[0] & (start == 0), o["max_before_last"], o["max_all"])
-        before = np.maximum(before, carried)
+        if new_group.all():        # every event read out at a tick of its own (a row scan's bus): shift by one
+            before = np.empty(t_a.size, np.int64)
+            before[0] = np.iinfo(np.int64).min
+            before[1:] = running[:-1]
+            np.maximum(before, o["max_all"], out=before)
+        else:
+            start = np.maximum.accumulate(np.where(new_group, np.arange(t_a.size), 0))
+            before = np.where(start > 0, running[np.maximum(start - 1, 0)], np.iinfo(np.int64).min)
+            carried = np.where(~new_group[0] & (start == 0), o["max_before_last"], o["max_all"])
+            before = np.maximum(before, carried)
         o["max_before_last"] = int(before[-1])
         o["max_all"] = max(o["max_all"], int(running[-1]))
         o["last_t_a"] = int(t_a[-1])

@@ -98,6 +98,10 @@ class SatelliteView:
         self.reflector, self.band = reflector, band
         shared = shared or SharedGeometry(observer, pointing, epoch, knot_step_ns)
         self.observer_model, self.pointing_model, self.sun = shared.observer_model, shared.pointing_model, shared.sun
+        target = getattr(self.pointing_model, "target", None)      # a tracking pointing's own orbit
+        if track is None and target is not None and (pointing.target_line1, pointing.target_line2) == (
+                orbit.line1, orbit.line2) and (target.grid.epoch, target.grid.step_ns) == (epoch, knot_step_ns):
+            track = target        # the tracked satellite itself: one track, its states computed once a window
         self.track = track or satellite_track(epoch, knot_step_ns, orbit.line1, orbit.line2)
 
     def sample(self, t_ns) -> ViewSamples:
