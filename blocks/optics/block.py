@@ -331,15 +331,15 @@ class PointSourceOptics(Block):
             # what the pixels see of each frame: apparent rate, collected flux, sky per pixel; and the rate of its
             # line of sight in the ground frame, which moves its footprints through the layers
             seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx], tr["sky_rate"][idx]], axis=1)
-            jobs.append((len(jobs), key, tr, idx, seen))
-            imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
+            paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
+            jobs.append((len(jobs), key, tr, idx, seen, paths))
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)
         flux = np.zeros((len(t_ns), len(jobs), size, size))
 
         def render(job):
-            s, key, tr, idx, seen = job
+            s, key, tr, idx, seen, paths = job
             # each stretch of consecutive render times in view; one back after more than hold_ns out of view
             # (since this window's last stretch or the render time the imager last saw it) gets new screens
             for part in np.split(np.arange(len(idx)), np.flatnonzero(np.diff(idx) > 1) + 1):
@@ -348,7 +348,7 @@ class PointSourceOptics(Block):
                 at = idx[part]
                 o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
                                              tr["range"][at], seen[part], azimuth_rad=tr["azimuth"][at],
-                                             rotation_rad=tr["rotation"][at])
+                                             rotation_rad=tr["rotation"][at], paths=[paths[i] for i in part])
                 origin[at, s] = o
                 flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
                 imager.seen(key, t_ns[at[-1]])

@@ -323,8 +323,10 @@ class Imager:
                     self.path_named[path].renderer(zenith_rad[i])
         return [chosen[key] for key in keys]
 
-    def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> None:
-        """Make the path choices and shared tables a track needs, so that sources can then render concurrently.
+    def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray,
+                seen: np.ndarray | None = None) -> list[str]:
+        """Make the path choices and shared tables a track needs, so that sources can then render concurrently;
+        returns each frame's path (for :meth:`render`'s ``paths``).
 
         ``seen`` (F, 3): each frame's apparent rate [pixel/s], collected source flux [photon/s] and sky
         [photon/s per pixel], for a chooser that knows the detector (:meth:`.PathChooser.key`)."""
@@ -332,17 +334,19 @@ class Imager:
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), range_m.shape)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
         self.pupil_renderer
-        self._paths(source, zenith_rad, range_m, seen, prepare=True)
+        paths = self._paths(source, zenith_rad, range_m, seen, prepare=True)
         if self.pupil.screen_method == "zernike" and self.atmosphere:
             self.pupil.pupil_modes
+        return paths
 
     def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
                zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None, *,
-               azimuth_rad: np.ndarray | None = None,
-               rotation_rad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+               azimuth_rad: np.ndarray | None = None, rotation_rad: np.ndarray | None = None,
+               paths: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame
         (``seen``: as for :meth:`prepare`; ``azimuth_rad``, ``rotation_rad``: the boresight's azimuth and the field
-        rotation of each frame, :meth:`sight`)."""
+        rotation of each frame, :meth:`sight`; ``paths``: these frames' paths as :meth:`prepare` returned them, the
+        same choices without looking each frame's bin up again)."""
         t_s, x_px, y_px = (np.asarray(a, dtype=float) for a in (t_s, x_px, y_px))
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), t_s.shape)
         range_m = np.broadcast_to(np.asarray(range_m, dtype=float), t_s.shape)
@@ -350,13 +354,15 @@ class Imager:
         origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
         size = self.geometry.stamp_size
         stamps = np.zeros((len(t_s), size, size))
-        paths = self._paths(source, zenith_rad, range_m, seen)
+        if paths is None:
+            paths = self._paths(source, zenith_rad, range_m, seen)
         if azimuth_rad is not None:
             azimuth_rad = np.broadcast_to(np.asarray(azimuth_rad, dtype=float), t_s.shape)
             rotation_rad = np.broadcast_to(np.asarray(rotation_rad, dtype=float), t_s.shape)
         sight = self.sight(x_px, y_px, zenith_rad, azimuth_rad, rotation_rad)
+        named = np.asarray(paths, dtype=str)
         for path in PATHS:
-            idx = np.array([i for i, p in enumerate(paths) if p == path], dtype=int)
+            idx = np.flatnonzero(named == path)
             if idx.size == 0:
                 continue
             with self._count_lock:

@@ -159,3 +159,23 @@ def test_compiled_analytic_stamps_are_the_reference_renderers_bit_for_bit(size, 
     offsets = np.random.default_rng(1).uniform(-0.5, 0.5, (50, 2))
     offsets[:2] = [[0.0, 0.0], [0.5, -0.5]]
     np.testing.assert_array_equal(AnalyticPath.stamps(renderer, offsets), renderer.stamps(offsets))
+
+
+def test_the_array_keys_are_each_frames_key():
+    # PathChooser.keys (every frame at once, Imager._paths) against key() frame by frame: zenith angles with and
+    # without turbulence (NaN: above the atmosphere), ranges near, far and infinite, what the pixels see below, at and
+    # above each bin's least value and unknown (NaN), with and without the line of sight's own rate
+    im = imager(Atmosphere.from_table(resolve("library:atmospheres/median_seeing.csv")))
+    rng = np.random.default_rng(4)
+    frames = 400
+    zenith = np.where(rng.random(frames) < 0.2, np.nan, rng.uniform(0.0, 1.4, frames))
+    range_m = np.choose(rng.integers(0, 3, frames), [rng.uniform(3e5, 4e7, frames), np.full(frames, np.inf),
+                                                      np.full(frames, 1e12)])
+    seen = 10.0 ** rng.uniform(-1.0, 7.0, (frames, 4))
+    seen[rng.random((frames, 4)) < 0.1] = np.nan
+    seen[rng.random((frames, 4)) < 0.1] = 1.0
+    for given in (seen, seen[:, :3], None):
+        keys = im.chooser.keys(zenith, range_m, given)
+        expected = [im.chooser.key(z, r, None if given is None else tuple(s)) for z, r, s in
+                    zip(zenith, range_m, given if given is not None else [None] * frames)]
+        assert keys == expected
