@@ -1,4 +1,5 @@
-"""One BLAS thread per process, for the command line and the Python API alike; few malloc arenas.
+"""One BLAS thread per process, for the command line and the Python API alike; few malloc arenas; one
+pool of worker threads that the blocks' parallel loops share (:func:`parallel_map`).
 
 The blocks' linear algebra is many small products: several BLAS threads per process spin
 and contend (up to 50x slower on a loaded machine) and take the cores that sweep workers
@@ -9,12 +10,23 @@ keeps the memory freed into it: with the pipelined windows' threads the tracked 
 770-795 MB against 664 MB one step at a time. Four arenas bring it to 627 MB at the same speed (two:
 600 MB but slower; benchmarks/framework_pipeline.py, docs/speed.md). ``MALLOC_ARENA_MAX``, if set,
 is left to glibc.
+
+The blocks' parallel loops (sources rendered side by side, probe pairs, pixel chunks) ran each on a
+``ThreadPoolExecutor`` of their own, made and joined at every call: new threads every window (and new
+per-thread buffers, first touched again), and, with pipelined windows, the optics' and the pixels'
+pools side by side on top of the pipeline's threads. :func:`parallel_map` runs them on the calling
+thread plus helpers from one pool the process keeps: ``threads - 1`` helpers serve every caller, so a
+window's threads are the pipeline's steps plus that many.
 """
 
 from __future__ import annotations
 
 import ctypes
 import os
+import threading
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
 
@@ -54,3 +66,76 @@ def limit_malloc_arenas() -> None:
         return
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt(_M_ARENA_MAX, MALLOC_ARENAS)
+
+
+T = TypeVar("T")
+
+_helpers: ThreadPoolExecutor | None = None      # the process's helper threads, made on first use
+_helper_count = 0
+_helpers_lock = threading.Lock()
+
+
+def _helper_pool(count: int) -> ThreadPoolExecutor:
+    """The process's pool of at least ``count`` helper threads (a larger one replaces a smaller one)."""
+    global _helpers, _helper_count
+    with _helpers_lock:
+        if _helpers is None or _helper_count < count:
+            old, _helpers, _helper_count = _helpers, ThreadPoolExecutor(count, thread_name_prefix="evsda-worker"), count
+            if old is not None:
+                old.shutdown(wait=False)          # its threads end once their tasks are done
+        return _helpers
+
+
+def _forget_helpers() -> None:
+    """In a forked child: the parent's helper threads do not exist there."""
+    global _helpers, _helper_count
+    _helpers, _helper_count = None, 0
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_helpers)
+
+
+def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[T]:
+    """``[fn(item) for item in items]``, on up to ``threads`` threads: the calling thread and ``threads - 1``
+    helpers of the pool the process shares, each taking the next item not yet taken.
+
+    The caller never waits for a busy helper: it works through the items itself, and a helper that starts
+    late finds none left (so nested and concurrent calls cannot deadlock). If ``fn`` raises, no further item
+    is started, the items already started finish, and the error of the first failing item (in the items'
+    order) is raised, the one the loop above would raise. Which thread runs an item is not fixed, so ``fn``
+    must give the same result on any thread.
+    """
+    items = list(items)
+    helpers = min(threads, len(items)) - 1
+    if helpers < 1:
+        return [fn(item) for item in items]
+    results: list[Any] = [None] * len(items)
+    errors: dict[int, BaseException] = {}
+    taken = [0]
+    lock = threading.Lock()
+
+    def work() -> None:
+        while True:
+            with lock:
+                i = taken[0]
+                if i >= len(items) or errors:
+                    return
+                taken[0] += 1
+            try:
+                results[i] = fn(items[i])
+            except BaseException as exc:          # noqa: BLE001 -- re-raised below, in the items' order
+                with lock:
+                    errors[i] = exc
+
+    pool = _helper_pool(helpers)
+    started = [pool.submit(work) for _ in range(helpers)]
+    try:
+        work()
+    finally:
+        for future in started:
+            if not future.cancel():               # running: it finishes the item it took
+                future.result()
+    if errors:
+        raise errors[min(errors)]
+    return results

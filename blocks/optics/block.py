@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import Literal
 
 import numpy as np
@@ -11,6 +10,7 @@ from pydantic import Field, model_validator
 from evsda.blocks.threads import worker_threads
 from evsda.blocks.ports import FocalPlane, Irradiance, PointSources, SkyBackground, Truth
 from evsda.graph import Block, BlockParams, Input, InputError, Output, ParameterError, RunInfo, UserError, Window
+from evsda.graph.threads import parallel_map
 from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
@@ -353,14 +353,9 @@ class PointSourceOptics(Block):
                 flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
                 imager.seen(key, t_ns[at[-1]])
 
-        # sources are independent (own screens, own slots of the output): render them on every core
-        threads = min(worker_threads(), len(jobs))
-        if threads > 1:
-            with ThreadPoolExecutor(threads) as pool:
-                list(pool.map(render, jobs))
-        else:
-            for job in jobs:
-                render(job)
+        # sources are independent (own screens, own slots of the output): render them on every core, with the
+        # process's shared helper threads
+        parallel_map(render, jobs, worker_threads())
 
         # screens of the sources out of view for hold_ns at the window's last render time are dropped (a 60 s
         # pupil_fft pass sweeps 1586 stars, ~32 kB of screens each): the rule reads render times only, so windows

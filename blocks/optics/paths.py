@@ -61,7 +61,6 @@ from __future__ import annotations
 
 import logging
 import zlib
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -71,6 +70,7 @@ import numpy as np
 
 from evsda.blocks.threads import worker_threads
 from evsda.graph.result_cache import ResultCache
+from evsda.graph.threads import parallel_map
 
 from .fft_screens import fft_phase_screens
 from .pixel_view import averaged_frames, footprint_speeds
@@ -525,16 +525,15 @@ class PathChooser:
 
         threads = worker_threads()
         measured: list[float] = []
-        with ThreadPoolExecutor(threads) as pool:
-            while True:
-                done = len(measured) // 2
-                batch = ((least + 1) // 2 - done if len(measured) < least
-                         else min(threads, (most - len(measured) + 1) // 2))
-                for values in pool.map(distances, range(done, done + batch)):
-                    measured.extend(values)
-                    verdict = pupil_verdict(measured, scintillation, tolerance, (least, most))
-                    if verdict is not None:
-                        return measured, verdict
+        while True:
+            done = len(measured) // 2
+            batch = ((least + 1) // 2 - done if len(measured) < least
+                     else min(threads, (most - len(measured) + 1) // 2))
+            for values in parallel_map(distances, range(done, done + batch), threads):
+                measured.extend(values)
+                verdict = pupil_verdict(measured, scintillation, tolerance, (least, most))
+                if verdict is not None:
+                    return measured, verdict
 
     def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
         """Pupil phase [rad] (frames, n, n) of the probe: defocus plus independent FFT screens at the sight line's r0."""

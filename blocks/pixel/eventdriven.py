@@ -25,11 +25,10 @@ identical events.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
 from evsda.blocks.threads import worker_threads
+from evsda.graph.threads import parallel_map
 
 from .eventlog import EventLog
 from .initial import initial_pixels
@@ -273,17 +272,14 @@ class EventDrivenPixels:
             bounds = np.linspace(0, items.size, n_chunks + 1).astype(np.int64)
             capacity = max(capacity, 2 * int(bounds[1] - bounds[0]))
 
-            def chunk(a, b):
+            def chunk(span):
+                a, b = span
                 buffers = (np.empty(capacity, np.int64), np.empty(capacity, np.int64), np.empty(capacity, np.int8),
                            np.empty(capacity, np.uint8))
                 n_events, n_done, lost = kernel(items[a:b], buffers)
                 return [v[:n_events] for v in buffers], a + n_done, b, lost
 
-            if threads > 1 and n_chunks > 1:
-                with ThreadPoolExecutor(threads) as pool:
-                    done = list(pool.map(chunk, bounds[:-1], bounds[1:]))
-            else:
-                done = [chunk(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+            done = parallel_map(chunk, zip(bounds[:-1], bounds[1:]), threads)
             for events, *_ in done:
                 log.add(*events)
             log.lose(sum(lost for *_, lost in done))

@@ -1,0 +1,71 @@
+"""The blocks' shared worker threads (graph/threads.py ``parallel_map``): the results and the error of the plain
+loop, on the caller plus the process's helpers, never waiting on a busy pool."""
+
+import threading
+import time
+
+import pytest
+
+from evsda.graph import threads
+
+
+def test_results_in_order_and_on_several_threads():
+    seen = set()
+
+    def square(x):
+        seen.add(threading.get_ident())
+        time.sleep(0.002)                # long enough for a helper to take items too
+        return x * x
+
+    assert threads.parallel_map(square, range(40), 3) == [x * x for x in range(40)]
+    assert threading.get_ident() in seen and len(seen) > 1
+
+
+def test_one_thread_runs_on_the_caller_only():
+    seen = set()
+    assert threads.parallel_map(lambda x: seen.add(threading.get_ident()) or x, range(5), 1) == list(range(5))
+    assert seen == {threading.get_ident()}
+
+
+def test_the_first_failing_item_in_order_is_raised_and_no_later_item_starts():
+    started = []
+
+    def fail_at_3_and_5(x):
+        started.append(x)
+        if x == 5:
+            raise KeyError(x)            # may run before item 3 fails; item 3's error is still the one raised
+        if x == 3:
+            time.sleep(0.01)
+            raise ValueError(x)
+        return x
+
+    with pytest.raises(ValueError, match="3"):
+        threads.parallel_map(fail_at_3_and_5, range(100), 2)
+    assert len(started) < 100            # nothing new starts after a failure
+
+
+def test_helpers_are_kept_between_calls():
+    helpers = set()
+    for _ in range(5):
+        helpers |= set(threads.parallel_map(lambda x: (time.sleep(0.002), threading.get_ident())[1], range(20), 2))
+    helpers.discard(threading.get_ident())
+    assert 1 <= len(helpers) <= threads._helper_count < 5      # a pool per call would have made 5 threads or more
+
+
+def test_nested_and_concurrent_calls_finish_while_the_helpers_are_busy():
+    # every helper blocked in an outer item: the inner calls run on their callers instead of waiting
+    def outer(x):
+        return sum(threads.parallel_map(lambda y: y, range(x), 2))
+
+    results = {}
+
+    def caller(name):
+        results[name] = threads.parallel_map(outer, range(30), 2)
+
+    workers = [threading.Thread(target=caller, args=(n,)) for n in range(3)]
+    for w in workers:
+        w.start()
+    for w in workers:
+        w.join(timeout=30)
+    assert all(not w.is_alive() for w in workers)
+    assert all(r == [x * (x - 1) // 2 for x in range(30)] for r in results.values())
