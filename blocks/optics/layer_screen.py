@@ -41,7 +41,6 @@ one canvas and reads each frame with separable 4-tap weights.
 from __future__ import annotations
 
 from functools import lru_cache
-from types import SimpleNamespace
 
 import numpy as np
 
@@ -63,8 +62,7 @@ PREFILTER_HALF_WIDTH = 16
 # a walk's arguments when it makes coefficients and reads nothing, or has no large-scale modes
 _NO_WEIGHT, _NO_OUTPUT = np.zeros(0), np.zeros((0, 1, 1))
 _NO_NOISE = np.zeros(0)
-_NO_OPERATOR = SimpleNamespace(A=np.zeros((0, 0)), B=np.zeros((0, 0)), stencil_rows=np.zeros(0, np.int64),
-                               stencil_cols=np.zeros(0, np.int64))
+_NO_OPERATOR = (np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0, np.int64), np.zeros(0, np.int64))
 _NO_MODES = (np.zeros((4, 0, STRIDE)), np.zeros((2, 0, 1)), 0, np.zeros((2, 0, 1)), 0, np.zeros((2, 0)))
 
 
@@ -224,11 +222,15 @@ class LayerScreen:
         if self.coefficients is None:
             return frame
         first, stop, n = int(edges[0]), int(edges[-1]), self.n
-        noise = self._rng.standard_normal(n * (stop - first)) if stop > first else _NO_NOISE
-        if stop > first and self._operator is None:
-            self._operator = extension_operator(n, 1, self.delta, self.L1, n)
-        # a walk that draws no column needs no operator (a 278-sample reference window's takes seconds to make)
-        operator = self._operator if stop > first else _NO_OPERATOR
+        if stop == first and not len(weight):
+            return frame                                    # nothing to make or read
+        if stop > first:
+            noise = self._rng.standard_normal(n * (stop - first))
+            if self._operator is None:
+                self._operator = extension_operator(n, 1, self.delta, self.L1, n)
+            operator = (self._operator.A, self._operator.B, self._operator.stencil_rows, self._operator.stencil_cols)
+        else:
+            noise, operator = _NO_NOISE, _NO_OPERATOR
         if self.L1 == self.L0 or not len(weight):
             tables = _NO_MODES
         else:
@@ -238,10 +240,11 @@ class LayerScreen:
             high_y, first_y = large.strides(lo0, hi0, 0)
             high_x, first_x = large.strides(lo1, hi1, 1)
             tables = (large.low, high_y, first_y, high_x, first_x, large.amplitudes)
-        window, origin = self.coefficients.copy(), self.origin.copy()
-        frame = walk_canvases(window, origin, n, sides, before, edges, as_is, noise, operator.A, operator.B,
-                              operator.stencil_rows, operator.stencil_cols, frame_ops, frame, rows, cols, weight,
-                              out_t, *tables, STRIDE)
+        # a window that grows is written into a copy (a state() handed out keeps its arrays)
+        window, origin = (self.coefficients.copy(), self.origin.copy()) if stop > first else (self.coefficients,
+                                                                                              self.origin)
+        frame = walk_canvases(window, origin, n, sides, before, edges, as_is, noise, *operator, frame_ops, frame, rows,
+                              cols, weight, out_t, *tables, STRIDE)
         self.coefficients, self.origin = window, origin
         if frame < 0:
             raise ValueError("screen sampled outside its window")
