@@ -17,12 +17,14 @@ and are included in the line above them. The figures are CPU seconds, so a loade
 less than wall times (cache contention still adds ~20-40 % at load 8-11); the load average is printed.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/cpu_breakdown.py [--graph G] [--duration 10] [--repeats 3]
-        [--cache cold,warm]
+        [--cache cold,warm] [--against OTHER_CHECKOUT]
 
 The path choice's probe results are kept across runs (:mod:`evsda.graph.result_cache`); ``--cache`` says how
 each column runs: ``off`` (the default: every probe computed, the figures of earlier sessions), ``cold``
 (an empty cache folder for each run: computed and written) or ``warm`` (a folder filled by one unmeasured run
 first: every probe read from the disk). Several columns alternate their runs side by side.
+``--against`` adds a column of another checkout (its own ``.venv``; the probe cache off, as a checkout from before
+the cache runs), measured with this script's instrumentation and alternated with the others.
 """
 
 from __future__ import annotations
@@ -112,10 +114,12 @@ print(json.dumps(spent))
 """
 
 
-def one_run(graph: Path, duration: float, cache: dict[str, str]) -> dict:
+def one_run(graph: Path, duration: float, cache: dict[str, str], checkout: Path | None = None) -> dict:
+    """One fresh run's figures; ``checkout``: run another checkout's code (its ``.venv``) instead of this one."""
     env = {**os.environ, "EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0", **cache}
-    out = subprocess.run([sys.executable, "-c", CHILD, str(graph), str(duration)], capture_output=True, text=True,
-                         env=env)
+    python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
+    out = subprocess.run([python, "-c", CHILD, str(graph.resolve()), str(duration)], capture_output=True, text=True,
+                         env=env, cwd=checkout)
     if out.returncode:
         raise RuntimeError(out.stderr[-3000:])
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -134,10 +138,16 @@ def main() -> None:
     parser.add_argument("--cache", default="off",
                         help=f"comma-separated columns, runs alternated side by side: {', '.join(CACHE_MODES)} "
                              "(the probe-result cache: off, empty, or filled by one run first; default off)")
+    parser.add_argument("--against", type=Path, help="another checkout (with its own .venv) measured side by side, "
+                                                         "the probe cache off (e.g. main at an earlier commit)")
     args = parser.parse_args()
     modes = args.cache.split(",")
     if not set(modes) <= set(CACHE_MODES):
         parser.error(f"--cache takes {', '.join(CACHE_MODES)}, got {args.cache}")
+    if args.against is not None:
+        if not (args.against / ".venv" / "bin" / "python").exists():
+            parser.error(f"--against {args.against}: expected a checkout with its own .venv")
+        modes.append("against")
     with tempfile.TemporaryDirectory() as tmp:
         warm = {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/warm"}
         if "warm" in modes:
@@ -145,12 +155,14 @@ def main() -> None:
         runs, loads = {m: [] for m in modes}, {m: [] for m in modes}
         for k in range(args.repeats):
             for mode in modes:
-                cache = {"off": {"EVSDA_CACHE": "off"}, "warm": warm,
+                cache = {"off": {"EVSDA_CACHE": "off"}, "warm": warm, "against": {"EVSDA_CACHE": "off"},
                          "cold": {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/cold{k}"}}[mode]
                 before = os.getloadavg()[0]
-                runs[mode].append(one_run(args.graph, args.duration, cache))
+                runs[mode].append(one_run(args.graph, args.duration, cache,
+                                          args.against if mode == "against" else None))
                 loads[mode].append((before + os.getloadavg()[0]) / 2)
-                print(f"  run {k + 1} ({mode} cache): {runs[mode][-1]['whole process']:.2f} s CPU, "
+                what = f"{args.against}, cache off" if mode == "against" else f"{mode} cache"
+                print(f"  run {k + 1} ({what}): {runs[mode][-1]['whole process']:.2f} s CPU, "
                       f"load {loads[mode][-1]:.2f}", flush=True)
     every = [r for m in modes for r in runs[m]]
     names = list(dict.fromkeys(k for r in every for k in r))
@@ -162,7 +174,8 @@ def main() -> None:
     print(f"\n{args.graph.name}, {args.duration:g} s simulated, one thread, one step at a time; "
           f"medians of {args.repeats} fresh runs, load {statistics.median(all_loads):.2f} "
           f"({min(all_loads):.2f}-{max(all_loads):.2f})")
-    columns = "".join(f" {m + ' cache' if len(modes) > 1 else 'CPU [s]':>11s}" for m in modes)
+    columns = "".join(f" {(m if m == 'against' else m + ' cache') if len(modes) > 1 else 'CPU [s]':>11s}"
+                      for m in modes)
     print(f"  {'item':58s}{columns} {'share':>6s}")
 
     def row(label, key=None):
