@@ -35,7 +35,7 @@ from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing
 from .comparator import TOLERANCE
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_into, drive_log, drive_rest
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
-                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _prefetch, _settle_step, relaxed_by, run_pixel)
+                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _prefetch, _settle_step, relaxed_by, run_pixel_apart)
 
 TILE = 128                   # pixels swept together (64: ~5 % more CPU, 256: the same)
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
@@ -270,7 +270,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                     row[FLUX], row[Y], row[LOG_A] = fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i], \
                         fs[F_NEW_LOG_A * TILE + i]
                     row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
-                    n_events, lost, done = run_pixel(r, c, pixel, _FIRST, 1 if last else 2, _ONE, change_step,
+                    n_events, lost, done = run_pixel_apart(r, c, pixel, _FIRST, 1 if last else 2, _ONE, change_step,
                                                      change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
                                                      th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel,
                                                      ev_pol, ev_cause, n_events, lost, saved_r, saved_c)
@@ -297,7 +297,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                             n_changes += 1
                             held = flux
             if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c)) < n_end:
-                n_events, lost, done = run_pixel(r, c, pixel, _FIRST, n_changes, n_changes + 1, change_step,
+                n_events, lost, done = run_pixel_apart(r, c, pixel, _FIRST, n_changes, n_changes + 1, change_step,
                                                  change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
                                                  th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
                                                  ev_cause, n_events, lost, saved_r, saved_c)

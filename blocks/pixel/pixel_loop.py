@@ -109,7 +109,7 @@ def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, cre
         next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
 
 
-@jit
+@inline
 def _settle_step(c):
     """The step at which a pixel's owed events are settled: its first comparison after an event."""
     return c[READY] if c[OWED] != 0 else NEVER
@@ -140,14 +140,14 @@ def next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on,
     return (NEVER if j >= NEVER else step + j), j_known, known, relaxed
 
 
-@jit
+@inline
 def _schedule(r, c, t_change, leak_dt, dt, large):
     """:func:`next_crossing_known` of the pixel with state rows ``r``, ``c``: ``(step, j, a^j, relaxation)``."""
     return next_crossing_known(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
                                r[NOISE_SCALE], t_change, leak_dt, dt, large)
 
 
-@jit
+@inline
 def _schedule_before(r, c, t_change, last, leak_dt, dt, large):
     """:func:`_schedule` where only a crossing up to step ``last`` can be used: ``LATER`` without the search
     when the bound (:func:`.crossing.band_bound`) shows none up to ``last``.
@@ -191,13 +191,13 @@ def drifted(memorised, c_leak, c_para, para, th_on, noise_scale, j, leak_hz, dt)
     return memorised - (leak + para), c_leak + leak, c_para + para
 
 
-@jit
+@inline
 def _advance(r, c, t, leak_hz, dt, large):
     """Move a pixel from its last step to step ``t`` at constant input (:func:`relaxed_by`)."""
     _advance_known(r, c, t, leak_hz, dt, large, NO_STEP, 0.0, 0.0)
 
 
-@jit
+@inline
 def _advance_known(r, c, t, leak_hz, dt, large, j_known, known, relaxed):
     """:func:`_advance`, taking ``a^j`` from ``known = a^j_known`` and, in the large-signal form, ``L - Y`` from
     ``relaxed`` (the pixel's last schedule's bound, at its present input: :func:`.crossing.first_crossing_known`)
@@ -214,7 +214,7 @@ def _advance_known(r, c, t, leak_hz, dt, large, j_known, known, relaxed):
     c[STEP] = t
 
 
-@jit
+@inline
 def _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor):
     """IEBCS: a new threshold of the polarity that fired, addressed by the pixel's event count."""
     z = normal_one(key, THRESHOLD, pixel, c[EVENT_COUNT])
@@ -225,7 +225,7 @@ def _redraw(r, c, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor)
     c[EVENT_COUNT] += 1
 
 
-@jit
+@inline
 def _fire(r, c):
     """Comparator event (Eq. 17) of a pixel whose state is at the event step.
 
@@ -249,7 +249,7 @@ def _fire(r, c):
     return sign, cause, total
 
 
-@jit
+@inline
 def _record(r, c, pixel, t, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_cause, n_events,
             redraw, key, th_mean_on, th_mean_off, th_sigma, th_floor):
     """Write an event of ``pixel`` at step ``t``, start its refractory period (Eq. 21), redraw (IEBCS).
@@ -263,7 +263,7 @@ def _record(r, c, pixel, t, sign, cause, k_refr, ev_step, ev_pixel, ev_pol, ev_c
     return n_events + 1
 
 
-@jit
+@inline
 def run_pixel(r, c, pixel, lo, hi, stop, change_step, change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
               th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost,
               saved_r, saved_c):
@@ -370,6 +370,12 @@ def quiet_until(real, count, p, y_high, y_low, para_high, leak_dt, dt):
                 steps = middle
         steps = quiet
     return count[p, STEP] + 1 + steps
+
+
+#: :func:`run_pixel` compiled apart, for the dense path (:mod:`.dense_loop`): one compile serves its calls. The
+#: helpers taking a pixel's state rows and :func:`run_pixel` are inlined where they are called: a call passing
+#: arrays costs each array's reference count up and down again (atomic), about a third of the loop's time
+run_pixel_apart = jit(run_pixel.py_func)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
