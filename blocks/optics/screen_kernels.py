@@ -9,6 +9,8 @@
 * :func:`sample_grids_transposed` reads separable grids with the 4-tap cubic B-spline (Unser 1999,
   IEEE Signal Process. Mag. 16(6), 22, Eq. 4), its weights computed once per row and column of
   each frame (no dense scatter matrices).
+* :func:`walk_canvases` makes a walk's canvases up to its next regeneration, adds the large-scale
+  modes where their frames read (:func:`add_modes`) and reads them, in one call per layer walk.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
     for f in range(frames):
         low[f, 0], low[f, 1] = rows[f, 0], cols[f, 0]
         high[f, 0], high[f, 1] = rows[f, rows.shape[1] - 1], cols[f, cols.shape[1] - 1]
-    capacity = 16
+    capacity = 4 * frames + 16              # a footprint seldom moves more than a few samples a frame
     kind = np.empty(capacity, np.int8)
     side = np.empty(capacity, np.int8)
     op_epoch = np.empty(capacity, np.int64)
