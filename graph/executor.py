@@ -38,7 +38,7 @@ from .lock import StoreLock
 from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
-from .threads import limit_blas, limit_malloc_arenas
+from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
 
 STORE = "(store)"           # the timing entry of the run store's writes
 log = logging.getLogger("evsda.executor")
@@ -520,8 +520,10 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
     ``pipeline`` (step blocks of successive windows concurrently, recording the same bytes; default:
     ``EVSDA_PIPELINE``, on unless it is ``0``; see :mod:`evsda.graph.executor_pipeline`).
-    BLAS libraries run one thread while it runs, and threads share few malloc arenas (see :mod:`evsda.graph.threads`).
+    BLAS libraries run one thread while it runs, threads share few malloc arenas, and freed memory is kept for
+    reuse (see :mod:`evsda.graph.threads`).
     """
     limit_malloc_arenas()
+    keep_freed_memory()
     with limit_blas():
         return Executor(graph, out, **options).execute()

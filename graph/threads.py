@@ -1,5 +1,5 @@
-"""One BLAS thread per process, for the command line and the Python API alike; few malloc arenas; one
-pool of worker threads that the blocks' parallel loops share (:func:`parallel_map`).
+"""One BLAS thread per process, for the command line and the Python API alike; few malloc arenas that keep
+what is freed (:func:`keep_freed_memory`); one pool of worker threads that the blocks' parallel loops share (:func:`parallel_map`).
 
 The blocks' linear algebra is many small products: several BLAS threads per process spin
 and contend (up to 50x slower on a loaded machine) and take the cores that sweep workers
@@ -55,17 +55,58 @@ MALLOC_ARENAS = 4
 _M_ARENA_MAX = -8          # glibc's malloc.h
 
 
+#: freed memory glibc keeps for reuse at the top of a heap before it gives it back (``M_TRIM_THRESHOLD``) [byte]
+TRIM_THRESHOLD_BYTES = 512 << 20
+#: blocks up to this size come from the heaps, not from a mapping of their own (``M_MMAP_THRESHOLD``; glibc's
+#: largest on 64 bits) [byte]
+MMAP_THRESHOLD_BYTES = 32 << 20
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3     # glibc's malloc.h
+
+
+def _mallopt():
+    """glibc's ``mallopt``, or None (not glibc: macOS, Windows)."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return None
+    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
+    return mallopt
+
+
+def keep_freed_memory() -> None:
+    """Reuse freed memory rather than give it back and fault it in, zeroed, again.
+
+    A window's large arrays (stamps, screens, the pixels' buffers) are freed and made again every window.
+    glibc maps each block above its (moving) mmap threshold on its own and unmaps it when freed, and gives
+    back what is free at a heap's top above its trim threshold; NumPy asks for 2 MB pages on arrays of 4 MB
+    and more. Each new array then meets fresh pages, which the kernel zeroes, 2 MB at a time: ~4 % of a run's
+    CPU (`clear_page_erms` in `perf`). Blocks up to :data:`MMAP_THRESHOLD_BYTES` now come from the heaps, a
+    heap keeps up to :data:`TRIM_THRESHOLD_BYTES` free, and NumPy takes ordinary pages: on 3 s of the tracked
+    pass the system time fell 0.54-0.92 -> 0.25-0.36 s on one thread and 0.73-0.97 -> 0.39-0.43 s on two, and on
+    the 10 s pass 2.0 -> 0.6-0.9 s on two, for 18 MB more peak memory (748 -> 766 MB; docs/speed.md).
+    ``MALLOC_TRIM_THRESHOLD_`` or ``MALLOC_MMAP_THRESHOLD_``, if set, are left to glibc, and
+    ``NUMPY_MADVISE_HUGEPAGE`` to NumPy.
+    """
+    mallopt = _mallopt()
+    if mallopt is not None:
+        if not os.environ.get("MALLOC_TRIM_THRESHOLD_"):
+            mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD_BYTES)
+        if not os.environ.get("MALLOC_MMAP_THRESHOLD_"):
+            mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
+    if "NUMPY_MADVISE_HUGEPAGE" not in os.environ:
+        import numpy as np
+        core = getattr(np, "_core", None) or np.core
+        setter = getattr(core.multiarray, "_set_madvise_hugepage", None)
+        if setter is not None:
+            setter(False)
+
+
 def limit_malloc_arenas() -> None:
     """Hold glibc to :data:`MALLOC_ARENAS` malloc arenas for threads that have none yet (no-op elsewhere, or
     where ``MALLOC_ARENA_MAX`` is set)."""
-    if os.environ.get("MALLOC_ARENA_MAX"):
-        return
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):       # not glibc (macOS, Windows)
-        return
-    mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
-    mallopt(_M_ARENA_MAX, MALLOC_ARENAS)
+    mallopt = _mallopt()
+    if mallopt is not None and not os.environ.get("MALLOC_ARENA_MAX"):
+        mallopt(_M_ARENA_MAX, MALLOC_ARENAS)
 
 
 T = TypeVar("T")

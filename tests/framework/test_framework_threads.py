@@ -69,3 +69,36 @@ def test_nested_and_concurrent_calls_finish_while_the_helpers_are_busy():
         w.join(timeout=30)
     assert all(not w.is_alive() for w in workers)
     assert all(r == [x * (x - 1) // 2 for x in range(30)] for r in results.values())
+
+
+FAULTS = r"""
+import resource, sys
+import numpy as np
+from evsda.graph import threads
+if sys.argv[1] == "keep":
+    threads.keep_freed_memory()
+def window():                                # ~100 MB of arrays of ~8 MB made and freed, as a window does
+    held = [np.ones(1_000_000 + 1000 * i) for i in range(12)]
+    del held
+window()
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(5):
+    window()
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+def test_freed_arrays_are_reused_without_new_page_faults():
+    # glibc's defaults give the freed heap top back (and map big blocks on their own), so every window's arrays
+    # meet fresh pages that the kernel zeroes; kept, the next window's arrays reuse them
+    import os
+    import subprocess
+    import sys
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_", "NUMPY_MADVISE_HUGEPAGE")}
+    faults = {mode: int(subprocess.run([sys.executable, "-c", FAULTS, mode], capture_output=True, text=True,
+                                       check=True, env=env).stdout)
+              for mode in ("default", "keep")}
+    if faults["default"] < 1000:
+        pytest.skip(f"this C library keeps freed memory by itself ({faults})")
+    assert faults["keep"] < faults["default"] / 10, faults
