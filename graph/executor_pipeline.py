@@ -33,6 +33,7 @@ from typing import Any
 
 from .block import RunInfo, Window
 from .errors import UserError
+from .threads import running_step
 
 #: windows in flight beyond the oldest one not yet recorded (1: the optics of k + 1 beside the pixels of k)
 WINDOWS_AHEAD = 1
@@ -91,6 +92,12 @@ class Pipeline:
                 state.stopped = True               # start nothing more; the pool waits for the running steps
 
 
+def _counted(step, name, window, inputs):
+    """``step(name, window, inputs)`` counted as a running step (:func:`.threads.running_step`)."""
+    with running_step():
+        return step(name, window, inputs)
+
+
 class _State:
     """The book-keeping of one :meth:`Pipeline.windows` call."""
 
@@ -134,7 +141,7 @@ class _State:
                     continue
                 if all(self.done[u] >= k for u in self.p.upstream[name]):
                     inputs = self.p.gather(name, self.values[k])
-                    future = pool.submit(self.p.step, name, self.run.window(k), inputs)
+                    future = pool.submit(_counted, self.p.step, name, self.run.window(k), inputs)
                     self.running[future] = (name, k)
                     self.busy.add(name)
 

@@ -26,6 +26,7 @@ import os
 import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
@@ -137,6 +138,23 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_helpers)
 
 
+_steps_running = 0                              # pipelined block steps running now (:func:`running_step`)
+
+
+@contextmanager
+def running_step():
+    """Count a pipelined block step as running while in this context: :func:`parallel_map` gives such a step
+    one helper fewer for every other step running beside it (they share the cores)."""
+    global _steps_running
+    with _helpers_lock:
+        _steps_running += 1
+    try:
+        yield
+    finally:
+        with _helpers_lock:
+            _steps_running -= 1
+
+
 def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[T]:
     """``[fn(item) for item in items]``, on up to ``threads`` threads: the calling thread and ``threads - 1``
     helpers of the pool the process shares, each taking the next item not yet taken.
@@ -148,7 +166,7 @@ def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[
     must give the same result on any thread.
     """
     items = list(items)
-    helpers = min(threads, len(items)) - 1
+    helpers = min(threads - max(_steps_running - 1, 0), len(items)) - 1
     if helpers < 1:
         return [fn(item) for item in items]
     results: list[Any] = [None] * len(items)

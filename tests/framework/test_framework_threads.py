@@ -102,3 +102,16 @@ def test_freed_arrays_are_reused_without_new_page_faults():
     if faults["default"] < 1000:
         pytest.skip(f"this C library keeps freed memory by itself ({faults})")
     assert faults["keep"] < faults["default"] / 10, faults
+
+
+def test_a_step_beside_another_pipelined_step_takes_no_helper_on_two_threads():
+    # two steps running share the 2 cores: a helper would only make a third thread contend for them
+    def threads_used():
+        seen = set()
+        threads.parallel_map(lambda x: (time.sleep(0.002), seen.add(threading.get_ident())), range(20), 2)
+        return len(seen)
+
+    with threads.running_step():
+        assert threads_used() == 2                   # alone: the caller and a helper
+        with threads.running_step():                 # another step running beside it
+            assert threads_used() == 1
