@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -14,6 +15,12 @@ import pytest
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE))       # faultkit, for the tests (pytest runs with --import-mode=importlib)
+
+# A shell that starts pytest as an asynchronous command without job control (`cmd &` in a script, nohup) has
+# it ignore SIGINT, and an ignored signal stays ignored in every child: the runs these tests interrupt with
+# SIGINT would then not see it. A handled signal is reset to its default in a child, so handle it here.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 PLUGIN = HERE.parent / "framework" / "plugin" / "evsda_testblocks.py"
 DRIVER = HERE / "fault_driver.py"
