@@ -33,24 +33,25 @@ import numpy as np
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
-from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NOISE_SCALE, PARA, STEP, TH_OFF, TH_ON, Y,
-                         _advance, _fetch_row, quiet_until, relaxed_by, run_chunk)
+from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA, STEP,
+                         TH_OFF, TH_ON, Y, _advance, _fetch_row, advanced, quiet_until, relaxed_by, run_pixels)
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _cannot_fire(real, p, step, k, y_high, y_low, para_high, n_end, leak_dt, dt):
-    """Whether pixel ``p`` (state row ``real[p]`` at ``step``) provably cannot fire before ``n_end`` under its
-    pending changes from index ``k`` of the suffix tables (see the module's bound).
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _cannot_fire(filtered, y, memorised, th_on, th_off, noise_scale, para, step, y_high, y_low, para_high, n_end,
+                 leak_dt, dt):
+    """Whether a pixel (its state at ``step``) provably cannot fire before ``n_end`` under its pending changes,
+    whose largest and smallest ``Y`` are ``y_high``, ``y_low`` and largest parasitic rate ``para_high`` (see the
+    module's bound).
 
-    Reads the table in place: a row view per pixel (``real[p]``) costs two atomic reference counts, for
-    every pixel of the sensor each window."""
-    filtered, y, memorised, th_on = real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON]
-    high = max(filtered, y, y_high[k])
-    low = min(filtered, y, y_low[k])
-    drift = (leak_dt * real[p, NOISE_SCALE] + max(real[p, PARA], para_high[k]) * dt) * th_on
+    Takes the pixel's fields, read in place by the caller (a row view per pixel costs two atomic reference
+    counts, for every pixel of the sensor each window)."""
+    high = max(filtered, y, y_high)
+    low = min(filtered, y, y_low)
+    drift = (leak_dt * noise_scale + max(para, para_high) * dt) * th_on
     rise = high - memorised + drift * max(n_end - 1 - step, 0)
     fall = low - memorised
-    return rise < th_on - TOLERANCE - ROUNDING_MARGIN and fall > -(real[p, TH_OFF] - TOLERANCE) + ROUNDING_MARGIN
+    return rise < th_on - TOLERANCE - ROUNDING_MARGIN and fall > -(th_off - TOLERANCE) + ROUNDING_MARGIN
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
@@ -96,12 +97,17 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
         if skip and not own and wake[p] >= n_end:
             continue
         if refresh:
-            wake[p] = min(next_step[p], quiet_until(real, count, p, y_env_high, y_env_low, para_env_high, leak_dt, dt))
+            wake[p] = min(next_step[p], quiet_until(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON],
+                                                    real[p, TH_OFF], real[p, NOISE_SCALE], real[p, PARA],
+                                                    count[p, STEP], y_env_high, y_env_low, para_env_high, leak_dt,
+                                                    dt))
         busy = own or next_step[p] < n_end
         behind = (not under) and applied[p] < end
         if behind and not busy:
-            busy = not defer or not _cannot_fire(real, p, count[p, STEP], applied[p] - base, y_high, y_low, para_high,
-                                                 n_end, leak_dt, dt)
+            k = applied[p] - base
+            busy = not defer or not _cannot_fire(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON], real[p, TH_OFF],
+                                                 real[p, NOISE_SCALE], real[p, PARA], count[p, STEP], y_high[k],
+                                                 y_low[k], para_high[k], n_end, leak_dt, dt)
         if busy:
             pixels[m] = p
             takes[m] = behind
@@ -129,16 +135,16 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
                  change_lo, change_hi, change_step, change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
                  th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause):
     """:func:`take_quietly` of the ``pixels`` with ``quiet_lo >= 0`` (their changes ``quiet_lo .. quiet_end - 1``
-    of ``shared_step``, ``shared_input``), then :func:`.pixel_loop.run_chunk` of them all: one chunk's pixels
+    of ``shared_step``, ``shared_input``), then :func:`.pixel_loop.run_pixels` of them all: one chunk's pixels
     while their rows are in cache, in the chunks' threads. Per pixel the same arithmetic in the same order as
     taking every pixel's quiet changes first (tested)."""
     quiet = quiet_lo >= 0
     if quiet.any():
         take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
                      large)
-    return run_chunk(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, change_step, change_input,
-                     n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor,
-                     ev_step, ev_pixel, ev_pol, ev_cause)
+    return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
+                      change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
+                      th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0)
 
 
 # fields of the pixels swept together by take_quietly (rows of its table)
@@ -176,10 +182,12 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
     for i in range(n):                                 # in the pixels' order: the state tables' order
         if i + _AHEAD < n:
             _fetch_row(real, count, pixels[i + _AHEAD])
-        r, c, s = real[pixels[i]], count[pixels[i]], rank[i]
-        _advance(r, c, steps[lo[i]] - 1, leak_hz, dt, large)          # its first change, alone
-        f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s] = r[L_], r[M_], r[C_LEAK], r[C_PARA]
-        f[S_TH_ON, s], f[S_SCALE, s] = r[TH_ON], r[NOISE_SCALE]
+        p, s = pixels[i], rank[i]                      # its first change, alone (its fields read in place)
+        f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s] = advanced(
+            steps[lo[i]] - 1 - count[p, STEP], NO_STEP, 0.0, 0.0, real[p, L_], real[p, M_], real[p, C_LEAK],
+            real[p, C_PARA], real[p, Y], real[p, LOG_A], real[p, PARA], real[p, TH_ON], real[p, NOISE_SCALE], leak_hz,
+            dt, large)
+        f[S_TH_ON, s], f[S_SCALE, s] = real[p, TH_ON], real[p, NOISE_SCALE]
     for k in range(first + 1, end):
         m = starts[k - first]                          # the pixels with lo < k
         j = steps[k] - steps[k - 1]                    # from the step before change k - 1 to the one before k
@@ -191,10 +199,11 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
     for i in range(n):
         if i + _AHEAD < n:
             _fetch_row(real, count, pixels[i + _AHEAD])
-        r, s = real[pixels[i]], rank[i]
-        r[L_], r[M_], r[C_LEAK], r[C_PARA] = f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s]
-        r[FLUX], r[Y], r[LOG_A], r[PARA], r[ACCEPT] = last[FLUX], last[Y], last[LOG_A], last[PARA], last[ACCEPT]
-        count[pixels[i], STEP] = steps[end - 1] - 1
+        p, s = pixels[i], rank[i]
+        real[p, L_], real[p, M_], real[p, C_LEAK], real[p, C_PARA] = f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s]
+        real[p, FLUX], real[p, Y], real[p, LOG_A], real[p, PARA], real[p, ACCEPT] = last[FLUX], last[Y], last[LOG_A], \
+            last[PARA], last[ACCEPT]
+        count[p, STEP] = steps[end - 1] - 1
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")

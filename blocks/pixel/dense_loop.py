@@ -4,7 +4,7 @@ Video frames, or noise added upstream, change nearly every pixel at every sample
 of listing (pixel, change) pairs, the pixels of a tile read their photon flux at each sample
 of the window off the frame-major input (``background[k] + stamps[k, pixel]``: the additions,
 in the same order, that the sparse path makes; the frames two samples ahead are prefetched)
-and take the input change as the event-driven loop (:func:`.pixel_loop.run_pixel`) would, in
+and take the input change as the event-driven loop (:func:`.pixel_loop.run_pixels`) would, in
 two loops over the tile that the compiler vectorises, the first for the new drive
 (:func:`.drive_kernel.drive_one`), the second for the rest:
 
@@ -13,15 +13,15 @@ two loops over the tile that the compiler vectorises, the first for the new driv
   takes its new drive and, in the common case where the comparator input provably stays
   inside its band until the next sample (:func:`.crossing.stays_in_band`), has no crossing
   to solve; otherwise the crossing is solved exactly (:func:`.crossing.search_crossing`,
-  past the bound), as ``run_pixel`` does;
-* a change with an event due before it is taken by ``run_pixel`` for that sample (its
+  past the bound), as ``run_pixels`` does;
+* a change with an event due before it is taken by ``run_pixels`` for that sample (its
   events, then the change, with the drive and the retention the sweep computed), and the
   pixel rejoins the sweep;
 * a pixel whose flux stops changing from sample to sample (the next sample holds it) leaves
-  the sweep there, and ``run_pixel`` takes it from there, through its remaining samples and
+  the sweep there, and ``run_pixels`` takes it from there, through its remaining samples and
   events, as it does every pixel with an event due after its last change.
 
-Every step is the arithmetic ``run_pixel`` performs, in the same order, with the same
+Every step is the arithmetic ``run_pixels`` performs, in the same order, with the same
 functions (:mod:`.fastmath` vectorises to the same bits), so the events are those of the
 sparse path (tested). Nothing of size pixels x samples is allocated.
 """
@@ -35,12 +35,12 @@ from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing
 from .comparator import TOLERANCE
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_into, drive_log, drive_rest
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
-                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _prefetch, _settle_step, relaxed_by, run_pixel_apart)
+                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _prefetch, _settle_step, relaxed_by, run_pixels)
 
 TILE = 128                   # pixels swept together (64: ~5 % more CPU, 256: the same)
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
-_STEPPED = np.int64(2)       # "run_pixel takes this sample" mark in the sweep
-_FIRST, _ONE = np.int64(0), np.int64(1)     # run_pixel's bounds typed int64, not literals: one compile serves all
+_STEPPED = np.int64(2)       # "run_pixels takes this sample" mark in the sweep
+_FIRST, _ONE = np.int64(0), np.int64(1)     # run_pixels' counts typed int64, not literals: one compile serves all
 # per-pixel fields of a tile (rows of the sweep's tables)
 (F_FLUX, F_L, F_M, F_LEAK, F_PARA_C, F_Y, F_LOG_A, F_PARA, F_ACCEPT, F_TH_ON, F_TH_OFF, F_SCALE, F_RETAIN, F_NOW,
  F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
@@ -89,7 +89,7 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, large):
     ``F_RETAIN`` is the filter's retention ``a^j`` over the ``I_SPAN = j`` steps from the
     pixel's last step to this sample. A pixel whose flux holds still while its comparator
     is scheduled without a horizon (``I_OPEN``) waits; one with an event due before its
-    change is marked ``_STEPPED`` in ``I_ACTIVE`` (:func:`run_pixel` takes the sample); one
+    change is marked ``_STEPPED`` in ``I_ACTIVE`` (:func:`.pixel_loop.run_pixels` takes the sample); one
     whose next sample does not change it leaves (``I_LEAVE``). Returns the numbers of pixels
     whose crossing is left to solve (``_SOLVE`` in ``I_CMP``) and of pixels stepped.
     """
@@ -114,12 +114,12 @@ def _sweep_law(fs, js, n, t_now, t_next, last, leak_hz, dt, large):
                  & ((j <= 0) | (j == span)))
         moved_l, moved_m, moved_leak, moved_para = relaxed_by(retain, filtered, memorised, c_leak, c_para, y, log_a,
                                                               para, th_on, scale, j, leak_hz, dt, large)
-        moved = j > 0                         # run_pixel's _advance moves only forward
+        moved = j > 0                         # run_pixels' advance moves only forward
         new_l = moved_l if moved else filtered
         new_m = moved_m if moved else memorised
         new_y, new_log_a, new_para, new_accept = fs[F_NEW_Y * TILE + i], fs[F_NEW_LOG_A * TILE + i], \
             fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
-        # a change with an event due first: run_pixel takes this sample (the pixel ends at its step) and it stays
+        # a change with an event due first: run_pixels takes this sample (the pixel ends at its step) and it stays
         stepped = active & (flux != held) & (last | (following != flux)) & (quiet == False)   # noqa: E712
         takes = quiet | stepped                                             # the new input from this sample on
         # the retention to the next sample, for the bound of first_crossing_one now and the relaxation then
@@ -195,7 +195,7 @@ def _from_state(fs, js, i, r, c, t_next):
                           (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE)):
         fs[field * TILE + i] = r[column]
     js[I_STEP * TILE + i], js[I_READY * TILE + i], js[I_CMP * TILE + i] = c[STEP], c[READY], c[CMP_NEXT]
-    js[I_DUE * TILE + i] = min(c[SHOT_NEXT], _settle_step(c))
+    js[I_DUE * TILE + i] = min(c[SHOT_NEXT], _settle_step(c[READY], c[OWED]))
     js[I_ACTIVE * TILE + i], js[I_LEAVE * TILE + i], js[I_OPEN * TILE + i] = 1, NEVER, 1 if t_next >= NEVER else 0
 
 
@@ -209,7 +209,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
     uniform flux [photon s^-1]; sample ``k`` holds from step ``steps[k]``. Sets
     ``off_background[column]`` where the pixel's last flux differs from the last
     background. Returns ``(events written, pixels done, events lost)`` as
-    :func:`.pixel_loop.run_chunk` does: a tile whose events overflow the buffers is put
+    :func:`.pixel_loop.run_pixels` does: a tile whose events overflow the buffers is put
     back as it was, with its events, and the chunk stops before it.
     """
     n_samples = steps.size
@@ -220,8 +220,8 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
     start_c = np.empty((TILE, n_count), np.int64)
     change_step = np.empty(max(n_samples, 2), np.int64)
     change_input = np.empty((max(n_samples, 2), n_real))
-    saved_r = np.empty(n_real)
-    saved_c = np.empty(n_count, np.int64)
+    one_pixel, no_change, changes = np.empty(1, np.int64), np.zeros(1, np.int64), np.empty(1, np.int64)
+    unkept, no_envelope = np.empty(0, np.int64), np.empty(0)     # run_pixels keeps no schedule here (see below)
     n_events = _FIRST                                         # int64, not Literal[int](0): see _FIRST
     lost = 0.0
     for t0 in range(0, columns.size, TILE):
@@ -260,7 +260,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
             n_solve, n_stepped = _sweep(fs, js, n, steps[k], t_next, last, leak_hz, dt, large, drive_k)
             if n_solve:
                 _solve(fs, js, n, t_next, last, leak_hz, dt, large)
-            for i in range(n if n_stepped else 0):            # run_pixel takes this sample: its events, the change
+            for i in range(n if n_stepped else 0):            # run_pixels takes this sample: its events, the change
                 if js[I_ACTIVE * TILE + i] == _STEPPED:
                     pixel = first_pixel + columns[t0 + i]
                     r, c = real[pixel], count[pixel]
@@ -270,23 +270,26 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                     row[FLUX], row[Y], row[LOG_A] = fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i], \
                         fs[F_NEW_LOG_A * TILE + i]
                     row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
-                    n_events, lost, done = run_pixel_apart(r, c, pixel, _FIRST, 1 if last else 2, _ONE, change_step,
-                                                     change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
-                                                     th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel,
-                                                     ev_pol, ev_cause, n_events, lost, saved_r, saved_c)
+                    one_pixel[0], changes[0] = pixel, 1 if last else 2
+                    n_events, n_done, lost = run_pixels(real, count, unkept, unkept, no_envelope, one_pixel, no_change,
+                                                        changes, _ONE, change_step, change_input, n_end, leak_hz, dt,
+                                                        large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
+                                                        th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
+                                                        n_events, lost)
+                    done = n_done == 1
                     if not done:
                         break
                     _from_state(fs, js, i, r, c, t_next)        # at step steps[k] - 1: the sweep's retention
             if not done:
                 break
-        for i in range(n if done else 0):                     # back to the state tables; the rest by run_pixel
+        for i in range(n if done else 0):                     # back to the state tables; the rest by run_pixels
             column = columns[t0 + i]
             pixel = first_pixel + column
             r, c = real[pixel], count[pixel]
             _to_state(fs, js, i, r, c)
             leave = js[I_LEAVE * TILE + i]
             held = r[FLUX]
-            n_changes = _FIRST                        # int64 from the start: one compile of run_pixel
+            n_changes = _FIRST                        # int64 from the start: one compile of run_pixels
             if leave < NEVER:                                 # its samples from the one it left the sweep at
                 for k in range(n_samples):
                     if steps[k] >= leave:
@@ -296,15 +299,17 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                             drive_into(change_input[n_changes], flux, drive_k)
                             n_changes += 1
                             held = flux
-            if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c)) < n_end:
-                n_events, lost, done = run_pixel_apart(r, c, pixel, _FIRST, n_changes, n_changes + 1, change_step,
-                                                 change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
-                                                 th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
-                                                 ev_cause, n_events, lost, saved_r, saved_c)
+            if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c[READY], c[OWED])) < n_end:
+                one_pixel[0], changes[0] = pixel, n_changes
+                n_events, n_done, lost = run_pixels(real, count, unkept, unkept, no_envelope, one_pixel, no_change,
+                                                    changes, NEVER, change_step, change_input, n_end, leak_hz, dt,
+                                                    large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
+                                                    th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost)
+                done = n_done == 1
                 if not done:
                     break
             off_background[column] = held != background[n_samples - 1]
-            next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c))
+            next_step[pixel] = min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c[READY], c[OWED]))
         if not done:                                          # no room: the tile as it was, without its events
             for i in range(n):
                 pixel = first_pixel + columns[t0 + i]

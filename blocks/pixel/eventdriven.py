@@ -239,7 +239,7 @@ class EventDrivenPixels:
 
     def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog, quiet_lo,
                      quiet_end: int) -> None:
-        """The event-driven loop (:func:`.pixel_loop.run_chunk`) over ``pixels``, pixel ``pixels[i]`` with the
+        """The event-driven loop (:func:`.pixel_loop.run_pixels`) over ``pixels``, pixel ``pixels[i]`` with the
         changes ``lo[i]:hi[i]`` of ``change_step``/``change_input``, after the kept background changes
         ``quiet_lo[i] .. quiet_end - 1`` (none where -1) taken quietly (:func:`.deferred.take_and_run`)."""
         s = self.s
