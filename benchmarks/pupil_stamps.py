@@ -7,14 +7,16 @@ FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1
 (CPU time, medians over ``--repeats`` alternated rounds, one thread):
 
 * ``PupilRenderer.stamps`` whole (phase to pixel energies);
-* its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time), and the
-  same in double precision (complex128), without the pruning (every row of the padded grid: ``fft2``) and through
-  numpy's own FFT (single precision since numpy 2);
+* its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time, through
+  ``scipy.fft.fft``), the same through pocketfft's binding as the renderer calls it (without scipy's dispatch), in
+  double precision (complex128), without the pruning (every row of the padded grid: ``fft2``) and through numpy's
+  own FFT (single precision since numpy 2);
 * ``stamps()`` whole in double precision (the tests' reference renderer, ``dtype=np.complex128``);
 * a matrix Fourier transform (Soummer et al. 2007, Opt. Express 15, 15935) onto the same 80 x 80
   samples, the fewest that give an exact pixel integral (the intensity's 2n - 1 Fourier lags per
   axis): two complex64 products per PSF, 16 PSFs in one call for the first;
-* the pixel-integration products ``B PSF B^T`` alone.
+* the pixel-integration products ``B PSF B^T`` alone;
+* the pupil path's stamps against the bare FFTs through the binding (issue 13 asks the optics for <= 3x).
 
 ``--profile`` adds where ``stamps()``'s time goes: cProfile (CPU clock) over 50 calls, each function's own time
 per PSF (the profiler adds ~1 us per call it sees, ~1 us a PSF here).
@@ -44,7 +46,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from evsda.blocks.optics.fft_screens import fft_phase_screens
-from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler
+from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler, _fft
 from evsda.blocks.optics.telescope import Telescope
 
 N_PUPIL, DELTA_M, WAVELENGTH_M, PIXEL_RAD, STAMP = 40, 0.2 / 38, 568.3e-9, 12.15e-6, 7
@@ -126,6 +128,13 @@ def main() -> None:
         grid[:, n:] = 0
         sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
 
+    def binding():
+        grid[:, :n, :n] = field
+        grid[:, :n, n:] = 0
+        _fft(grid[:, :n], 2)
+        grid[:, n:] = 0
+        _fft(grid, 1)
+
     def numpy_fft():
         grid[:, :n, :n] = field
         grid[:, :n, n:] = 0
@@ -146,11 +155,13 @@ def main() -> None:
 
     phase_t = np.ascontiguousarray(phase.transpose(0, 2, 1))
     curvature = np.pi / WAVELENGTH_M * np.where(np.arange(FRAMES) % 4 == 0, 1 / 7.4e5, 0.0)
+    binding_row = "  the same through the binding"
     cases = {"stamps() whole": (lambda: renderer.stamps(amplitude, phase, offsets), FRAMES),
              "pupil path from the screens' sum": (lambda: pupil_path_render(renderer, amplitude, phase_t, offsets,
                                                                              curvature, renderer.r2), FRAMES),
              "stamps() whole, double precision": (lambda: double.stamps(amplitude, phase, offsets), FRAMES),
              "padded FFTs alone": (fft, chunk),
+             binding_row: (binding, chunk),
              "  the same in complex128": (lambda: fft(grid_double), chunk),
              "  the same unpruned (fft2)": (unpruned, chunk)}
     if np.lib.NumpyVersion(np.__version__) >= "2.0.0":                  # out= and single-precision FFTs
@@ -177,6 +188,8 @@ def main() -> None:
           f"load {statistics.median(loads):.1f}")
     for name, values in times.items():
         print(f"  {name:40s} {statistics.median(values):6.1f} us per PSF")
+    path = statistics.median(times["pupil path from the screens' sum"])
+    print(f"  the pupil path's stamps against the bare FFTs: {path / statistics.median(times[binding_row]):.2f}x")
     if args.profile:
         profile(renderer, amplitude, phase, offsets)
 

@@ -113,14 +113,24 @@ class PupilRenderer:
         self._local = threading.local()
 
     def _workspace(self, frames: int) -> tuple[np.ndarray, ...]:
-        """This thread's buffers for ``frames <= STAMP_CHUNK`` frames (sources render on several threads): padded
-        spectra, their PSFs, and the tilted phase's cosine and sine on the pupil grid."""
-        buffers = getattr(self._local, "buffers", None)
+        """This thread's buffers for a chunk of ``frames <= STAMP_CHUNK`` frames (sources render on several threads):
+        the padded spectra (F, L, L), whose rows ``n:`` stay zero between chunks, their PSFs (F, L, L) and
+        ``PSF B^T`` (F, L, M)."""
+        buffers = getattr(self._local, "chunk", None)
         if buffers is None:
-            size, n, real = self.padded, self.n, self.b.dtype
-            buffers = self._local.buffers = (np.zeros((STAMP_CHUNK, size, size), self.dtype),
-                                             np.zeros((STAMP_CHUNK, size, size), real),
-                                             np.zeros((STAMP_CHUNK, n, n), real), np.zeros((STAMP_CHUNK, n, n), real))
+            size, m, real, c = self.padded, self.sampler.size, self.b.dtype, STAMP_CHUNK
+            buffers = self._local.chunk = (np.zeros((c, size, size), self.dtype), np.empty((c, size, size), real),
+                                           np.empty((c, size, m), real))
+        return tuple(b[:frames] for b in buffers)
+
+    def _per_frame(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """This thread's buffers for ``frames <= PHASE_FRAMES`` frames: the tilted phase's cosine and sine (F, n, n)
+        and the stamps in the renderer's precision (F, M, M)."""
+        buffers = getattr(self._local, "frames", None)
+        if buffers is None:
+            n, m, real, c = self.n, self.sampler.size, self.b.dtype, PHASE_FRAMES
+            buffers = self._local.frames = (np.empty((c, n, n), real), np.empty((c, n, n), real),
+                                            np.empty((c, m, m), real))
         return tuple(b[:frames] for b in buffers)
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -146,46 +156,55 @@ class PupilRenderer:
         k = 2 * np.pi / self.wavelength
         ky, kx = k * theta[:, 1], k * theta[:, 0]
         out = np.empty((len(phase), self.sampler.size, self.sampler.size))
-        for sl in _chunks(len(phase)):
-            grid, psf, cosine, sine = self._workspace(len(phase[sl]))
-            # numpy's cos and sin of the tilted phase (rounded to single precision) on contiguous buffers, then
-            # the field and the padding's zeros written into the FFT buffer in one pass
-            tilted_phase(phase[sl], curvature[sl], self.r2, ky[sl], kx[sl], self.x, cosine)
+        for block in _chunks(len(phase), PHASE_FRAMES):
+            cosine, sine, image = self._per_frame(block.stop - block.start)
+            # numpy's cos and sin of the tilted phase (rounded to single precision) on contiguous buffers, the
+            # block's frames at once; then chunk by chunk the field and the padding's zeros written into the FFT
+            # buffer in one pass
+            tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
             np.sin(cosine, out=sine)
             np.cos(cosine, out=cosine)
-            pupil_field(amplitude[None] if amplitude.ndim == 2 else amplitude[sl], cosine, sine, grid)
-            out[sl] = self._integrate(grid, psf)
+            for sl in _chunks(len(image), STAMP_CHUNK):
+                grid, *rest = self._workspace(sl.stop - sl.start)
+                given = amplitude[None] if amplitude.ndim == 2 else amplitude[block][sl]
+                pupil_field(given, cosine[sl], sine[sl], grid)
+                self._integrate(grid, *rest, image[sl])
+            self._scale(image, out[block])
         return out
 
     def stamps_from_field(self, field: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
         ey, ex = self.tilt(offset_px)
         out = np.empty((len(field), self.sampler.size, self.sampler.size))
-        for sl in _chunks(len(field)):
-            grid, psf = self._workspace(len(field[sl]))[:2]
+        for sl in _chunks(len(field), STAMP_CHUNK):
+            grid, *rest = self._workspace(sl.stop - sl.start)
+            image = self._per_frame(sl.stop - sl.start)[2]
             grid[:, :self.n, :self.n] = field[sl].astype(self.dtype) * ey[sl, :, None] * ex[sl, None, :]
             grid[:, :self.n, self.n:] = 0
-            out[sl] = self._integrate(grid, psf)
+            self._integrate(grid, *rest, image)
+            self._scale(image, out[sl])
         return out
 
-    def _integrate(self, grid: np.ndarray, psf: np.ndarray) -> np.ndarray:
-        """Pixel energy fractions of the tilted pupil fields in ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]``
-        zero), ``F <= STAMP_CHUNK``:
-        padded FFT, ``|.|^2`` into ``psf``, then ``B PSF B^T``."""
+    def _integrate(self, grid: np.ndarray, psf: np.ndarray, half: np.ndarray, image: np.ndarray) -> None:
+        """Stamps ``image`` (F, M, M), up to :meth:`_scaled`'s factor, of the tilted pupil fields in
+        ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]`` and ``grid[:, n:]`` zero), ``F <= STAMP_CHUNK``, through
+        this thread's buffers (:meth:`_workspace`): padded FFT, ``|.|^2`` into ``psf`` (``grid[:, n:]`` zeroed again
+        for the next chunk), then ``B PSF B^T``."""
         n = self.n
-        # the zero-padded FFTs in place in this thread's buffer (the same transforms of the same values, line by
-        # line in the same order, as scipy's own padding): along x on the pupil's n rows, then along y
-        rows = grid[:, :n]
-        along_x = sfft.fft(rows, axis=-1, workers=1, overwrite_x=True)
-        if not np.may_share_memory(along_x, grid):                      # a scipy that does not transform in place
-            rows[...] = along_x
-        grid[:, n:] = 0
-        spectrum = sfft.fft(grid, axis=-2, workers=1, overwrite_x=True)
-        squared_modulus(spectrum, psf)                                   # (F, L, L), up to delta^4/lambda^2
+        # the zero-padded FFTs in place (the same transforms of the same values, line by line in the same order, as
+        # scipy's own padding): along x on the pupil's n rows, then along y
+        _fft(grid[:, :n], 2)
+        _fft(grid, 1)
+        squared_modulus(grid, psf, n)                                   # (F, L, L), up to delta^4/lambda^2
         # stamp = B PSF B^T frame by frame: every frame goes through the same fixed-size products whatever the
         # batch, so results do not depend on how frames are grouped
-        image = np.matmul(self.b, np.matmul(psf, self.b_t))
-        return image.astype(float) * (self.delta**2 / self.wavelength) ** 2 / self.area
+        np.matmul(psf, self.b_t, out=half)
+        np.matmul(self.b, half, out=image)
+
+    def _scale(self, image: np.ndarray, out: np.ndarray) -> None:
+        """Pixel energy fractions [1] ``out`` (F, M, M) in double precision from :meth:`_integrate`'s ``image``."""
+        np.multiply(image, (self.delta**2 / self.wavelength) ** 2, out=out, dtype=float)
+        out /= self.area
 
 
 #: frames rendered together: their padded spectra (16 x 84 x 84 complex64 = 0.9 MB for a 42-sample pupil) stay
@@ -194,8 +213,27 @@ class PupilRenderer:
 STAMP_CHUNK = 16
 
 
-def _chunks(frames: int):
-    return (slice(start, start + STAMP_CHUNK) for start in range(0, frames, STAMP_CHUNK))
+#: frames whose tilted phase, cosine and sine are computed together (one call each; 2 x 128 x 40 x 40 float32 =
+#: 1.6 MB for a 40-sample pupil): a window's frames at 1 kHz are one block
+PHASE_FRAMES = 8 * STAMP_CHUNK
+
+
+def _chunks(frames: int, size: int):
+    return (slice(start, min(start + size, frames)) for start in range(0, frames, size))
+
+
+try:                                   # the binding scipy.fft.fft calls (the same transforms), without its dispatch
+    from scipy.fft._pocketfft.pypocketfft import c2c as _c2c
+except ImportError:                    # a scipy without that private module
+    _c2c = None
+
+
+def _fft(values: np.ndarray, axis: int) -> None:
+    """``values = fft(values, axis=axis)`` in place on this thread (complex, forward, unnormalised)."""
+    if _c2c is None:
+        values[...] = sfft.fft(values, axis=axis, workers=1)
+    else:
+        _c2c(values, (axis,), True, 0, values, 1)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -230,12 +268,18 @@ def pupil_field(amplitude, cosine, sine, grid):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def squared_modulus(spectrum, out):
-    """``out = re^2 + im^2`` of a complex64 ``spectrum`` in one pass (numpy's ``real**2 + imag**2``, bit for bit)."""
-    flat, target = spectrum.reshape(-1), out.reshape(-1)
-    for i in range(flat.shape[0]):
-        value = flat[i]
-        target[i] = value.real * value.real + value.imag * value.imag
+def squared_modulus(spectrum, out, clear_from=-1):
+    """``out = re^2 + im^2`` of a complex64 ``spectrum`` (F, L, L) in one pass (numpy's ``real**2 + imag**2``, bit for
+    bit); rows ``clear_from:`` of ``spectrum`` are set to zero once read (the next padded FFT's zeros), if given."""
+    frames, rows, cols = spectrum.shape
+    for f in range(frames):
+        for i in range(rows):
+            row, target = spectrum[f, i], out[f, i]
+            for j in range(cols):
+                value = row[j]
+                target[j] = value.real * value.real + value.imag * value.imag
+            if 0 <= clear_from <= i:
+                row[:] = 0
 
 
 class RadialRenderer:

@@ -261,20 +261,24 @@ def test_pupil_stamps_from_a_phase_equal_those_from_its_field():
 
 
 def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
-    # the renderer works in chunks of STAMP_CHUNK frames in reused buffers: 37 frames at once, one by one and in
-    # another thread give the same bits, and its one-pass |.|^2 is numpy's real**2 + imag**2 bit for bit
+    # the renderer works in blocks of PHASE_FRAMES and chunks of STAMP_CHUNK frames in reused buffers: 137 frames at
+    # once, one by one and in another thread give the same bits, its one-pass |.|^2 is numpy's real**2 + imag**2 bit
+    # for bit (and clears the rows asked), and its FFTs are scipy.fft.fft's
     import threading
 
-    from evsda.blocks.optics.render import pupil_field, squared_modulus, tilted_phase
+    import scipy.fft as sfft
+
+    from evsda.blocks.optics.render import PHASE_FRAMES, _fft, pupil_field, squared_modulus, tilted_phase
 
     telescope = Telescope(0.2, 0.0)
     renderer = PupilRenderer(StampSampler(7, 4.86e-6, 10), 42, 0.005, 550e-9, telescope.collecting_area_m2)
     amplitude = telescope.pupil(42, 0.005)
     rng = np.random.default_rng(5)
-    phase = 3.0 * rng.standard_normal((37, 42, 42))
-    offsets = rng.uniform(-0.5, 0.5, (37, 2))
+    frames = PHASE_FRAMES + 9
+    phase = 3.0 * rng.standard_normal((frames, 42, 42))
+    offsets = rng.uniform(-0.5, 0.5, (frames, 2))
     together = renderer.stamps(amplitude, phase, offsets)
-    one_by_one = np.concatenate([renderer.stamps(amplitude, phase[f:f + 1], offsets[f:f + 1]) for f in range(37)])
+    one_by_one = np.concatenate([renderer.stamps(amplitude, phase[f:f + 1], offsets[f:f + 1]) for f in range(frames)])
     elsewhere = []
     worker = threading.Thread(target=lambda: elsewhere.append(renderer.stamps(amplitude, phase[5:30], offsets[5:30])))
     worker.start()
@@ -283,10 +287,22 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
     np.testing.assert_array_equal(together[5:30], elsewhere[0])
     spectrum = (rng.standard_normal((3, 8, 8)) + 1j * rng.standard_normal((3, 8, 8))).astype(np.complex64)
     out = np.empty((3, 8, 8), np.float32)
-    squared_modulus(spectrum, out)
-    np.testing.assert_array_equal(out, spectrum.real**2 + spectrum.imag**2)
+    expected = spectrum.real**2 + spectrum.imag**2
+    squared_modulus(spectrum.copy(), out)
+    np.testing.assert_array_equal(out, expected)
+    cleared = spectrum.copy()
+    squared_modulus(cleared, out, 5)
+    np.testing.assert_array_equal(out, expected)
+    np.testing.assert_array_equal(cleared[:, :5], spectrum[:, :5])
+    np.testing.assert_array_equal(cleared[:, 5:], 0)
+    for axis in (1, 2):                                  # in place on a view, as the renderer calls it
+        values = spectrum.copy()
+        _fft(values[:, :6], axis)
+        np.testing.assert_array_equal(values[:, :6], sfft.fft(spectrum[:, :6], axis=axis))
+        np.testing.assert_array_equal(values[:, 6:], spectrum[:, 6:])
     # and its one-pass defocused, tilted phase is numpy's broadcast sums, rounded to single precision, also read
     # from a transposed view (as the screens hand it over)
+    phase = phase[:37]
     ky, kx, x = rng.standard_normal(37) * 1e3, rng.standard_normal(37) * 1e3, renderer.x
     curvature = rng.uniform(0, 1e4, 37)
     defocused = phase + curvature[:, None, None] * renderer.r2[None]
