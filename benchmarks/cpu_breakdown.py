@@ -17,7 +17,7 @@ and are included in the line above them. The figures are CPU seconds, so a loade
 less than wall times (cache contention still adds ~20-40 % at load 8-11); the load average is printed.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/cpu_breakdown.py [--graph G] [--duration 10] [--repeats 3]
-        [--cache cold,warm] [--against OTHER_CHECKOUT]
+        [--cache cold,warm] [--against OTHER_CHECKOUT] [--sets "" "telescope/optics.source_intervals=false"]
 
 The path choice's probe results are kept across runs (:mod:`evsda.graph.result_cache`); ``--cache`` says how
 each column runs: ``off`` (the default: every probe computed, the figures of earlier sessions), ``cold``
@@ -25,6 +25,8 @@ each column runs: ``off`` (the default: every probe computed, the figures of ear
 first: every probe read from the disk). Several columns alternate their runs side by side.
 ``--against`` adds a column of another checkout (its own ``.venv``; the probe cache off, as a checkout from before
 the cache runs), measured with this script's instrumentation and alternated with the others.
+``--sets`` makes a column of each list of ``--set`` values (``;``-separated, ``""`` the graph as it is), each run
+with the probe cache as ``--cache``'s first column, alternated side by side.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ class Stopwatch(executor.Stopwatch):          # the executor's stopwatch on the 
 executor.Stopwatch = Stopwatch
 
 t = clock()
-graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
+graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}", *sys.argv[3:]])
 spent["load the graph (imports its blocks)"] = clock() - t
 parts = {"optics": ("evsda.blocks.optics", [
             ("paths", "PathChooser", "pupil_estimate", "  reference probes (pupil_fft vs Fresnel)"),
@@ -114,12 +116,14 @@ print(json.dumps(spent))
 """
 
 
-def one_run(graph: Path, duration: float, cache: dict[str, str], checkout: Path | None = None) -> dict:
-    """One fresh run's figures; ``checkout``: run another checkout's code (its ``.venv``) instead of this one."""
+def one_run(graph: Path, duration: float, cache: dict[str, str], checkout: Path | None = None,
+            settings: tuple[str, ...] = ()) -> dict:
+    """One fresh run's figures; ``checkout``: run another checkout's code (its ``.venv``) instead of this one;
+    ``settings``: ``--set`` values."""
     env = {**os.environ, "EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0", **cache}
     python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
-    out = subprocess.run([python, "-c", CHILD, str(graph.resolve()), str(duration)], capture_output=True, text=True,
-                         env=env, cwd=checkout)
+    out = subprocess.run([python, "-c", CHILD, str(graph.resolve()), str(duration), *settings], capture_output=True,
+                         text=True, env=env, cwd=checkout)
     if out.returncode:
         raise RuntimeError(out.stderr[-3000:])
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -140,28 +144,40 @@ def main() -> None:
                              "(the probe-result cache: off, empty, or filled by one run first; default off)")
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv) measured side by side, "
                                                          "the probe cache off (e.g. main at an earlier commit)")
+    parser.add_argument("--sets", nargs="+", metavar="K=V;K=V",
+                        help="a column for each list of --set values ('' the graph as it is), alternated side by side, "
+                             "the probe cache as --cache's first column")
     args = parser.parse_args()
     modes = args.cache.split(",")
     if not set(modes) <= set(CACHE_MODES):
         parser.error(f"--cache takes {', '.join(CACHE_MODES)}, got {args.cache}")
+    # each column: its label, cache mode and --set values
+    settings = {m: () for m in modes}
+    if args.sets:
+        settings = {(text or "as is"): tuple(v for v in text.split(";") if v) for text in args.sets}
+        cache_of = dict.fromkeys(settings, modes[0])
+        modes = list(settings)
+    else:
+        cache_of = {m: m for m in modes}
     if args.against is not None:
         if not (args.against / ".venv" / "bin" / "python").exists():
             parser.error(f"--against {args.against}: expected a checkout with its own .venv")
         modes.append("against")
     with tempfile.TemporaryDirectory() as tmp:
         warm = {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/warm"}
-        if "warm" in modes:
+        if "warm" in cache_of.values():
             one_run(args.graph, args.duration, warm)
         runs, loads = {m: [] for m in modes}, {m: [] for m in modes}
         for k in range(args.repeats):
             for mode in modes:
                 cache = {"off": {"EVSDA_CACHE": "off"}, "warm": warm, "against": {"EVSDA_CACHE": "off"},
-                         "cold": {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/cold{k}"}}[mode]
+                         "cold": {"EVSDA_CACHE": "on", "EVSDA_CACHE_DIR": f"{tmp}/cold{k}"}}[cache_of.get(mode, mode)]
                 before = os.getloadavg()[0]
                 runs[mode].append(one_run(args.graph, args.duration, cache,
-                                          args.against if mode == "against" else None))
+                                          args.against if mode == "against" else None, settings.get(mode, ())))
                 loads[mode].append((before + os.getloadavg()[0]) / 2)
-                what = f"{args.against}, cache off" if mode == "against" else f"{mode} cache"
+                what = (f"{args.against}, cache off" if mode == "against" else
+                        f"{mode}, {cache_of[mode]} cache" if args.sets else f"{mode} cache")
                 print(f"  run {k + 1} ({what}): {runs[mode][-1]['whole process']:.2f} s CPU, "
                       f"load {loads[mode][-1]:.2f}", flush=True)
     every = [r for m in modes for r in runs[m]]
@@ -174,7 +190,7 @@ def main() -> None:
     print(f"\n{args.graph.name}, {args.duration:g} s simulated, one thread, one step at a time; "
           f"medians of {args.repeats} fresh runs, load {statistics.median(all_loads):.2f} "
           f"({min(all_loads):.2f}-{max(all_loads):.2f})")
-    columns = "".join(f" {(m if m == 'against' else m + ' cache') if len(modes) > 1 else 'CPU [s]':>11s}"
+    columns = "".join(f" {(m if m == 'against' or args.sets else m + ' cache') if len(modes) > 1 else 'CPU [s]':>11s}"
                       for m in modes)
     print(f"  {'item':58s}{columns} {'share':>6s}")
 

@@ -9,7 +9,9 @@ afford, and prints each run's wall and CPU time beside its errors against that c
   (``telescope/optics.render_rate_hz``), the PSF path (``psf_path``; the Fresnel ``reference``
   costs minutes per simulated second and is left out: the optics block's own probes give its
   error against ``pupil_fft``, 8-12 % of the flux here), the screen update
-  (``screen_update``) and the satellite's Skyfield knot step (``sat.knot_step_s``);
+  (``screen_update``), the satellite's Skyfield knot step (``sat.knot_step_s``) and each source's render
+  interval from its physics (``source_intervals``, ``interval_factor``: blocks/optics/render_interval.py; the
+  faithful run renders every source at every render time);
 * statistics, against the faithful run: the track's event count (events within 4 pixels of
   the true satellite position at their time, relative difference), the centroid error (RMS
   distance between the two runs' 50 ms centroids of those events [pixel]), the event-timing
@@ -61,8 +63,10 @@ GRAPH = Path(__file__).with_name("speed_vs_error.yaml")    # end_to_end.yaml as 
 NOISE_DRAW = "noise draw"
 RENAMED = ("sensor", "telescope")
 FAITHFUL = {"sensor/pixel.time_step_s": 1e-6, "telescope/optics.render_rate_hz": 2000,
-            "telescope/optics.psf_path": "pupil_fft", "telescope/optics.screen_update": "extend",
-            "sat.knot_step_s": 1.0}
+            "telescope/optics.source_intervals": False, "telescope/optics.psf_path": "pupil_fft",
+            "telescope/optics.screen_update": "extend", "sat.knot_step_s": 1.0}
+#: the scene's defaults (benchmarks/end_to_end.yaml as it runs) with each source at every render time
+DEFAULTS_EVERY = {"telescope/optics.render_rate_hz": 1000, "telescope/optics.psf_path": "auto", "sat.knot_step_s": 10.0}
 VARIANTS = [
     ("faithful", {}),
     ("seed 2", {"run.seed": 2}),
@@ -80,8 +84,7 @@ VARIANTS = [
     ("knots 60 s", {"sat.knot_step_s": 60.0}),
     ("auto", {"telescope/optics.psf_path": "auto"}),
     ("auto, no detector", {"telescope/optics.psf_path": "auto", "telescope/optics.detector": "null"}),
-    ("defaults", {"telescope/optics.render_rate_hz": 1000, "telescope/optics.psf_path": "auto",
-                  "sat.knot_step_s": 10.0}),
+    ("defaults", DEFAULTS_EVERY),
     ("defaults at 500 Hz", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "auto",
                             "sat.knot_step_s": 10.0}),
     ("fast", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "long_exposure",
@@ -89,6 +92,14 @@ VARIANTS = [
     # 500 Hz again on the noise draws' random numbers: compare with those rows (a paired second and third draw)
     ("500 Hz, noise draw", {NOISE_DRAW: "b", "telescope/optics.render_rate_hz": 500}),
     ("500 Hz, noise draw 2", {NOISE_DRAW: "c", "telescope/optics.render_rate_hz": 500}),
+    # each source rendered every m-th render time, m from its physics (blocks/optics/render_interval.py) at three
+    # factors, on the defaults (1 kHz base)
+    ("intervals x1", {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True,
+                      "telescope/optics.interval_factor": 1.0}),
+    ("intervals x2", {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True,
+                      "telescope/optics.interval_factor": 2.0}),
+    ("intervals x4", {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True,
+                      "telescope/optics.interval_factor": 4.0}),
 ]
 FLOORS = ("seed 2", "noise draw", "noise draw 2")                      # the noise floors' rows
 TRACK_RADIUS_PX = 4.0

@@ -79,40 +79,50 @@ SUBGRAPHS = {"limiting_magnitude_cmos.yaml": "limiting_magnitude_frames.yaml",
              "onsky_stare_scene.yaml": "onsky_stare_85mm_vga.yaml",
              "onsky_stare_135mm_scene.yaml": "onsky_stare_135mm_vga.yaml"}
 
+#: scenes also run with every source rendered at every render time (the optics' ``source_intervals: false``): that
+#: switch keeps the bytes the scene recorded before per-source render intervals were the default (issue 13)
+BASE_RATE: dict[str, dict] = {"iss_pass.yaml": {"telescope/optics.source_intervals": False}}
+
 # scene: (digest of its resolved graph, SHA-256 of its run store); written by running this file
 EXPECTED: dict[str, tuple[str, str]] = {
-    "geo_sidereal.yaml": ("146b367fbac877b339632afe4154564f0a36cc00bf84f6309ebdda1b52abe42f",
+    "geo_sidereal.yaml": ("fa42a3b32bede245368da3136de73c071860a08468a864c6027c0c441ae305c5",
                           "51bcfc5403071576d15c90ba5026eab0eb42ab07d7034348b3526a8742b5d3c3"),
-    "iss_pass.yaml": ("bc3f3de73f747ceb28c3055aa6be8fa7f712797d6e3b77669df90081b57166d9",
-                      "aa968610f8ecde1761c7618ffe0f55b2b210e39f8503432fdf09906fb493ff16"),
-    "iss_pass_burst_arbiter.yaml": ("91a479a15d7b956fce25a9e23c467988dd946b4ce637734fc5edb33014805d7f",
+    "iss_pass.yaml": ("06a52c7882df011f5800e61cd894fcb911c65305045278faf7a97266245da690",
+                      "e0753f96519e81d0fb4f467c946ba1c7a127a3f2a94ed1eaa965431ff557be5d"),
+    "iss_pass_burst_arbiter.yaml": ("16ac79a1c543c921036465b4ac22833b1f196fc98ea989a827257d3f6823dc1a",
                                     "af97d4391af624aed17ce815fe76c1324df6b5c7bfeb9f0192f85f1d1f43b29f"),
-    "iss_pass_low_noise.yaml": ("dca7fdaeea2d1a24be50fce153a2742abba0370f08d809025537d97be251954e",
+    "iss_pass_low_noise.yaml": ("46509b8b941d69877c5c9b770447516199586dbaa2b92bc7fd655efbcdabba93",
                                 "bb1fa1840b7a99838dea9dcd1d683f43b097561e06e3a63b1c6afd44da594ec4"),
-    "limiting_magnitude_events.yaml": ("e4ee5fcad88d12ddb7212a0d2d1bbaa891864f7484c4f7e38156b85b93b5d448",
-                                       "fbed813bf6dfff62c5dfb68f486669fac4012192372230a433959e80ed688040"),
-    "limiting_magnitude_frames.yaml": ("ea5833ff2f8356f43cec57c2de426978013386761331ac006b295309ea09be9e",
-                                       "d42e74e96216e91a95a1701eab06bedbd0f584769f5cec34b55fdb9c50894b8d"),
-    "onsky_scan_200mm.yaml": ("2d5bd45d160a0c3c23c7e74773431846f1c278258ae80942604c3d669955d775",
-                              "7ae5dd51029eda0c216c14580efd51c9cbcd77d55e39307d04ceff3e5eac9d86"),
-    "onsky_stare_135mm_gen4.yaml": ("0ff50c6cc9b5197375e631be05aca21aabda21811df2e9575a86095798596c83",
-                                    "4b1451f362ef992ad80ac9472b61efb4eeb75b2d7ce3d77f7ccadec3dc4c9b5a"),
-    "onsky_stare_135mm_vga.yaml": ("badc306d80ea70414c2737b0ef70afb60acee0899950deaea0828a9eb849c473",
-                                   "6c387beca36272c0d031b8adde8d0b1514166cb4e7cab4833c838b836b67f6fd"),
-    "onsky_stare_85mm_hvga.yaml": ("209058a7d9e73404b0230659627cc0dbd7551abc183127edc9c21c16020df284",
-                                   "2e51b209fa9ee369a1da3cae159c715e499189ae4af2b1b0693b370f2ccb8d36"),
-    "onsky_stare_85mm_vga.yaml": ("cae300631a345317c583c3657bcd19b36ffe894f9388e64aae706c0d2afc1245",
-                                  "fbed813bf6dfff62c5dfb68f486669fac4012192372230a433959e80ed688040"),
-    "scan_star_streaks.yaml": ("ca3e1c1429a183f1a1d33f5815d32bde1375bc13485c6ae2c78503f202208e6e",
+    "limiting_magnitude_events.yaml": ("84d621607780c2176a321568e9e49f28096e7d685800d92a00c1247bc5d5eff2",
+                                       "2693b5a4e32f3dd1ffa9de52fbc65c5027c1a17a583085a01752cdfd36b72de6"),
+    "limiting_magnitude_frames.yaml": ("581c8d672285da4f4276300baf50e6c744f82ea8804621f9baff10643e17ce6f",
+                                       "70674ad5cfd0b99f19690ec65cd1c0cc1cdd013b99e795e0570d7f0a6ba6efcf"),
+    "onsky_scan_200mm.yaml": ("bba362167181c3dd6ea59e87575a6d4719c9db1793094af4d2364c5be2edccfc",
+                              "e9a664c3fa9858ae9786d7026b3c8166058f1528d73e61e238f3f814f2a9d0ca"),
+    "onsky_stare_135mm_gen4.yaml": ("8760a3371121844bee53902140573c38f5bde2ab9f894dddf235d52f4d73add9",
+                                    "e624584c3df30fef3ef4e6027108c809f913d8a8c2127b028fb434fdfba081d8"),
+    "onsky_stare_135mm_vga.yaml": ("b28e442b978e228551fa81cdd670265b015e4e63a252d0ea6cec13f19f88c134",
+                                   "74afe0a7e2ecaa8f4e663e78494eeb0597d3955aa5d024910158517c5507b42f"),
+    "onsky_stare_85mm_hvga.yaml": ("9ca56e8fcc12e0b36b10fb267f27fb951963cc98ea396eaa710cb01e95aa1b3d",
+                                   "440b5219d65b391f20676b3482db5b15906a336e71bd944040596af3019816e9"),
+    "onsky_stare_85mm_vga.yaml": ("eb79fd332c16b3698342fdb6e05b1ee59c106f0901ca904f0eb284deb18bf21b",
+                                  "2693b5a4e32f3dd1ffa9de52fbc65c5027c1a17a583085a01752cdfd36b72de6"),
+    "scan_star_streaks.yaml": ("286a495ceb4a1f74becd6f15265fe2943296006cc7f755f020bdf485da0259e1",
                                "a6e8f113b6e918319e27d7c47834525c37e53757ece3585cf378f937ff2250b7"),
     "scene_pass.yaml": ("204b892e0f874da5e5a95683a31dec8cd507fe8351e7a3239c5b2e030f4723d4",
                         "0f5e5b13133b52f6eceedf1e4f5a4c436345348222278f056c456fae58dabbea"),
-    "sl-16-rb.yaml": ("7efd4cd7d4d33c8464d25daf5066c60cd0fbbf701bac8c7eafe9d59bfc4a3036",
+    "sl-16-rb.yaml": ("8ce438ae4b0a175337b831fbf2e02cde8f1c0fc4e8f186a3932a95c602d302bc",
                       "4ef046293a1c411b365679aa2ee428856bc2197a751987bf77342e24bcbdbb77"),
-    "space_based.yaml": ("8289ba9bf8d15b2fdcaacc303f9073e1518f84c4caa54a50925e89e86acdd074",
-                         "83c90ed7e1aa4fe2b11742e6c97e3a4182a6b74887738d9448c84448433ae474"),
-    "starlink_field.yaml": ("f4821f71887a5f98fd81733528785cb5caf0c76939b4bc57bb272e2227e18312",
+    "space_based.yaml": ("12824b00fd384c174fea6bb222f932a63881662027a6092952c361d8f770d4c2",
+                         "1cd736c2174ffd3f6ef305aed912be6bec6c9314c7077291e2dea39b68fb9ccc"),
+    "starlink_field.yaml": ("cba819fa15fb2775656bccde9896bee104f503c683ec6c8b098d7b44263e3edc",
                             "70c104d594ed530831cce1fd2107a6dbddd849887d1ec6b1a1856b2c6bda83ac"),
+}
+
+#: the scenes of BASE_RATE with the switch off (the store digest they recorded before the render intervals)
+EXPECTED_BASE_RATE: dict[str, tuple[str, str]] = {
+    "iss_pass.yaml": ("33de25af584786a2b34f0ea0840102c5062cb3903c59b09f2ed1f706c1a582b1",
+                      "aa968610f8ecde1761c7618ffe0f55b2b210e39f8503432fdf09906fb493ff16"),
 }
 
 
@@ -146,12 +156,12 @@ def _array_keys(group, prefix: str = ""):
         yield from _array_keys(sub, f"{prefix}{name}/")
 
 
-def run_example(scene: str, out: Path, examples: Path = EXAMPLES) -> tuple[str, str]:
-    """(graph digest, store digest) of the short version of ``<examples>/<scene>``."""
+def run_example(scene: str, out: Path, examples: Path = EXAMPLES, more: dict | None = None) -> tuple[str, str]:
+    """(graph digest, store digest) of the short version of ``<examples>/<scene>`` (``more``: more overrides)."""
     from evsda.graph.executor import run_graph
     from evsda.graph.graphfile import load_graph
 
-    graph = load_graph(examples / scene, dict(SHORT[scene]))
+    graph = load_graph(examples / scene, {**SHORT[scene], **(more or {})})
     run_graph(graph, out, progress=False)
     return graph_digest(graph), store_digest(out)
 
@@ -174,6 +184,17 @@ def test_example_records_the_expected_bytes(scene, tmp_path):
     assert store == expected_store, f"{scene}: same graph, different recorded bytes"
 
 
+@pytest.mark.parametrize("scene", sorted(BASE_RATE))
+def test_example_at_the_base_rate_records_the_bytes_from_before_render_intervals(scene, tmp_path):
+    expected_graph, expected_store = EXPECTED_BASE_RATE[scene]
+    graph, store = run_example(scene, tmp_path / "run.zarr", more=BASE_RATE[scene])
+    if graph != expected_graph:
+        pytest.skip(f"{scene} itself changed since its hash was recorded; regenerate with "
+                    f"`python tests/test_examples_identical.py`")
+    assert store == expected_store, f"{scene} with every source at the base rate: same graph, different bytes"
+    assert store != EXPECTED[scene][1], f"{scene}: the render intervals change nothing here; pick another scene"
+
+
 if __name__ == "__main__":
     import tempfile
 
@@ -183,5 +204,10 @@ if __name__ == "__main__":
         print("EXPECTED: dict[str, tuple[str, str]] = {")
         for name in sorted(SHORT):
             graph, store = run_example(name, Path(tmp) / name.replace(".yaml", ".zarr"))
+            print(f'    "{name}": ("{graph}",\n{" " * (len(name) + 9)}"{store}"),', flush=True)
+        print("}")
+        print("EXPECTED_BASE_RATE: dict[str, tuple[str, str]] = {")
+        for name in sorted(BASE_RATE):
+            graph, store = run_example(name, Path(tmp) / name.replace(".yaml", "_base.zarr"), more=BASE_RATE[name])
             print(f'    "{name}": ("{graph}",\n{" " * (len(name) + 9)}"{store}"),', flush=True)
         print("}")

@@ -15,6 +15,7 @@ from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
 from .imaging import Imager, line_of_sight
+from .render_interval import RenderInterval
 from .telescope import Telescope
 from .truth import truth_rows
 
@@ -25,8 +26,10 @@ class PointSourceOptics(Block):
     Each source's flux at the aperture [photon s^-1 m^-2] times the collecting area
     ``pi D^2 (1 - eps^2) / 4`` [m^2], the throughput and the fraction of the PSF's energy
     in each pixel gives the stamps of :class:`~evsda.blocks.ports.Irradiance`
-    [photon s^-1 pixel^-1], sampled every ``1 / render_rate_hz`` on the run's global grid;
-    the sky background is uniform. The PSF follows the cheapest path whose estimated
+    [photon s^-1 pixel^-1], sampled every ``1 / render_rate_hz`` on the run's global grid, each
+    source's PSF rendered every ``m``-th sample as its pixels need and held between
+    (``source_intervals``, :mod:`evsda.blocks.optics.render_interval`); the sky background is
+    uniform. The PSF follows the cheapest path whose estimated
     error stays within ``tolerance`` (``airy``, ``long_exposure``, ``pupil_fft``,
     ``reference``; see :mod:`evsda.blocks.optics.paths`), or the one ``psf_path`` forces;
     the choice and its reasons are logged on ``evsda.blocks.optics``. Turbulence is a
@@ -49,7 +52,20 @@ class PointSourceOptics(Block):
         # 1 kHz: within the noise floor of 2 kHz on the tracked LEO pass and the staring main job; 500 Hz loses
         # 2-16 % of the satellite's events in every noise draw (its PSF hops ~1 pixel per sample on a stare, and
         # the tracked ISS's speckle decorrelates in ~1 ms): docs/speed.md, "Speed against error"
-        render_rate_hz: float = Field(1000.0, gt=0, le=1e6, description="Rate of rendered PSF samples [Hz]")
+        render_rate_hz: float = Field(1000.0, gt=0, le=1e6,
+                                      description="Base rate of rendered PSF samples, the render times' grid [Hz]")
+        # on: within the noise floor of the faithful run on every statistic of the tracked pass and the staring main
+        # job, and -10 % CPU on the main job (docs/speed.md, "Fewer PSFs: a render interval per source")
+        source_intervals: bool = Field(
+            True, description="Render each source every m-th render time, m the largest power of two within its "
+                              "image's pixel-crossing time and interval_factor times its coherence time tau0 and its "
+                              "pixels' response time (the stamp held between; render_interval); False: every source "
+                              "at every render time [-]")
+        # 2: the tracked pass's satellite, whose pixels follow its speckle, keeps its events held 1.8 tau0 (1 kHz)
+        # and loses them held 3.6 tau0 (500 Hz): docs/speed.md, "Speed against error"
+        interval_factor: float = Field(
+            2.0, gt=0, le=16, description="How many of its coherence times tau0 and pixel response times a source's "
+                                          "held stamp may span (source_intervals) [1]")
         psf_path: Literal["auto", "airy", "long_exposure", "pupil_fft", "reference"] = Field(
             "auto", description="PSF path; 'auto' picks the cheapest whose error is within tolerance [-]")
         tolerance: float = Field(0.1, gt=0, lt=1,
@@ -105,13 +121,17 @@ class PointSourceOptics(Block):
     }
     outputs = {"irradiance": Output(Irradiance, "photon flux per pixel: stamps around sources plus background"),
                "truth": Output(Truth, "every source on the detector at each render time (the run store keeps it)")}
-    state = ("optics_state", "held")
+    state = ("optics_state", "held", "held_stamps")
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.optics_state: dict | None = None
         self.held: dict = {}
+        #: with ``source_intervals``: each source's last stamp (energy fractions, placement, path) and the last render
+        #: time it was in view [ns], while that is the last render time so far (the hold carries across windows)
+        self.held_stamps: dict = {}
         self._imager: Imager | None = None
+        self._intervals: RenderInterval | None = None
         self._atmosphere: Atmosphere | None = None
         self._atmosphere_ready = False
 
@@ -155,6 +175,9 @@ class PointSourceOptics(Block):
             seed = tuple(int(w) for w in self.rng.bit_generator.seed_seq.generate_state(2))
             self._imager = Imager(self.telescope, focal_plane, wavelength, self._atmosphere, p, seed=seed,
                                   label=self.label, pixels=self._pixels(focal_plane, wavelength))
+            self._intervals = (RenderInterval(self._imager.atmosphere, wavelength, focal_plane.pixel_scale_rad,
+                                              self._imager.chooser.pixels, p.interval_factor)
+                               if p.source_intervals else None)
             if self.optics_state:
                 self._imager.set_state(self.optics_state)
         return self._imager
@@ -181,6 +204,7 @@ class PointSourceOptics(Block):
     def set_state(self, state: dict) -> None:
         super().set_state(state)
         self.held = self.held or {}
+        self.held_stamps = self.held_stamps or {}
         if self._imager is not None and self.optics_state:
             self._imager.set_state(self.optics_state)
 
@@ -287,6 +311,40 @@ class PointSourceOptics(Block):
             return np.where(known, turned, PointSourceOptics._apparent_distance(before, after))
         return distance
 
+    @staticmethod
+    def _render_held(imager: Imager, key: str, tr: dict, at: np.ndarray, seen: np.ndarray, paths: list[str],
+                     every: np.ndarray, t_ns: np.ndarray, cadence_ns: int, record: dict | None):
+        """One stretch in view of a source rendered every ``every``-th render time (:mod:`.render_interval`): render
+        time ``k`` where ``k`` is a multiple of its interval, where the source was not in view at the render time
+        before, or where its path changes; in between the last rendered stamp (energy fractions and placement) held.
+        ``record``: the stamp held from the render time before (previous stretch or window), returned updated."""
+        times = t_ns[at]
+        continuing = record is not None and int(record["t_ns"]) == int(times[0]) - cadence_ns
+        before = record["path"] if continuing else None
+        changed = np.array([p != q for p, q in zip(paths, [before, *paths[:-1]])])
+        fresh = ((times // cadence_ns) % every == 0) | changed
+        fresh[0] |= not continuing
+        rendered = np.flatnonzero(fresh)
+        size = imager.geometry.stamp_size
+        origin = np.zeros((len(at), 2), dtype=np.int32)
+        stamps = np.zeros((len(at), size, size))
+        if rendered.size:
+            r = at[rendered]
+            origin[rendered], stamps[rendered], _ = imager.render(
+                key, times[rendered] * 1e-9, tr["x"][r], tr["y"][r], tr["zenith"][r], tr["range"][r], seen[rendered],
+                azimuth_rad=tr["azimuth"][r], rotation_rad=tr["rotation"][r], paths=[paths[i] for i in rendered])
+        # each frame's stamp: the last rendered at or before it (-1: the stamp held from before this stretch)
+        source = np.maximum.accumulate(np.where(fresh, np.arange(len(at)), -1))
+        held = source < 0
+        if held.any():
+            origin[held], stamps[held] = record["origin"], record["stamp"]
+        mine = ~held & ~fresh
+        origin[mine], stamps[mine] = origin[source[mine]], stamps[source[mine]]
+        last = source[-1]
+        if last >= 0:
+            record = {"origin": origin[last].copy(), "stamp": stamps[last].copy(), "path": paths[last]}
+        return origin, stamps, {**record, "t_ns": int(times[-1])}
+
     def step(self, window: Window, sources: list[PointSources] | PointSources,
              background: SkyBackground | None = None) -> dict:
         if isinstance(sources, PointSources):
@@ -332,30 +390,42 @@ class PointSourceOptics(Block):
             # line of sight in the ground frame, which moves its footprints through the layers
             seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx], tr["sky_rate"][idx]], axis=1)
             paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
-            jobs.append((len(jobs), key, tr, idx, seen, paths))
+            every = None if self._intervals is None else self._intervals.multiples(cadence_ns, seen, tr["zenith"][idx])
+            jobs.append((len(jobs), key, tr, idx, seen, paths, every))
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)
         flux = np.zeros((len(t_ns), len(jobs), size, size))
 
         def render(job):
-            s, key, tr, idx, seen, paths = job
+            s, key, tr, idx, seen, paths, every = job
+            record = self.held_stamps.get(key)
             # each stretch of consecutive render times in view; one back after more than hold_ns out of view
             # (since this window's last stretch or the render time the imager last saw it) gets new screens
             for part in np.split(np.arange(len(idx)), np.flatnonzero(np.diff(idx) > 1) + 1):
                 if not imager.keeps(key, t_ns[idx[part[0]]]):
                     imager.forget([key])
                 at = idx[part]
-                o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
-                                             tr["range"][at], seen[part], azimuth_rad=tr["azimuth"][at],
-                                             rotation_rad=tr["rotation"][at], paths=[paths[i] for i in part])
+                stretch_paths = [paths[i] for i in part]
+                if every is None:
+                    o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
+                                                 tr["range"][at], seen[part], azimuth_rad=tr["azimuth"][at],
+                                                 rotation_rad=tr["rotation"][at], paths=stretch_paths)
+                else:
+                    o, stamps, record = self._render_held(imager, key, tr, at, seen[part], stretch_paths,
+                                                          every[part], t_ns, cadence_ns, record)
                 origin[at, s] = o
                 flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
                 imager.seen(key, t_ns[at[-1]])
+            return key, record
 
         # sources are independent (own screens, own slots of the output): render them on every core, with the
         # process's shared helper threads
-        parallel_map(render, jobs, worker_threads())
+        records = parallel_map(render, jobs, worker_threads())
+        if self._intervals is not None and len(t_ns):
+            # a held stamp carries into the next window only for a source in view at this window's last render time
+            self.held_stamps = {key: record for key, record in records
+                                if record is not None and int(record["t_ns"]) == int(t_ns[-1])}
 
         # screens of the sources out of view for hold_ns at the window's last render time are dropped (a 60 s
         # pupil_fft pass sweeps 1586 stars, ~32 kB of screens each): the rule reads render times only, so windows

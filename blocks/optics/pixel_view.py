@@ -109,14 +109,14 @@ class PixelView:
         tau = self.response_time_s(floor_photon_s + source_photon_s)
         return step if tau <= 0 else step * -np.expm1(-np.sqrt(2.0) / rate_px_s / tau)
 
-    def response_time_s(self, photon_s: float) -> float:
+    def response_time_s(self, photon_s):
         """The photoreceptor's time constant ``1 / (2 pi f_3dB)`` at this flux [s] (paper Eq. 16, the preset's
-        cutoff law; 0 without a filter)."""
-        eps = float(self.model.drive(np.array([photon_s]), distinct=True).eps[0])
-        if eps >= 1.0:
-            return 0.0
+        cutoff law; 0 without a filter); a float for a number, an array for an array of fluxes."""
+        eps = self.model.drive(np.atleast_1d(np.asarray(photon_s, dtype=float)), distinct=True).eps
         # backward Euler gain eps = w / (w + 1), w = 2 pi dt f_3dB, so tau = dt / w = dt (1 - eps) / eps
-        return self.model.dt_s * (1.0 - eps) / eps
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tau = np.where(eps >= 1.0, 0.0, self.model.dt_s * (1.0 - eps) / eps)
+        return float(tau[0]) if np.ndim(photon_s) == 0 else tau.reshape(np.shape(photon_s))
 
 
 def averaged_frames(tau_s: float, cn2_fraction: np.ndarray, speed_m_s: np.ndarray, diameter_m: float) -> float:
