@@ -36,6 +36,7 @@ J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a cro
 NO_STEP = np.int64(-1)                     # no step: a^j known for none (:func:`_g`)
 _NEWTON_STEPS = 12
 _ROUNDING = 1e-12                          # relative widening of the range of g against its rounding [1]
+_UP, _DOWN = np.bool_(True), np.bool_(False)    # _root's direction typed bool, not a literal: one compile serves both
 
 jit = numba.njit(cache=True, error_model="numpy")      # IEEE division (inf, nan) as in NumPy
 inline = numba.njit(cache=True, error_model="numpy", inline="always")    # so that loops over pixels vectorise
@@ -275,7 +276,7 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_know
             ratio = decay_reaching(theta_on - c, d, large)
             start = math.log(ratio) / log_a if (ratio > 0.0) & (ratio < 1.0) else (
                 (theta_on - c) / delta if delta > 0.0 else np.nan)
-            return _root(j0, hi, c, d, e, log_a, delta, theta_on, True, start, large), 1
+            return _root(j0, hi, c, d, e, log_a, delta, theta_on, _UP, start, large), 1
         return NEVER, 0
 
     # falling (D > 0): g convex, decreasing until j*, increasing after
@@ -302,12 +303,12 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_know
     if hi > 0:
         ratio = decay_reaching(level_off - c, d, large)   # root without drift: drift only delays it
         start = math.log(ratio) / log_a if ratio > 0.0 else np.nan
-        return _root(j0, hi, c, d, e, log_a, delta, level_off, False, start, large), -1
+        return _root(j0, hi, c, d, e, log_a, delta, level_off, _DOWN, start, large), -1
     # ON: after the minimum, where g increases (g(j_min) <= g(j0) < theta_ON)
     if delta > 0.0 and j_min < horizon:
         hi = max(min(_ceil_steps((theta_on - c) / delta) + 1, horizon), j_min + 1)   # g >= C + delta j
         if _g(hi, c, d, e, log_a, delta, j_known, known, large) >= theta_on:
-            return _root(j_min, hi, c, d, e, log_a, delta, theta_on, True, float(hi), large), 1
+            return _root(j_min, hi, c, d, e, log_a, delta, theta_on, _UP, float(hi), large), 1
     return NEVER, 0
 
 

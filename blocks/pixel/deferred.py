@@ -167,16 +167,22 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
     n = pixels.size
     if n == 0:
         return
-    first = lo.min()
-    starts = np.zeros(end - first + 1, np.int64)       # pixels ordered by lo (a counting sort): rank[i] is pixel i's place
+    first = lo[0]
+    for i in range(1, n):
+        first = min(first, lo[i])
+    # pixels ordered by lo (a counting sort): rank[i] is pixel i's place. Loops, not NumPy's cumsum, min and slice
+    # assignment: each of those is compiled apart on a first run (the assignment's shape check with its message, ~1 s)
+    starts = np.zeros(end - first + 1, np.int64)
     for i in range(n):
         starts[lo[i] - first + 1] += 1
-    starts = np.cumsum(starts)
+    for k in range(1, starts.size):
+        starts[k] += starts[k - 1]
     rank = np.empty(n, np.int64)
     for i in range(n):
         rank[i] = starts[lo[i] - first]
         starts[lo[i] - first] += 1
-    starts[1:] = starts[:-1].copy()
+    for k in range(starts.size - 1, 0, -1):
+        starts[k] = starts[k - 1]
     starts[0] = 0
     f = np.empty((N_SWEPT, n))
     for i in range(n):                                 # in the pixels' order: the state tables' order

@@ -37,7 +37,8 @@ from numba.extending import intrinsic
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .counter_rng import hash64_one, normal_one, uniform_open_one, unit_interval
-from .crossing import J_LIMIT, NEVER, NO_STEP, band_bound, first_crossing_known, large_weight, power, relaxation
+from .crossing import (J_LIMIT, NEVER, NO_STEP, band_bound, first_crossing_known, large_weight, power, relaxation,
+                       search_crossing)
 
 # state table columns (keep in step with REAL and COUNT)
 REAL = ("flux", "L", "M", "th_on", "th_off", "c_leak", "c_para",   # input, filter, memory, thresholds, causes
@@ -47,7 +48,8 @@ COUNT = ("step", "ready", "shot_next", "shot_count", "cmp_next", "event_count",
          "owed")                                                     # signed events the comparator still owes
 (FLUX, L_, M_, TH_ON, TH_OFF, C_LEAK, C_PARA, NOISE_SCALE, Y, LOG_A, PARA, ACCEPT) = range(len(REAL))
 (STEP, READY, SHOT_NEXT, SHOT_COUNT, CMP_NEXT, EVENT_COUNT, OWED) = range(len(COUNT))
-GAP, ACCEPT_STREAM, THRESHOLD = 1, 2, 3          # counter-RNG streams
+GAP, ACCEPT_STREAM, THRESHOLD = np.int64(1), np.int64(2), np.int64(3)    # counter-RNG streams (int64, not literals:
+#                                                  one compile of the generator serves all three)
 LATER = NEVER + np.int64(1)                      # "no comparator event before the pixel's next change or event"
 SOON = -NEVER                                    # "no window's end shown quiet": the bound is checked in full
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
@@ -174,15 +176,22 @@ def _schedule_before(step, ready, y, memorised, filtered, log_a, para, th_on, th
     end), after which it schedules the pixel again; a ``LATER`` left at the end of the pixel's turn is
     replaced by the search with the same state, so the stored schedule and the events are the same.
     Returns ``(step, j, a^j, relaxation)``, the last three the bound's, as :func:`next_crossing_known`'s.
+    Where the search's own bound would be this one (``last`` is the step before the next change, the usual
+    case), the search starts from it (:func:`.crossing.search_crossing`) instead of taking it again.
     """
-    j_max = max(last - step, ready - step, np.int64(1))
+    j0 = max(ready - step, np.int64(1))
+    j_max = max(last - step, j0)
     drift = (leak_dt * noise_scale + para * dt) * th_on
-    holds, retention, relaxed = band_bound(j_max, y - memorised, filtered - y, log_a, drift, th_on - TOLERANCE,
-                                           th_off - TOLERANCE, large)
+    c, d, on, off = y - memorised, filtered - y, th_on - TOLERANCE, th_off - TOLERANCE
+    holds, retention, relaxed = band_bound(j_max, c, d, log_a, drift, on, off, large)
     if holds:
         return LATER, j_max, retention, relaxed
-    return next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change,
-                               leak_dt, dt, large)
+    horizon = min(NEVER if t_change >= NEVER else t_change - 1 - step, J_LIMIT)      # next_crossing_known's
+    if max(horizon, j0) != j_max:
+        return next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
+                                   t_change, leak_dt, dt, large)
+    j, _ = search_crossing(j0, c, d, log_a, drift, on, off, horizon, j_max, retention, large)
+    return (NEVER if j >= NEVER else step + j), j_max, retention, relaxed
 
 
 @inline
@@ -233,7 +242,7 @@ def advanced(j, j_known, known, relaxed, filtered, memorised, c_leak, c_para, y,
     return filtered, memorised, c_leak, c_para
 
 
-@inline
+@jit
 def _redrawn(th_on, th_off, event_count, pixel, sign, key, th_mean_on, th_mean_off, th_sigma, th_floor):
     """IEBCS: ``(theta_ON, theta_OFF, event count)`` with a new threshold of the polarity that fired, addressed by
     the pixel's event count."""
@@ -245,7 +254,7 @@ def _redrawn(th_on, th_off, event_count, pixel, sign, key, th_mean_on, th_mean_o
     return th_on, th_off, event_count + 1
 
 
-@inline
+@jit
 def _fire(filtered, memorised, th_on, th_off, c_leak, c_para):
     """Comparator event (Eq. 17) of a pixel whose state is at the event step.
 
@@ -271,7 +280,7 @@ def _fire(filtered, memorised, th_on, th_off, c_leak, c_para):
     return sign, cause, total, memorised + moved, c_leak, c_para
 
 
-@inline
+@jit
 def quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, y_high, y_low, para_high, leak_dt,
                 dt):
     """The last window end ``n_end`` before which a pixel (its state at ``step``) provably cannot fire under
@@ -350,13 +359,21 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         while True:
             t_settle = _settle_step(ready, owed)
             t_event = min(cmp_next, shot_next, t_settle)
-            if t_event < t_change and t_event < n_end:
+            event = t_event < t_change and t_event < n_end
+            if event:                                         # an event first: no use for the bound's a^j
                 if n_events + 2 > capacity:                   # no room: this pixel as it was, without its events
                     return first_event, i, lost_before
-                filtered, memorised, c_leak, c_para = advanced(t_event - step, NO_STEP, 0.0, 0.0, filtered, memorised,
-                                                               c_leak, c_para, y, log_a, para, th_on, noise_scale,
-                                                               leak_hz, dt, large)
-                step = t_event
+                t, j_at = t_event, NO_STEP
+            elif ptr < end:                                   # the next input takes over
+                t, j_at = t_change - 1, j_known
+            else:
+                break
+            # one place that advances the pixel: each inlined copy of it costs ~1 s of the first compile
+            filtered, memorised, c_leak, c_para = advanced(t - step, j_at, known, relaxed, filtered, memorised,
+                                                           c_leak, c_para, y, log_a, para, th_on, noise_scale, leak_hz,
+                                                           dt, large)
+            step = t
+            if event:
                 awake = ready <= t_event
                 fires = cmp_next == t_event
                 sign, cause, total = 0, SIGNAL, 0.0
@@ -393,17 +410,11 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
                             lost += 1.0
                     shot_count += 1
                     shot_next = t_event + shot_gap(key, pixel, shot_count, q * noise_scale)
-            elif ptr < end:                                   # the next input takes over
-                filtered, memorised, c_leak, c_para = advanced(t_change - 1 - step, j_known, known, relaxed, filtered,
-                                                               memorised, c_leak, c_para, y, log_a, para, th_on,
-                                                               noise_scale, leak_hz, dt, large)
-                step = t_change - 1
+            else:
                 flux, y, log_a = change_input[ptr, FLUX], change_input[ptr, Y], change_input[ptr, LOG_A]
                 para, accept = change_input[ptr, PARA], change_input[ptr, ACCEPT]
                 ptr += 1
                 t_change = change_step[ptr] if ptr < end else NEVER
-            else:
-                break
             last = min(t_change - 1, n_end - 1, shot_next, _settle_step(ready, owed))
             cmp_next, j_known, known, relaxed = _schedule_before(step, ready, y, memorised, filtered, log_a, para,
                                                                  th_on, th_off, noise_scale, t_change, last, leak_dt,
