@@ -8,15 +8,16 @@ FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1
 
 * ``PupilRenderer.stamps`` whole (phase to pixel energies);
 * its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time, through
-  ``scipy.fft.fft``), the same through pocketfft's binding as the renderer calls it (without scipy's dispatch), in
-  double precision (complex128), without the pruning (every row of the padded grid: ``fft2``) and through numpy's
-  own FFT (single precision since numpy 2);
+  ``scipy.fft.fft``), the same through pocketfft's binding (without scipy's dispatch), as the renderer runs them
+  (the rows through the binding, the columns compiled with pocketfft's bits: ``column_fft``), in double precision
+  (complex128), without the pruning (every row of the padded grid: ``fft2``) and through numpy's own FFT (single
+  precision since numpy 2);
 * ``stamps()`` whole in double precision (the tests' reference renderer, ``dtype=np.complex128``);
 * a matrix Fourier transform (Soummer et al. 2007, Opt. Express 15, 15935) onto the same 80 x 80
   samples, the fewest that give an exact pixel integral (the intensity's 2n - 1 Fourier lags per
   axis): two complex64 products per PSF, 16 PSFs in one call for the first;
 * the pixel-integration products ``B PSF B^T`` alone;
-* the pupil path's stamps against the bare FFTs through the binding (issue 13 asks the optics for <= 3x).
+* the pupil path's stamps against the bare FFTs, pocketfft's and the renderer's (issue 13 asks the optics for <= 3x).
 
 ``--profile`` adds where ``stamps()``'s time goes: cProfile (CPU clock) over 50 calls, each function's own time
 per PSF (the profiler adds ~1 us per call it sees, ~1 us a PSF here).
@@ -40,11 +41,13 @@ import pstats
 import statistics
 import sys
 import time
+import types
 from pathlib import Path
 
 import numpy as np
 import scipy.fft as sfft
 
+from evsda.blocks.optics import column_fft
 from evsda.blocks.optics.fft_screens import fft_phase_screens
 from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler, _fft
 from evsda.blocks.optics.telescope import Telescope
@@ -60,13 +63,16 @@ def per_psf_us(work, frames: int) -> float:
 
 
 def render_module(checkout: Path):
-    """``blocks/optics/render.py`` of another checkout, imported on its own (Numba caches kept apart)."""
+    """``blocks/optics/render.py`` of another checkout, imported on its own in a package of that checkout's
+    ``blocks/optics`` (so that its relative imports read that checkout's modules; Numba caches kept apart)."""
     path = (checkout / "blocks" / "optics" / "render.py").resolve()
     os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(os.environ.get("TMPDIR", "/tmp")) / "pupil_stamps_numba"))
-    name = "render_" + hashlib.md5(str(path).encode()).hexdigest()[:8]
-    spec = importlib.util.spec_from_file_location(name, path)
+    package = types.ModuleType("optics_" + hashlib.md5(str(path).encode()).hexdigest()[:8])
+    package.__path__ = [str(path.parent)]
+    sys.modules[package.__name__] = package
+    spec = importlib.util.spec_from_file_location(package.__name__ + ".render", path)
     module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
+    sys.modules[spec.name] = module
     spec.loader.exec_module(module)
     return module
 
@@ -135,6 +141,14 @@ def main() -> None:
         grid[:, n:] = 0
         _fft(grid, 1)
 
+    scratch = np.empty((4, size * size), np.float32)
+
+    def compiled_columns():
+        grid[:, :n, :n] = field
+        grid[:, :n, n:] = 0
+        _fft(grid[:, :n], 2)
+        column_fft.columns(grid, scratch)
+
     def numpy_fft():
         grid[:, :n, :n] = field
         grid[:, :n, n:] = 0
@@ -155,13 +169,14 @@ def main() -> None:
 
     phase_t = np.ascontiguousarray(phase.transpose(0, 2, 1))
     curvature = np.pi / WAVELENGTH_M * np.where(np.arange(FRAMES) % 4 == 0, 1 / 7.4e5, 0.0)
-    binding_row = "  the same through the binding"
+    binding_row, own_row = "  the same through the binding", "  the same as the renderer runs them"
     cases = {"stamps() whole": (lambda: renderer.stamps(amplitude, phase, offsets), FRAMES),
              "pupil path from the screens' sum": (lambda: pupil_path_render(renderer, amplitude, phase_t, offsets,
                                                                              curvature, renderer.r2), FRAMES),
              "stamps() whole, double precision": (lambda: double.stamps(amplitude, phase, offsets), FRAMES),
              "padded FFTs alone": (fft, chunk),
              binding_row: (binding, chunk),
+             own_row: (compiled_columns, chunk),
              "  the same in complex128": (lambda: fft(grid_double), chunk),
              "  the same unpruned (fft2)": (unpruned, chunk)}
     if np.lib.NumpyVersion(np.__version__) >= "2.0.0":                  # out= and single-precision FFTs
@@ -189,7 +204,8 @@ def main() -> None:
     for name, values in times.items():
         print(f"  {name:40s} {statistics.median(values):6.1f} us per PSF")
     path = statistics.median(times["pupil path from the screens' sum"])
-    print(f"  the pupil path's stamps against the bare FFTs: {path / statistics.median(times[binding_row]):.2f}x")
+    print(f"  the pupil path's stamps against the bare FFTs: {path / statistics.median(times[binding_row]):.2f}x "
+          f"pocketfft's, {path / statistics.median(times[own_row]):.2f}x its own")
     if args.profile:
         profile(renderer, amplitude, phase, offsets)
 

@@ -22,13 +22,15 @@ photon flux [photon s^-1 m^-2], the collecting area [m^2] and the throughput to 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cache, cached_property
 
 import threading
 
 import numba
 import numpy as np
 import scipy.fft as sfft
+
+from . import column_fft
 
 
 @dataclass(frozen=True)
@@ -110,17 +112,22 @@ class PupilRenderer:
         # took 2.3x longer per frame (the same products, the same bits)
         self.b_t = np.ascontiguousarray(self.b.T)
         self.dtype = dtype
+        # the compiled transforms along y where they reproduce pocketfft's bits: length 80 in single precision, the
+        # pupil's rows within the first half (:mod:`.column_fft`)
+        self._columns = (size == column_fft.LENGTH and 2 * n_pupil <= size and dtype == np.complex64
+                         and _compiled_columns_agree())
         self._local = threading.local()
 
     def _workspace(self, frames: int) -> tuple[np.ndarray, ...]:
         """This thread's buffers for a chunk of ``frames <= STAMP_CHUNK`` frames (sources render on several threads):
-        the padded spectra (F, L, L), whose rows ``n:`` stay zero between chunks, their PSFs (F, L, L) and
-        ``PSF B^T`` (F, L, M)."""
+        the padded spectra (F, L, L), whose rows ``n:`` stay zero between chunks (or are not read), their PSFs
+        (F, L, L) and ``PSF B^T`` (F, L, M)."""
         buffers = getattr(self._local, "chunk", None)
         if buffers is None:
             size, m, real, c = self.padded, self.sampler.size, self.b.dtype, STAMP_CHUNK
             buffers = self._local.chunk = (np.zeros((c, size, size), self.dtype), np.empty((c, size, size), real),
                                            np.empty((c, size, m), real))
+            self._local.scratch = np.empty((4, size * size), np.float32)
         return tuple(b[:frames] for b in buffers)
 
     def _per_frame(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -186,16 +193,20 @@ class PupilRenderer:
         return out
 
     def _integrate(self, grid: np.ndarray, psf: np.ndarray, half: np.ndarray, image: np.ndarray) -> None:
-        """Stamps ``image`` (F, M, M), up to :meth:`_scaled`'s factor, of the tilted pupil fields in
+        """Stamps ``image`` (F, M, M), up to :meth:`_scale`'s factor, of the tilted pupil fields in
         ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]`` and ``grid[:, n:]`` zero), ``F <= STAMP_CHUNK``, through
         this thread's buffers (:meth:`_workspace`): padded FFT, ``|.|^2`` into ``psf`` (``grid[:, n:]`` zeroed again
-        for the next chunk), then ``B PSF B^T``."""
-        n = self.n
+        for the next chunk where a transform reads them), then ``B PSF B^T``."""
+        n, size = self.n, self.padded
         # the zero-padded FFTs in place (the same transforms of the same values, line by line in the same order, as
-        # scipy's own padding): along x on the pupil's n rows, then along y
+        # scipy's own padding): along x on the pupil's n rows, then along y, compiled where that gives the same bits
         _fft(grid[:, :n], 2)
-        _fft(grid, 1)
-        squared_modulus(grid, psf, n)                                   # (F, L, L), up to delta^4/lambda^2
+        if self._columns:
+            column_fft.columns(grid, self._local.scratch)                # reads rows :L/2 only
+            squared_modulus(grid, psf, n if 2 * n < size else -1)        # (F, L, L), up to delta^4/lambda^2
+        else:
+            _fft(grid, 1)
+            squared_modulus(grid, psf, n)
         # stamp = B PSF B^T frame by frame: every frame goes through the same fixed-size products whatever the
         # batch, so results do not depend on how frames are grouped
         np.matmul(psf, self.b_t, out=half)
@@ -226,6 +237,12 @@ try:                                   # the binding scipy.fft.fft calls (the sa
     from scipy.fft._pocketfft.pypocketfft import c2c as _c2c
 except ImportError:                    # a scipy without that private module
     _c2c = None
+
+
+@cache
+def _compiled_columns_agree() -> bool:
+    """Whether :mod:`.column_fft` gives this scipy's bits (checked once a process)."""
+    return column_fft.same_as_pocketfft()
 
 
 def _fft(values: np.ndarray, axis: int) -> None:

@@ -1,0 +1,165 @@
+"""The padded spectra's length-80 FFTs along y, compiled, with the bits of scipy's pocketfft.
+
+The pupil path's zero-padded FFT (:class:`.render.PupilRenderer`) transforms the pupil's rows along x, then
+every column along y. On the tracked pass (a 40-sample pupil padded to L = 80) pocketfft took ~11.5 us a PSF for
+the 80 columns: scipy builds it for SSE2 (4 floats a vector) and it copies each group of 4 columns to a buffer
+and back. Here the same transform runs on all 80 columns side by side, the columns as vector lanes, in place.
+
+It is the mixed-radix FFTPACK algorithm (Swarztrauber 1982, in Vectorizing the FFTs, ed. Rodrigue, Academic
+Press) in pocketfft's form (M. Reinecke, pocketfft, C++ header-only version as vendored by scipy 1.x; BSD-3-Clause):
+length 80 factors as 2, 8, 5 (radix 8 first, then 4, then a 2 moved to the front, then odd factors), and each
+pass below makes the same float32 operations in the same order as pocketfft's radix-2, radix-8 and radix-5 passes
+(``ROTX45``/``ROTX135`` rotations, twiddles multiplied conjugated), with twiddles ``exp(2 pi i m / 80)`` rounded
+once to float32. Nothing is fused or reassociated (no ``fastmath``: no fused multiply-adds), so the results equal
+pocketfft's bit for bit; :func:`same_as_pocketfft` checks that on the running scipy, and the renderer uses these
+passes only if it holds. The input rows 40-79 are the padding's zeros: they are not read (the first pass adds
+and subtracts a literal zero, the same operations).
+
+Each pass is its own compiled function: in one function the compiler left the radix-8 pass scalar.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+#: transform length and lanes (the padded grid is square: 80 columns of 80 samples)
+LENGTH = 80
+_F32 = np.float32
+#: twiddles exp(2 pi i m / 80) [1], rounded once to float32
+_TWIDDLE_RE = np.cos(2 * np.pi * np.arange(LENGTH) / LENGTH).astype(np.float32)
+_TWIDDLE_IM = np.sin(2 * np.pi * np.arange(LENGTH) / LENGTH).astype(np.float32)
+#: radix-5 constants cos/sin(2 pi / 5), cos/sin(4 pi / 5), the sines negated (forward transform), and sqrt(1/2)
+_C1, _S1 = _F32(0.3090169943749474241022934171828191), -_F32(0.9510565162951535721164393333793821)
+_C2, _S2 = _F32(-0.8090169943749474241022934171828191), -_F32(0.5877852522924731291687059546390728)
+_HALF_SQRT2 = _F32(0.707106781186547524400844362104849)
+
+
+def columns(grid: np.ndarray, scratch: np.ndarray) -> None:
+    """``grid = fft(grid, axis=1)`` in place for complex64 ``grid`` (F, 80, 80) whose rows 40: are zero (not read);
+    ``scratch``: float32 (4, 6400), this thread's."""
+    _columns(grid.view(np.float32).reshape(len(grid), -1), scratch, _TWIDDLE_RE, _TWIDDLE_IM)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _columns(grid, scratch, twr, twi):
+    for f in range(grid.shape[0]):
+        _radix2(grid[f], scratch[0], scratch[1], twr, twi)
+        _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi)
+        _radix5(scratch[2], scratch[3], grid[f])
+
+
+def same_as_pocketfft() -> bool:
+    """Whether :func:`columns` gives scipy's ``fft(axis=1)`` bit for bit on random padded spectra (and compiles)."""
+    from scipy.fft import fft
+    rng = np.random.default_rng(0)
+    grid = np.zeros((3, LENGTH, LENGTH), np.complex64)
+    half = (3, LENGTH // 2, LENGTH)
+    grid[:, :LENGTH // 2] = rng.standard_normal(half) + 1j * rng.standard_normal(half)
+    expected = fft(grid, axis=1)
+    grid[:, LENGTH // 2:] = 1e30                                    # not read
+    columns(grid, np.empty((4, LENGTH * LENGTH), np.float32))
+    return np.array_equal(grid.view(np.uint64), expected.view(np.uint64))
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _radix2(grid, re, im, twr, twi):
+    """pocketfft's radix-2 pass (ido 40, l1 1) from the interleaved ``grid`` (80 x 160 flat) into planar ``re``, ``im``
+    (80 x 80 lanes), its second half of inputs the padding's zeros."""
+    w = LENGTH
+    zero = _F32(0.0)
+    for l in range(w):
+        c0r, c0i = grid[2 * l], grid[2 * l + 1]
+        re[l], im[l] = c0r + zero, c0i + zero
+        re[40 * w + l], im[40 * w + l] = c0r - zero, c0i - zero
+    for i in range(1, 40):
+        wr, wi = twr[i], twi[i]
+        for l in range(w):
+            c0r, c0i = grid[2 * (i * w + l)], grid[2 * (i * w + l) + 1]
+            re[i * w + l], im[i * w + l] = c0r + zero, c0i + zero
+            dr, di = c0r - zero, c0i - zero
+            re[(i + 40) * w + l], im[(i + 40) * w + l] = dr * wr + di * wi, di * wr - dr * wi
+
+
+@numba.njit(inline="always")
+def _butterfly8(c0r, c0i, c1r, c1i, c2r, c2i, c3r, c3i, c4r, c4i, c5r, c5i, c6r, c6i, c7r, c7i):
+    """pocketfft's forward radix-8 butterfly up to its twiddles: outputs 0, 4, 2, 6, 1, 5, 3, 7 (re, im each)."""
+    a1r, a1i, a5r, a5i = c1r + c5r, c1i + c5i, c1r - c5r, c1i - c5i
+    a3r, a3i, a7r, a7i = c3r + c7r, c3i + c7i, c3r - c7r, c3i - c7i
+    a7r, a7i = a7i, -a7r                                                    # ROTX90
+    a1r, a1i, a3r, a3i = a1r + a3r, a1i + a3i, a1r - a3r, a1i - a3i
+    a3r, a3i = a3i, -a3r
+    a5r, a5i, a7r, a7i = a5r + a7r, a5i + a7i, a5r - a7r, a5i - a7i
+    a5r, a5i = _HALF_SQRT2 * (a5r + a5i), _HALF_SQRT2 * (a5i - a5r)        # ROTX45
+    a7r, a7i = _HALF_SQRT2 * (a7i - a7r), _HALF_SQRT2 * (-a7r - a7i)       # ROTX135
+    a0r, a0i, a4r, a4i = c0r + c4r, c0i + c4i, c0r - c4r, c0i - c4i
+    a2r, a2i, a6r, a6i = c2r + c6r, c2i + c6i, c2r - c6r, c2i - c6i
+    a0r, a0i, a2r, a2i = a0r + a2r, a0i + a2i, a0r - a2r, a0i - a2i
+    a6r, a6i = a6i, -a6r
+    a4r, a4i, a6r, a6i = a4r + a6r, a4i + a6i, a4r - a6r, a4i - a6i
+    return (a0r + a1r, a0i + a1i, a0r - a1r, a0i - a1i, a2r + a3r, a2i + a3i, a2r - a3r, a2i - a3i,
+            a4r + a5r, a4i + a5i, a4r - a5r, a4i - a5i, a6r + a7r, a6i + a7i, a6r - a7r, a6i - a7i)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _radix8(re, im, out_re, out_im, twr, twi):
+    """pocketfft's radix-8 pass (ido 5, l1 2) on planar 80 x 80-lane buffers."""
+    w = LENGTH
+    for k in range(2):
+        for i in range(5):
+            s0, s1, s2, s3 = (i + 40 * k) * w, (i + 5 + 40 * k) * w, (i + 10 + 40 * k) * w, (i + 15 + 40 * k) * w
+            s4, s5, s6, s7 = (i + 20 + 40 * k) * w, (i + 25 + 40 * k) * w, (i + 30 + 40 * k) * w, (i + 35 + 40 * k) * w
+            # output u goes to (i + 5 (k + 2 u)); the butterfly returns u = 0, 4, 2, 6, 1, 5, 3, 7
+            d0, d4, d2, d6 = (i + 5 * k) * w, (i + 5 * (k + 8)) * w, (i + 5 * (k + 4)) * w, (i + 5 * (k + 12)) * w
+            d1, d5, d3, d7 = (i + 5 * (k + 2)) * w, (i + 5 * (k + 10)) * w, (i + 5 * (k + 6)) * w, (i + 5 * (k + 14)) * w
+            if i == 0:
+                for l in range(w):
+                    y = _butterfly8(re[s0 + l], im[s0 + l], re[s1 + l], im[s1 + l], re[s2 + l], im[s2 + l], re[s3 + l], im[s3 + l], re[s4 + l], im[s4 + l], re[s5 + l], im[s5 + l], re[s6 + l], im[s6 + l], re[s7 + l], im[s7 + l])
+                    out_re[d0 + l], out_im[d0 + l] = y[0], y[1]
+                    out_re[d4 + l], out_im[d4 + l] = y[2], y[3]
+                    out_re[d2 + l], out_im[d2 + l] = y[4], y[5]
+                    out_re[d6 + l], out_im[d6 + l] = y[6], y[7]
+                    out_re[d1 + l], out_im[d1 + l] = y[8], y[9]
+                    out_re[d5 + l], out_im[d5 + l] = y[10], y[11]
+                    out_re[d3 + l], out_im[d3 + l] = y[12], y[13]
+                    out_re[d7 + l], out_im[d7 + l] = y[14], y[15]
+            else:
+                # output u's twiddle exp(2 pi i u l1 i / 80), multiplied conjugated (forward)
+                w1r, w1i, w2r, w2i = twr[2 * i], twi[2 * i], twr[4 * i], twi[4 * i]
+                w3r, w3i, w4r, w4i = twr[6 * i], twi[6 * i], twr[8 * i], twi[8 * i]
+                w5r, w5i, w6r, w6i = twr[10 * i], twi[10 * i], twr[12 * i], twi[12 * i]
+                w7r, w7i = twr[14 * i], twi[14 * i]
+                for l in range(w):
+                    y = _butterfly8(re[s0 + l], im[s0 + l], re[s1 + l], im[s1 + l], re[s2 + l], im[s2 + l], re[s3 + l], im[s3 + l], re[s4 + l], im[s4 + l], re[s5 + l], im[s5 + l], re[s6 + l], im[s6 + l], re[s7 + l], im[s7 + l])
+                    out_re[d0 + l], out_im[d0 + l] = y[0], y[1]
+                    out_re[d4 + l], out_im[d4 + l] = y[2] * w4r + y[3] * w4i, y[3] * w4r - y[2] * w4i
+                    out_re[d2 + l], out_im[d2 + l] = y[4] * w2r + y[5] * w2i, y[5] * w2r - y[4] * w2i
+                    out_re[d6 + l], out_im[d6 + l] = y[6] * w6r + y[7] * w6i, y[7] * w6r - y[6] * w6i
+                    out_re[d1 + l], out_im[d1 + l] = y[8] * w1r + y[9] * w1i, y[9] * w1r - y[8] * w1i
+                    out_re[d5 + l], out_im[d5 + l] = y[10] * w5r + y[11] * w5i, y[11] * w5r - y[10] * w5i
+                    out_re[d3 + l], out_im[d3 + l] = y[12] * w3r + y[13] * w3i, y[13] * w3r - y[12] * w3i
+                    out_re[d7 + l], out_im[d7 + l] = y[14] * w7r + y[15] * w7i, y[15] * w7r - y[14] * w7i
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _radix5(re, im, grid):
+    """pocketfft's radix-5 pass (ido 1, l1 16) from planar 80 x 80-lane buffers into the interleaved ``grid`` (flat)."""
+    w = LENGTH
+    for k in range(16):
+        for l in range(w):
+            t0r, t0i = re[(5 * k) * w + l], im[(5 * k) * w + l]
+            c1r, c1i = re[(5 * k + 1) * w + l], im[(5 * k + 1) * w + l]
+            c2r, c2i = re[(5 * k + 2) * w + l], im[(5 * k + 2) * w + l]
+            c3r, c3i = re[(5 * k + 3) * w + l], im[(5 * k + 3) * w + l]
+            c4r, c4i = re[(5 * k + 4) * w + l], im[(5 * k + 4) * w + l]
+            t1r, t1i, t4r, t4i = c1r + c4r, c1i + c4i, c1r - c4r, c1i - c4i
+            t2r, t2i, t3r, t3i = c2r + c3r, c2i + c3i, c2r - c3r, c2i - c3i
+            grid[2 * (k * w + l)], grid[2 * (k * w + l) + 1] = (t0r + t1r) + t2r, (t0i + t1i) + t2i
+            ar, ai = (t0r + _C1 * t1r) + _C2 * t2r, (t0i + _C1 * t1i) + _C2 * t2i
+            bi, br = _S1 * t4r + _S2 * t3r, -(_S1 * t4i + _S2 * t3i)
+            grid[2 * ((k + 16) * w + l)], grid[2 * ((k + 16) * w + l) + 1] = ar + br, ai + bi
+            grid[2 * ((k + 64) * w + l)], grid[2 * ((k + 64) * w + l) + 1] = ar - br, ai - bi
+            ar, ai = (t0r + _C2 * t1r) + _C1 * t2r, (t0i + _C2 * t1i) + _C1 * t2i
+            bi, br = _S2 * t4r - _S1 * t3r, -(_S2 * t4i - _S1 * t3i)
+            grid[2 * ((k + 32) * w + l)], grid[2 * ((k + 32) * w + l) + 1] = ar + br, ai + bi
+            grid[2 * ((k + 48) * w + l)], grid[2 * ((k + 48) * w + l) + 1] = ar - br, ai - bi
