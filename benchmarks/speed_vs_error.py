@@ -65,8 +65,10 @@ RENAMED = ("sensor", "telescope")
 FAITHFUL = {"sensor/pixel.time_step_s": 1e-6, "telescope/optics.render_rate_hz": 2000,
             "telescope/optics.source_intervals": False, "telescope/optics.psf_path": "pupil_fft",
             "telescope/optics.screen_update": "extend", "sat.knot_step_s": 1.0}
-#: the scene's defaults (benchmarks/end_to_end.yaml as it runs) with each source at every render time
+#: the scene's defaults (benchmarks/end_to_end.yaml as it runs) but with each source at every render time
 DEFAULTS_EVERY = {"telescope/optics.render_rate_hz": 1000, "telescope/optics.psf_path": "auto", "sat.knot_step_s": 10.0}
+#: the scene's defaults: each source rendered as often as its physics needs (the block's interval_factor)
+DEFAULTS = {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True}
 VARIANTS = [
     ("faithful", {}),
     ("seed 2", {"run.seed": 2}),
@@ -84,7 +86,8 @@ VARIANTS = [
     ("knots 60 s", {"sat.knot_step_s": 60.0}),
     ("auto", {"telescope/optics.psf_path": "auto"}),
     ("auto, no detector", {"telescope/optics.psf_path": "auto", "telescope/optics.detector": "null"}),
-    ("defaults", DEFAULTS_EVERY),
+    ("defaults", DEFAULTS),
+    ("defaults, every source at 1 kHz", DEFAULTS_EVERY),
     ("defaults at 500 Hz", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "auto",
                             "sat.knot_step_s": 10.0}),
     ("fast", {"telescope/optics.render_rate_hz": 500, "telescope/optics.psf_path": "long_exposure",
@@ -92,14 +95,10 @@ VARIANTS = [
     # 500 Hz again on the noise draws' random numbers: compare with those rows (a paired second and third draw)
     ("500 Hz, noise draw", {NOISE_DRAW: "b", "telescope/optics.render_rate_hz": 500}),
     ("500 Hz, noise draw 2", {NOISE_DRAW: "c", "telescope/optics.render_rate_hz": 500}),
-    # each source rendered every m-th render time, m from its physics (blocks/optics/render_interval.py) at three
-    # factors, on the defaults (1 kHz base)
-    ("intervals x1", {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True,
-                      "telescope/optics.interval_factor": 1.0}),
-    ("intervals x2", {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True,
-                      "telescope/optics.interval_factor": 2.0}),
-    ("intervals x4", {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True,
-                      "telescope/optics.interval_factor": 4.0}),
+    # each source rendered every m-th render time, m from its physics (blocks/optics/render_interval.py), at other
+    # factors than the default's 2, on the defaults (1 kHz base)
+    ("intervals x1", {**DEFAULTS, "telescope/optics.interval_factor": 1.0}),
+    ("intervals x4", {**DEFAULTS, "telescope/optics.interval_factor": 4.0}),
 ]
 FLOORS = ("seed 2", "noise draw", "noise draw 2")                      # the noise floors' rows
 TRACK_RADIUS_PX = 4.0
