@@ -34,7 +34,8 @@ import numpy as np
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA, STEP,
-                         TH_OFF, TH_ON, Y, _advance, _fetch_row, advanced, quiet_until, relaxed_by, run_pixels)
+                         TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, advanced, quiet_until, relaxed_by,
+                         run_pixels)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -54,6 +55,9 @@ def _cannot_fire(filtered, y, memorised, th_on, th_off, noise_scale, para, step,
     return rise < th_on - TOLERANCE - ROUNDING_MARGIN and fall > -(th_off - TOLERANCE) + ROUNDING_MARGIN
 
 
+_LOOK_BLOCK = 1024            # pixels scanned for those to look at before their rows are read
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
 def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
                   envelope, leak_dt, dt, defer, refresh):
@@ -69,49 +73,62 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
     ``wake[p]`` is the earlier of ``next_step[p]`` and :func:`.pixel_loop.quiet_until` under
     ``envelope``, which holds every kept and later change: a pixel with ``wake[p] >= n_end`` and no
     own change is neither due nor able to fire, and only ``wake`` is read of it (8 bytes, not its
-    state rows). ``refresh`` sets ``wake`` of every pixel (a new envelope) and reads them all.
+    state rows). ``refresh`` sets ``wake`` of every pixel (a new envelope) and reads them all. The
+    pixels to look at are listed a block at a time, so that their rows are asked for ahead of use.
     """
     n = next_step.size
     pixels = np.empty(n, np.int64)
     takes = np.empty(n, np.bool_)
-    m, it, ic = 0, 0, 0
+    look = np.empty(_LOOK_BLOCK, np.int64)
+    m, it, ic, ic_scan = 0, 0, 0, 0
     skip = defer and not refresh
     y_env_high, y_env_low, para_env_high = envelope[0], envelope[1], envelope[2]
-    p = np.int64(-1)
-    while True:
-        p += 1
-        if skip:                          # on to the next pixel awake, under a stamp or with an own change
-            special = touched[it] if it < touched.size else n
-            if ic < changed.size and changed[ic] < special:
-                special = changed[ic]
-            while p < special and wake[p] >= n_end:
+    for p0 in range(0, n, _LOOK_BLOCK):
+        # the block's pixels to look at: those awake before n_end or with an own change (every pixel without skip)
+        p1, k = min(n, p0 + _LOOK_BLOCK), 0
+        p = p0
+        while p < p1:
+            special = min(changed[ic_scan], p1) if skip and ic_scan < changed.size else p1
+            while p < special:
+                if not skip or wake[p] < n_end:
+                    look[k] = p
+                    k += 1
                 p += 1
-        if p >= n:
-            break
-        under = it < touched.size and touched[it] == p
-        if under:
-            it += 1
-        own = ic < changed.size and changed[ic] == p
-        if own:
-            ic += 1
-        if skip and not own and wake[p] >= n_end:
-            continue
-        if refresh:
-            wake[p] = min(next_step[p], quiet_until(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON],
-                                                    real[p, TH_OFF], real[p, NOISE_SCALE], real[p, PARA],
-                                                    count[p, STEP], y_env_high, y_env_low, para_env_high, leak_dt,
-                                                    dt))
-        busy = own or next_step[p] < n_end
-        behind = (not under) and applied[p] < end
-        if behind and not busy:
-            k = applied[p] - base
-            busy = not defer or not _cannot_fire(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON], real[p, TH_OFF],
-                                                 real[p, NOISE_SCALE], real[p, PARA], count[p, STEP], y_high[k],
-                                                 y_low[k], para_high[k], n_end, leak_dt, dt)
-        if busy:
-            pixels[m] = p
-            takes[m] = behind
-            m += 1
+            if p < p1:                    # an own change
+                look[k] = p
+                k += 1
+                ic_scan += 1
+                p += 1
+        for i in range(k):                # their rows asked for ahead (scattered: each waits on memory)
+            if i + _AHEAD < k:
+                ahead = look[i + _AHEAD]
+                _fetch_row(real, count, ahead)
+                _fetch_item(next_step, ahead)
+                _fetch_item(applied, ahead)
+            p = look[i]
+            while it < touched.size and touched[it] < p:
+                it += 1
+            under = it < touched.size and touched[it] == p
+            while ic < changed.size and changed[ic] < p:
+                ic += 1
+            own = ic < changed.size and changed[ic] == p
+            if refresh:
+                wake[p] = min(next_step[p], quiet_until(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON],
+                                                        real[p, TH_OFF], real[p, NOISE_SCALE], real[p, PARA],
+                                                        count[p, STEP], y_env_high, y_env_low, para_env_high, leak_dt,
+                                                        dt))
+            busy = own or next_step[p] < n_end
+            behind = (not under) and applied[p] < end
+            if behind and not busy:
+                j = applied[p] - base
+                busy = not defer or not _cannot_fire(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON],
+                                                     real[p, TH_OFF], real[p, NOISE_SCALE], real[p, PARA],
+                                                     count[p, STEP], y_high[j], y_low[j], para_high[j], n_end,
+                                                     leak_dt, dt)
+            if busy:
+                pixels[m] = p
+                takes[m] = behind
+                m += 1
     return pixels[:m].copy(), takes[:m].copy()
 
 

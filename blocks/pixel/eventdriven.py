@@ -158,7 +158,9 @@ class EventDrivenPixels:
         where = np.searchsorted(pixels, changed)
         lo[where], hi[where] = first, first + counts
         change_step = np.concatenate([own_step, s["shared_step"]])
-        change_input = np.concatenate([self._inputs(own_flux), s["shared_input"]])
+        change_input = np.empty((own_flux.size + s["shared_input"].shape[0], len(REAL)))   # own rows, then kept
+        drive_rows(np.ascontiguousarray(own_flux, dtype=float), self._drive, change_input[:own_flux.size])
+        change_input[own_flux.size:] = s["shared_input"]
         self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log, quiet_lo, kept - 1)
         history.taken(taking)
         history.taken(touched)

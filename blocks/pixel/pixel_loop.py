@@ -62,7 +62,12 @@ inline = numba.njit(cache=True, error_model="numpy", inline="always")    # so th
 def _prefetch_item(context, builder, array_type, array, row, column):
     """LLVM's ``prefetch`` of ``array[row, column]`` (read, kept in every cache level, data)."""
     values = context.make_array(array_type)(context, builder, array)
-    pointer = cgutils.get_item_pointer(context, builder, array_type, values, [row, column], wraparound=False)
+    _prefetch_pointer(builder, cgutils.get_item_pointer(context, builder, array_type, values, [row, column],
+                                                        wraparound=False))
+
+
+def _prefetch_pointer(builder, pointer):
+    """LLVM's ``prefetch`` of the item at ``pointer`` (read, kept in every cache level, data)."""
     byte_pointer, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
     signature_ir = ir.FunctionType(ir.VoidType(), [byte_pointer, i32, i32, i32])
     function = cgutils.get_or_insert_function(builder.module, signature_ir, "llvm.prefetch.p0i8")
@@ -76,6 +81,17 @@ def _prefetch(typingctx, array, row, column):
         _prefetch_item(context, builder, signature.args[0], args[0], args[1], args[2])
         return context.get_dummy_value()
     return types.void(array, row, column), codegen
+
+
+@intrinsic
+def _fetch_item(typingctx, array, index):
+    """Ask the CPU to bring ``array[index]`` (one dimension) into its caches (no effect on results)."""
+    def codegen(context, builder, signature, args):
+        values = context.make_array(signature.args[0])(context, builder, args[0])
+        pointer = cgutils.get_item_pointer(context, builder, signature.args[0], values, [args[1]], wraparound=False)
+        _prefetch_pointer(builder, pointer)
+        return context.get_dummy_value()
+    return types.void(array, index), codegen
 
 
 @intrinsic
