@@ -85,17 +85,25 @@ print(json.dumps({"import_s": imported, "pixel_s": pixel, "screens_s": optics}))
 """
 
 
+#: ``evsda`` whose last line gives its own peak RSS and its largest reaped child's (the worker process) [kB]
+PEAKS_CODE = ("import resource, sys; from evsda.graph.cli import main; status = main(); "
+              "peak = lambda who: resource.getrusage(who).ru_maxrss; "
+              "print('evsda-peaks-kb', peak(resource.RUSAGE_SELF), peak(resource.RUSAGE_CHILDREN), file=sys.stderr); "
+              "sys.exit(status)")
+
+
 def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH) -> dict:
     """``evsda run`` the benchmark graph (or ``graph``) in a child process (``settings``: more ``--set``
-    values): wall, CPU, peak RSS and its summary."""
+    values): wall, CPU (the child's and its worker process's), peak memory (the sum of the child's peak RSS
+    and its worker's: an upper bound of the two together) and its summary."""
     t = time.perf_counter()
-    child = subprocess.Popen([sys.executable, "-c", "import sys; from evsda.graph.cli import main; sys.exit(main())",
+    child = subprocess.Popen([sys.executable, "-c", PEAKS_CODE,
                               "run", str(graph), "-o", str(store), "--overwrite",
                               "--no-progress", "--set", f"run.duration_s={duration}",
                               *(arg for setting in settings for arg in ("--set", setting))],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     text = child.stdout.read()
-    _, status, usage = os.wait4(child.pid, 0)                  # this child's own CPU and peak memory
+    _, status, usage = os.wait4(child.pid, 0)       # this child's CPU (its reaped worker's included) and memory
     child.returncode = os.waitstatus_to_exitcode(status)
     wall = time.perf_counter() - t
     if child.returncode:
@@ -103,7 +111,10 @@ def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH) -> d
     blocks = {m.group(1): float(m.group(2))
               for m in re.finditer(r"^\s+(\S+)\s+([0-9.]+) s\s+[0-9.]+ %$", text, flags=re.M)}
     events = re.search(r"([0-9]+) events recorded; ([0-9.]+) MB on disk(?:, ([0-9.]+) bytes per event)?", text)
-    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024,
+    peaks = re.search(r"^evsda-peaks-kb ([0-9]+) ([0-9]+)$", text, flags=re.M)
+    own_kb, worker_kb = (int(peaks.group(1)), int(peaks.group(2))) if peaks else (usage.ru_maxrss, 0)
+    return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_mb": (own_kb + worker_kb) / 1024,
+            "own_peak_mb": own_kb / 1024, "worker_peak_mb": worker_kb / 1024,
             "blocks": blocks,
             "events": int(events.group(1)) if events else 0, "store_mb": float(events.group(2)) if events else 0.0,
             "bytes_per_event": float(events.group(3)) if events and events.group(3) else float("nan")}

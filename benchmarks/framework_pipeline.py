@@ -1,10 +1,13 @@
 """Pipelined windows against one step at a time (issue 13.1), side by side in one run.
 
-Runs a graph (default: the tracked LEO pass of benchmarks/end_to_end.yaml) with ``evsda run``,
-``EVSDA_PIPELINE=0`` and ``=1`` alternately, in fresh processes, and prints for each the
-median wall time, CPU time and peak memory, the wall-time speed-up and the load average around
-each run. The two stores must record the same bytes (checked: a hash of every array). The
-machine's other load shares the cores, so the ratio of the medians is the figure to quote.
+Runs a graph (default: the tracked LEO pass of benchmarks/end_to_end.yaml) with ``evsda run`` in three
+modes, alternately, in fresh processes: ``serial`` (``EVSDA_PIPELINE=0``, one step at a time), ``threads``
+(pipelined, every block in one process: ``EVSDA_WORKERS=0``) and ``worker`` (pipelined, the blocks worth it
+in worker processes of their own: the default). It prints for each the median wall time, CPU time (the
+run's process and its worker together) and peak memory (the sum of the two processes' peaks, an upper
+bound of their peak together), the wall-time speed-ups and the load average around each run. Every store
+must record the same bytes (checked: a hash of every array). The machine's other load shares the cores,
+so the ratio of the medians is the figure to quote.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/framework_pipeline.py [--duration 10] [--repeats 3]
 """
@@ -25,6 +28,12 @@ from end_to_end import GRAPH, run_cli                     # noqa: E402
 from test_examples_identical import store_digest          # noqa: E402
 
 
+#: the environment of each mode
+MODES = {"serial": {"EVSDA_PIPELINE": "0", "EVSDA_WORKERS": "0"},
+         "threads": {"EVSDA_PIPELINE": "1", "EVSDA_WORKERS": "0"},
+         "worker": {"EVSDA_PIPELINE": "1", "EVSDA_WORKERS": "auto"}}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
@@ -33,39 +42,41 @@ def main() -> None:
     parser.add_argument("--warm-duration", type=float, default=0.1,
                         help="simulated seconds of the run that warms the compiled caches (a graph whose satellite "
                              "enters the field later needs longer, e.g. examples/iss_pass.yaml: 4) [s]")
+    parser.add_argument("--modes", default=",".join(MODES), help=f"modes to run, of {', '.join(MODES)}")
     args = parser.parse_args()
     print(f"machine: {os.cpu_count()} cores; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
           f"EVSDA_THREADS={os.environ.get('EVSDA_THREADS', 'unset')}; {args.graph.name}, {args.duration:g} s simulated")
-    runs: dict[str, list[dict]] = {"serial": [], "pipelined": []}
+    modes = args.modes.split(",")
+    runs: dict[str, list[dict]] = {mode: [] for mode in modes}
     digests = set()
     with tempfile.TemporaryDirectory() as tmp:
         run_cli(args.warm_duration, Path(tmp) / "warm.zarr", graph=args.graph)   # warm the compiled caches
         for repeat in range(args.repeats):
-            for mode, switch in (("serial", "0"), ("pipelined", "1")):
+            for mode in modes:
                 store = Path(tmp) / f"{mode}.zarr"
                 load = os.getloadavg()[0]
-                os.environ["EVSDA_PIPELINE"] = switch                    # what --no-pipeline / --pipeline set
+                os.environ.update(MODES[mode])          # what --[no-]pipeline and --[no-]workers set
                 run = run_cli(args.duration, store, graph=args.graph)
                 run["load"] = (load + os.getloadavg()[0]) / 2
                 runs[mode].append(run)
                 digests.add(store_digest(store))
                 print(f"  {repeat + 1}. {mode:9s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s  "
-                      f"peak {run['peak_mb']:5.0f} MB  load {run['load']:.2f}", flush=True)
+                      f"peak {run['peak_mb']:5.0f} MB ({run['own_peak_mb']:.0f} + worker {run['worker_peak_mb']:.0f})"
+                      f"  load {run['load']:.2f}", flush=True)
     print(f"\nmedians of {args.repeats} (alternated):")
     for mode, rows in runs.items():
         wall = statistics.median(r["wall_s"] for r in rows)
         print(f"  {mode:9s} wall {wall:6.1f} s = {args.duration / wall:.2f}x real time; "
               f"CPU {statistics.median(r['cpu_s'] for r in rows):.1f} s; "
-              f"peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB; "
+              f"peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB (sum of the processes' peaks); "
               f"load {statistics.median(r['load'] for r in rows):.2f}")
     walls = {mode: statistics.median(r["wall_s"] for r in rows) for mode, rows in runs.items()}
-    speedup = walls["serial"] / walls["pipelined"]
-    print(f"  pipelined / serial wall-time speed-up: {speedup:.2f}x")
-    pairs = ", ".join(f"{s['wall_s'] / p['wall_s']:.2f}x" for s, p in zip(runs["serial"], runs["pipelined"]))
-    print(f"  each pair (serial then pipelined): {pairs}")
+    for mode in modes[1:]:
+        print(f"  {mode} / {modes[0]} wall-time speed-up: {walls[modes[0]] / walls[mode]:.2f}x; each round: "
+              + ", ".join(f"{a['wall_s'] / b['wall_s']:.2f}x" for a, b in zip(runs[modes[0]], runs[mode])))
     print(f"  stores identical: {len(digests) == 1} ({len(digests)} distinct hash{'es' if len(digests) > 1 else ''})")
     if len(digests) != 1:
-        raise SystemExit("pipelined and serial stores differ")
+        raise SystemExit("the modes' stores differ")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,10 @@ Optional hooks: ``setup(run)`` once before the first window (also on resume, bef
 the state is restored) and ``finish()`` after the last window, which may return
 final outputs (e.g. a metrics summary).
 
+A run may step a block in a worker process of its own (``worth_a_process``, :mod:`.worker`): there it
+is built again from its class, parameters, name and seed, and sees only these calls, so it keeps
+nothing a run relies on outside its ``state``, and its parameters, inputs, outputs and state pickle.
+
 Every block runs on its own, outside any graph::
 
     >>> from evsda.graph import Window
@@ -172,6 +176,9 @@ class Block:
     state: ClassVar[tuple[str, ...]] = ()
     #: the block writes user-facing results (a sink); requested by default in a run
     is_sink: ClassVar[bool] = False
+    #: its steps are long and hold the interpreter lock for much of their time, so that a pipelined run on
+    #: several cores steps it faster in a worker process of its own (:mod:`~evsda.graph.worker`)
+    worth_a_process: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs):
         """Every block's ``step`` checks its arguments (a block used from Python is as strict as in a graph)."""

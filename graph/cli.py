@@ -53,7 +53,7 @@ def cmd_run(args) -> int:
         result = run_graph(graph, out, resume=args.resume, overwrite=args.overwrite, reuse=args.reuse,
                            progress=None if args.progress is None else args.progress,
                            checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint,
-                           pipeline=args.pipeline)
+                           pipeline=args.pipeline, workers=args.workers)
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
     if args.json:
@@ -214,6 +214,10 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pipeline", action=argparse.BooleanOptionalAction, default=None,
                    help="step blocks of successive windows concurrently, recording the same bytes "
                         "(default: on, unless EVSDA_PIPELINE=0)")
+    p.add_argument("--workers", action=argparse.BooleanOptionalAction, default=None,
+                   help="step the blocks worth it (the optics) in worker processes of their own in a pipelined run, "
+                        "recording the same bytes (default: where that pays, several cores and 16 windows or more; "
+                        "EVSDA_WORKERS=auto, 1 or 0)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
     p.add_argument("--json", action="store_true",

@@ -10,6 +10,10 @@
 * Windows are pipelined by default: a block steps over window k + 1 while the blocks downstream of it are
   still on window k (:mod:`evsda.graph.executor_pipeline`); the store records the same bytes as one step at a
   time (``pipeline=False``, ``--no-pipeline``, ``EVSDA_PIPELINE=0``).
+* A pipelined run steps each block that is worth it (``Block.worth_a_process``) in a worker process of its own
+  where that pays (several cores, enough windows: :mod:`evsda.graph.worker`), beside the others with no
+  interpreter lock shared; the same bytes again (``workers=False``, ``--no-workers``, ``EVSDA_WORKERS=0`` keep
+  every block in this process; ``True``, ``--workers``, ``1`` use workers wherever a block is worth one).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
 from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
+from .worker import WorkerBlock, WorkerDied, worker_threads, workers_choice, workers_pay
 
 STORE = "(store)"           # the timing entry of the run store's writes
 log = logging.getLogger("evsda.executor")
@@ -115,9 +120,11 @@ class Executor:
     def __init__(self, graph: Graph, out: str | Path | None = None, *, resume: bool = False,
                  overwrite: bool = False, reuse: list[str | Path] = (), progress: bool | None = None,
                  checkpoint_every_s: float = 30.0, keep_outputs: bool | None = None,
-                 max_windows: int | None = None, keep_checkpoint: bool = False, pipeline: bool | None = None):
+                 max_windows: int | None = None, keep_checkpoint: bool = False, pipeline: bool | None = None,
+                 workers: bool | str | None = None):
         self.graph = graph
         self.pipeline = pipeline_enabled(pipeline)
+        self.workers = workers_choice(workers)
         self.run = graph.run_info()
         self.requested = requested_outputs(graph)
         self.hashes = upstream_hashes(graph, self.run)
@@ -140,6 +147,8 @@ class Executor:
         """What every window needs, worked out once: the blocks that step (those not loaded), their inputs,
         the event stream the store records, and a stopwatch per block."""
         self.blocks: dict[str, Block] = {n: self._unused(n) for n in self.order}
+        #: what runs each block's lifecycle calls: the block itself, or a worker process (:meth:`_start_workers`)
+        self.stepper: dict[str, Block | WorkerBlock] = dict(self.blocks)
         self.running = [n for n in self.order if n not in self.loaded]
         self.watch = Stopwatch([*self.running, STORE])
         self.event_output = self._event_output()
@@ -293,8 +302,56 @@ class Executor:
         return f"interrupted; {self._committed_note()}"
 
     def _execute(self) -> RunResult:
+        self._start_workers()
+        ended = False
+        try:
+            result = self._execute_windows()
+            ended = True
+            return result
+        except WorkerDied as exc:
+            raise WorkerDied(f"{exc}; {self._committed_note()}") from None
+        except Exception as exc:
+            raise self._earlier_worker_error() or exc
+        finally:
+            self._close_workers(kill=not ended)
+
+    def _start_workers(self) -> None:
+        """A worker process for each running block worth one, in a pipelined run, where they pay
+        (:func:`.worker.workers_pay`) or wherever they are asked for."""
+        names = [n for n in self.running if type(self.blocks[n]).worth_a_process]
+        windows = self.run.n_windows if self.max_windows is None else min(self.max_windows, self.run.n_windows)
+        if not (names and self.pipeline) or self.workers == "off" or (self.workers == "auto"
+                                                                       and not workers_pay(windows)):
+            return
+        for name in names:
+            self.stepper[name] = WorkerBlock(self.blocks[name], threads=worker_threads())
+            if self.stepper[name].in_worker:
+                log.info("%s steps in a worker process (pid %d)", self.blocks[name].label,
+                         self.stepper[name].process.pid)
+
+    def _workers(self) -> list[WorkerBlock]:
+        return [s for s in self.stepper.values() if isinstance(s, WorkerBlock)]
+
+    def _earlier_worker_error(self) -> BaseException | None:
+        """After an error: the error of a worker's set-up or state restore, which the serial loop meets first."""
+        for worker in self._workers():
+            try:
+                worker.settle()
+            except Exception as exc:        # noqa: BLE001 -- returned to be raised instead
+                return exc
+        return None
+
+    def _close_workers(self, kill: bool) -> None:
+        for name, worker in list(self.stepper.items()):
+            if isinstance(worker, WorkerBlock):
+                worker.close(kill=kill)
+                if worker.peak_rss_mb is not None:
+                    log.info("%s: its worker process peaked at %.0f MB", self.blocks[name].label, worker.peak_rss_mb)
+                self.stepper[name] = self.blocks[name]
+
+    def _execute_windows(self) -> RunResult:
         for name in self.running:
-            self.blocks[name].setup(self.run)
+            self.stepper[name].setup(self.run)
         result = RunResult(store=None, reused={n: str(s.path) for n, s in self.loaded.items()})
         start_window = self._resume(result) if self.resume and self.out is not None else 0
         if start_window is None:
@@ -314,7 +371,7 @@ class Executor:
         finals = {}
         for name in self.running:
             with self.watch.timing(name):
-                finals[name] = self.blocks[name].finish() or {}
+                finals[name] = self.stepper[name].finish() or {}
         return finals
 
     def _resume(self, result: RunResult) -> int | None:
@@ -334,7 +391,7 @@ class Executor:
             raise StoreError(f"cannot resume {self.out}: it has {start_window} committed windows but no "
                              f"checkpoint to continue from; start again with --overwrite")
         for name in self.running if states else ():
-            self.blocks[name].set_state(states.get(name, {}))
+            self.stepper[name].set_state(states.get(name, {}))
         return start_window
 
     def _run_windows(self, start_window: int, result: RunResult) -> None:
@@ -368,7 +425,7 @@ class Executor:
                 result.windows_run += 1
                 if commit:
                     with self.watch.timing(STORE), self._writing():
-                        self._commit(window, {n: self.blocks[n] for n in self.running})
+                        self._commit(window, {n: self.stepper[n] for n in self.running})
                     self._last_commit = time.perf_counter()
                 bar.update(1)
                 del produced                     # this window's values go before the next one is waited for
@@ -399,7 +456,7 @@ class Executor:
         """Step block ``name`` over ``window`` with ``inputs``; its outputs, checked against its declaration."""
         block = self.blocks[name]
         with self.watch.timing(name):
-            outputs = block.step(window, **inputs)
+            outputs = self.stepper[name].step(window, **inputs)
         self._check_outputs(block, outputs)
         return outputs
 
@@ -504,7 +561,7 @@ class Executor:
                       if type(self.graph.nodes[b].block).outputs[p].type.record == EVENT_STREAM]
         return candidates[0] if candidates else None
 
-    def _commit(self, window: Window, blocks: dict[str, Block]) -> None:
+    def _commit(self, window: Window, blocks: dict[str, Block | WorkerBlock]) -> None:
         name = self.store.write_checkpoint(window.index, {n: b.get_state() for n, b in blocks.items()})
         self.store.commit(windows=window.index + 1, checkpoint=name, complete=False)
 
@@ -520,6 +577,9 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
     ``pipeline`` (step blocks of successive windows concurrently, recording the same bytes; default:
     ``EVSDA_PIPELINE``, on unless it is ``0``; see :mod:`evsda.graph.executor_pipeline`).
+    ``workers`` (step the blocks worth it in worker processes of their own in a pipelined run: ``"auto"`` where
+    that pays, True wherever, False never; default: ``EVSDA_WORKERS``, ``auto``, ``1`` or ``0``; see
+    :mod:`evsda.graph.worker`).
     BLAS libraries run one thread while it runs, threads share few malloc arenas, and freed memory is kept for
     reuse (see :mod:`evsda.graph.threads`).
     """

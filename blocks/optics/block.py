@@ -122,6 +122,9 @@ class PointSourceOptics(Block):
     outputs = {"irradiance": Output(Irradiance, "photon flux per pixel: stamps around sources plus background"),
                "truth": Output(Truth, "every source on the detector at each render time (the run store keeps it)")}
     state = ("optics_state", "held", "held_stamps")
+    # its chain of windows is a run's longest (12 of the 10 s tracked pass's 22 s of CPU), and its per-window Python
+    # holds the interpreter lock for ~40 % of it (docs/speed.md): on several cores it steps in a process of its own
+    worth_a_process = True
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)

@@ -196,14 +196,15 @@ def test_the_switch(tmp_path, monkeypatch):
 
 
 def test_a_physics_scene_records_the_same_bytes_pipelined(tmp_path):
-    """The short ISS pass of tests/test_examples_identical.py (optics, pixels, readout, metrics)."""
+    """The short ISS pass of tests/test_examples_identical.py (optics, pixels, readout, metrics): one step at a
+    time, pipelined in threads, and pipelined with the optics in a worker process (evsda.graph.worker)."""
     from evsda.graph.graphfile import load_graph
 
     examples = Path(__file__).parents[2] / "examples"
     digests = []
-    for pipeline in (False, True):
-        out = tmp_path / f"{pipeline}.zarr"
+    for pipeline, workers in ((False, False), (True, False), (True, True)):
+        out = tmp_path / f"{pipeline}-{workers}.zarr"
         run_graph(load_graph(examples / "iss_pass.yaml", dict(SHORT["iss_pass.yaml"])), out, progress=False,
-                  pipeline=pipeline)
+                  pipeline=pipeline, workers=workers)
         digests.append(store_digest(out))
-    assert digests[0] == digests[1]
+    assert digests[0] == digests[1] == digests[2]

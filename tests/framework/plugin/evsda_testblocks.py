@@ -8,6 +8,9 @@ exercise state, randomness, windows and ports.
 
 from __future__ import annotations
 
+import logging
+import os
+import signal
 import time
 from dataclasses import dataclass
 
@@ -66,6 +69,41 @@ class Scale(Block):
         return {"samples": Samples(samples.t_ns, self.params.gain * samples.value)}
 
 
+class NoisyGain(Block):
+    """Multiplies a signal by a gain and adds noise, in a worker process of its own (``worth_a_process``): it
+    keeps state, draws random numbers, logs, and can fail in a chosen window, or kill its own process in the window
+    ``EVSDA_TEST_DIE_AT_WINDOW`` names (read from the environment, so that the same graph then resumes)."""
+
+    type_name = "test_noisy_gain"
+    worth_a_process = True
+
+    class Params(BlockParams):
+        gain: float = Field(2.0, description="Gain [1]")
+        noise: float = Field(0.5, ge=0, description="Standard deviation of the added noise [1]")
+        fail_at_window: int | None = Field(None, description="Raise a SceneError in this window")
+        sleep_s: float = Field(0.0, ge=0, description="Wall-clock pause per window, to test interruption [s]")
+
+    inputs = {"samples": Input(Samples, "signal")}
+    outputs = {"samples": Output(Samples, "scaled, noisy signal")}
+    state = ("steps",)
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.steps = 0
+
+    def step(self, window: Window, samples: Samples) -> dict:
+        time.sleep(self.params.sleep_s)
+        if window.index == self.params.fail_at_window:
+            raise SceneError(f"{self.label} fails in window {window.index}")
+        if str(window.index) == os.environ.get("EVSDA_TEST_DIE_AT_WINDOW"):
+            os.kill(os.getpid(), signal.SIGKILL)
+        self.steps += 1
+        logging.getLogger("evsda_testblocks").info("%s stepped window %d in process %d", self.label, window.index,
+                                                   os.getpid())
+        noise = self.params.noise * self.rng.standard_normal(samples.value.size)
+        return {"samples": Samples(samples.t_ns, self.params.gain * samples.value + noise)}
+
+
 class SpikeEncoder(Block):
     """Emits an event at a random pixel each time the running sum of its input grows by ``step``."""
 
@@ -121,4 +159,4 @@ class EventCounter(Block):
         return {"metrics": Metrics({"events_counted": self.count}, {"events_counted": "event"})}
 
 
-BLOCKS = [RampSource, Scale, SpikeEncoder, EventCounter]
+BLOCKS = [RampSource, Scale, NoisyGain, SpikeEncoder, EventCounter]
