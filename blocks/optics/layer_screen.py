@@ -35,7 +35,8 @@ amount that changes with the sub-sample position (which would modulate the PSD a
 rate the screen crosses samples). Every draw makes coefficients directly (no prefilter).
 :meth:`LayerScreen.accumulate` walks a whole batch of footprints in a few compiled calls
 (:mod:`.screen_kernels`): it plans the extensions, makes every coefficient of the walk on
-one canvas and reads each frame with separable 4-tap weights.
+one canvas and reads each frame with separable 4-tap weights; :func:`accumulate_layers` walks every
+layer of a line of sight so, in one plan and one walk for all (the same values, bit for bit).
 """
 
 from __future__ import annotations
@@ -47,8 +48,8 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
-from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_walk, read_spans,
-                             run_extent, sample_grids_transposed, walk_canvases)
+from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
+                             sample_grids_transposed, walk_segments)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
 CANVAS_STEPS = 2048
@@ -59,11 +60,13 @@ SELF_START_SAMPLES = 128
 #: where a window cut from an FFT screen starts in it, along each axis (where a prefilter truncated at 16 samples
 #: each side put it until the filter moved to the Fourier domain: the same screens, within ~1e-10) [samples]
 PREFILTER_HALF_WIDTH = 16
-# a walk's arguments when it makes coefficients and reads nothing, or has no large-scale modes
-_NO_WEIGHT, _NO_OUTPUT = np.zeros(0), np.zeros((0, 1, 1))
-_NO_NOISE = np.zeros(0)
-_NO_OPERATOR = (np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0, np.int64), np.zeros(0, np.int64))
-_NO_MODES = (np.zeros((4, 0, STRIDE)), np.zeros((2, 0, 1)), 0, np.zeros((2, 0, 1)), 0, np.zeros((2, 0)))
+# a walk's output when it reads nothing; packed arrays when no run draws noise or has large-scale modes
+_NO_OUTPUT = np.zeros((0, 1, 1))
+_EMPTY = np.zeros(0)
+_NO_OPERATOR = (_EMPTY, _EMPTY, np.zeros(0, np.int64), np.zeros(0, np.int64))
+_NO_MODES = (_EMPTY, _EMPTY)
+#: most sets of operators and of large-scale modes kept packed for :func:`walk_layers` (a few per source)
+PACKED_SETS = 512
 
 
 def _generator(seed: tuple[int, ...], epoch: int, word: int) -> np.random.Generator:
@@ -189,66 +192,12 @@ class LayerScreen:
 
     def walk(self, rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray, reads: tuple | None = None) -> None:
         """Keep each frame's footprint, from its grid's first to last ``rows`` (F, ny) and ``cols`` (F, nx) [delta], of
-        epoch ``epochs[f]`` inside the window in turn.
+        epoch ``epochs[f]`` inside the window in turn (:func:`walk_layers` with this screen alone).
 
         With ``reads = (weight, out_t)`` (:meth:`accumulate`) each frame's grid is read from a canvas holding its
-        window at its turn; coefficients are made once, in order, whatever the batching. Between regenerations a run
-        of canvases is made and read in one compiled call (:func:`.screen_kernels.walk_canvases`), the conditional
-        columns' noise in one draw.
+        window at its turn; coefficients are made once, in order, whatever the batching.
         """
-        kind, side, op_epoch, centre, before, frame_ops, starts, renewals = plan_walk(
-            rows, cols, epochs, self.n, MARGIN, self.update == "regenerate", self.origin, np.int64(self.epoch),
-            self.coefficients is not None, CANVAS_STEPS)
-        if len(kind) and kind[0] < 0:
-            span = np.max(np.stack([rows[:, -1] - rows[:, 0], cols[:, -1] - cols[:, 0]], axis=-1), axis=0)
-            raise ValueError(f"a footprint of {span} samples does not fit a {self.n}-sample screen")
-        weight, out_t = reads if reads is not None else (_NO_WEIGHT, _NO_OUTPUT)
-        # the present window first (frames that need no operation), then each canvas up to the next regeneration,
-        # which starts the next run from the fresh window
-        ends = [*renewals, len(starts) - 1]
-        edges, as_is, frame = starts[:ends[0] + 1], True, 0
-        for r, following in zip(ends[:-1], ends[1:]):
-            frame = self._run(edges, as_is, side, before, frame_ops, frame, rows, cols, weight, out_t)
-            a = starts[r]
-            self.regenerate(centre[a], int(op_epoch[a]))
-            edges, as_is = np.concatenate([[a + 1], starts[r + 1:following + 1]]), False
-        self._run(edges, as_is, side, before, frame_ops, frame, rows, cols, weight, out_t)
-
-    def _run(self, edges: np.ndarray, as_is: bool, sides: np.ndarray, before: np.ndarray, frame_ops: np.ndarray,
-             frame: int, rows: np.ndarray, cols: np.ndarray, weight: np.ndarray, out_t: np.ndarray) -> int:
-        """Make and read a walk's canvases ``edges[c] .. edges[c + 1]`` (operations) from the present window (read
-        as it is first with ``as_is``) in one compiled call (:func:`.screen_kernels.walk_canvases`). Returns the
-        next frame to read."""
-        if self.coefficients is None:
-            return frame
-        first, stop, n = int(edges[0]), int(edges[-1]), self.n
-        if stop == first and not len(weight):
-            return frame                                    # nothing to make or read
-        if stop > first:
-            noise = self._rng.standard_normal(n * (stop - first))
-            if self._operator is None:
-                self._operator = extension_operator(n, 1, self.delta, self.L1, n)
-            operator = (self._operator.A, self._operator.B, self._operator.stencil_rows, self._operator.stencil_cols)
-        else:
-            noise, operator = _NO_NOISE, _NO_OPERATOR
-        if self.L1 == self.L0 or not len(weight):
-            tables = _NO_MODES
-        else:
-            # the per-stride tables of the modes' phasors over every canvas of the run
-            large = self._large_scales()
-            lo0, hi0, lo1, hi1 = run_extent(self.origin, before, sides, first, stop, n)
-            high_y, first_y = large.strides(lo0, hi0, 0)
-            high_x, first_x = large.strides(lo1, hi1, 1)
-            tables = (large.low, high_y, first_y, high_x, first_x, large.amplitudes)
-        # a window that grows is written into a copy (a state() handed out keeps its arrays)
-        window, origin = (self.coefficients.copy(), self.origin.copy()) if stop > first else (self.coefficients,
-                                                                                              self.origin)
-        frame = walk_canvases(window, origin, n, sides, before, edges, as_is, noise, *operator, frame_ops, frame, rows,
-                              cols, weight, out_t, *tables, STRIDE)
-        self.coefficients, self.origin = window, origin
-        if frame < 0:
-            raise ValueError("screen sampled outside its window")
-        return frame
+        walk_layers([self], rows[None], cols[None], epochs, None if reads is None else (reads[0][None], reads[1]))
 
     def _large_scales(self) -> LargeScales:
         """The present epoch's large-scale modes (:mod:`.large_scales`), drawn from their own generator seeded by
@@ -288,10 +237,7 @@ class LayerScreen:
         ``out_t`` is the phase transposed (``out_t[f, j, i]`` at ``rows[f, i]``, ``cols[f, j]``): the
         compiled read then runs along its contiguous rows; each value is :meth:`sample`'s, bit for bit.
         """
-        rows = np.ascontiguousarray(rows, dtype=float)
-        cols = np.ascontiguousarray(cols, dtype=float)
-        weight = np.ascontiguousarray(weight, dtype=float)
-        self.walk(rows, cols, np.ascontiguousarray(epochs, dtype=np.int64), (weight, out_t))
+        accumulate_layers([self], rows[None], cols[None], epochs, np.asarray(weight)[None], out_t)
 
     def sample(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Phase [rad, for r0 = 1 m] on separable grids of the present window: ``rows`` (F, ny), ``cols`` (F, nx) [delta].
@@ -322,3 +268,117 @@ class LayerScreen:
         self.n_regenerations = int(state["n_regenerations"])
         self._rng = np.random.Generator(np.random.PCG64(0))
         self._rng.bit_generator.state = state["rng"]
+
+
+# -- walking several screens --------------------------------------------------------------------------
+_packed_sets: dict[tuple[int, ...], tuple] = {}
+
+
+def _packed(objects: tuple, arrays_of) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+    """Each kind of array ``arrays_of(o)`` of the objects concatenated flat, and where each object's start
+    (len(objects), kinds). Kept by the objects' identities, with the objects (an identity is not reused while its
+    entry lives): the operators and the modes' tables, fixed once made, are packed once, not at every walk."""
+    key = tuple(map(id, objects))
+    entry = _packed_sets.get(key)
+    if entry is None:
+        parts = [arrays_of(o) for o in objects]
+        flat = tuple(np.concatenate([p[i].ravel() for p in parts]) for i in range(len(parts[0])))
+        at = np.cumsum([[0] * len(parts[0])] + [[x.size for x in p] for p in parts[:-1]], axis=0)
+        if len(_packed_sets) >= PACKED_SETS:
+            _packed_sets.clear()
+        entry = _packed_sets[key] = (objects, flat, at)
+    return entry[1], entry[2]
+
+
+def accumulate_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
+                      weight: np.ndarray, out_t: np.ndarray) -> None:
+    """:meth:`LayerScreen.accumulate` of each screen ``l`` in turn on its grids ``rows[l]`` (F, ny), ``cols[l]`` (F, nx)
+    [delta] with ``weight[l]`` (F,) into one ``out_t`` (F, nx, ny): the same sums in the same order, bit for bit, in
+    two compiled calls for all (:func:`walk_layers`)."""
+    walk_layers(screens, np.ascontiguousarray(rows, dtype=float), np.ascontiguousarray(cols, dtype=float),
+                np.ascontiguousarray(epochs, dtype=np.int64), (np.ascontiguousarray(weight, dtype=float), out_t))
+
+
+def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
+                reads: tuple | None = None) -> None:
+    """:meth:`LayerScreen.walk` of each screen ``l`` on ``rows[l]``, ``cols[l]`` (contiguous (L, F, .)) in turn.
+
+    :func:`.screen_kernels.plan_layers` plans every walk from integers (regenerations, extensions, canvases); the
+    regenerations are made and each run's conditional noise drawn, in the walks' order (one draw a run); then
+    :func:`.screen_kernels.walk_segments` makes and reads every canvas (``reads = (weight (L, F), out_t)``), the
+    large-scale modes added where frames read them. Each screen's draws, values and reads are those of its own
+    walk: the screens share only the calls.
+    """
+    weight, out_t = reads if reads is not None else (np.zeros((len(screens), 0)), _NO_OUTPUT)
+    reading = weight.shape[1] > 0
+    failed, sides, before, centre, op_epoch, op_at, frame_ops, edges, segments = plan_layers(
+        rows, cols, epochs, np.array([s.n for s in screens], np.int64), MARGIN,
+        np.array([s.update == "regenerate" for s in screens]), np.array([s.origin for s in screens], np.int64),
+        np.array([s.epoch for s in screens], np.int64), np.array([s.coefficients is not None for s in screens]),
+        CANVAS_STEPS)
+    if failed >= 0:
+        r, c = rows[failed], cols[failed]
+        span = np.max(np.stack([r[:, -1] - r[:, 0], c[:, -1] - c[:, 0]], axis=-1), axis=0)
+        raise ValueError(f"a footprint of {span} samples does not fit a {screens[failed].n}-sample screen")
+    # each run of canvases (segment): the regeneration before it, its window, noise and modes' tables, in order
+    layout, windows, origins, noises, tables, operators, modes, last = [], [], [], [], ([], []), [], [], {}
+    window_at = noise_at = y_at = x_at = 0
+    for layer, e0, e1, as_is, renew, lo0, hi0, lo1, hi1 in segments.tolist():
+        screen = screens[layer]
+        if renew >= 0:
+            op = op_at[layer] + renew
+            screen.regenerate(centre[op], int(op_epoch[op]))
+        first, stop, n = int(edges[e0]), int(edges[e1 - 1]), screen.n
+        if screen.coefficients is None or (stop == first and not reading):
+            continue                                                # nothing to make or read
+        count = n * (stop - first)
+        if count:
+            noises.append(screen._rng.standard_normal(count))
+            if screen._operator is None:
+                screen._operator = extension_operator(n, 1, screen.delta, screen.L1, n)
+            operators.append(screen._operator)
+        k, strides = 0, [(0, 0), (0, 0)]                           # modes; (first stride, strides) along y, x
+        if screen.L1 != screen.L0 and reading:
+            # the per-stride tables of the modes' phasors, only the strides the run's canvases reach
+            large = screen._large_scales()
+            modes.append(large)
+            k = len(large.a)
+            for axis, (lo, hi) in enumerate(((lo0, hi0), (lo1, hi1))):
+                table, start = large.strides(lo, hi, axis)
+                s0, s1 = lo // STRIDE - start, (hi - 1) // STRIDE - start + 1
+                tables[axis].append(table[:, :, s0:s1].ravel())
+                strides[axis] = (start + s0, s1 - s0)
+        last[layer] = len(layout)
+        windows.append(screen.coefficients.ravel())
+        origins.append(screen.origin)
+        layout.append([layer, n, e0, e1, as_is, op_at[layer], op_at[layer + 1], window_at, noise_at,
+                       noise_at + count, len(operators) - 1 if count else -1, 0, 0,
+                       len(screen._operator.stencil_rows) if count else 0, k, len(modes) - 1 if k else -1, 0,
+                       y_at, strides[0][1], strides[0][0], x_at, strides[1][1], strides[1][0]])
+        window_at, noise_at = window_at + n * n, noise_at + count
+        y_at, x_at = y_at + 2 * k * strides[0][1], x_at + 2 * k * strides[1][1]
+    if not layout:
+        return
+    layout = np.array(layout, np.int64)
+    (a, b, stencil_rows, stencil_back), at = (_packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows,
+                                                                                    o.stencil_cols))
+                                              if operators else (_NO_OPERATOR, None))
+    if at is not None:
+        used = layout[:, 10] >= 0
+        layout[used, 10:13] = at[layout[used, 10]][:, :3]
+    (low, amplitudes), at = _packed(tuple(modes), lambda m: (m.low, m.amplitudes)) if modes else (_NO_MODES, None)
+    if at is not None:
+        used = layout[:, 15] >= 0
+        layout[used, 15:17] = at[layout[used, 15]]
+    windows, origins = np.concatenate(windows), np.array(origins, np.int64)
+    bad = walk_segments(layout, windows, origins, sides, before, edges,
+                        np.concatenate(noises) if noises else _EMPTY, a, b, stencil_rows, stencil_back, frame_ops,
+                        rows, cols, weight, out_t, low, amplitudes,
+                        np.concatenate(tables[0]) if tables[0] else _EMPTY,
+                        np.concatenate(tables[1]) if tables[1] else _EMPTY, STRIDE)
+    for layer, s in last.items():
+        n = int(layout[s, 1])
+        screens[layer].coefficients = windows[layout[s, 7]:layout[s, 7] + n * n].reshape(n, n)
+        screens[layer].origin = origins[s]
+    if bad >= 0:
+        raise ValueError("screen sampled outside its window")

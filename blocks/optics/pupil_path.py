@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .layer_screen import LayerScreen
+from .layer_screen import LayerScreen, accumulate_layers
 from .modal_screen import ModalScreen, pupil_modes
 from .screen_kernels import footprint_grids
 
@@ -83,8 +83,7 @@ class PupilPath:
         # r0^(-5/6) of each layer (the screens are drawn for r0 = 1 m)
         weight = np.sqrt((0.423 * k2 / np.cos(zenith))[None] * np.array([layer.cn2_dh for layer in layers])[:, None])
         weight = np.where(turbulent, weight, 0.0)
-        for i, screen in enumerate(screens):
-            screen.accumulate(rows[i], cols[i], epochs, weight[i], phase_t)
+        accumulate_layers(list(screens), rows, cols, epochs, weight, phase_t)      # each layer in turn, one walk
         return phase_t.transpose(0, 2, 1)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:

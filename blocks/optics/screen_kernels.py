@@ -10,7 +10,9 @@
   IEEE Signal Process. Mag. 16(6), 22, Eq. 4), its weights computed once per row and column of
   each frame (no dense scatter matrices).
 * :func:`walk_canvases` makes a walk's canvases up to its next regeneration, adds the large-scale
-  modes where their frames read (:func:`add_modes`) and reads them, in one call per layer walk.
+  modes where their frames read (:func:`add_modes`) and reads them.
+* :func:`plan_layers` and :func:`walk_segments` do both for every layer of a line of sight in one
+  call each (the walks' regenerations and noise draws in between, in Python).
 """
 
 from __future__ import annotations
@@ -59,8 +61,9 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
     centre = np.empty((capacity, 2))
     before = np.empty((capacity, 2), np.int64)
     frame_ops = np.empty(frames, np.int64)
-    starts = [0]
-    renewals = [0]                           # canvases that start with a regeneration (after a placeholder)
+    starts = np.zeros(capacity + 2, np.int64)            # (arrays, not lists: they compile faster)
+    renewals = np.empty(capacity + 2, np.int64)          # canvases that start with a regeneration
+    n_starts, n_renewals = 1, 0
     last_side = np.full(2, -1)               # last step's side on each axis in this canvas
     o0, o1 = origin[0], origin[1]
     count = 0
@@ -91,10 +94,12 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
             op_epoch = _grow(op_epoch, capacity)
             centre = _grow(centre, capacity)
             before = _grow(before, capacity)
+            starts = _grow(starts, capacity + 2)
+            renewals = _grow(renewals, capacity + 2)
         if renew:
-            if count > starts[-1]:
-                starts.append(count)
-            renewals.append(len(starts) - 1)
+            if count > starts[n_starts - 1]:
+                starts[n_starts], n_starts = count, n_starts + 1
+            renewals[n_renewals], n_renewals = n_starts - 1, n_renewals + 1
             last_side[:] = -1
             kind[count], side[count], op_epoch[count] = REGENERATE, 0, epochs[f]
             centre[count, 0], centre[count, 1] = c0, c1
@@ -115,9 +120,9 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
                     else:
                         break
                     a = 1 if axis == 1 else 0
-                    if count > starts[-1] and ((last_side[a] >= 0 and last_side[a] != direction)
-                                               or count - starts[-1] >= canvas_steps):
-                        starts.append(count)
+                    if count > starts[n_starts - 1] and ((last_side[a] >= 0 and last_side[a] != direction)
+                                                         or count - starts[n_starts - 1] >= canvas_steps):
+                        starts[n_starts], n_starts = count, n_starts + 1
                         last_side[:] = -1
                     last_side[a] = direction
                     kind[count], side[count], op_epoch[count] = EXTEND, direction, epoch
@@ -129,10 +134,10 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
                     else:
                         o0 += step
         frame_ops[f] = count
-    if count > starts[-1]:
-        starts.append(count)
-    return (kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops, np.array(starts),
-            np.array(renewals[1:]))
+    if count > starts[n_starts - 1]:
+        starts[n_starts], n_starts = count, n_starts + 1
+    return (kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops, starts[:n_starts],
+            renewals[:n_renewals])
 
 
 @jit
@@ -245,16 +250,18 @@ def mode_phasors(low_cos, low_sin, high_cos, high_sin, first_high, start, count,
     """``cos`` and ``sin`` of each mode's phase ``w[k] p`` at integer positions ``p = start .. start + count - 1``
     [samples] into ``cos_out``, ``sin_out`` (K, count), from ``p = stride h + l``: ``low_*[k, l]`` at ``w l`` and
     ``high_*[k, h - first_high]`` at ``w stride h`` by the angle-addition formulas (each value from its own ``h`` and
-    ``l`` only, wherever it lies in the output)."""
+    ``l`` only, wherever it lies in the output). ``h`` and ``l`` are counted along, not divided out per value."""
+    h0 = start // stride
     for k in range(low_cos.shape[0]):
+        h, low = h0 - first_high, start - stride * h0
         for i in range(count):
-            p = start + i
-            h = p // stride
-            low = p - stride * h
-            ch, sh = high_cos[k, h - first_high], high_sin[k, h - first_high]
+            ch, sh = high_cos[k, h], high_sin[k, h]
             cl, sl = low_cos[k, low], low_sin[k, low]
             cos_out[k, i] = ch * cl - sh * sl
             sin_out[k, i] = sh * cl + ch * sl
+            low += 1
+            if low == stride:
+                low, h = 0, h + 1
 
 
 @jit
@@ -291,15 +298,19 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
         c0, c1 = first[r], stop[r]
         if c1 <= c0:
             continue
-        acc[c0:c1] = 0.0
+        # on views from 0 (indices known non-negative: no wraparound test per value, so the loops vectorise)
+        m = c1 - c0
+        total = acc[:m]
+        total[:] = 0.0
         for k in range(modes):
             u = a[k] * cos_y[k, r] + b[k] * sin_y[k, r]
             v = b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
-            cx, sx = cos_x[k], sin_x[k]
-            for c in range(c0, c1):
-                acc[c] += u * cx[c] + v * sx[c]
-        for c in range(c0, c1):
-            out[r, c] = source[r, c] + acc[c]
+            cx, sx = cos_x[k, c0:c1], sin_x[k, c0:c1]
+            for c in range(m):
+                total[c] += u * cx[c] + v * sx[c]
+        row, kept = out[r, c0:c1], source[r, c0:c1]
+        for c in range(m):
+            row[c] = kept[c] + total[c]
 
 
 @jit
@@ -383,6 +394,125 @@ def run_extent(origin, before, sides, first, stop, n):
         lo0, hi0 = min(lo0, after0), max(hi0, after0)
         lo1, hi1 = min(lo1, after1), max(hi1, after1)
     return lo0, hi0 + n, lo1, hi1 + n
+
+
+#: columns of :func:`plan_layers`' segments: the layer, its edges ``edges[e0:e1]`` (the walk's canvases, operations
+#: counted from the layer's first), whether the window is read as it is first, the regeneration before it (the
+#: layer's operation; -1: none), and the absolute rows ``lo0 .. hi0 - 1`` and columns ``lo1 .. hi1 - 1`` it covers
+SEGMENT_COLUMNS = 9
+
+
+@jit
+def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_epochs, has_values, canvas_steps):
+    """:func:`plan_walk` for each layer ``l`` of ``rows`` (L, F, ny), ``cols`` (L, F, nx) [samples] (window of ``ns[l]``
+    samples at ``origins[l]``, ``layer_epochs[l]``, ``has_values[l]``), packed for :func:`walk_segments`.
+
+    Returns the first layer whose footprint does not fit its window (-1: none); the operations' ``sides``,
+    ``before`` (T, 2), ``centre`` (T, 2) and ``op_epoch`` of every layer, layer ``l``'s from ``op_at[l]``;
+    ``frame_ops`` (L, F) (counted from the layer's first operation); the canvases' ``edges``; and the walk's
+    segments (:data:`SEGMENT_COLUMNS`), one per run of canvases between regenerations, in the order the
+    layers' walks make them.
+    """
+    layers, frames = rows.shape[0], rows.shape[1]
+    frame_ops = np.empty((layers, frames), np.int64)
+    op_at = np.zeros(layers + 1, np.int64)
+    sides = np.empty(16, np.int8)
+    op_epochs = np.empty(16, np.int64)
+    centres = np.empty((16, 2))
+    befores = np.empty((16, 2), np.int64)
+    edges = np.empty(16, np.int64)
+    segments = np.empty((layers + 1, SEGMENT_COLUMNS), np.int64)
+    failed, e, g = -1, 0, 0
+    for l in range(layers):
+        kind, side, op_epoch, centre, before, fo, starts, renewals = plan_walk(
+            rows[l], cols[l], epochs, ns[l], margin, regenerate_only[l], origins[l], layer_epochs[l], has_values[l],
+            canvas_steps)
+        if kind.shape[0] and kind[0] < 0:
+            failed = l
+            break
+        frame_ops[l] = fo
+        a0, a1 = op_at[l], op_at[l] + kind.shape[0]
+        op_at[l + 1] = a1
+        if a1 > sides.shape[0]:
+            capacity = max(2 * sides.shape[0], a1)
+            sides, op_epochs = _grow(sides, capacity), _grow(op_epochs, capacity)
+            centres, befores = _grow(centres, capacity), _grow(befores, capacity)
+        sides[a0:a1] = side
+        op_epochs[a0:a1] = op_epoch
+        centres[a0:a1] = centre
+        befores[a0:a1] = before
+        if e + starts.shape[0] + renewals.shape[0] > edges.shape[0]:
+            edges = _grow(edges, 2 * (e + starts.shape[0] + renewals.shape[0]))
+        if g + renewals.shape[0] + 1 > segments.shape[0]:
+            segments = _grow(segments, 2 * (g + renewals.shape[0] + 1))
+        n = ns[l]
+        origin = origins[l].copy()
+        # the window as it is, then its canvases up to the first regeneration; then from each regeneration's fresh
+        # window to the next (LayerScreen.walk's runs)
+        last = renewals[0] if renewals.shape[0] else starts.shape[0] - 1
+        e0 = e
+        for c in range(last + 1):
+            edges[e] = starts[c]
+            e += 1
+        renew = -1
+        for r in range(renewals.shape[0] + 1):
+            if r > 0:
+                renew = starts[renewals[r - 1]]
+                following = renewals[r] if r < renewals.shape[0] else starts.shape[0] - 1
+                e0 = e
+                edges[e] = renew + 1
+                e += 1
+                for c in range(renewals[r - 1] + 1, following + 1):
+                    edges[e] = starts[c]
+                    e += 1
+                origin[0] = np.int64(math.floor(centre[renew, 0])) - n // 2
+                origin[1] = np.int64(math.floor(centre[renew, 1])) - n // 2
+            lo0, hi0, lo1, hi1 = run_extent(origin, before, side, edges[e0], edges[e - 1], n)
+            segments[g, 0], segments[g, 1], segments[g, 2], segments[g, 3] = l, e0, e, r == 0
+            segments[g, 4], segments[g, 5], segments[g, 6], segments[g, 7], segments[g, 8] = renew, lo0, hi0, lo1, hi1
+            g += 1
+    total = op_at[layers] if failed < 0 else 0
+    return (failed, sides[:total], befores[:total], centres[:total], op_epochs[:total], op_at, frame_ops, edges[:e],
+            segments[:g])
+
+
+#: columns of :func:`walk_segments`' layout: the segment's layer, window size ``n``, edges ``e0``, ``e1``, ``as_is``,
+#: then where its arrays start in the packed ones: the layer's operations (first, stop), its window, noise (first,
+#: stop), operator (``A``, ``B``, stencil and its length; none without noise), the large-scale modes (``K``; ``low``, ``amplitudes``, the per-stride tables
+#: along y and x, their lengths and first strides)
+LAYOUT_COLUMNS = 23
+
+
+@jit
+def walk_segments(layout, windows, origins, sides, before, edges, noise, a, b, stencil_rows, stencil_back, frame_ops,
+                  rows, cols, weight, out_t, low, amplitudes, high_y, high_x, stride):
+    """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
+    order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
+    layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into ``out_t``,
+    from where its layer's previous segment stopped; its operator, noise and the modes' tables (:data:`LAYOUT_COLUMNS`)
+    are views into the packed arrays. Returns the first segment that read outside its canvas (-1: none)."""
+    frame = np.zeros(rows.shape[0], np.int64)
+    for s in range(layout.shape[0]):
+        layer, n, e0, e1, as_is = layout[s, 0], layout[s, 1], layout[s, 2], layout[s, 3], layout[s, 4] != 0
+        op0, op1, w0, z0, z1 = layout[s, 5], layout[s, 6], layout[s, 7], layout[s, 8], layout[s, 9]
+        a0, b0, st0, n_st = layout[s, 10], layout[s, 11], layout[s, 12], layout[s, 13]
+        k, low0, amp0 = layout[s, 14], layout[s, 15], layout[s, 16]
+        hy0, hy_len, first_y, hx0, hx_len, first_x = (layout[s, 17], layout[s, 18], layout[s, 19], layout[s, 20],
+                                                     layout[s, 21], layout[s, 22])
+        window = windows[w0:w0 + n * n].reshape((n, n))
+        m = n if z1 > z0 else 0                 # the operator's rows (none when nothing is drawn)
+        stop = walk_canvases(window, origins[s], n, sides[op0:op1], before[op0:op1], edges[e0:e1], as_is,
+                             noise[z0:z1], a[a0:a0 + m * n_st].reshape((m, n_st)), b[b0:b0 + m * m].reshape((m, m)),
+                             stencil_rows[st0:st0 + n_st], stencil_back[st0:st0 + n_st], frame_ops[layer],
+                             frame[layer], rows[layer], cols[layer], weight[layer], out_t,
+                             low[low0:low0 + 4 * k * stride].reshape((4, k, stride)),
+                             high_y[hy0:hy0 + 2 * k * hy_len].reshape((2, k, hy_len)), first_y,
+                             high_x[hx0:hx0 + 2 * k * hx_len].reshape((2, k, hx_len)), first_x,
+                             amplitudes[amp0:amp0 + 2 * k].reshape((2, k)), stride)
+        if stop < 0:
+            return s
+        frame[layer] = stop
+    return -1
 
 
 @jit

@@ -17,7 +17,7 @@ from evsda.blocks.optics.fft_screens import (
 )
 from evsda.blocks.optics.kolmogorov import (
     kolmogorov_structure_function, phase_psd, structure_function, von_karman_covariance)
-from evsda.blocks.optics.layer_screen import PREFILTER_HALF_WIDTH, SELF_START_SAMPLES, LayerScreen
+from evsda.blocks.optics.layer_screen import PREFILTER_HALF_WIDTH, SELF_START_SAMPLES, LayerScreen, accumulate_layers
 from evsda.blocks.optics.screen_kernels import MARGIN
 from evsda.blocks.optics import PointSourceOptics
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
@@ -286,6 +286,39 @@ def test_batched_walk_reads_what_frame_by_frame_covers_read():
         np.testing.assert_allclose(out[f], 2.0 * single.sample(rows[f:f + 1], cols[f:f + 1])[0], rtol=0, atol=1e-12)
     assert single.n_regenerations == batched.n_regenerations == 1
     np.testing.assert_array_equal(single.coefficients, batched.coefficients)
+
+
+
+def test_layers_walked_together_read_what_each_walked_in_turn_reads():
+    # accumulate_layers (one plan, one compiled walk for all layers) against each layer's own accumulate in turn into
+    # the same output, bit for bit, over three calls: screens of two sizes, one regenerate-only, one without
+    # large-scale modes (a window cut from an FFT screen), a fresh start, extensions on every side, a jump far away
+    # (regenerated mid-walk) and a new revisit epoch
+    def make():
+        return [LayerScreen(20, 0.025, (1, 0), L0=25.0), LayerScreen(38, 0.0101, (1, 1), L0=25.0),
+                LayerScreen(20, 0.025, (1, 2), L0=25.0, update="regenerate"),
+                LayerScreen(SELF_START_SAMPLES + 4, 0.02, (1, 3), L0=25.0), LayerScreen(20, 0.03, (1, 4), L0=25.0)]
+    frames, grid = 60, np.linspace(0.0, 7.0, 16)
+    steps = np.array([[0.3, 0.7], [0.5, 0.0], [0.0, 0.6], [-0.4, 0.2], [0.2, -0.5]])
+    together, alone = make(), make()
+    start = np.zeros((len(steps), 2))
+    for call in range(3):
+        path = start[:, None] + steps[:, None] * np.arange(frames)[None, :, None]          # (L, F, 2)
+        if call == 1:
+            path[0, frames // 2:] += 500.0                                                 # jumps far: regenerates
+        rows, cols = path[..., :1] + grid, path[..., 1:] + grid
+        epochs = np.full(frames, 3 if call == 2 else 0, np.int64)
+        weight = 1.0 + np.arange(len(steps))[:, None] * np.ones(frames)
+        out_together, out_alone = np.zeros((2, frames, len(grid), len(grid)))
+        accumulate_layers(together, rows, cols, epochs, weight, out_together)
+        for i, screen in enumerate(alone):
+            screen.accumulate(rows[i], cols[i], epochs, weight[i], out_alone)
+        assert out_together.tobytes() == out_alone.tobytes()
+        for a, b in zip(together, alone):
+            assert a.coefficients.tobytes() == b.coefficients.tobytes() and np.array_equal(a.origin, b.origin)
+            assert a.state()["rng"] == b.state()["rng"] and a.n_regenerations == b.n_regenerations
+        assert together[0].n_regenerations == (1 if call == 1 else 0) and np.all(out_together != 0)
+        start = path[:, -1]
 
 
 def _walk(screen, boxes, chunks):
