@@ -32,6 +32,13 @@ def own_changes(held, background, row_of, sample, flux):
     n_background = 0                                 # a pixel's value changes only at sample 0, at a change
     for k in range(1, k_max):                        # of the background, at its entries and after them
         n_background += background[k] != background[k - 1]
+    moves = np.empty(n_background + 1, np.int64)     # the background's changes, then k_max
+    b = 0
+    for k in range(1, k_max):
+        if background[k] != background[k - 1]:
+            moves[b] = k
+            b += 1
+    moves[b] = k_max
     capacity = n * (1 + n_background) + 2 * m
     rows = np.empty(capacity, np.int64)
     columns = np.empty(capacity, np.int64)
@@ -42,8 +49,10 @@ def own_changes(held, background, row_of, sample, flux):
         previous = held[i]
         e, e_end = start[i], start[i + 1]
         value = previous
-        for k in range(k_max):
+        k, b = 0, 0
+        while k < k_max:                             # only the samples where the value can change (above)
             value = background[k]
+            entries = e < e_end and sample[order[e]] == k
             while e < e_end and sample[order[e]] == k:
                 value = value + flux[order[e]]
                 e += 1
@@ -51,6 +60,10 @@ def own_changes(held, background, row_of, sample, flux):
                 rows[out], columns[out], values[out] = i, k, value
                 out += 1
             previous = value
+            while moves[b] <= k:
+                b += 1
+            following = min(moves[b], sample[order[e]] if e < e_end else k_max)
+            k = k + 1 if entries else following      # elsewhere the value is the background's, unchanged
         off[i] = k_max > 0 and value != background[k_max - 1]
     return rows[:out].copy(), columns[:out].copy(), values[:out].copy(), off
 
