@@ -185,18 +185,20 @@ def extend_columns(canvas, tops, lefts, sides, a, b, stencil_rows, stencil_back,
 
 
 @jit
-def _taps(u, index, weights):
-    """Cubic B-spline tap indices (first of 4) and weights at positions ``u`` [samples] (Unser 1999 Eq. 4)."""
+def _taps(u, offset, index, weights):
+    """Cubic B-spline tap indices (first of 4) and weights (4, n) at positions ``u - offset`` [samples] (Unser 1999
+    Eq. 4). Each weight kind is a contiguous row, so the loop vectorises (its divisions too)."""
     for i in range(u.shape[0]):
-        base = math.floor(u[i])
-        t = u[i] - base
+        x = u[i] - offset
+        base = math.floor(x)
+        t = x - base
         t2 = t * t
         t3 = t2 * t
         index[i] = np.int64(base) - 1
-        weights[i, 0] = (1.0 - t) ** 3 / 6.0
-        weights[i, 1] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
-        weights[i, 2] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
-        weights[i, 3] = t3 / 6.0
+        weights[0, i] = (1.0 - t) ** 3 / 6.0
+        weights[1, i] = (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0
+        weights[2, i] = (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0
+        weights[3, i] = t3 / 6.0
 
 
 @jit
@@ -215,20 +217,20 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
     ny, nx = rows.shape[1], cols.shape[1]
     iy = np.empty(ny, np.int64)
     ix = np.empty(nx, np.int64)
-    wy = np.empty((ny, 4))
-    wx = np.empty((nx, 4))
+    wy = np.empty((4, ny))
+    wx = np.empty((4, nx))
     lines = np.empty((width, ny))               # the y-combined rows, column by column: contiguous in y
     combined = np.empty(width)
     for f in range(first, stop):
-        _taps(rows[f] - top, iy, wy)
-        _taps(cols[f] - left, ix, wx)
+        _taps(rows[f], top, iy, wy)
+        _taps(cols[f], left, ix, wx)
         if iy[0] < 0 or iy[ny - 1] + 3 >= height or ix[0] < 0 or ix[nx - 1] + 3 >= width:
             return False
         c0, c1 = ix[0], ix[nx - 1] + 4
         g = weight[f]
         for i in range(ny):
             r = iy[i]
-            w0, w1, w2, w3 = wy[i, 0], wy[i, 1], wy[i, 2], wy[i, 3]
+            w0, w1, w2, w3 = wy[0, i], wy[1, i], wy[2, i], wy[3, i]
             k0, k1, k2, k3 = (coefficients[r, c0:c1], coefficients[r + 1, c0:c1], coefficients[r + 2, c0:c1],
                               coefficients[r + 3, c0:c1])
             for q in range(c1 - c0):
@@ -237,7 +239,7 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
                 lines[q, i] = combined[q]
         for j in range(nx):
             c = ix[j] - c0
-            a0, a1, a2, a3 = wx[j, 0], wx[j, 1], wx[j, 2], wx[j, 3]
+            a0, a1, a2, a3 = wx[0, j], wx[1, j], wx[2, j], wx[3, j]
             l0, l1, l2, l3 = lines[c], lines[c + 1], lines[c + 2], lines[c + 3]
             target = out_t[f, j]
             for i in range(ny):

@@ -24,9 +24,9 @@ def reference_sample(coefficients, top, left, rows, cols, weight, out):
     """4 coefficient rows combined along y, then 4 of those along x, with the kernels' B-spline weights
     (:func:`_taps`, Unser 1999 Eq. 4; the weights themselves are checked against scipy elsewhere)."""
     def taps(u):
-        index, weights = np.empty(u.size, np.int64), np.empty((u.size, 4))
-        _taps(np.asarray(u, dtype=float), index, weights)
-        return index, weights
+        index, weights = np.empty(u.size, np.int64), np.empty((4, u.size))
+        _taps(np.asarray(u, dtype=float), 0.0, index, weights)
+        return index, weights.T
     for f in range(rows.shape[0]):
         iy, wy = taps(rows[f] - top)
         ix, wx = taps(cols[f] - left)
