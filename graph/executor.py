@@ -346,7 +346,9 @@ class Executor:
             if isinstance(worker, WorkerBlock):
                 worker.close(kill=kill)
                 if worker.peak_rss_mb is not None:
-                    log.info("%s: its worker process peaked at %.0f MB", self.blocks[name].label, worker.peak_rss_mb)
+                    log.info("%s: its worker process stepped %.1f s, waited %.1f s between steps, used %.1f s of CPU "
+                             "and peaked at %.0f MB", self.blocks[name].label, worker.stepping_s, worker.waiting_s,
+                             worker.cpu_s, worker.peak_rss_mb)
                 self.stepper[name] = self.blocks[name]
 
     def _execute_windows(self) -> RunResult:

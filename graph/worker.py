@@ -132,6 +132,9 @@ class WorkerBlock:
         self.sent: list[tuple[str, tuple]] = []      # setup/set_state calls, replayed on a failed start
         self.started = False                         # the worker built the block
         self.peak_rss_mb: float | None = None
+        #: the worker's wall time [s] stepping, and waiting for a step between its first and its last
+        self.stepping_s = self.waiting_s = 0.0
+        self.cpu_s = 0.0                             # the worker's CPU time, its start included [s]
         self._lock = threading.Lock()
         self.process: subprocess.Popen | None = None
         self.conn: Connection | None = None
@@ -180,7 +183,7 @@ class WorkerBlock:
                     while conn.poll(max(0.0, deadline - time.monotonic())):
                         message = conn.recv()
                         if message[0] == "closed":
-                            self.peak_rss_mb = message[1]
+                            self.peak_rss_mb, self.stepping_s, self.waiting_s, self.cpu_s = message[1:]
                             break
                         self._forward(message)
                 except (OSError, EOFError):
@@ -379,6 +382,8 @@ def _serve(conn: Connection) -> None:
     warnings.showwarning = show_warning
     with lock:
         conn.send(("ok", None))
+    stepping = waiting = 0.0
+    last_step: float | None = None           # when the last step's answer was sent
     while True:
         try:
             op, args = conn.recv()
@@ -387,12 +392,15 @@ def _serve(conn: Connection) -> None:
         if op == "close":
             usage = resource.getrusage(resource.RUSAGE_SELF)
             with lock:
-                conn.send(("closed", usage.ru_maxrss / 1024))
+                conn.send(("closed", usage.ru_maxrss / 1024, stepping, waiting, usage.ru_utime + usage.ru_stime))
             return
         try:
             if op == "step":
+                start = time.perf_counter()
+                waiting += start - last_step if last_step is not None else 0.0
                 window, inputs = args
                 result = block.step(window, **inputs)
+                stepping += time.perf_counter() - start
             else:
                 result = getattr(block, op)(*args)
             answer = ("ok", result)
@@ -400,6 +408,8 @@ def _serve(conn: Connection) -> None:
             answer = ("error", _portable(exc), type(exc).__name__, str(exc), traceback.format_exc())
         with lock:
             conn.send(answer)
+        if op == "step":
+            last_step = time.perf_counter()
 
 
 def main(argv: list[str]) -> None:
