@@ -1,9 +1,10 @@
-"""The padded spectra's length-80 FFTs along y, compiled, with the bits of scipy's pocketfft.
+"""The padded spectra's length-80 FFTs, compiled, with the bits of scipy's pocketfft.
 
 The pupil path's zero-padded FFT (:class:`.render.PupilRenderer`) transforms the pupil's rows along x, then
 every column along y. On the tracked pass (a 40-sample pupil padded to L = 80) pocketfft took ~11.5 us a PSF for
-the 80 columns: scipy builds it for SSE2 (4 floats a vector) and it copies each group of 4 columns to a buffer
-and back. Here the same transform runs on all 80 columns side by side, the columns as vector lanes, in place.
+the 80 columns and ~6.5 for the 40 rows: scipy builds it for SSE2 (4 floats a vector) and it copies each group of
+4 lines to a buffer and back. Here the same transforms run on many lines side by side as vector lanes: all 80
+columns of a frame in place (:func:`columns`), or the pupil's 40 rows of a transposed field (:func:`rows`).
 
 It is the mixed-radix FFTPACK algorithm (Swarztrauber 1982, in Vectorizing the FFTs, ed. Rodrigue, Academic
 Press) in pocketfft's form (M. Reinecke, pocketfft, C++ header-only version as vendored by scipy 1.x; BSD-3-Clause):
@@ -12,10 +13,11 @@ pass below makes the same float32 operations in the same order as pocketfft's ra
 (``ROTX45``/``ROTX135`` rotations, twiddles multiplied conjugated), with twiddles ``exp(2 pi i m / 80)`` rounded
 once to float32. Nothing is fused or reassociated (no ``fastmath``: no fused multiply-adds), so the results equal
 pocketfft's bit for bit; :func:`same_as_pocketfft` checks that on the running scipy, and the renderer uses these
-passes only if it holds. The input rows 40-79 are the padding's zeros: they are not read (the first pass adds
-and subtracts a literal zero, the same operations).
+passes only if it holds. Inputs 40-79 of every line are the padding's zeros: they are not read (the first pass
+adds and subtracts a literal zero, the same operations).
 
-Each pass is its own compiled function: in one function the compiler left the radix-8 pass scalar.
+Each pass is its own compiled function, its lane count a compile-time constant: in one function, or with the
+lane count read from the arrays, the compiler left the radix-8 pass scalar.
 """
 
 from __future__ import annotations
@@ -41,32 +43,53 @@ def columns(grid: np.ndarray, scratch: np.ndarray) -> None:
     _columns(grid.view(np.float32).reshape(len(grid), -1), scratch, _TWIDDLE_RE, _TWIDDLE_IM)
 
 
+def rows(field_t: np.ndarray, grid: np.ndarray, scratch: np.ndarray) -> None:
+    """``grid[:, :40] = fft(field, n=80, axis=2)`` for the transposed fields ``field_t`` (F, 40, 40) complex64
+    (``field_t[f, x, y] = field[f, y, x]``), the rows of 40 samples zero-padded to 80; ``grid`` (F, 80, 80)
+    complex64, rows 40: left as they are; ``scratch``: float32 (4, 6400), this thread's."""
+    _rows(field_t.view(np.float32).reshape(len(field_t), -1), grid.view(np.float32).reshape(len(grid), -1), scratch,
+          _TWIDDLE_RE, _TWIDDLE_IM)
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _columns(grid, scratch, twr, twi):
     for f in range(grid.shape[0]):
-        _radix2(grid[f], scratch[0], scratch[1], twr, twi)
-        _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi)
-        _radix5(scratch[2], scratch[3], grid[f])
-
-
-def same_as_pocketfft() -> bool:
-    """Whether :func:`columns` gives scipy's ``fft(axis=1)`` bit for bit on random padded spectra (and compiles)."""
-    from scipy.fft import fft
-    rng = np.random.default_rng(0)
-    grid = np.zeros((3, LENGTH, LENGTH), np.complex64)
-    half = (3, LENGTH // 2, LENGTH)
-    grid[:, :LENGTH // 2] = rng.standard_normal(half) + 1j * rng.standard_normal(half)
-    expected = fft(grid, axis=1)
-    grid[:, LENGTH // 2:] = 1e30                                    # not read
-    columns(grid, np.empty((4, LENGTH * LENGTH), np.float32))
-    return np.array_equal(grid.view(np.uint64), expected.view(np.uint64))
+        _radix2(grid[f], scratch[0], scratch[1], twr, twi, 80)
+        _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 80)
+        _radix5(scratch[2], scratch[3], grid[f], 80, 80, 1)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _radix2(grid, re, im, twr, twi):
+def _rows(field_t, grid, scratch, twr, twi):
+    for f in range(grid.shape[0]):
+        _radix2(field_t[f], scratch[0], scratch[1], twr, twi, 40)
+        _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 40)
+        _radix5(scratch[2], scratch[3], grid[f], 40, 1, 80)
+
+
+def same_as_pocketfft() -> bool:
+    """Whether :func:`columns` and :func:`rows` give scipy's FFTs bit for bit on random padded data (and compile)."""
+    from scipy.fft import fft
+    rng = np.random.default_rng(0)
+    half = (3, LENGTH // 2, LENGTH)
+    grid = np.zeros((3, LENGTH, LENGTH), np.complex64)
+    grid[:, :LENGTH // 2] = rng.standard_normal(half) + 1j * rng.standard_normal(half)
+    expected = fft(grid, axis=1)
+    grid[:, LENGTH // 2:] = 1e30                                    # not read
+    scratch = np.empty((4, LENGTH * LENGTH), np.float32)
+    columns(grid, scratch)
+    field = grid[:, :LENGTH // 2, :LENGTH // 2].copy()
+    transformed = np.empty_like(grid)
+    rows(np.ascontiguousarray(field.transpose(0, 2, 1)), transformed, scratch)
+    return (np.array_equal(grid.view(np.uint64), expected.view(np.uint64))
+            and np.array_equal(transformed[:, :LENGTH // 2].view(np.uint64), fft(field, LENGTH, axis=2).view(np.uint64)))
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _radix2(grid, re, im, twr, twi, w):
     """pocketfft's radix-2 pass (ido 40, l1 1) from the interleaved ``grid`` (80 x 160 flat) into planar ``re``, ``im``
-    (80 x 80 lanes), its second half of inputs the padding's zeros."""
-    w = LENGTH
+    (80 x ``w`` lanes), its second half of inputs the padding's zeros."""
+    numba.literally(w)
     zero = _F32(0.0)
     for l in range(w):
         c0r, c0i = grid[2 * l], grid[2 * l + 1]
@@ -102,9 +125,10 @@ def _butterfly8(c0r, c0i, c1r, c1i, c2r, c2i, c3r, c3i, c4r, c4i, c5r, c5i, c6r,
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _radix8(re, im, out_re, out_im, twr, twi):
-    """pocketfft's radix-8 pass (ido 5, l1 2) on planar 80 x 80-lane buffers."""
-    w = LENGTH
+def _radix8(re, im, out_re, out_im, twr, twi, w):
+    """pocketfft's radix-8 pass (ido 5, l1 2) on planar 80 x ``w``-lane buffers (``w`` a compile-time constant, so
+    that the compiler sees the buffers' rows apart and vectorizes along the lanes)."""
+    numba.literally(w)
     for k in range(2):
         for i in range(5):
             s0, s1, s2, s3 = (i + 40 * k) * w, (i + 5 + 40 * k) * w, (i + 10 + 40 * k) * w, (i + 15 + 40 * k) * w
@@ -142,9 +166,13 @@ def _radix8(re, im, out_re, out_im, twr, twi):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _radix5(re, im, grid):
-    """pocketfft's radix-5 pass (ido 1, l1 16) from planar 80 x 80-lane buffers into the interleaved ``grid`` (flat)."""
-    w = LENGTH
+def _radix5(re, im, grid, w, element_stride, lane_stride):
+    """pocketfft's radix-5 pass (ido 1, l1 16) from planar 80 x ``w``-lane buffers into the interleaved ``grid``
+    (flat), element ``m`` of lane ``l`` at complex ``m element_stride + l lane_stride``."""
+    numba.literally(w)
+    numba.literally(element_stride)
+    numba.literally(lane_stride)
+    es, ls = element_stride, lane_stride
     for k in range(16):
         for l in range(w):
             t0r, t0i = re[(5 * k) * w + l], im[(5 * k) * w + l]
@@ -154,12 +182,12 @@ def _radix5(re, im, grid):
             c4r, c4i = re[(5 * k + 4) * w + l], im[(5 * k + 4) * w + l]
             t1r, t1i, t4r, t4i = c1r + c4r, c1i + c4i, c1r - c4r, c1i - c4i
             t2r, t2i, t3r, t3i = c2r + c3r, c2i + c3i, c2r - c3r, c2i - c3i
-            grid[2 * (k * w + l)], grid[2 * (k * w + l) + 1] = (t0r + t1r) + t2r, (t0i + t1i) + t2i
+            grid[2 * (k * es + l * ls)], grid[2 * (k * es + l * ls) + 1] = (t0r + t1r) + t2r, (t0i + t1i) + t2i
             ar, ai = (t0r + _C1 * t1r) + _C2 * t2r, (t0i + _C1 * t1i) + _C2 * t2i
             bi, br = _S1 * t4r + _S2 * t3r, -(_S1 * t4i + _S2 * t3i)
-            grid[2 * ((k + 16) * w + l)], grid[2 * ((k + 16) * w + l) + 1] = ar + br, ai + bi
-            grid[2 * ((k + 64) * w + l)], grid[2 * ((k + 64) * w + l) + 1] = ar - br, ai - bi
+            grid[2 * ((k + 16) * es + l * ls)], grid[2 * ((k + 16) * es + l * ls) + 1] = ar + br, ai + bi
+            grid[2 * ((k + 64) * es + l * ls)], grid[2 * ((k + 64) * es + l * ls) + 1] = ar - br, ai - bi
             ar, ai = (t0r + _C2 * t1r) + _C1 * t2r, (t0i + _C2 * t1i) + _C1 * t2i
             bi, br = _S2 * t4r - _S1 * t3r, -(_S2 * t4i - _S1 * t3i)
-            grid[2 * ((k + 32) * w + l)], grid[2 * ((k + 32) * w + l) + 1] = ar + br, ai + bi
-            grid[2 * ((k + 48) * w + l)], grid[2 * ((k + 48) * w + l) + 1] = ar - br, ai - bi
+            grid[2 * ((k + 32) * es + l * ls)], grid[2 * ((k + 32) * es + l * ls) + 1] = ar + br, ai + bi
+            grid[2 * ((k + 48) * es + l * ls)], grid[2 * ((k + 48) * es + l * ls) + 1] = ar - br, ai - bi

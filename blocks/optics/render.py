@@ -116,6 +116,8 @@ class PupilRenderer:
         # pupil's rows within the first half (:mod:`.column_fft`)
         self._columns = (size == column_fft.LENGTH and 2 * n_pupil <= size and dtype == np.complex64
                          and _compiled_columns_agree())
+        # and along x where the pupil fills the first half exactly (the tracked pass's 40 samples)
+        self._rows = self._columns and 2 * n_pupil == size
         self._local = threading.local()
 
     def _workspace(self, frames: int) -> tuple[np.ndarray, ...]:
@@ -128,6 +130,7 @@ class PupilRenderer:
             buffers = self._local.chunk = (np.zeros((c, size, size), self.dtype), np.empty((c, size, size), real),
                                            np.empty((c, size, m), real))
             self._local.scratch = np.empty((4, size * size), np.float32)
+            self._local.field_t = np.empty((c, self.n, self.n), self.dtype)
         return tuple(b[:frames] for b in buffers)
 
     def _per_frame(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -166,16 +169,24 @@ class PupilRenderer:
         for block in _chunks(len(phase), PHASE_FRAMES):
             cosine, sine, image = self._per_frame(block.stop - block.start)
             # numpy's cos and sin of the tilted phase (rounded to single precision) on contiguous buffers, the
-            # block's frames at once; then chunk by chunk the field and the padding's zeros written into the FFT
-            # buffer in one pass
-            tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
+            # block's frames at once, transposed (x, y) for the compiled row transforms; then chunk by chunk the
+            # field, into the FFT buffer with the padding's zeros in one pass or transposed for the row transforms
+            if self._rows:
+                tilted_phase_transposed(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
+            else:
+                tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
             np.sin(cosine, out=sine)
             np.cos(cosine, out=cosine)
             for sl in _chunks(len(image), STAMP_CHUNK):
                 grid, *rest = self._workspace(sl.stop - sl.start)
                 given = amplitude[None] if amplitude.ndim == 2 else amplitude[block][sl]
-                pupil_field(given, cosine[sl], sine[sl], grid)
-                self._integrate(grid, *rest, image[sl])
+                if self._rows:
+                    field_t = self._local.field_t[:sl.stop - sl.start]
+                    pupil_field(given.transpose(0, 2, 1), cosine[sl], sine[sl], field_t)
+                    column_fft.rows(field_t, grid, self._local.scratch)
+                else:
+                    pupil_field(given, cosine[sl], sine[sl], grid)
+                self._integrate(grid, *rest, image[sl], rows_done=self._rows)
             self._scale(image, out[block])
         return out
 
@@ -192,15 +203,18 @@ class PupilRenderer:
             self._scale(image, out[sl])
         return out
 
-    def _integrate(self, grid: np.ndarray, psf: np.ndarray, half: np.ndarray, image: np.ndarray) -> None:
+    def _integrate(self, grid: np.ndarray, psf: np.ndarray, half: np.ndarray, image: np.ndarray,
+                   rows_done: bool = False) -> None:
         """Stamps ``image`` (F, M, M), up to :meth:`_scale`'s factor, of the tilted pupil fields in
         ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]`` and ``grid[:, n:]`` zero), ``F <= STAMP_CHUNK``, through
         this thread's buffers (:meth:`_workspace`): padded FFT, ``|.|^2`` into ``psf`` (``grid[:, n:]`` zeroed again
-        for the next chunk where a transform reads them), then ``B PSF B^T``."""
+        for the next chunk where a transform reads them), then ``B PSF B^T``; ``rows_done``: ``grid[:, :n]`` already
+        holds the fields' transforms along x (:func:`.column_fft.rows`)."""
         n, size = self.n, self.padded
         # the zero-padded FFTs in place (the same transforms of the same values, line by line in the same order, as
         # scipy's own padding): along x on the pupil's n rows, then along y, compiled where that gives the same bits
-        _fft(grid[:, :n], 2)
+        if not rows_done:
+            _fft(grid[:, :n], 2)
         if self._columns:
             column_fft.columns(grid, self._local.scratch)                # reads rows :L/2 only
             squared_modulus(grid, psf, n if 2 * n < size else -1)        # (F, L, L), up to delta^4/lambda^2
@@ -265,6 +279,19 @@ def tilted_phase(phase, curvature, r2, ky, kx, x, out):
             target = out[f, i]
             for j in range(cols):
                 target[j] = ((phase[f, i, j] + curvature[f] * r2[i, j]) + along_y) + kx[f] * x[j]
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def tilted_phase_transposed(phase, curvature, r2, ky, kx, x, out):
+    """:func:`tilted_phase` written transposed: ``out[f, j, i]`` holds element ``(i, j)`` (``r2`` read as ``r2[j, i]``:
+    it is symmetric)."""
+    frames, rows, cols = phase.shape
+    for f in range(frames):
+        for j in range(cols):
+            along_x = kx[f] * x[j]
+            target = out[f, j]
+            for i in range(rows):
+                target[i] = ((phase[f, i, j] + curvature[f] * r2[j, i]) + ky[f] * x[i]) + along_x
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

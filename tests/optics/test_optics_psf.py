@@ -261,9 +261,10 @@ def test_pupil_stamps_from_a_phase_equal_those_from_its_field():
 
 
 def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
-    # the length-80 transforms along y (column_fft) against scipy.fft.fft on padded spectra over 12 decades, then
-    # the renderer with them against the same renderer through scipy for 40 and 39 pupil samples (both pad to 80;
-    # with 39 the row the compiled pass reads but the pupil leaves empty must stay zero between chunks)
+    # the length-80 transforms along y and x (column_fft) against scipy.fft.fft on padded spectra and fields over 12
+    # decades, then the renderer with them against the same renderer through scipy for 40 and 39 pupil samples (both
+    # pad to 80; 40 fill the rows' first half, for the transforms along x; with 39 the row the compiled pass along y
+    # reads but the pupil leaves empty must stay zero between chunks)
     import scipy.fft as sfft
 
     from evsda.blocks.optics import column_fft
@@ -277,13 +278,16 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
         grid[:, 40:] = np.nan                                            # not read
         column_fft.columns(grid, scratch)
         np.testing.assert_array_equal(grid.view(np.uint64), expected.view(np.uint64))
+        field = (scale * (rng.standard_normal((5, 40, 40)) + 1j * rng.standard_normal((5, 40, 40)))).astype(np.complex64)
+        column_fft.rows(np.ascontiguousarray(field.transpose(0, 2, 1)), grid, scratch)
+        np.testing.assert_array_equal(grid[:, :40].view(np.uint64), sfft.fft(field, n=80, axis=2).view(np.uint64))
     telescope = Telescope(0.2, 0.4)
     for n in (40, 39):
         delta = 0.2 / (n - 2)
         compiled = PupilRenderer(StampSampler(7, 12.15e-6, 9), n, delta, 568.3e-9, telescope.collecting_area_m2)
         through_scipy = PupilRenderer(StampSampler(7, 12.15e-6, 9), n, delta, 568.3e-9, telescope.collecting_area_m2)
-        through_scipy._columns = False
-        assert compiled.padded == 80 and compiled._columns
+        through_scipy._columns = through_scipy._rows = False
+        assert compiled.padded == 80 and compiled._columns and compiled._rows == (n == 40)
         amplitude = telescope.pupil(n, delta)
         phase = fft_phase_screens(rng, 2 * n, delta, 0.07)[0][None, :n, :n] + rng.standard_normal((37, n, n))
         offsets = rng.uniform(-0.5, 0.5, (37, 2))
