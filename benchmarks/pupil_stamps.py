@@ -9,7 +9,7 @@ FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1
 * ``PupilRenderer.stamps`` whole (phase to pixel energies);
 * its zero-padded FFTs alone (rows of the pupil, then every column, in place, 16 frames at a time, through
   ``scipy.fft.fft``), the same through pocketfft's binding (without scipy's dispatch), as the renderer runs them
-  (the rows through the binding, the columns compiled with pocketfft's bits: ``column_fft``), in double precision
+  here (compiled with pocketfft's bits: ``column_fft``, from the field written transposed), in double precision
   (complex128), without the pruning (every row of the padded grid: ``fft2``) and through numpy's own FFT (single
   precision since numpy 2);
 * ``stamps()`` whole in double precision (the tests' reference renderer, ``dtype=np.complex128``);
@@ -143,10 +143,10 @@ def main() -> None:
 
     scratch = np.empty((4, size * size), np.float32)
 
+    field_t = np.ascontiguousarray(field.transpose(0, 2, 1))
+
     def compiled_columns():
-        grid[:, :n, :n] = field
-        grid[:, :n, n:] = 0
-        _fft(grid[:, :n], 2)
+        column_fft.rows(field_t, grid, scratch)
         column_fft.columns(grid, scratch)
 
     def numpy_fft():
