@@ -107,9 +107,12 @@ def _summed_stamps(flux, origin, samples, which, stamp, height, width):
     values = np.empty(which.size * h * w)
     unique = np.empty(which.size * h * w, np.int64)
     summed = np.zeros(which.size * h * w)
+    runs = np.empty(which.size * h, np.int64)        # a stamp row's first key, its place in keys, its length
+    run_at, run_size = np.empty(which.size * h, np.int64), np.empty(which.size * h, np.int64)
+    order = np.empty(which.size * h * w, np.int64)
     m, u, i = 0, 0, 0
     while i < which.size:                            # the stamps of one sample at a time: its keys sort alone
-        first = m
+        first, n_runs = m, 0
         sample = which[i]
         while i < which.size and which[i] == sample:
             k, s = samples[which[i]], stamp[i]
@@ -117,15 +120,34 @@ def _summed_stamps(flux, origin, samples, which, stamp, height, width):
             for a in range(h):
                 row = row0 + a
                 if 0 <= row < height:
+                    start = m
                     for b in range(w):
                         col = col0 + b
                         if 0 <= col < width:
                             keys[m] = sample * np.int64(height * width) + row * width + col
                             values[m] = flux[k, s, a, b]
                             m += 1
+                    if m > start:
+                        runs[n_runs], run_at[n_runs], run_size[n_runs] = keys[start], start - first, m - start
+                        n_runs += 1
             i += 1
-        order = np.argsort(keys[first:m], kind="mergesort")   # stable: a key's additions keep the stamps' order
-        for j in order:
+        # A stamp row's keys rise one by one: where no two rows overlap, the rows ordered by their first keys
+        # give the keys in order, each once, which is the stable sort's order (a few rows to sort, not every key)
+        by_row = np.argsort(runs[:n_runs], kind="mergesort")
+        apart, n = True, 0
+        for r in range(n_runs):
+            rank = by_row[r]
+            if r > 0 and runs[rank] <= runs[by_row[r - 1]] + run_size[by_row[r - 1]] - 1:
+                apart = False
+                break
+            for j in range(run_size[rank]):
+                order[n] = run_at[rank] + j
+                n += 1
+        if apart:
+            ordered = order[:m - first]
+        else:
+            ordered = np.argsort(keys[first:m], kind="mergesort")   # stable: a key's additions keep the stamps' order
+        for j in ordered:
             if u == 0 or keys[first + j] != unique[u - 1]:
                 unique[u] = keys[first + j]
                 u += 1

@@ -80,3 +80,37 @@ def test_compiled_drive_agrees_for_every_sensor_preset(preset):
     np.testing.assert_allclose(rows[:, LOG_A], drive.log_a, rtol=1e-13)
     np.testing.assert_allclose(rows[:, PARA], drive.parasitic_hz, rtol=1e-15)
     np.testing.assert_allclose(rows[:, ACCEPT], drive.shot_p / model.shot_p_max, rtol=1e-14)
+
+
+@pytest.mark.parametrize("spread", [4, 60])           # stamps overlapping often; seldom (rows taken in order)
+def test_summed_stamps_are_the_stable_sort_of_the_stamps_pixels(spread):
+    # each sample's keys in the order of a stable sort of all its stamps' pixels, each key's flux summed from 0 in
+    # the stamps' order, whichever way _summed_stamps orders them; stamps reach past every edge of the sensor
+    from evsda.blocks.pixel.sampling import _summed_stamps
+    rng = np.random.default_rng(3)
+    height, width, n_t, n_s, h, w = 60, 80, 12, 9, 5, 5
+    flux = rng.normal(0.0, 1.0, (n_t, n_s, h, w)) * rng.choice([0.0, 1.0, 1e-300], (n_t, n_s, h, w), p=[0.1, 0.8, 0.1])
+    origin = np.stack([rng.integers(-h, width + 1, (n_t, n_s)), rng.integers(-h, min(height, spread) + 1, (n_t, n_s))],
+                      -1).astype(np.int32)
+    samples = np.arange(n_t, dtype=np.int64)
+    which, stamp = np.nonzero(rng.random((n_t, n_s)) < 0.8)
+    key, summed = _summed_stamps(flux, origin, samples, which.astype(np.int64), stamp.astype(np.int64), height, width)
+    want_key, want_flux = [], []
+    for k in range(n_t):
+        keys, values = [], []
+        for s in stamp[which == k]:
+            for a in range(h):
+                for b in range(w):
+                    row, col = origin[k, s, 1] + a, origin[k, s, 0] + b
+                    if 0 <= row < height and 0 <= col < width:
+                        keys.append(k * height * width + row * width + col)
+                        values.append(flux[k, s, a, b])
+        keys, values = np.array(keys, np.int64), np.array(values)
+        order = np.argsort(keys, kind="stable")
+        for j in order:
+            if not want_key or want_key[-1] != keys[j]:
+                want_key.append(keys[j])
+                want_flux.append(0.0)
+            want_flux[-1] += values[j]
+    np.testing.assert_array_equal(key, want_key)
+    assert np.asarray(want_flux).tobytes() == summed.tobytes()
