@@ -51,6 +51,22 @@ def rows(field_t: np.ndarray, grid: np.ndarray, scratch: np.ndarray) -> None:
           _TWIDDLE_RE, _TWIDDLE_IM)
 
 
+def column_powers(grid: np.ndarray, power: np.ndarray, scratch: np.ndarray) -> None:
+    """``power = |fft(grid, axis=1)|^2`` (``re^2 + im^2`` in float32, as :func:`.render.squared_modulus`) for
+    complex64 ``grid`` (F, 80, 80) whose rows 40: are zero (not read; ``grid`` is left as it is) into float32
+    ``power`` (F, 80, 80); ``scratch``: float32 (4, 6400), this thread's."""
+    _column_powers(grid.view(np.float32).reshape(len(grid), -1), power.reshape(len(power), -1), scratch,
+                   _TWIDDLE_RE, _TWIDDLE_IM)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _column_powers(grid, power, scratch, twr, twi):
+    for f in range(grid.shape[0]):
+        _radix2(grid[f], scratch[0], scratch[1], twr, twi, 80)
+        _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 80)
+        _radix5_powers(scratch[2], scratch[3], power[f])
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _columns(grid, scratch, twr, twi):
     for f in range(grid.shape[0]):
@@ -191,3 +207,32 @@ def _radix5(re, im, grid, w, element_stride, lane_stride):
             bi, br = _S2 * t4r - _S1 * t3r, -(_S2 * t4i - _S1 * t3i)
             grid[2 * ((k + 32) * es + l * ls)], grid[2 * ((k + 32) * es + l * ls) + 1] = ar + br, ai + bi
             grid[2 * ((k + 48) * es + l * ls)], grid[2 * ((k + 48) * es + l * ls) + 1] = ar - br, ai - bi
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _radix5_powers(re, im, power):
+    """:func:`_radix5` for the 80 columns, each output's ``re^2 + im^2`` written to ``power`` (80 x 80 flat)."""
+    w = LENGTH
+    for k in range(16):
+        for l in range(w):
+            t0r, t0i = re[(5 * k) * w + l], im[(5 * k) * w + l]
+            c1r, c1i = re[(5 * k + 1) * w + l], im[(5 * k + 1) * w + l]
+            c2r, c2i = re[(5 * k + 2) * w + l], im[(5 * k + 2) * w + l]
+            c3r, c3i = re[(5 * k + 3) * w + l], im[(5 * k + 3) * w + l]
+            c4r, c4i = re[(5 * k + 4) * w + l], im[(5 * k + 4) * w + l]
+            t1r, t1i, t4r, t4i = c1r + c4r, c1i + c4i, c1r - c4r, c1i - c4i
+            t2r, t2i, t3r, t3i = c2r + c3r, c2i + c3i, c2r - c3r, c2i - c3i
+            yr, yi = (t0r + t1r) + t2r, (t0i + t1i) + t2i
+            power[k * w + l] = yr * yr + yi * yi
+            ar, ai = (t0r + _C1 * t1r) + _C2 * t2r, (t0i + _C1 * t1i) + _C2 * t2i
+            bi, br = _S1 * t4r + _S2 * t3r, -(_S1 * t4i + _S2 * t3i)
+            yr, yi = ar + br, ai + bi
+            power[(k + 16) * w + l] = yr * yr + yi * yi
+            yr, yi = ar - br, ai - bi
+            power[(k + 64) * w + l] = yr * yr + yi * yi
+            ar, ai = (t0r + _C2 * t1r) + _C1 * t2r, (t0i + _C2 * t1i) + _C1 * t2i
+            bi, br = _S2 * t4r - _S1 * t3r, -(_S2 * t4i - _S1 * t3i)
+            yr, yi = ar + br, ai + bi
+            power[(k + 32) * w + l] = yr * yr + yi * yi
+            yr, yi = ar - br, ai - bi
+            power[(k + 48) * w + l] = yr * yr + yi * yi

@@ -207,17 +207,19 @@ class PupilRenderer:
                    rows_done: bool = False) -> None:
         """Stamps ``image`` (F, M, M), up to :meth:`_scale`'s factor, of the tilted pupil fields in
         ``grid[:, :n, :n]`` (F, L, L) (``grid[:, :n, n:]`` and ``grid[:, n:]`` zero), ``F <= STAMP_CHUNK``, through
-        this thread's buffers (:meth:`_workspace`): padded FFT, ``|.|^2`` into ``psf`` (``grid[:, n:]`` zeroed again
-        for the next chunk where a transform reads them), then ``B PSF B^T``; ``rows_done``: ``grid[:, :n]`` already
-        holds the fields' transforms along x (:func:`.column_fft.rows`)."""
+        this thread's buffers (:meth:`_workspace`): padded FFT, ``|.|^2`` into ``psf`` (written by the compiled
+        transforms along y, :func:`.column_fft.column_powers`; else ``grid[:, n:]`` is zeroed again for the next
+        chunk), then ``B PSF B^T``; ``rows_done``: ``grid[:, :n]`` already holds the fields' transforms along x
+        (:func:`.column_fft.rows`)."""
         n, size = self.n, self.padded
         # the zero-padded FFTs in place (the same transforms of the same values, line by line in the same order, as
         # scipy's own padding): along x on the pupil's n rows, then along y, compiled where that gives the same bits
         if not rows_done:
             _fft(grid[:, :n], 2)
         if self._columns:
-            column_fft.columns(grid, self._local.scratch)                # reads rows :L/2 only
-            squared_modulus(grid, psf, n if 2 * n < size else -1)        # (F, L, L), up to delta^4/lambda^2
+            # |.|^2 of the transforms along y straight into psf (F, L, L), up to delta^4/lambda^2: grid keeps the
+            # transforms along x, its rows n: zero (never written) or not read
+            column_fft.column_powers(grid, psf, self._local.scratch)
         else:
             _fft(grid, 1)
             squared_modulus(grid, psf, n)

@@ -276,6 +276,9 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
         grid[:, :40] = scale * (rng.standard_normal((5, 40, 80)) + 1j * rng.standard_normal((5, 40, 80)))
         expected = sfft.fft(grid, axis=1)
         grid[:, 40:] = np.nan                                            # not read
+        power = np.empty((5, 80, 80), np.float32)
+        column_fft.column_powers(grid, power, scratch)
+        np.testing.assert_array_equal(power, expected.real**2 + expected.imag**2)
         column_fft.columns(grid, scratch)
         np.testing.assert_array_equal(grid.view(np.uint64), expected.view(np.uint64))
         field = (scale * (rng.standard_normal((5, 40, 40)) + 1j * rng.standard_normal((5, 40, 40)))).astype(np.complex64)
