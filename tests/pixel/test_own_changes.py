@@ -49,3 +49,13 @@ def test_pixels_under_stamps_are_those_a_sensor_mask_lists(seed):
     np.testing.assert_array_equal(touched, np.flatnonzero(mask))
     np.testing.assert_array_equal(rows, np.searchsorted(np.flatnonzero(mask), pixel))
     assert np.all(slot == -1)                                          # the scratch is left as found
+
+
+def test_sorted_runs_is_numpys_sort():
+    from evsda.blocks.pixel.own_changes import _sorted_runs
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 2, 7, 300, 4001):
+        runs = [np.sort(rng.choice(10**6, n // 3 + 1, replace=False)) for _ in range(3)]
+        for values in (rng.permutation(n), np.concatenate(runs)[:n], rng.integers(0, 9, n), np.arange(n)[::-1]):
+            values = np.ascontiguousarray(values, dtype=np.int64)
+            np.testing.assert_array_equal(_sorted_runs(values), np.sort(values))
