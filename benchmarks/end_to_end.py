@@ -29,6 +29,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -92,17 +93,45 @@ PEAKS_CODE = ("import resource, sys; from evsda.graph.cli import main; status = 
               "sys.exit(status)")
 
 
+def _pss_kb(pid: int) -> int:
+    """Proportional set size of process ``pid`` [kB] (0 where it cannot be read)."""
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            return next((int(line.split()[1]) for line in f if line.startswith("Pss:")), 0)
+    except (OSError, ValueError):
+        return 0
+
+
+def _sample_pss(pid: int, sampled: dict, done: threading.Event) -> None:
+    """The largest sum of the PSS of ``pid`` and its children, every 0.2 s until ``done``, into ``sampled``."""
+    while not done.wait(0.2):
+        try:
+            with open(f"/proc/{pid}/task/{pid}/children") as f:
+                children = [int(c) for c in f.read().split()]
+        except (OSError, ValueError):
+            children = []
+        sampled["pss_kb"] = max(sampled["pss_kb"], _pss_kb(pid) + sum(_pss_kb(c) for c in children))
+
+
 def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH) -> dict:
     """``evsda run`` the benchmark graph (or ``graph``) in a child process (``settings``: more ``--set``
     values): wall, CPU (the child's and its worker process's), peak memory (the sum of the child's peak RSS
-    and its worker's: an upper bound of the two together) and its summary."""
+    and its worker's: an upper bound of the two together; and, where Linux's ``smaps_rollup`` can be read, the
+    largest sum of the two processes' proportional set sizes sampled every 0.2 s, shared pages counted once) and
+    its summary."""
     t = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-c", PEAKS_CODE,
                               "run", str(graph), "-o", str(store), "--overwrite",
                               "--no-progress", "--set", f"run.duration_s={duration}",
                               *(arg for setting in settings for arg in ("--set", setting))],
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    sampled = {"pss_kb": 0}
+    done = threading.Event()
+    sampler = threading.Thread(target=_sample_pss, args=(child.pid, sampled, done), daemon=True)
+    sampler.start()
     text = child.stdout.read()
+    done.set()
+    sampler.join()
     _, status, usage = os.wait4(child.pid, 0)       # this child's CPU (its reaped worker's included) and memory
     child.returncode = os.waitstatus_to_exitcode(status)
     wall = time.perf_counter() - t
@@ -115,6 +144,7 @@ def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH) -> d
     own_kb, worker_kb = (int(peaks.group(1)), int(peaks.group(2))) if peaks else (usage.ru_maxrss, 0)
     return {"wall_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_mb": (own_kb + worker_kb) / 1024,
             "own_peak_mb": own_kb / 1024, "worker_peak_mb": worker_kb / 1024,
+            "pss_peak_mb": sampled["pss_kb"] / 1024 if sampled["pss_kb"] else float("nan"),
             "blocks": blocks,
             "events": int(events.group(1)) if events else 0, "store_mb": float(events.group(2)) if events else 0.0,
             "bytes_per_event": float(events.group(3)) if events and events.group(3) else float("nan")}

@@ -5,7 +5,8 @@ modes, alternately, in fresh processes: ``serial`` (``EVSDA_PIPELINE=0``, one st
 (pipelined, every block in one process: ``EVSDA_WORKERS=0``) and ``worker`` (pipelined, the blocks worth it
 in worker processes of their own: the default). It prints for each the median wall time, CPU time (the
 run's process and its worker together) and peak memory (the sum of the two processes' peaks, an upper
-bound of their peak together), the wall-time speed-ups and the load average around each run. Every store
+bound of their peak together; and the largest sum of their proportional set sizes sampled every 0.2 s, shared
+pages counted once), the wall-time speed-ups and the load average around each run. Every store
 must record the same bytes (checked: a hash of every array). The machine's other load shares the cores,
 so the ratio of the medians is the figure to quote.
 
@@ -61,14 +62,16 @@ def main() -> None:
                 runs[mode].append(run)
                 digests.add(store_digest(store))
                 print(f"  {repeat + 1}. {mode:9s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s  "
-                      f"peak {run['peak_mb']:5.0f} MB ({run['own_peak_mb']:.0f} + worker {run['worker_peak_mb']:.0f})"
+                      f"peak {run['peak_mb']:5.0f} MB ({run['own_peak_mb']:.0f} + worker {run['worker_peak_mb']:.0f}; "
+                      f"PSS together {run['pss_peak_mb']:.0f})"
                       f"  load {run['load']:.2f}", flush=True)
     print(f"\nmedians of {args.repeats} (alternated):")
     for mode, rows in runs.items():
         wall = statistics.median(r["wall_s"] for r in rows)
         print(f"  {mode:9s} wall {wall:6.1f} s = {args.duration / wall:.2f}x real time; "
               f"CPU {statistics.median(r['cpu_s'] for r in rows):.1f} s; "
-              f"peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB (sum of the processes' peaks); "
+              f"peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB (sum of the processes' peaks), "
+              f"{statistics.median(r['pss_peak_mb'] for r in rows):.0f} MB (largest sampled PSS together); "
               f"load {statistics.median(r['load'] for r in rows):.2f}")
     walls = {mode: statistics.median(r["wall_s"] for r in rows) for mode, rows in runs.items()}
     for mode in modes[1:]:

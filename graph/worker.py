@@ -30,7 +30,6 @@ import importlib
 import logging
 import os
 import pickle
-import resource
 import signal
 import socket
 import subprocess
@@ -54,8 +53,9 @@ PARENT_CHECK_S = 0.5
 
 
 #: the fewest windows a run must step for a worker to pay for its start where the choice is automatic: the
-#: worker's start takes ~0.8 s (a fresh interpreter importing the block), and on the tracked pass a worker saves
-#: ~0.05 s a window (docs/speed.md)
+#: worker's start takes ~0.8 s wall and ~0.9 s CPU (measured, docs/speed.md), and on the tracked pass what it can
+#: save a window is at most the shorter of the two halves' steps (~0.12 s of optics, ~0.13 s of the rest a
+#: window): an estimate, from CPU times, of where it breaks even with a margin, not a measured wall time
 MIN_WINDOWS = 16
 
 
@@ -235,9 +235,15 @@ class WorkerBlock:
             if self.local is not None:
                 getattr(self.local, name)(*args)
                 return
-            self.sent.append((name, args))
-            self._send(name, args)
+            if not self.started:
+                self.sent.append((name, args))
             self.pending.append((name, args))
+            try:
+                self._send(name, args)
+            except WorkerDied:
+                if self.started:
+                    raise
+                # it ended while starting: reading its answer to "start" says why, and replays this call here
 
     def _call(self, name: str, *args):
         with self._lock:
@@ -278,7 +284,7 @@ class WorkerBlock:
             kind = message[0]
             if kind == "ok":
                 if name == "start":
-                    self.started = True
+                    self.started, self.sent = True, []   # nothing to replay any more
                 return message[1]
             if kind == "start_failed":
                 self._fall_back(message[1])
@@ -390,6 +396,7 @@ def _serve(conn: Connection) -> None:
         except (EOFError, OSError):
             return
         if op == "close":
+            import resource                     # POSIX only, as the worker is
             usage = resource.getrusage(resource.RUSAGE_SELF)
             with lock:
                 conn.send(("closed", usage.ru_maxrss / 1024, stepping, waiting, usage.ru_utime + usage.ru_stime))

@@ -10,11 +10,12 @@ import signal
 import subprocess
 import sys
 import time
+import types
 from pathlib import Path
 
 import pytest
 
-from evsda.graph import SceneError
+from evsda.graph import ParameterError, SceneError, registry
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import graph_from_dict
 from evsda.graph.store import RunStore
@@ -108,6 +109,19 @@ def test_an_error_in_the_worker_is_the_serial_loops_and_keeps_its_windows(tmp_pa
 
 
 @needs_proc
+def test_a_set_up_error_in_the_worker_comes_first_as_in_the_serial_loop(tmp_path):
+    """Every block is set up before any steps: the worker's set-up error wins over a step's error in window 0."""
+    g = graph(fail_in_setup=True)
+    g["blocks"]["ramp"]["params"]["fail_at_s"] = 0.005
+    for options in ({"pipeline": False}, {"workers": True}):
+        with pytest.raises(ParameterError) as caught:
+            run(tmp_path, "setup", g, **options)
+        assert str(caught.value) == "test_noisy_gain 'gain' cannot be set up"
+        assert not (tmp_path / "setup.zarr").exists()
+    assert not workers_here()
+
+
+@needs_proc
 def test_a_killed_worker_is_one_error_and_the_store_keeps_what_was_committed(tmp_path, monkeypatch):
     monkeypatch.setenv("EVSDA_TEST_DIE_AT_WINDOW", "5")
     with pytest.raises(WorkerDied) as caught:
@@ -152,6 +166,28 @@ def test_a_worker_that_cannot_start_leaves_the_block_here(tmp_path, caplog, monk
     with caplog.at_level(logging.INFO):
         assert store_digest(run(tmp_path, "fallback", graph(), workers=True)) == serial
     assert "test_noisy_gain 'gain' steps in this process: its worker process could not start" in caplog.text
+
+
+@needs_proc
+def test_a_block_a_fresh_interpreter_cannot_import_steps_here(tmp_path, caplog, monkeypatch):
+    """A block class that exists only in this process (no module file): the worker says so, the block runs here."""
+    import evsda_testblocks
+
+    phantom = types.ModuleType("evsda_phantom_blocks")
+    phantom.Gain = type("Gain", (evsda_testblocks.NoisyGain,), {"__module__": "evsda_phantom_blocks",
+                                                                 "type_name": "test_phantom_gain"})
+    monkeypatch.setitem(sys.modules, "evsda_phantom_blocks", phantom)
+    registry.register(phantom.Gain, "test")
+    try:
+        g = graph()
+        g["blocks"]["gain"]["type"] = "test_phantom_gain"
+        serial = store_digest(run(tmp_path, "serial", g, pipeline=False))
+        with caplog.at_level(logging.INFO):
+            assert store_digest(run(tmp_path, "here", g, workers=True)) == serial
+    finally:
+        registry.unregister("test_phantom_gain")
+    assert "steps in this process: its worker process could not start (ModuleNotFoundError" in caplog.text
+    assert not workers_here()
 
 
 @needs_proc

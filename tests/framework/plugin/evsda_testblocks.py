@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from evsda.blocks.ports import Events, FocalPlane, Metrics
-from evsda.graph import Block, BlockParams, Input, Output, PortValue, SceneError, Window
+from evsda.graph import Block, BlockParams, Input, Output, ParameterError, PortValue, SceneError, Window
 
 GEOMETRY = FocalPlane(width_px=32, height_px=16, pixel_pitch_m=5e-6, focal_length_m=1.0)
 
@@ -81,6 +81,7 @@ class NoisyGain(Block):
         gain: float = Field(2.0, description="Gain [1]")
         noise: float = Field(0.5, ge=0, description="Standard deviation of the added noise [1]")
         fail_at_window: int | None = Field(None, description="Raise a SceneError in this window")
+        fail_in_setup: bool = Field(False, description="Raise a ParameterError in setup()")
         sleep_s: float = Field(0.0, ge=0, description="Wall-clock pause per window, to test interruption [s]")
 
     inputs = {"samples": Input(Samples, "signal")}
@@ -90,6 +91,11 @@ class NoisyGain(Block):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.steps = 0
+
+    def setup(self, run) -> None:
+        super().setup(run)
+        if self.params.fail_in_setup:
+            raise ParameterError(f"{self.label} cannot be set up")
 
     def step(self, window: Window, samples: Samples) -> dict:
         time.sleep(self.params.sleep_s)
