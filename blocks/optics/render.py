@@ -249,10 +249,19 @@ def _chunks(frames: int, size: int):
     return (slice(start, min(start + size, frames)) for start in range(0, frames, size))
 
 
-try:                                   # the binding scipy.fft.fft calls (the same transforms), without its dispatch
-    from scipy.fft._pocketfft.pypocketfft import c2c as _c2c
-except ImportError:                    # a scipy without that private module
-    _c2c = None
+@cache
+def _pocketfft_binding():
+    """scipy's own pocketfft binding, the one ``scipy.fft.fft`` calls (the same transforms without its dispatch,
+    ~2 us a PSF), if this scipy has it with the call signature used here and it gives ``scipy.fft.fft``'s bits on a
+    test transform (checked once a process); else None (:func:`_fft` then calls ``scipy.fft.fft``)."""
+    try:                               # a private module: absent, or another signature, in some scipy
+        from scipy.fft._pocketfft.pypocketfft import c2c
+        values = (np.arange(48, dtype=np.float32) * 0.37 - 3.1).view(np.complex64).reshape(2, 12)
+        expected = sfft.fft(values, axis=1)
+        c2c(values, (1,), True, 0, values, 1)
+    except Exception:                  # any failure of a private call: use the public one
+        return None
+    return c2c if np.array_equal(values.view(np.uint64), expected.view(np.uint64)) else None
 
 
 @cache
@@ -263,10 +272,11 @@ def _compiled_columns_agree() -> bool:
 
 def _fft(values: np.ndarray, axis: int) -> None:
     """``values = fft(values, axis=axis)`` in place on this thread (complex, forward, unnormalised)."""
-    if _c2c is None:
+    binding = _pocketfft_binding()
+    if binding is None:
         values[...] = sfft.fft(values, axis=axis, workers=1)
     else:
-        _c2c(values, (axis,), True, 0, values, 1)
+        binding(values, (axis,), True, 0, values, 1)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

@@ -377,3 +377,25 @@ def test_stamp_width_by_bisection_is_the_searchsorted_over_every_radius():
         radius = theta[min(np.searchsorted(enclosed, 1 - tolerance / 2), theta.size - 1)]
         expected = int(np.clip(2 * np.ceil(radius / pixel) + 1, 3, 129))
         assert stamp_width_px(telescope, wavelength, pixel, r0, 25.0, tolerance) == expected
+
+
+def test_pupil_fft_falls_back_to_scipy_without_a_usable_private_binding(monkeypatch):
+    # scipy's private pocketfft binding is used only if it imports, takes the call and gives scipy.fft.fft's bits;
+    # a scipy where it is absent or changed runs the public transform, the same numbers
+    import sys
+
+    import scipy.fft as sfft
+
+    from evsda.blocks.optics import render
+
+    assert render._pocketfft_binding() is not None                  # this scipy has it, with scipy's bits
+    render._pocketfft_binding.cache_clear()
+    monkeypatch.setitem(sys.modules, "scipy.fft._pocketfft.pypocketfft", None)       # the import fails
+    try:
+        assert render._pocketfft_binding() is None
+        values = (np.random.default_rng(3).standard_normal((4, 10, 16)) * (1 + 1j)).astype(np.complex64)
+        expected = sfft.fft(values, axis=1)
+        render._fft(values, 1)
+        np.testing.assert_array_equal(values, expected)
+    finally:
+        render._pocketfft_binding.cache_clear()
