@@ -175,13 +175,6 @@ def next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on,
 
 
 @inline
-def _schedule(r, c, t_change, leak_dt, dt, large):
-    """:func:`next_crossing_known` of the pixel with state rows ``r``, ``c``: ``(step, j, a^j, relaxation)``."""
-    return next_crossing_known(c[STEP], c[READY], r[Y], r[M_], r[L_], r[LOG_A], r[PARA], r[TH_ON], r[TH_OFF],
-                               r[NOISE_SCALE], t_change, leak_dt, dt, large)
-
-
-@inline
 def _schedule_before(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change, last,
                      leak_dt, dt, large):
     """:func:`next_crossing_known` where only a crossing up to step ``last`` can be used: ``LATER`` without the

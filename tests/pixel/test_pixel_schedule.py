@@ -15,7 +15,8 @@ import pytest
 
 from evsda.blocks.pixel import DvsPixel, crossing
 from evsda.blocks.pixel.crossing import NEVER
-from evsda.blocks.pixel.pixel_loop import CMP_NEXT, LATER, _schedule
+from evsda.blocks.pixel.pixel_loop import (CMP_NEXT, L_, LATER, LOG_A, M_, NOISE_SCALE, PARA, READY, STEP, TH_OFF,
+                                           TH_ON, Y, next_crossing_known)
 from evsda.graph import RunInfo, Window
 
 WINDOW_S, WINDOWS = 0.02, 4
@@ -36,7 +37,9 @@ def test_stored_schedule_is_the_search_from_each_pixels_state(scenes, form):
     assert n_events > 100                                   # the streak and the noise fire: schedules were used
     real, count = block.pixels["real"], block.pixels["count"]
     leak_hz, dt, large = block._engine._constants[:3]
-    searched = np.array([_schedule(real[p], count[p].copy(), NEVER, leak_hz * dt, dt, large)[0]
+    searched = np.array([next_crossing_known(count[p, STEP], count[p, READY], real[p, Y], real[p, M_], real[p, L_],
+                                             real[p, LOG_A], real[p, PARA], real[p, TH_ON], real[p, TH_OFF],
+                                             real[p, NOISE_SCALE], NEVER, leak_hz * dt, dt, large)[0]
                          for p in range(count.shape[0])])
     assert not np.any(count[:, CMP_NEXT] == LATER)
     np.testing.assert_array_equal(count[:, CMP_NEXT], searched)
