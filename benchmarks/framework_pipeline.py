@@ -2,8 +2,8 @@
 
 Runs a graph (default: the tracked LEO pass of benchmarks/end_to_end.yaml) with ``evsda run`` in three
 modes, alternately, in fresh processes: ``serial`` (``EVSDA_PIPELINE=0``, one step at a time), ``threads``
-(pipelined, every block in one process: ``EVSDA_WORKERS=0``) and ``worker`` (pipelined, the blocks worth it
-in worker processes of their own: the default). It prints for each the median wall time, CPU time (the
+(pipelined, every block in one process: ``EVSDA_WORKERS=0``, the default) and ``worker`` (pipelined, the
+blocks worth it in worker processes of their own where that may pay: ``EVSDA_WORKERS=auto``). It prints for each the median wall time, CPU time (the
 run's process and its worker together) and peak memory (the sum of the two processes' peaks, an upper
 bound of their peak together; and the largest sum of their proportional set sizes sampled every 0.2 s, shared
 pages counted once), the wall-time speed-ups and the load average around each run. Every store

@@ -216,8 +216,8 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
                         "(default: on, unless EVSDA_PIPELINE=0)")
     p.add_argument("--workers", action=argparse.BooleanOptionalAction, default=None,
                    help="step the blocks worth it (the optics) in worker processes of their own in a pipelined run, "
-                        "recording the same bytes (default: where that pays, several cores and 16 windows or more; "
-                        "EVSDA_WORKERS=auto, 1 or 0)")
+                        "recording the same bytes (default: off, unless EVSDA_WORKERS=1, or auto: where it may pay, "
+                        "several cores and 16 windows or more)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
     p.add_argument("--json", action="store_true",

@@ -10,10 +10,10 @@
 * Windows are pipelined by default: a block steps over window k + 1 while the blocks downstream of it are
   still on window k (:mod:`evsda.graph.executor_pipeline`); the store records the same bytes as one step at a
   time (``pipeline=False``, ``--no-pipeline``, ``EVSDA_PIPELINE=0``).
-* A pipelined run steps each block that is worth it (``Block.worth_a_process``) in a worker process of its own
-  where that pays (several cores, enough windows: :mod:`evsda.graph.worker`), beside the others with no
-  interpreter lock shared; the same bytes again (``workers=False``, ``--no-workers``, ``EVSDA_WORKERS=0`` keep
-  every block in this process; ``True``, ``--workers``, ``1`` use workers wherever a block is worth one).
+* A pipelined run may step each block that is worth it (``Block.worth_a_process``) in a worker process of its
+  own (:mod:`evsda.graph.worker`), beside the others with no interpreter lock shared; the same bytes again. Off
+  by default (``workers="auto"``, ``EVSDA_WORKERS=auto``: where
+  it pays; ``True``, ``--workers``, ``1``: wherever a block is worth one).
 """
 
 from __future__ import annotations
@@ -580,7 +580,7 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``pipeline`` (step blocks of successive windows concurrently, recording the same bytes; default:
     ``EVSDA_PIPELINE``, on unless it is ``0``; see :mod:`evsda.graph.executor_pipeline`).
     ``workers`` (step the blocks worth it in worker processes of their own in a pipelined run: ``"auto"`` where
-    that pays, True wherever, False never; default: ``EVSDA_WORKERS``, ``auto``, ``1`` or ``0``; see
+    that pays, True wherever, False never; default: ``EVSDA_WORKERS``, ``0`` (the default), ``auto`` or ``1``; see
     :mod:`evsda.graph.worker`).
     BLAS libraries run one thread while it runs, threads share few malloc arenas, and freed memory is kept for
     reuse (see :mod:`evsda.graph.threads`).

@@ -61,13 +61,14 @@ MIN_WINDOWS = 16
 
 def workers_choice(choice: bool | str | None = None) -> str:
     """``"auto"``, ``"on"`` or ``"off"``: from ``choice`` (True, False, ``"auto"``) if given, else from
-    ``EVSDA_WORKERS`` (``auto``, the default; ``1``; ``0``)."""
+    ``EVSDA_WORKERS`` (``0``, the default; ``auto``; ``1``). Off by default: on this session's loaded 2-core
+    machine a worker showed no wall-time gain (docs/speed.md), and it costs CPU and memory."""
     if choice is not None and choice != "auto":
         return "on" if choice else "off"
-    text = "auto" if choice == "auto" else os.environ.get("EVSDA_WORKERS", "auto").strip()
+    text = "auto" if choice == "auto" else os.environ.get("EVSDA_WORKERS", "0").strip()
     if text not in ("auto", "0", "1"):
-        raise UserError(f"EVSDA_WORKERS must be auto (blocks worth it step in worker processes where that pays, "
-                        f"the default), 1 (wherever a block is worth it) or 0 (every block in the run's process), "
+        raise UserError(f"EVSDA_WORKERS must be 0 (every block in the run's process, the default), auto (blocks "
+                        f"worth it step in worker processes where that pays) or 1 (wherever a block is worth it), "
                         f"got {text!r}")
     return {"auto": "auto", "1": "on", "0": "off"}[text]
 

@@ -137,18 +137,20 @@ def test_a_killed_worker_is_one_error_and_the_store_keeps_what_was_committed(tmp
     assert store_digest(out) == store_digest(run(tmp_path, "serial", graph(), pipeline=False))
 
 
-def test_where_a_worker_pays_by_default(tmp_path, caplog, monkeypatch):
-    """A worker by default on two cores or more, for 16 windows or more; never with --no-pipeline or --no-workers."""
+def test_where_a_worker_may_pay(tmp_path, caplog, monkeypatch):
+    """Workers are off by default; EVSDA_WORKERS=auto takes one on two cores or more, for 16 windows or more; never
+    with --no-pipeline."""
     serial = store_digest(run(tmp_path, "serial", graph(windows=16), pipeline=False))
     caplog.clear()
-    monkeypatch.setenv("EVSDA_THREADS", "1")
+    monkeypatch.delenv("EVSDA_WORKERS", raising=False)
     with caplog.at_level(logging.INFO):
+        run(tmp_path, "default", graph(windows=16))
+        monkeypatch.setenv("EVSDA_WORKERS", "auto")
+        monkeypatch.setenv("EVSDA_THREADS", "1")
         assert store_digest(run(tmp_path, "one-core", graph(windows=16))) == serial
         monkeypatch.delenv("EVSDA_THREADS")
         run(tmp_path, "short", graph(windows=15))
         run(tmp_path, "not-pipelined", graph(windows=16), pipeline=False, workers=True)
-        monkeypatch.setenv("EVSDA_WORKERS", "0")
-        run(tmp_path, "off", graph(windows=16))
     assert "worker process" not in caplog.text
     assert all(str(os.getpid()) in r.getMessage() for r in caplog.records if r.name == "evsda_testblocks")
     if workers_pay(16):
@@ -198,7 +200,7 @@ def test_ctrl_c_stops_the_run_and_its_worker(tmp_path, plugin_dir):
     g.write_text(yaml.safe_dump(graph(windows=200, sleep_s=0.02)))
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(plugin_dir), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen([sys.executable, "-m", "evsda.graph.cli", "run", str(g), "-o", str(tmp_path / "r.zarr"),
-                             "-q", "--checkpoint-every", "0"], env=env, stderr=subprocess.PIPE, text=True,
+                             "-q", "--checkpoint-every", "0", "--workers"], env=env, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     deadline = time.monotonic() + 30
     while _committed(tmp_path / "r.zarr") < 2 and time.monotonic() < deadline:
