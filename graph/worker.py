@@ -61,8 +61,9 @@ MIN_WINDOWS = 16
 
 def workers_choice(choice: bool | str | None = None) -> str:
     """``"auto"``, ``"on"`` or ``"off"``: from ``choice`` (True, False, ``"auto"``) if given, else from
-    ``EVSDA_WORKERS`` (``0``, the default; ``auto``; ``1``). Off by default: on this session's loaded 2-core
-    machine a worker showed no wall-time gain (docs/speed.md), and it costs CPU and memory."""
+    ``EVSDA_WORKERS`` (``0``, the default; ``auto``; ``1``). Off by default: on the tracked pass a worker for
+    the optics showed no wall-time gain (12.4 against 12.0 s on a quiet 2-core machine, docs/speed.md), and it
+    costs CPU and memory."""
     if choice is not None and choice != "auto":
         return "on" if choice else "off"
     text = "auto" if choice == "auto" else os.environ.get("EVSDA_WORKERS", "0").strip()
