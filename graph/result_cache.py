@@ -84,12 +84,11 @@ def environment(libraries: tuple[str, ...]) -> dict:
             versions[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
             versions[name] = None
-    cpu = platform.processor()
     try:
         import llvmlite.binding as llvm
         cpu = f"{llvm.get_host_cpu_name()} {llvm.get_host_cpu_features().flatten()}"
-    except Exception:           # not installed, or no LLVM target here: the platform's name only
-        pass
+    except Exception:           # not installed, or no LLVM target here: the platform's name only (on Linux a
+        cpu = platform.processor()                       # `uname -p` subprocess, hence only here)
     return {"python": sys.version, "machine": platform.machine(), "libraries": versions, "cpu": cpu}
 
 
