@@ -43,7 +43,7 @@ from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
 from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
-from .worker import WorkerBlock, WorkerDied, worker_threads, workers_choice, workers_pay
+from .worker import WorkerBlock, WorkerDied, threads_per_worker, workers_choice, workers_pay
 
 STORE = "(store)"           # the timing entry of the run store's writes
 log = logging.getLogger("evsda.executor")
@@ -324,7 +324,7 @@ class Executor:
                                                                        and not workers_pay(windows)):
             return
         for name in names:
-            self.stepper[name] = WorkerBlock(self.blocks[name], threads=worker_threads())
+            self.stepper[name] = WorkerBlock(self.blocks[name], threads=threads_per_worker())
             if self.stepper[name].in_worker:
                 log.info("%s steps in a worker process (pid %d)", self.blocks[name].label,
                          self.stepper[name].process.pid)

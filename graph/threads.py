@@ -34,6 +34,20 @@ from threadpoolctl import threadpool_limits
 from .errors import UserError
 
 
+def usable_cores() -> int:
+    """The threads a run's blocks may use: ``EVSDA_THREADS`` if set (sweep workers set it to share the cores), else
+    every core this process may run on."""
+    value = os.environ.get("EVSDA_THREADS", "").strip()
+    if value:
+        if not value.isdigit():
+            raise ValueError(f"EVSDA_THREADS must be a whole number of threads, got {value!r}")
+        return max(1, int(value))
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:                 # no affinity masks (macOS, Windows)
+        return os.cpu_count() or 1
+
+
 def blas_threads() -> int:
     """The BLAS thread limit: ``EVSDA_BLAS_THREADS`` (default 1)."""
     text = os.environ.get("EVSDA_BLAS_THREADS", "1")

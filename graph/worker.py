@@ -43,6 +43,7 @@ from typing import Any
 
 from .block import Block
 from .errors import UserError
+from .threads import usable_cores
 
 log = logging.getLogger("evsda.worker")
 
@@ -74,19 +75,7 @@ def workers_choice(choice: bool | str | None = None) -> str:
     return {"auto": "auto", "1": "on", "0": "off"}[text]
 
 
-def usable_cores() -> int:
-    """The cores a run may use: ``EVSDA_THREADS`` where set (sweep points share the cores so), else the CPUs
-    this process may run on."""
-    text = os.environ.get("EVSDA_THREADS", "").strip()
-    if text.isdigit():
-        return max(1, int(text))
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:                  # no affinity masks (macOS, Windows)
-        return os.cpu_count() or 1
-
-
-def worker_threads() -> int:
+def threads_per_worker() -> int:
     """The threads (``EVSDA_THREADS``) a worker's block may use: half the cores, at least one. The run's own
     steps count a worker's step as one running beside them and yield a helper thread to it
     (:func:`.threads.running_step`), so on two cores each process keeps one busy."""
