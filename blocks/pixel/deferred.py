@@ -33,8 +33,8 @@ import numpy as np
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
-from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA, STEP,
-                         TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, advanced, quiet_until, relaxed_by,
+from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA,
+                         STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, advanced, quiet_until, relaxed_by,
                          run_pixels)
 
 
@@ -161,7 +161,7 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
                      large)
     return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
                       change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
-                      th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0)
+                      th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0, _LAZY)
 
 
 # fields of the pixels swept together by take_quietly (rows of its table)

@@ -35,7 +35,7 @@ from .crossing import J_LIMIT, NEVER, first_crossing_one, power, search_crossing
 from .comparator import TOLERANCE
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_into, drive_log, drive_rest
 from .pixel_loop import (ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY,
-                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _prefetch, _settle_step, relaxed_by, run_pixels)
+                         SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _EXACT, _prefetch, _settle_step, relaxed_by, run_pixels)
 
 TILE = 128                   # pixels swept together (64: ~5 % more CPU, 256: the same)
 _SOLVE = np.int64(-1)        # "crossing to be solved" mark in the sweep
@@ -275,7 +275,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                                                         changes, _ONE, change_step, change_input, n_end, leak_hz, dt,
                                                         large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
                                                         th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
-                                                        n_events, lost)
+                                                        n_events, lost, _EXACT)
                     done = n_done == 1
                     if not done:
                         break
@@ -304,7 +304,8 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                 n_events, n_done, lost = run_pixels(real, count, unkept, unkept, no_envelope, one_pixel, no_change,
                                                     changes, NEVER, change_step, change_input, n_end, leak_hz, dt,
                                                     large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
-                                                    th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost)
+                                                    th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost,
+                                                    _EXACT)
                 done = n_done == 1
                 if not done:
                     break

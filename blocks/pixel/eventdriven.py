@@ -37,7 +37,7 @@ from .deferred import SharedChanges, select_pixels, take_and_run
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
 from .own_changes import own_changes, under_stamps
-from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, start_pixels
+from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, resolve_schedules, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
@@ -223,6 +223,7 @@ class EventDrivenPixels:
         """
         s = self.s
         self.take_pending()                                   # background changes left out before
+        resolve_schedules(s["real"], s["count"], s["next"], *self._constants[:3])    # the searches, as it reads them
         background = np.ascontiguousarray(background, dtype=float)
         steps = np.ascontiguousarray(steps, dtype=np.int64)
         off_background = np.zeros(height * width, np.uint8)

@@ -52,6 +52,7 @@ GAP, ACCEPT_STREAM, THRESHOLD = np.int64(1), np.int64(2), np.int64(3)    # count
 #                                                  one compile of the generator serves all three)
 LATER = NEVER + np.int64(1)                      # "no comparator event before the pixel's next change or event"
 SOON = -NEVER                                    # "no window's end shown quiet": the bound is checked in full
+_LAZY, _EXACT = np.bool_(True), np.bool_(False)  # run_pixels may keep a bound as a schedule (typed bool, not literals)
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
 _AHEAD = 8                                       # pixels whose state rows are fetched ahead of their turn
@@ -323,10 +324,53 @@ def quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, 
     return step + 1 + steps
 
 
+@jit
+def kept_schedule(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, leak_dt, dt, large):
+    """The comparator schedule a pixel keeps at the end of its turn, with no input change ahead: the search's
+    crossing (:func:`next_crossing_known`, no horizon), or where :func:`quiet_until` bounds it, that bound
+    ``R`` kept instead as ``-2 - R`` (:func:`schedule_bound`), the search left for when it can be used.
+
+    At the pixel's next turn its state is the one the bound was taken at until its first input change
+    (:mod:`.deferred`: changes taken quietly all lie before ``R``), so the search made then, only where
+    the crossing could come before anything else, gives the crossing the search here would have
+    (:func:`run_pixels`); until then ``R`` is the pixel's next comparator step for the choice of pixels.
+    Most turns end with the crossing seconds ahead (leak), past the next background change, after which it
+    is searched again: the search is most of a noise event's cost.
+    """
+    bound = quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, -np.inf, np.inf, 0.0,
+                        leak_dt, dt)
+    if bound != SOON:
+        return -2 - bound
+    return next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, NEVER,
+                               leak_dt, dt, large)[0]
+
+
+@inline
+def schedule_bound(cmp_next):
+    """The earliest step a kept schedule (:func:`kept_schedule`) allows the comparator's next event at."""
+    return cmp_next if cmp_next >= 0 else -2 - cmp_next
+
+
+@jit
+def resolve_schedules(real, count, next_step, leak_hz, dt, large):
+    """Every pixel's kept schedule made the search's crossing (:func:`kept_schedule`), and ``next_step`` with it:
+    for the dense path, which reads them as such (:mod:`.dense_loop`)."""
+    leak_dt = leak_hz * dt
+    for pixel in range(count.shape[0]):
+        if count[pixel, CMP_NEXT] < 0:
+            cmp_next = next_crossing_known(count[pixel, STEP], count[pixel, READY], real[pixel, Y], real[pixel, M_],
+                                           real[pixel, L_], real[pixel, LOG_A], real[pixel, PARA], real[pixel, TH_ON],
+                                           real[pixel, TH_OFF], real[pixel, NOISE_SCALE], NEVER, leak_dt, dt,
+                                           large)[0]
+            count[pixel, CMP_NEXT] = cmp_next
+            next_step[pixel] = min(cmp_next, count[pixel, SHOT_NEXT], _settle_step(count[pixel, READY],
+                                                                                    count[pixel, OWED]))
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, stop_after, change_step,
                change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
-               th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost):
+               th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost, lazy):
     """Every event before step ``n_end`` of each of ``pixels``, one after the other, pixel ``pixels[i]`` through
     its input changes ``change_lo[i]:change_hi[i]``: from ``change_step[k]`` on its input is row ``k`` of
     ``change_input`` (columns ``FLUX`` and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many
@@ -340,6 +384,10 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
     buffers from position ``n_events``; ``lost`` accumulates the events lost. Returns ``(events
     written, pixels done, lost)``: it stops before a pixel whose events would overflow the buffers,
     that pixel untouched.
+
+    ``lazy``: a pixel with no input change left keeps a bound as its comparator schedule where one is shown
+    (:func:`kept_schedule`; ``next_step`` holds the bound), and the search is made at the turn at which the
+    crossing could be used; else (and where ``stop_after`` stops the pixel) the search's crossing is kept.
 
     A pixel's state is read into local variables at its turn and written back at its end: no array is
     passed through a call in the loops (Numba counts an array's references up and down at each, atomically:
@@ -365,6 +413,13 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         stop = ptr + stop_after
         t_change = change_step[ptr] if ptr < end else NEVER
         j_known, known, relaxed = NO_STEP, 0.0, 0.0          # what its schedule's bound took (none: from the state)
+        if cmp_next < 0:                # a kept bound: the search, where the crossing could come first (the state
+            # is still the one the bound was taken at: kept_schedule); elsewhere none comes before what does
+            if -2 - cmp_next <= min(t_change - 1, n_end - 1, shot_next, _settle_step(ready, owed)):
+                cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
+                                               noise_scale, NEVER, leak_dt, dt, large)[0]
+            else:
+                cmp_next = LATER
         while True:
             t_settle = _settle_step(ready, owed)
             t_event = min(cmp_next, shot_next, t_settle)
@@ -425,14 +480,25 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
                 ptr += 1
                 t_change = change_step[ptr] if ptr < end else NEVER
             last = min(t_change - 1, n_end - 1, shot_next, _settle_step(ready, owed))
-            cmp_next, j_known, known, relaxed = _schedule_before(step, ready, y, memorised, filtered, log_a, para,
-                                                                 th_on, th_off, noise_scale, t_change, last, leak_dt,
-                                                                 dt, large)
+            if lazy and t_change >= NEVER and last == n_end - 1:      # nothing else before the window's end
+                cmp_next, j_known = LATER, NO_STEP                    # kept_schedule at the turn's end, or now:
+                if not quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, -np.inf, np.inf,
+                                   0.0, leak_dt, dt) >= n_end:
+                    cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
+                                                   noise_scale, NEVER, leak_dt, dt, large)[0]
+            else:
+                cmp_next, j_known, known, relaxed = _schedule_before(step, ready, y, memorised, filtered, log_a,
+                                                                     para, th_on, th_off, noise_scale, t_change,
+                                                                     last, leak_dt, dt, large)
             if ptr == stop:
                 break
-        if cmp_next == LATER:           # the stored schedule is the search's (the pixel's next turn starts from it)
-            cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
-                                           noise_scale, t_change, leak_dt, dt, large)[0]
+        if cmp_next == LATER:           # the stored schedule is the search's or a bound of it (kept_schedule)
+            if lazy and t_change >= NEVER:
+                cmp_next = kept_schedule(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
+                                         leak_dt, dt, large)
+            else:
+                cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
+                                               noise_scale, t_change, leak_dt, dt, large)[0]
         real[pixel, FLUX], real[pixel, L_], real[pixel, M_] = flux, filtered, memorised
         real[pixel, TH_ON], real[pixel, TH_OFF] = th_on, th_off
         real[pixel, C_LEAK], real[pixel, C_PARA] = c_leak, c_para
@@ -441,7 +507,7 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         count[pixel, SHOT_COUNT], count[pixel, CMP_NEXT] = shot_count, cmp_next
         count[pixel, EVENT_COUNT], count[pixel, OWED] = event_count, owed
         if next_step.size:
-            next_step[pixel] = min(cmp_next, shot_next, _settle_step(ready, owed))
+            next_step[pixel] = min(schedule_bound(cmp_next), shot_next, _settle_step(ready, owed))
             if wake.size:
                 wake[pixel] = min(next_step[pixel], quiet_until(filtered, y, memorised, th_on, th_off, noise_scale,
                                                                 para, step, envelope[0], envelope[1], envelope[2],

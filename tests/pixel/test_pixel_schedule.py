@@ -1,11 +1,12 @@
-"""The comparator schedule a pixel keeps between calls is the crossing search's, not a bound's; the
-search's shortcut for a settled filter changes no bit.
+"""The comparator schedule a pixel keeps between calls is the crossing search's, or a bound of it that
+the search replaces where it is read; the search's shortcut for a settled filter changes no bit.
 
-``run_pixel`` searches for a pixel's next comparator crossing only where the result can be used before
+``run_pixels`` searches for a pixel's next comparator crossing only where the result can be used before
 the pixel's next input change, shot-noise trial or the window's end (``pixel_loop._schedule_before``:
 elsewhere a bound shows no crossing). The step it stores (``CMP_NEXT``), which the next window, the
-deferral's choice of pixels, the dense path and checkpoints read, must still be the full search from
-the pixel's state, for every pixel.
+deferral's choice of pixels, the dense path and checkpoints read, must be the full search from the
+pixel's state, or a bound ``R`` of it kept as ``-2 - R`` (``pixel_loop.kept_schedule``) that is never
+after the search's step and that ``resolve_schedules`` (before the dense path) makes the search's.
 """
 
 from __future__ import annotations
@@ -15,15 +16,15 @@ import pytest
 
 from evsda.blocks.pixel import DvsPixel, crossing
 from evsda.blocks.pixel.crossing import NEVER
-from evsda.blocks.pixel.pixel_loop import (CMP_NEXT, L_, LATER, LOG_A, M_, NOISE_SCALE, PARA, READY, STEP, TH_OFF,
-                                           TH_ON, Y, next_crossing_known)
+from evsda.blocks.pixel.pixel_loop import (CMP_NEXT, L_, LATER, LOG_A, M_, NOISE_SCALE, OWED, PARA, READY, SHOT_NEXT,
+                                           STEP, TH_OFF, TH_ON, Y, next_crossing_known, resolve_schedules)
 from evsda.graph import RunInfo, Window
 
 WINDOW_S, WINDOWS = 0.02, 4
 
 
 @pytest.mark.parametrize("form", ["small_signal", "large_signal"])
-def test_stored_schedule_is_the_search_from_each_pixels_state(scenes, form):
+def test_stored_schedule_is_the_search_from_each_pixels_state_or_a_bound_of_it(scenes, form):
     fp = scenes.focal_plane(40, 12)
     block = DvsPixel(seed=5, leak_rate_hz=20.0, shot_noise_rate_hz=20.0, lowpass_form=form)
     block.setup(RunInfo(duration_ns=round(WINDOWS * WINDOW_S * 1e9)))
@@ -41,8 +42,18 @@ def test_stored_schedule_is_the_search_from_each_pixels_state(scenes, form):
                                              real[p, LOG_A], real[p, PARA], real[p, TH_ON], real[p, TH_OFF],
                                              real[p, NOISE_SCALE], NEVER, leak_hz * dt, dt, large)[0]
                          for p in range(count.shape[0])])
-    assert not np.any(count[:, CMP_NEXT] == LATER)
+    kept = count[:, CMP_NEXT]
+    assert not np.any(kept == LATER)
+    bound = kept < 0
+    assert 0 < bound.sum() < bound.size                     # both kinds kept
+    np.testing.assert_array_equal(kept[~bound], searched[~bound])
+    assert np.all(-2 - kept[bound] <= searched[bound])      # a bound: never after the crossing
+    assert np.all(-2 - kept[bound] > count[bound, STEP])
+    next_step = block.pixels["next"]
+    resolve_schedules(real, count, next_step, leak_hz, dt, large)
     np.testing.assert_array_equal(count[:, CMP_NEXT], searched)
+    settle = np.where(count[:, OWED] != 0, count[:, READY], NEVER)
+    np.testing.assert_array_equal(next_step, np.minimum(np.minimum(searched, count[:, SHOT_NEXT]), settle))
 
 
 def test_settled_filter_shortcut_gives_the_comparator_input_bit_for_bit():
