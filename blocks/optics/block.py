@@ -229,89 +229,95 @@ class PointSourceOptics(Block):
 
     def _held_samples(self, key: str, src: PointSources, t_ns: np.ndarray) -> dict[str, np.ndarray]:
         """Sample-and-hold the input at the render times, carrying the last sample across windows."""
-        n_src = src.n_sources
+        n_src, n_t = src.n_sources, len(src.t_ns)
         held = self.held.get(key)
         fields = {"x": src.x_px, "y": src.y_px, "flux": src.photon_flux, "range": src.range_m,
                   "magnitude": src.magnitude,
-                  "zenith": np.broadcast_to(np.asarray(src.zenith_angle_rad, dtype=float)[:, None],
-                                            (len(src.t_ns), n_src)),
+                  "zenith": np.broadcast_to(np.asarray(src.zenith_angle_rad, dtype=float)[:, None], (n_t, n_src)),
                   **{name: np.broadcast_to(np.asarray(np.nan if values is None else values, dtype=float)[..., None],
-                                           (len(src.t_ns), n_src))
+                                           (n_t, n_src))
                      for name, values in (("azimuth", src.boresight_azimuth_rad),
                                           ("rotation", src.field_rotation_rad))},
-                  "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (len(src.t_ns), n_src))}
-        fields["rate"] = self._rates(fields, held, n_src, self._apparent_distance)
-        fields["sky_rate"] = self._rates(fields, held, n_src, self._sky_distance(src.focal_plane))
+                  "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (n_t, n_src))}
+        fields = {name: np.asarray(values, dtype=float).reshape(n_t, n_src) for name, values in fields.items()}
+        fields["rate"], fields["sky_rate"] = self._rates(fields, held, n_src, self._sky_distance(src.focal_plane))
         index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
+        before = index < 0
+        # where a render time comes before the window's first input sample: the held sample (when it fits)
+        carried = {name: np.asarray(held[name], dtype=float) for name in fields
+                   if held is not None and name in held and np.asarray(held[name]).shape == (n_src,)} \
+            if before.any() else {}
         out = {}
         for name, values in fields.items():
-            values = np.asarray(values, dtype=float).reshape(len(src.t_ns), n_src)
-            if len(src.t_ns):
-                sampled = values[np.clip(index, 0, None)]
-            else:
-                sampled = np.full((len(t_ns), n_src), np.nan)
-            before = index < 0
-            if before.any():
-                if held is not None and name in held and np.asarray(held[name]).shape == (n_src,):
-                    sampled[before] = np.asarray(held[name], dtype=float)
-                elif not len(src.t_ns):
-                    sampled[before] = np.nan
+            sampled = values[np.clip(index, 0, None)] if n_t else np.full((len(t_ns), n_src), np.nan)
+            if name in carried:
+                sampled[before] = carried[name]
             out[name] = sampled
-        if len(src.t_ns):
-            self.held[key] = {name: np.asarray(values, dtype=float).reshape(len(src.t_ns), n_src)[-1].copy()
-                              for name, values in fields.items()}
+        if n_t:
+            self.held[key] = {name: values[-1].copy() for name, values in fields.items()}
         return out
 
     @staticmethod
-    def _rates(fields: dict, held: dict | None, n_src: int, distance) -> np.ndarray:
-        """A rate [pixel/s] at each input sample: ``distance(before, after)`` [pixel] from the sample before (the held
-        one at a window's start), each a dict of (samples, sources) arrays, over the time between them; a track's
-        first sample takes the slowest rate of the input's other sources, NaN (still) where none has one (the run's
-        first sample): a rate to the next sample would depend on whether the window holds it."""
+    def _rates(fields: dict, held: dict | None, n_src: int, sky_distance) -> tuple[np.ndarray, np.ndarray]:
+        """The apparent rate and the line of sight's rate [pixel/s] at each input sample (n_t, sources): the distance
+        [pixel] from the sample before (the held one at a window's start) over the time between them, on the
+        detector (:meth:`_apparent_distance`) and in the ground frame (``sky_distance``, :meth:`_sky_distance`);
+        a track's first sample takes the slowest rate of the input's other sources, NaN (still) where none has one
+        (the run's first sample): a rate to the next sample would depend on whether the window holds it.
+        Computed for the tracks on the detector at one of these samples only (a star field lists every star of the
+        run, ~20 of 180 in view in the tracked pass); NaN for the others, as their positions give."""
         n_t = len(fields["t"])
+        rates = (np.full((n_t, n_src), np.nan), np.full((n_t, n_src), np.nan))
         if not n_t or not n_src:
-            return np.full((n_t, n_src), np.nan)
+            return rates
         names = ("x", "y", "t", "zenith", "azimuth", "rotation")
         both = {}
         for n in names:
-            values = np.asarray(fields[n], dtype=float).reshape(n_t, n_src)
             before = np.asarray(held[n], dtype=float)[None] if held is not None and n in held \
                 and np.asarray(held[n]).shape == (n_src,) else np.full((1, n_src), np.nan)
-            both[n] = np.concatenate([before, values])
-        x, t = both["x"], both["t"]
+            both[n] = np.concatenate([before, fields[n]])
+        live = np.flatnonzero(np.isfinite(both["x"]).any(axis=0))
+        if not live.size:
+            return rates
+        both = {n: v[:, live] for n, v in both.items()}
+        x = both["x"]
         with np.errstate(invalid="ignore", divide="ignore"):
-            rate = distance({n: v[:-1] for n, v in both.items()}, {n: v[1:] for n, v in both.items()}) \
-                / (np.diff(t, axis=0) * 1e-9)
-        # a track's first sample: the slowest rate of the input's other sources then (a star field moves as one)
-        first = np.isnan(rate) & np.isfinite(x[1:])
-        if first.any():
-            slowest = np.where(np.isnan(rate), np.inf, rate).min(axis=1, initial=np.inf)
-            rate = np.where(first, np.where(np.isfinite(slowest), slowest, np.nan)[:, None], rate)
-        return rate
+            seconds = np.diff(both["t"], axis=0) * 1e-9
+            apparent = PointSourceOptics._apparent_distance(both)
+            for out, distance in zip(rates, (apparent, sky_distance(both, apparent))):
+                rate = distance / seconds
+                # a track's first sample: the slowest rate of the input's other sources then (a star field moves
+                # as one)
+                first = np.isnan(rate) & np.isfinite(x[1:])
+                if first.any():
+                    slowest = np.where(np.isnan(rate), np.inf, rate).min(axis=1, initial=np.inf)
+                    rate = np.where(first, np.where(np.isfinite(slowest), slowest, np.nan)[:, None], rate)
+                out[:, live] = rate
+        return rates
 
     @staticmethod
-    def _apparent_distance(before: dict, after: dict) -> np.ndarray:
-        """How far a source moved on the detector [pixel]."""
-        return np.hypot(after["x"] - before["x"], after["y"] - before["y"])
+    def _apparent_distance(both: dict) -> np.ndarray:
+        """How far a source moved on the detector between consecutive samples of ``both`` (n + 1, sources) [pixel]."""
+        return np.hypot(np.diff(both["x"], axis=0), np.diff(both["y"], axis=0))
 
     @staticmethod
     def _sky_distance(focal_plane: FocalPlane):
-        """How far a source's line of sight turned in the ground frame (azimuth/elevation), in pixels at the
-        boresight [pixel] (:func:`.line_of_sight`; the chord ``2 asin(|u1 - u2| / 2)`` keeps a sidereal step of
-        1e-7 rad exact); where the boresight's azimuth is unknown, the distance on the detector (a stare)."""
+        """How far a source's line of sight turned in the ground frame (azimuth/elevation) between consecutive samples
+        of ``both`` (n + 1, sources), in pixels at the boresight [pixel] (:func:`.line_of_sight`; the chord
+        ``2 asin(|u1 - u2| / 2)`` keeps a sidereal step of 1e-7 rad exact); where the boresight's azimuth is unknown,
+        the distance on the detector (a stare, ``apparent``)."""
         centre = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])
         scale = focal_plane.pixel_scale_rad
 
-        def distance(before: dict, after: dict) -> np.ndarray:
-            units = []
-            for d in (before, after):
-                theta = (np.stack([d["x"], d["y"]], axis=-1) - centre) * scale
-                u = np.stack(line_of_sight(theta, d["zenith"], d["azimuth"], d["rotation"]), axis=-1)
-                units.append(u / np.linalg.norm(u, axis=-1, keepdims=True))
-            chord = np.linalg.norm(units[1] - units[0], axis=-1)
+        def distance(both: dict, apparent: np.ndarray) -> np.ndarray:
+            theta = (np.stack([both["x"], both["y"]], axis=-1) - centre) * scale
+            u = np.stack(line_of_sight(theta, both["zenith"], both["azimuth"], both["rotation"]), axis=-1)
+            units = u / np.linalg.norm(u, axis=-1, keepdims=True)           # each sample's once
+            chord = np.linalg.norm(units[1:] - units[:-1], axis=-1)
             turned = 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0)) / scale
-            known = np.isfinite(before["azimuth"]) & np.isfinite(after["azimuth"])
-            return np.where(known, turned, PointSourceOptics._apparent_distance(before, after))
+            azimuth = both["azimuth"]
+            known = np.isfinite(azimuth[:-1]) & np.isfinite(azimuth[1:])
+            return np.where(known, turned, apparent)
         return distance
 
     @staticmethod
@@ -385,16 +391,22 @@ class PointSourceOptics(Block):
         size = geometry.stamp_size
         visible = (np.isfinite(columns["x"]) & np.isfinite(columns["y"])
                    & (np.nan_to_num(columns["flux"]) > 0))                      # (render times, tracks)
+        # what the pixels see of each frame: apparent rate, collected flux, sky per pixel; and the rate of its line of
+        # sight in the ground frame, which moves its footprints through the layers (render times, tracks, 4)
+        seen = np.stack([columns["rate"], columns["flux"] * collected, np.broadcast_to(sky[:, None], visible.shape),
+                         columns["sky_rate"]], axis=-1)
+        # every frame's render interval, every track at once (1 out of view)
+        every = None
+        if self._intervals is not None:
+            every = np.ones(visible.shape, np.int64)
+            every[visible] = self._intervals.multiples(cadence_ns, seen[visible], columns["zenith"][visible])
         jobs = []
         for j in np.flatnonzero(visible.any(axis=0)):                             # tracks in order
             key, tr = ids[j], {name: values[:, j] for name, values in columns.items()}
-            idx = np.nonzero(visible[:, j])[0]
-            # what the pixels see of each frame: apparent rate, collected flux, sky per pixel; and the rate of its
-            # line of sight in the ground frame, which moves its footprints through the layers
-            seen = np.stack([tr["rate"][idx], tr["flux"][idx] * collected, sky[idx], tr["sky_rate"][idx]], axis=1)
-            paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], seen)      # path choices, in order
-            every = None if self._intervals is None else self._intervals.multiples(cadence_ns, seen, tr["zenith"][idx])
-            jobs.append((len(jobs), key, tr, idx, seen, paths, every))
+            idx = np.flatnonzero(visible[:, j])
+            mine = seen[idx, j]
+            paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], mine)      # path choices, in order
+            jobs.append((len(jobs), key, tr, idx, mine, paths, None if every is None else every[idx, j]))
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)

@@ -60,7 +60,13 @@ def coherence_time_s(r0_m, cn2_fraction: np.ndarray, speed_m_s: np.ndarray) -> n
     turbulence whose footprints move at ``speed_m_s`` (layers, ...) [m/s] along a line of sight of Fried parameter
     ``r0_m`` (...) [m]; infinite without turbulence or motion."""
     c = np.asarray(cn2_fraction, dtype=float).reshape((-1,) + (1,) * (np.ndim(speed_m_s) - 1))
-    v_bar = np.sum(c * np.abs(np.asarray(speed_m_s, dtype=float)) ** (5 / 3), axis=0) ** (3 / 5)
+    terms = c * np.abs(np.asarray(speed_m_s, dtype=float)) ** (5 / 3)
+    # summed layer by layer, in order: the same bits for any number of frames (numpy sums a single frame's 8 or more
+    # layers pairwise)
+    total = terms[0].copy()
+    for term in terms[1:]:
+        total += term
+    v_bar = total ** (3 / 5)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(v_bar > 0, RODDIER_TAU0 * np.asarray(r0_m, dtype=float) / v_bar, np.inf)
 
