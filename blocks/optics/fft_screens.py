@@ -25,6 +25,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from .kolmogorov import phase_psd
+from .normal_draws import scaled_pair
 
 
 def fft_phase_screens(rng: np.random.Generator, n: int, delta: float, r0: float, L0: float = np.inf,
@@ -106,13 +107,9 @@ def spline_response(f: np.ndarray, delta: float) -> np.ndarray:
 
 def _coefficients(rng: np.random.Generator, amplitude: np.ndarray) -> np.ndarray:
     """Complex Gaussian Fourier coefficients of standard deviation ``amplitude``: the real parts' draws, then
-    the imaginary parts'."""
-    n = amplitude.shape[0]
-    draws = rng.standard_normal((2, n, n))
-    coefficients = np.empty((n, n), dtype=complex)
-    np.multiply(draws[0], amplitude, out=coefficients.real)
-    np.multiply(draws[1], amplitude, out=coefficients.imag)
-    return coefficients
+    the imaginary parts' (NumPy's ``rng.standard_normal((2, n, n))`` times ``amplitude``, compiled:
+    :func:`.normal_draws.scaled_pair`)."""
+    return scaled_pair(rng, amplitude)
 
 
 @lru_cache(maxsize=64)
