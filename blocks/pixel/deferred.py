@@ -164,8 +164,11 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
                       th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0, _LAZY)
 
 
-# fields of the pixels swept together by take_quietly (rows of its table)
+# fields of the pixels swept together by take_quietly (rows of its table), then their own input before their first
+# change (its last rows)
 (S_L, S_M, S_LEAK, S_PARA_C, S_TH_ON, S_SCALE, N_SWEPT) = range(7)
+(S_Y, S_LOG_A, S_PARA) = range(N_SWEPT, N_SWEPT + 3)
+N_OWN = 3
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -174,7 +177,8 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
 
     A pixel's first change relaxes it from its own step at its own input; every later one from
     the step before the change before it, at that change's input: the same ``j`` and ``a^j`` for
-    every pixel taking it. So after each pixel's first change (taken alone) the pixels taking change
+    every pixel taking it. So after each pixel's first change (its own ``j`` and input, the pixels' fields
+    gathered into contiguous rows first, so that this loop too is vectorised) the pixels taking change
     ``k`` (those with ``lo < k``, a prefix once ordered by ``lo``) take it together, ``a^j`` computed
     once, in a loop over their fields gathered into contiguous rows that the compiler vectorises.
     Each pixel goes through the same arithmetic in the same order (:func:`.pixel_loop.relaxed_by`;
@@ -201,16 +205,18 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
     for k in range(starts.size - 1, 0, -1):
         starts[k] = starts[k - 1]
     starts[0] = 0
-    f = np.empty((N_SWEPT, n))
+    f = np.empty((N_SWEPT + N_OWN, n))
+    j_first = np.empty(n, np.int64)
     for i in range(n):                                 # in the pixels' order: the state tables' order
         if i + _AHEAD < n:
             _fetch_row(real, count, pixels[i + _AHEAD])
-        p, s = pixels[i], rank[i]                      # its first change, alone (its fields read in place)
-        f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s] = advanced(
-            steps[lo[i]] - 1 - count[p, STEP], NO_STEP, 0.0, 0.0, real[p, L_], real[p, M_], real[p, C_LEAK],
-            real[p, C_PARA], real[p, Y], real[p, LOG_A], real[p, PARA], real[p, TH_ON], real[p, NOISE_SCALE], leak_hz,
-            dt, large)
+        p, s = pixels[i], rank[i]                      # its fields, gathered
+        f[S_L, s], f[S_M, s], f[S_LEAK, s], f[S_PARA_C, s] = real[p, L_], real[p, M_], real[p, C_LEAK], real[p, C_PARA]
         f[S_TH_ON, s], f[S_SCALE, s] = real[p, TH_ON], real[p, NOISE_SCALE]
+        f[S_Y, s], f[S_LOG_A, s], f[S_PARA, s] = real[p, Y], real[p, LOG_A], real[p, PARA]
+        j_first[s] = steps[lo[i]] - 1 - count[p, STEP]
+    _first_sweep(f[S_L], f[S_M], f[S_LEAK], f[S_PARA_C], f[S_TH_ON], f[S_SCALE], f[S_Y], f[S_LOG_A], f[S_PARA],
+                 j_first, leak_hz, dt, large)         # each pixel's first change, from its own step and input
     for k in range(first + 1, end):
         m = starts[k - first]                          # the pixels with lo < k
         j = steps[k] - steps[k - 1]                    # from the step before change k - 1 to the one before k
@@ -227,6 +233,16 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
         real[p, FLUX], real[p, Y], real[p, LOG_A], real[p, PARA], real[p, ACCEPT] = last[FLUX], last[Y], last[LOG_A], \
             last[PARA], last[ACCEPT]
         count[p, STEP] = steps[end - 1] - 1
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _first_sweep(filtered, memorised, c_leak, c_para, th_on, noise_scale, y, log_a, para, j, leak_hz, dt, large):
+    """Every pixel of the rows ``j[i]`` steps on at its own input ``y[i], log_a[i], para[i]`` (none for
+    ``j[i] <= 0``; :func:`.pixel_loop.advanced`, as one pixel alone)."""
+    for i in range(filtered.size):
+        filtered[i], memorised[i], c_leak[i], c_para[i] = advanced(
+            j[i], NO_STEP, 0.0, 0.0, filtered[i], memorised[i], c_leak[i], c_para[i], y[i], log_a[i], para[i],
+            th_on[i], noise_scale[i], leak_hz, dt, large)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
