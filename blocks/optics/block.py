@@ -330,29 +330,28 @@ class PointSourceOptics(Block):
         times = t_ns[at]
         continuing = record is not None and int(record["t_ns"]) == int(times[0]) - cadence_ns
         before = record["path"] if continuing else None
-        changed = np.array([p != q for p, q in zip(paths, [before, *paths[:-1]])])
-        fresh = ((times // cadence_ns) % every == 0) | changed
-        fresh[0] |= not continuing
-        rendered = np.flatnonzero(fresh)
-        size = imager.geometry.stamp_size
-        origin = np.zeros((len(at), 2), dtype=np.int32)
-        stamps = np.zeros((len(at), size, size))
+        fresh = (times // cadence_ns) % every == 0
+        if paths.count(paths[0]) == len(paths):         # one path throughout: a change only at the stretch's start
+            fresh[0] |= paths[0] != before
+        else:
+            fresh |= np.array([p != q for p, q in zip(paths, [before, *paths[:-1]])])
+        rendered = np.flatnonzero(fresh)                # (a stretch that does not continue starts with a new path)
+        # each frame's stamp: the last rendered at or before it, counted from the stamp held from before the stretch
+        which = np.cumsum(fresh)
+        origins, stamps = [record["origin"][None]] if continuing else [], [record["stamp"][None]] if continuing else []
         if rendered.size:
             r = at[rendered]
-            origin[rendered], stamps[rendered], _ = imager.render(
+            o, s, _ = imager.render(
                 key, times[rendered] * 1e-9, tr["x"][r], tr["y"][r], tr["zenith"][r], tr["range"][r], seen[rendered],
                 azimuth_rad=tr["azimuth"][r], rotation_rad=tr["rotation"][r], paths=[paths[i] for i in rendered])
-        # each frame's stamp: the last rendered at or before it (-1: the stamp held from before this stretch)
-        source = np.maximum.accumulate(np.where(fresh, np.arange(len(at)), -1))
-        held = source < 0
-        if held.any():
-            origin[held], stamps[held] = record["origin"], record["stamp"]
-        mine = ~held & ~fresh
-        origin[mine], stamps[mine] = origin[source[mine]], stamps[source[mine]]
-        last = source[-1]
-        if last >= 0:
-            record = {"origin": origin[last].copy(), "stamp": stamps[last].copy(), "path": paths[last]}
-        return origin, stamps, {**record, "t_ns": int(times[-1])}
+            origins.append(o.astype(np.int32, copy=False))
+            stamps.append(s)
+            record = {"path": paths[rendered[-1]]}
+        if not continuing:
+            which -= 1
+        origin, stamps = np.concatenate(origins)[which], np.concatenate(stamps)[which]
+        record = {**record, "origin": origin[-1].copy(), "stamp": stamps[-1].copy(), "t_ns": int(times[-1])}
+        return origin, stamps, record
 
     def step(self, window: Window, sources: list[PointSources] | PointSources,
              background: SkyBackground | None = None) -> dict:
@@ -417,11 +416,12 @@ class PointSourceOptics(Block):
             record = self.held_stamps.get(key)
             # each stretch of consecutive render times in view; one back after more than hold_ns out of view
             # (since this window's last stretch or the render time the imager last saw it) gets new screens
-            for part in np.split(np.arange(len(idx)), np.flatnonzero(np.diff(idx) > 1) + 1):
-                if not imager.keeps(key, t_ns[idx[part[0]]]):
+            stops = [*(np.flatnonzero(np.diff(idx) > 1) + 1).tolist(), len(idx)]
+            for first, stop in zip([0, *stops[:-1]], stops):
+                at, part = idx[first:stop], slice(first, stop)
+                if not imager.keeps(key, t_ns[at[0]]):
                     imager.forget([key])
-                at = idx[part]
-                stretch_paths = [paths[i] for i in part]
+                stretch_paths = paths[part]
                 if every is None:
                     o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
                                                  tr["range"][at], seen[part], azimuth_rad=tr["azimuth"][at],
