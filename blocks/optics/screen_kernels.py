@@ -55,14 +55,37 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
         low[f, 0], low[f, 1] = rows[f, 0], cols[f, 0]
         high[f, 0], high[f, 1] = rows[f, rows.shape[1] - 1], cols[f, cols.shape[1] - 1]
     capacity = 4 * frames + 16              # a footprint seldom moves more than a few samples a frame
-    kind = np.empty(capacity, np.int8)
-    side = np.empty(capacity, np.int8)
-    op_epoch = np.empty(capacity, np.int64)
-    centre = np.empty((capacity, 2))
-    before = np.empty((capacity, 2), np.int64)
-    frame_ops = np.empty(frames, np.int64)
-    starts = np.zeros(capacity + 2, np.int64)            # (arrays, not lists: they compile faster)
-    renewals = np.empty(capacity + 2, np.int64)          # canvases that start with a regeneration
+    while True:
+        # arrays of a fixed size for each try (an array reassigned in the loop costs reference counts at every use)
+        kind = np.empty(capacity, np.int8)
+        side = np.empty(capacity, np.int8)
+        op_epoch = np.empty(capacity, np.int64)
+        centre = np.empty((capacity, 2))
+        before = np.empty((capacity, 2), np.int64)
+        frame_ops = np.empty(frames, np.int64)
+        starts = np.zeros(capacity + 2, np.int64)            # (arrays, not lists: they compile faster)
+        renewals = np.empty(capacity + 2, np.int64)          # canvases that start with a regeneration
+        count, n_starts, n_renewals = _plan_into(low, high, epochs, n, margin, regenerate_only, origin, epoch,
+                                                 has_values, canvas_steps, kind, side, op_epoch, centre, before,
+                                                 frame_ops, starts, renewals)
+        if count < 0:
+            kind[:1] = -1
+            return (kind[:1], side[:0], op_epoch[:0], centre[:0], before[:0], frame_ops, np.zeros(1, np.int64),
+                    np.zeros(0, np.int64))
+        if count <= capacity:
+            return (kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops,
+                    starts[:n_starts], renewals[:n_renewals])
+        capacity = 2 * count                # the plan needs more operations than fit: plan again with room
+
+
+@jit
+def _plan_into(low, high, epochs, n, margin, regenerate_only, origin, epoch, has_values, canvas_steps, kind, side,
+               op_epoch, centre, before, frame_ops, starts, renewals):
+    """:func:`plan_walk`'s loop into arrays of ``capacity = kind.shape[0]`` operations: returns the operations, canvas
+    starts and renewals counted (operations -1: a footprint wider than the window allows; more than ``capacity``:
+    it stopped at the first frame that did not fit, with the operations counted so far and that frame's)."""
+    frames = low.shape[0]
+    capacity = kind.shape[0]
     n_starts, n_renewals = 1, 0
     last_side = np.full(2, -1)               # last step's side on each axis in this canvas
     o0, o1 = origin[0], origin[1]
@@ -71,9 +94,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
         c0 = 0.5 * (low[f, 0] + high[f, 0])
         c1 = 0.5 * (low[f, 1] + high[f, 1])
         if high[f, 0] - low[f, 0] > n - 1 - 2 * margin or high[f, 1] - low[f, 1] > n - 1 - 2 * margin:
-            kind[:1] = -1
-            return (kind[:1], side[:0], op_epoch[:0], centre[:0], before[:0], frame_ops, np.zeros(1, np.int64),
-                    np.zeros(0, np.int64))
+            return -1, 0, 0
         inside = (low[f, 0] >= o0 + margin and low[f, 1] >= o1 + margin
                   and high[f, 0] <= o0 + n - 1 - margin and high[f, 1] <= o1 + n - 1 - margin)
         renew = (not has_values) or epochs[f] != epoch
@@ -87,15 +108,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
                      + max(0.0, math.ceil(o0 + margin - low[f, 0])))
         needed = count + 1 + int(steps)
         if needed > capacity:
-            while capacity < needed:
-                capacity *= 2
-            kind = _grow(kind, capacity)
-            side = _grow(side, capacity)
-            op_epoch = _grow(op_epoch, capacity)
-            centre = _grow(centre, capacity)
-            before = _grow(before, capacity)
-            starts = _grow(starts, capacity + 2)
-            renewals = _grow(renewals, capacity + 2)
+            return needed, n_starts, n_renewals
         if renew:
             if count > starts[n_starts - 1]:
                 starts[n_starts], n_starts = count, n_starts + 1
@@ -136,8 +149,7 @@ def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has
         frame_ops[f] = count
     if count > starts[n_starts - 1]:
         starts[n_starts], n_starts = count, n_starts + 1
-    return (kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops, starts[:n_starts],
-            renewals[:n_renewals])
+    return count, n_starts, n_renewals
 
 
 @jit
