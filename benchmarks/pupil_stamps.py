@@ -144,9 +144,11 @@ def main() -> None:
     scratch = np.empty((4, size * size), np.float32)
 
     field_t = np.ascontiguousarray(field.transpose(0, 2, 1))
+    real_t, imag_t, ones = (np.ascontiguousarray(field_t.real), np.ascontiguousarray(field_t.imag),
+                            np.ones((1, n, n), np.float32))
 
     def compiled_columns():
-        column_fft.rows(field_t, grid, scratch)
+        column_fft.rows(ones, real_t, imag_t, grid, scratch)
         column_fft.columns(grid, scratch)
 
     def numpy_fft():

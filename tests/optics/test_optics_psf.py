@@ -281,9 +281,14 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
         np.testing.assert_array_equal(power, expected.real**2 + expected.imag**2)
         column_fft.columns(grid, scratch)
         np.testing.assert_array_equal(grid.view(np.uint64), expected.view(np.uint64))
-        field = (scale * (rng.standard_normal((5, 40, 40)) + 1j * rng.standard_normal((5, 40, 40)))).astype(np.complex64)
-        column_fft.rows(np.ascontiguousarray(field.transpose(0, 2, 1)), grid, scratch)
-        np.testing.assert_array_equal(grid[:, :40].view(np.uint64), sfft.fft(field, n=80, axis=2).view(np.uint64))
+        # the rows' field made as they read it: numpy's complex64 field times a real amplitude (1 or per frame)
+        cosine, sine = (scale * rng.standard_normal((2, 5, 40, 40))).astype(np.float32)
+        for amplitude in (rng.uniform(0, 2, (1, 40, 40)), rng.uniform(0, 2, (5, 40, 40))):
+            amplitude = amplitude.astype(np.float32)
+            field = (cosine + 1j * sine).astype(np.complex64) * amplitude
+            column_fft.rows(*(np.ascontiguousarray(a.transpose(0, 2, 1)) for a in (amplitude, cosine, sine)), grid,
+                            scratch)
+            np.testing.assert_array_equal(grid[:, :40].view(np.uint64), sfft.fft(field, n=80, axis=2).view(np.uint64))
     telescope = Telescope(0.2, 0.4)
     for n in (40, 39):
         delta = 0.2 / (n - 2)
@@ -307,7 +312,8 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
 
     import scipy.fft as sfft
 
-    from evsda.blocks.optics.render import PHASE_FRAMES, _fft, pupil_field, squared_modulus, tilted_phase
+    from evsda.blocks.optics.render import (PHASE_FRAMES, _fft, pupil_field, squared_modulus, tilted_phase,
+                                            tilted_phase_transposed)
 
     telescope = Telescope(0.2, 0.0)
     renderer = PupilRenderer(StampSampler(7, 4.86e-6, 10), 42, 0.005, 550e-9, telescope.collecting_area_m2)
@@ -351,6 +357,10 @@ def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
         tilted = np.empty(phase.shape, np.float32)
         tilted_phase(given, curvature, renderer.r2, ky, kx, x, tilted)
         np.testing.assert_array_equal(tilted, expected)
+    # and written transposed from the transposed sum (the row transforms' layout)
+    tilted_t = np.empty(phase.shape, np.float32)
+    tilted_phase_transposed(np.ascontiguousarray(phase.transpose(0, 2, 1)), curvature, renderer.r2, ky, kx, x, tilted_t)
+    np.testing.assert_array_equal(tilted_t, expected.transpose(0, 2, 1))
     # and its one-pass field is numpy's complex product with the real amplitude, the padding zeroed
     grid = np.full((37, 50, 50), 7 + 7j, np.complex64)
     cosine, sine = np.cos(tilted), np.sin(tilted)
