@@ -119,13 +119,26 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spl
     divided by :func:`spline_response` along each axis, and each level's 3 x 3 gains (iy, ix) for its draws."""
     df = 1.0 / (n * delta)
     fx = sfft.fftfreq(n, delta)
-    psd = phase_psd(np.hypot(fx[:, None], fx[None, :]), r0, L0)
+    # fftfreq's frequency k is the exact negative of its frequency n - k (k times 1/(n delta), negated), and every
+    # step below is a function of |f| element by element: computed on the frequencies 0..n/2 of each axis (a quarter
+    # of the grid) and mirrored, the same numbers
+    half = n // 2 + 1
+    mirror = np.minimum(np.arange(n), n - np.arange(n))
+    u = np.abs(fx[:half])
+    psd = phase_psd(np.hypot(u[:, None], u[None, :]), r0, L0)
     psd[0, 0] = 0.0                                             # no piston
     # coefficients c_k = (a + i b) sqrt(PSD) df, times n^2 to undo ifft2's 1/n^2: sum_k c_k exp(2 pi i f_k . x)
     amplitude = np.sqrt(psd) * (df * n * n)
     if spline:
         inverse = 1.0 / spline_response(fx, delta)
-        amplitude *= inverse[:, None] * inverse[None, :]
+        if np.array_equal(inverse[mirror], inverse):            # the cosine even to the bit (else on the full grid)
+            amplitude *= inverse[:half, None] * inverse[None, :half]
+            amplitude = amplitude[mirror][:, mirror]
+        else:
+            amplitude = amplitude[mirror][:, mirror]
+            amplitude *= inverse[:, None] * inverse[None, :]
+    else:
+        amplitude = amplitude[mirror][:, mirror]
     amplitude.setflags(write=False)
     if not subharmonics:
         return amplitude, None

@@ -490,3 +490,22 @@ def test_a_walk_that_draws_no_column_makes_no_extension_operator(monkeypatch):
     fresh = len(made)
     small.cover(np.array([0.0, 20.0]), np.array([4.0, 24.0]))          # runs off the window: columns drawn
     assert made[fresh:] == [(24, 1, 0.02, small.L1, 24)]
+
+
+@pytest.mark.parametrize("n, delta, L0", [(556, 0.0123, 20.0), (556, 0.00731, np.inf), (160, 0.005, 25.0),
+                                          (557, 0.01, 30.0)])
+def test_fft_spectra_from_a_quarter_are_the_full_grids(n, delta, L0):
+    """The amplitudes computed on the frequencies 0..n/2 and mirrored equal Schmidt 2010 Listing 9.2's on the whole
+    grid (``sqrt(PSD(|f|)) df``, the B-spline's inverse response along each axis), bit for bit."""
+    from scipy import fft as sfft
+
+    from evsda.blocks.optics.fft_screens import _spectra, spline_response
+
+    fx = sfft.fftfreq(n, delta)
+    psd = phase_psd(np.hypot(fx[:, None], fx[None, :]), 0.1, L0)
+    psd[0, 0] = 0.0
+    full = np.sqrt(psd) * (1.0 / (n * delta) * n * n)
+    assert np.array_equal(_spectra.__wrapped__(n, delta, 0.1, L0, False)[0], full)
+    inverse = 1.0 / spline_response(fx, delta)
+    full *= inverse[:, None] * inverse[None, :]
+    assert np.array_equal(_spectra.__wrapped__(n, delta, 0.1, L0, True, True)[0], full)
