@@ -16,6 +16,9 @@ from typing import TYPE_CHECKING
 import numba
 import numpy as np
 
+from evsda.blocks.threads import worker_threads
+from evsda.graph.threads import parallel_map
+
 from .paths import ZENITH_BIN_RAD, conditions_key, representative_conditions
 from .psf import long_exposure_profile
 from .render import RadialRenderer
@@ -131,12 +134,22 @@ class AnalyticPath:
             s = imager.sampler
             theta = np.linspace(0.0, (s.size / 2 + 2) * np.sqrt(2) * imager.pixel_scale, PROFILE_SAMPLES)
             if np.isfinite(r0):
-                profile = long_exposure_profile(imager.telescope, imager.wavelength, r0, imager.outer_scale_m, theta,
-                                                PROFILE_FREQUENCIES)
+                profile = self._long_exposure_table(r0, theta)
             else:
                 profile = imager.telescope.airy(theta, imager.wavelength)
             self._renderers[key] = RadialRenderer(s, theta, profile)
         return self._renderers[key]
+
+    def _long_exposure_table(self, r0: float, theta: np.ndarray) -> np.ndarray:
+        """:func:`.long_exposure_profile` [sr^-1] at radii ``theta`` [rad], its two halves on two threads where the
+        process has them free (:func:`.parallel_map`): the same numbers, since the profile is computed radius by
+        radius (in blocks of 512 radii, which both halves keep: PROFILE_SAMPLES / 2 is a multiple of 512)."""
+        imager = self.imager
+
+        def table(radii: np.ndarray) -> np.ndarray:
+            return long_exposure_profile(imager.telescope, imager.wavelength, r0, imager.outer_scale_m, radii,
+                                         PROFILE_FREQUENCIES)
+        return np.concatenate(parallel_map(table, np.split(theta, [theta.size // 2]), worker_threads()))
 
     def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         """Stamps (F, M, M) [1] at sub-pixel ``offset`` (F, 2), frames grouped by zenith-angle bin

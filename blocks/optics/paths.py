@@ -381,7 +381,8 @@ class PathChooser:
         distances = {}
         fits = {}
         for name in ANALYTIC_PATHS:
-            analytic = imager.path_named[name].renderer(zenith_rad).stamps(offsets)
+            path = imager.path_named[name]
+            analytic = path.stamps(path.renderer(zenith_rad), offsets)     # compiled, the renderer's numbers
             distances[name] = float(total_variation(analytic, pupil, flux).mean())
         if not imager.turbulent(zenith_rad):
             distances.pop("long_exposure")
@@ -393,7 +394,8 @@ class PathChooser:
                 still = np.broadcast_to(offset, offsets.shape)
                 pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, still)
                 for name in ANALYTIC_PATHS:
-                    analytic = imager.path_named[name].renderer(zenith_rad).stamps(offset[None])[0]
+                    path = imager.path_named[name]
+                    analytic = path.stamps(path.renderer(zenith_rad), offset[None])[0]
                     means[name] += [float(total_variation(pupil.reshape(-1, k, *pupil.shape[1:]).mean(axis=1),
                                                           analytic, flux).mean()) for k in AVERAGED_GROUPS]
             for name in ANALYTIC_PATHS:

@@ -179,3 +179,17 @@ def test_the_array_keys_are_each_frames_key():
         expected = [im.chooser.key(z, r, None if given is None else tuple(s)) for z, r, s in
                     zip(zenith, range_m, given if given is not None else [None] * frames)]
         assert keys == expected
+
+
+def test_long_exposure_table_in_halves_is_the_whole_table(monkeypatch):
+    """AnalyticPath's long-exposure table, its halves on two threads, equals long_exposure_profile on all radii."""
+    from evsda.blocks.optics import analytic_path
+    from evsda.blocks.optics.psf import long_exposure_profile
+
+    monkeypatch.setenv("EVSDA_THREADS", "2")
+    imager = type("ImagerStub", (), {"telescope": Telescope(0.2, 0.4), "wavelength": WAVELENGTH,
+                                     "outer_scale_m": 25.0})()
+    theta = np.linspace(0.0, 3e-4, analytic_path.PROFILE_SAMPLES)
+    table = analytic_path.AnalyticPath(imager, "long_exposure")._long_exposure_table(0.05, theta)
+    whole = long_exposure_profile(imager.telescope, WAVELENGTH, 0.05, 25.0, theta, analytic_path.PROFILE_FREQUENCIES)
+    np.testing.assert_array_equal(table, whole)
