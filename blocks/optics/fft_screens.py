@@ -123,7 +123,6 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spl
     # step below is a function of |f| element by element: computed on the frequencies 0..n/2 of each axis (a quarter
     # of the grid) and mirrored, the same numbers
     half = n // 2 + 1
-    mirror = np.minimum(np.arange(n), n - np.arange(n))
     u = np.abs(fx[:half])
     psd = phase_psd(np.hypot(u[:, None], u[None, :]), r0, L0)
     psd[0, 0] = 0.0                                             # no piston
@@ -131,14 +130,14 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spl
     amplitude = np.sqrt(psd) * (df * n * n)
     if spline:
         inverse = 1.0 / spline_response(fx, delta)
-        if np.array_equal(inverse[mirror], inverse):            # the cosine even to the bit (else on the full grid)
+        if np.array_equal(_mirrored(inverse[:half], n), inverse):   # the cosine even to the bit (else on the full grid)
             amplitude *= inverse[:half, None] * inverse[None, :half]
-            amplitude = amplitude[mirror][:, mirror]
+            amplitude = _mirrored(amplitude, n)
         else:
-            amplitude = amplitude[mirror][:, mirror]
+            amplitude = _mirrored(amplitude, n)
             amplitude *= inverse[:, None] * inverse[None, :]
     else:
-        amplitude = amplitude[mirror][:, mirror]
+        amplitude = _mirrored(amplitude, n)
     amplitude.setflags(write=False)
     if not subharmonics:
         return amplitude, None
@@ -160,6 +159,21 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spl
     inverse = [1.0 / spline_response(f1, delta) for f1 in frequencies]
     gains = tuple(np.outer(g, g) for g in inverse)
     return amplitude, (*low, gains)
+
+
+def _mirrored(quarter: np.ndarray, n: int) -> np.ndarray:
+    """The values at fftfreq's frequencies 0..n-1 along each axis (C-contiguous) from those at 0..n/2 (``quarter``,
+    1-D or 2-D): frequency ``k >= n/2 + 1`` takes the value of ``n - k``."""
+    half = n // 2 + 1
+    negatives = slice(n - half, 0, -1)                           # n - k for k = half .. n - 1
+    if quarter.ndim == 1:
+        return np.concatenate([quarter, quarter[negatives]])
+    full = np.empty((n, n), dtype=quarter.dtype)
+    full[:half, :half] = quarter
+    full[:half, half:] = quarter[:, negatives]
+    full[half:, :half] = quarter[negatives]
+    full[half:, half:] = quarter[negatives, negatives]
+    return full
 
 
 def _subharmonics(rng: np.random.Generator, powers, ey, ex, ey_mean, ex_mean, rows: int | None = None,
