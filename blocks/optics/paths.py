@@ -72,7 +72,7 @@ from evsda.blocks.threads import worker_threads
 from evsda.graph.result_cache import ResultCache
 from evsda.graph.threads import parallel_map
 
-from .fft_screens import fft_phase_screens
+from .fft_screens import fft_phase_screen_corners
 from .pixel_view import averaged_frames, footprint_speeds
 from .reference_path import FAR_RANGE_M
 
@@ -546,9 +546,11 @@ class PathChooser:
         if imager.turbulent(zenith_rad):
             r0 = imager.r0(zenith_rad)
             for k in range(0, frames, 2):
-                pair = fft_phase_screens(rng, 2 * g.n_pupil, g.delta_m, r0, imager.outer_scale_m)
-                for j, screen in enumerate(pair[: min(2, frames - k)]):
-                    phase[k + j] += screen[: g.n_pupil, : g.n_pupil]
+                # both screens of a 2n x 2n FFT draw, only their n x n corners transformed and summed (the numbers
+                # of fft_phase_screens' corners)
+                pair = fft_phase_screen_corners(rng, 2 * g.n_pupil, g.n_pupil, g.delta_m, r0, imager.outer_scale_m)
+                for j, screen in enumerate((pair.real, pair.imag)[: min(2, frames - k)]):
+                    phase[k + j] += screen
         return phase
 
     def forget(self) -> None:

@@ -436,6 +436,17 @@ def test_fft_screen_corner_is_the_full_screens_corner_bit_for_bit(n, m):
     assert full_rng.bit_generator.state == corner_rng.bit_generator.state
 
 
+@pytest.mark.parametrize("n, r0, L0", [(160, 0.05, 25.0), (160, 0.11, np.inf), (301, 0.1, 30.0)])
+def test_fft_screen_corners_are_both_full_screens_corners_bit_for_bit(n, r0, L0):
+    """fft_phase_screen_corners (the analytic-path probes' pupil screens) against fft_phase_screens: both halves cut
+    to n/2 x n/2, the same numbers."""
+    for seed in range(3):
+        full = fft_phase_screens(np.random.default_rng(seed), n, 0.005, r0, L0)
+        corners = fft_phase_screen_corners(np.random.default_rng(seed), n, n // 2, 0.005, r0, L0)
+        assert np.array_equal(corners.real, full[0][:n // 2, :n // 2])
+        assert np.array_equal(corners.imag, full[1][:n // 2, :n // 2])
+
+
 def test_fft_screen_halves_are_independent_von_karman_screens():
     """The reference probes take two frames from each complex FFT draw (fft_phase_screen_corners, as cut for
     their screens: an n x n draw, its m x m corner): the real and imaginary parts are independent screens of
