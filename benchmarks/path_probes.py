@@ -9,8 +9,9 @@ its own draw, the probes' cost before). Prints the medians of ``--repeats`` roun
 estimate, frames and verdict. ``--all-frames`` makes every bin take all 24 frames (a tolerance no
 estimate can clear: the same count both ways, the cost per frame). ``--against DIR`` alternates this tree's
 probes (pairs, as ``auto`` makes them) with those through another checkout's reference path (its
-``blocks/optics/reference_path.py`` with its ``propagation.py`` and ``layer_screen.py``), and prints how far
-the estimates of the two are apart.
+``blocks/optics/reference_path.py`` with its ``propagation.py``, ``layer_screen.py`` and ``fft_screens.py``), and
+prints how far the estimates of the two are apart. Every round starts cold, as a run's first probes do: the
+screens' spectra and the propagation's transfer functions kept within a process are emptied first.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames] [--against DIR]
 """
@@ -29,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evsda.blocks.optics import fft_screens, propagation
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.layer_screen import LayerScreen
 from evsda.blocks.optics.paths import PUPIL_ERROR_ZENITH_BIN_RAD
@@ -48,19 +50,40 @@ def checkout_module(checkout: Path, name: str):
     return module
 
 
+@functools.lru_cache(maxsize=None)
+def checkout_modules(checkout: Path) -> dict:
+    """Another checkout's reference path: its ``reference_path.py`` with its ``propagation.py``, ``layer_screen.py``
+    and that one's ``fft_screens.py`` (the FFT screens' draws, spectra and transforms); the rest is this tree's."""
+    modules = {name: checkout_module(checkout, name)
+               for name in ("reference_path", "propagation", "layer_screen", "fft_screens")}
+    modules["reference_path"].propagate = modules["propagation"].propagate
+    modules["reference_path"].LayerScreen = modules["layer_screen"].LayerScreen
+    modules["layer_screen"].fft_spline_corners = modules["fft_screens"].fft_spline_corners
+    return modules
+
+
 def against(checkout: Path, imager) -> Callable[[], None]:
-    """Make ``imager``'s reference path that of ``checkout`` (its ``reference_path.py``, with its ``propagation.py``
-    and ``layer_screen.py``; the rest is this tree's); returns the undo."""
-    module = checkout_module(checkout, "reference_path")
-    module.propagate = checkout_module(checkout, "propagation").propagate
-    module.LayerScreen = checkout_module(checkout, "layer_screen").LayerScreen
+    """Make ``imager``'s reference path that of ``checkout`` (:func:`checkout_modules`); returns the undo."""
     reference = imager.reference
     kept = reference.__class__
-    reference.__class__ = module.ReferencePath
+    reference.__class__ = checkout_modules(checkout)["reference_path"].ReferencePath
 
     def undo():
         reference.__class__ = kept
     return undo
+
+
+def forget_tables(checkout: Path | None) -> None:
+    """Empty the tables kept across probes within a process (the FFT screens' spectra, the propagation's transfer
+    functions), this tree's and ``checkout``'s, so that every round costs what a run's first probes cost."""
+    trees = [{"fft_screens": fft_screens, "propagation": propagation}]
+    if checkout is not None:
+        trees.append(checkout_modules(checkout))
+    for modules in trees:
+        modules["fft_screens"]._spectra.cache_clear()
+        kept = getattr(modules["propagation"], "_kept_transfer_functions", None)
+        if kept is not None:
+            kept.cache_clear()
 
 
 def main() -> None:
@@ -111,6 +134,7 @@ def main() -> None:
         for name, way in ways.items():
             undo = way()
             chooser._pupil_errors.clear()
+            forget_tables(args.against)
             t = time.process_time()
             estimates[name] = [chooser.pupil_estimate(z, r) for z, r in conditions]
             times[name].append(time.process_time() - t)
