@@ -287,21 +287,24 @@ class PathChooser:
         z, r = np.asarray(zenith_rad, dtype=float), np.asarray(range_m, dtype=float)
         turbulent = np.isfinite(z) & (self.imager.atmosphere is not None)
         with np.errstate(invalid="ignore", divide="ignore"):
-            z_bin = np.where(turbulent, np.floor(z / ZENITH_BIN_RAD), -1.0).astype(np.int64)
+            z_bin = np.where(turbulent, np.floor(z / ZENITH_BIN_RAD), -1.0).astype(np.int64).tolist()
             far = ~np.isfinite(r) | (r >= FAR_RANGE_M)
             r_bin = np.where(far, -1.0, np.floor(np.log(np.where(far, 1.0, r)) / np.log(RANGE_BIN_RATIO)))
-        base = list(zip(z_bin.tolist(), r_bin.astype(np.int64).tolist()))
-        if seen is None or self.pixels is None or self.forced_path != "auto":
-            return base
-        seen = np.asarray(seen, dtype=float)
-        rate = np.where(np.isfinite(seen[:, 0]), seen[:, 0], 0.0)
-        sight = rate if seen.shape[1] < 4 else np.where(np.isfinite(seen[:, 3]), seen[:, 3], 0.0)
-        bins = []
-        for value, least in ((rate, STILL_RATE_PX_S), (seen[:, 1], 1.0), (seen[:, 2], 1.0), (sight, STILL_RATE_PX_S)):
-            with np.errstate(invalid="ignore", divide="ignore"):
-                logs = np.floor(np.log(np.where(value >= least, value, 1.0)) / np.log(SEEN_BIN_RATIO))
-            bins.append(np.where(value >= least, logs, -1.0).astype(np.int64).tolist())
-        return [b if b[0] < 0 else (*b, *extra) for b, extra in zip(base, zip(*bins))]
+            r_bin = r_bin.astype(np.int64).tolist()
+            if seen is None or self.pixels is None or self.forced_path != "auto":
+                return list(zip(z_bin, r_bin))
+            seen = np.asarray(seen, dtype=float)
+            rate = np.where(np.isfinite(seen[:, 0]), seen[:, 0], 0.0)
+            sight = rate if seen.shape[1] < 4 else np.where(np.isfinite(seen[:, 3]), seen[:, 3], 0.0)
+            bins = []
+            for value, least in ((rate, STILL_RATE_PX_S), (seen[:, 1], 1.0), (seen[:, 2], 1.0),
+                                 (sight, STILL_RATE_PX_S)):
+                above = value >= least
+                logs = np.floor(np.log(np.where(above, value, 1.0)) / np.log(SEEN_BIN_RATIO))
+                bins.append(np.where(above, logs, -1.0).astype(np.int64).tolist())
+        if min(z_bin, default=0) >= 0:                       # every frame in turbulence: all six numbers
+            return list(zip(z_bin, r_bin, *bins))
+        return [(z, r) if z < 0 else (z, r, *extra) for z, r, *extra in zip(z_bin, r_bin, *bins)]
 
     def is_chosen(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> bool:
         return self.key(zenith_rad, range_m, seen) in self._choices
