@@ -147,6 +147,13 @@ class LargeScales:
             self._strides[axis] = (table, start)
         return table, start
 
+    def cut(self, first: int, stop: int, axis: int) -> tuple[np.ndarray, int, int]:
+        """The strides of :meth:`strides`' table that positions ``first .. stop - 1`` [samples] along ``axis`` reach:
+        ``cos``, ``sin`` (2, K, count) flattened, the first stride's index and ``count``."""
+        table, start = self.strides(first, stop, axis)
+        s0, s1 = first // STRIDE - start, (stop - 1) // STRIDE - start + 1
+        return table[:, :, s0:s1].ravel(), start + s0, s1 - s0
+
     def add_to(self, coefficients: np.ndarray, top: int, left: int) -> np.ndarray:
         """``coefficients`` (an array whose first sample is at absolute (``top``, ``left``)) plus the modes' B-spline
         coefficients, a new array; each value depends only on its absolute position."""

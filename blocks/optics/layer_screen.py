@@ -48,6 +48,7 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
+from .normal_draws import standard_normal
 from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
                              sample_grids_transposed, walk_segments)
 
@@ -323,40 +324,42 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     # each run of canvases (segment): the regeneration before it, its window, noise and modes' tables, in order
     layout, windows, origins, noises, tables, operators, modes, last = [], [], [], [], ([], []), [], [], {}
     window_at = noise_at = y_at = x_at = 0
+    edges_at, layers_at = edges.tolist(), op_at.tolist()
     for layer, e0, e1, as_is, renew, lo0, hi0, lo1, hi1 in segments.tolist():
         screen = screens[layer]
         if renew >= 0:
-            op = op_at[layer] + renew
+            op = layers_at[layer] + renew
             screen.regenerate(centre[op], int(op_epoch[op]))
-        first, stop, n = int(edges[e0]), int(edges[e1 - 1]), screen.n
-        if screen.coefficients is None or (stop == first and not reading):
+        n = screen.n
+        count = n * (edges_at[e1 - 1] - edges_at[e0])
+        if screen.coefficients is None or (not count and not reading):
             continue                                                # nothing to make or read
-        count = n * (stop - first)
+        operator, stencil = -1, 0
         if count:
-            noises.append(screen._rng.standard_normal(count))
+            noises.append(standard_normal(screen._rng, count))
             if screen._operator is None:
                 screen._operator = extension_operator(n, 1, screen.delta, screen.L1, n)
+            operator, stencil = len(operators), len(screen._operator.stencil_rows)
             operators.append(screen._operator)
-        k, strides = 0, [(0, 0), (0, 0)]                           # modes; (first stride, strides) along y, x
-        if screen.L1 != screen.L0 and reading:
+        k, mode, y_count, y_first, x_count, x_first = 0, -1, 0, 0, 0, 0   # modes; the strides of their tables
+        if reading and screen.L1 != screen.L0:
             # the per-stride tables of the modes' phasors, only the strides the run's canvases reach
             large = screen._large_scales()
-            modes.append(large)
             k = len(large.a)
-            for axis, (lo, hi) in enumerate(((lo0, hi0), (lo1, hi1))):
-                table, start = large.strides(lo, hi, axis)
-                s0, s1 = lo // STRIDE - start, (hi - 1) // STRIDE - start + 1
-                tables[axis].append(table[:, :, s0:s1].ravel())
-                strides[axis] = (start + s0, s1 - s0)
+            mode = len(modes) if k else -1
+            modes.append(large)
+            y_table, y_first, y_count = large.cut(lo0, hi0, 0)
+            x_table, x_first, x_count = large.cut(lo1, hi1, 1)
+            tables[0].append(y_table)
+            tables[1].append(x_table)
         last[layer] = len(layout)
         windows.append(screen.coefficients.ravel())
         origins.append(screen.origin)
-        layout.append([layer, n, e0, e1, as_is, op_at[layer], op_at[layer + 1], window_at, noise_at,
-                       noise_at + count, len(operators) - 1 if count else -1, 0, 0,
-                       len(screen._operator.stencil_rows) if count else 0, k, len(modes) - 1 if k else -1, 0,
-                       y_at, strides[0][1], strides[0][0], x_at, strides[1][1], strides[1][0]])
+        layout.append([layer, n, e0, e1, as_is, layers_at[layer], layers_at[layer + 1], window_at, noise_at,
+                       noise_at + count, operator, 0, 0, stencil, k, mode, 0, y_at, y_count, y_first, x_at, x_count,
+                       x_first])
         window_at, noise_at = window_at + n * n, noise_at + count
-        y_at, x_at = y_at + 2 * k * strides[0][1], x_at + 2 * k * strides[1][1]
+        y_at, x_at = y_at + 2 * k * y_count, x_at + 2 * k * x_count
     if not layout:
         return
     layout = np.array(layout, np.int64)
