@@ -76,6 +76,12 @@ def line_of_sight(theta: np.ndarray, zenith_rad, azimuth_rad, rotation_rad) -> t
     return sa * sz + alpha * ca - epsilon * sa * cz, ca * sz - alpha * sa - epsilon * ca * cz, cz + epsilon * sz
 
 
+def _along(values, t_s: np.ndarray) -> np.ndarray:
+    """``values`` as floats, one per frame of ``t_s`` (a scalar broadcast)."""
+    values = np.asarray(values, dtype=float)
+    return values if values.shape == t_s.shape else np.broadcast_to(values, t_s.shape)
+
+
 class Imager:
     """Point-source imaging through turbulence with a choice of PSF paths (:mod:`.paths`).
 
@@ -348,18 +354,21 @@ class Imager:
         rotation of each frame, :meth:`sight`; ``paths``: these frames' paths as :meth:`prepare` returned them, the
         same choices without looking each frame's bin up again)."""
         t_s, x_px, y_px = (np.asarray(a, dtype=float) for a in (t_s, x_px, y_px))
-        zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), t_s.shape)
-        range_m = np.broadcast_to(np.asarray(range_m, dtype=float), t_s.shape)
+        zenith_rad, range_m = _along(zenith_rad, t_s), _along(range_m, t_s)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
         origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
         size = self.geometry.stamp_size
-        stamps = np.zeros((len(t_s), size, size))
         if paths is None:
             paths = self._paths(source, zenith_rad, range_m, seen)
         if azimuth_rad is not None:
-            azimuth_rad = np.broadcast_to(np.asarray(azimuth_rad, dtype=float), t_s.shape)
-            rotation_rad = np.broadcast_to(np.asarray(rotation_rad, dtype=float), t_s.shape)
+            azimuth_rad, rotation_rad = _along(azimuth_rad, t_s), _along(rotation_rad, t_s)
         sight = self.sight(x_px, y_px, zenith_rad, azimuth_rad, rotation_rad)
+        if len(set(paths)) == 1:                      # one path throughout (the usual stretch): all frames at once
+            path = str(paths[0])
+            with self._count_lock:
+                self.frames_rendered[path] += len(t_s)
+            return origin, self.path_named[path].render(source, t_s, sight, zenith_rad, range_m, offset), paths
+        stamps = np.zeros((len(t_s), size, size))
         named = np.asarray(paths, dtype=str)
         for path in PATHS:
             idx = np.flatnonzero(named == path)
