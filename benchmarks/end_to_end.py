@@ -113,14 +113,14 @@ def _sample_pss(pid: int, sampled: dict, done: threading.Event) -> None:
         sampled["pss_kb"] = max(sampled["pss_kb"], _pss_kb(pid) + sum(_pss_kb(c) for c in children))
 
 
-def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH) -> dict:
+def run_cli(duration: float, store: Path, settings=(), graph: Path = GRAPH, python: Path | None = None) -> dict:
     """``evsda run`` the benchmark graph (or ``graph``) in a child process (``settings``: more ``--set``
-    values): wall, CPU (the child's and its worker process's), peak memory (the sum of the child's peak RSS
+    values; ``python``: the interpreter, another checkout's, say; default this one): wall, CPU (the child's and its worker process's), peak memory (the sum of the child's peak RSS
     and its worker's: an upper bound of the two together; and, where Linux's ``smaps_rollup`` can be read, the
     largest sum of the two processes' proportional set sizes sampled every 0.2 s, shared pages counted once) and
     its summary."""
     t = time.perf_counter()
-    child = subprocess.Popen([sys.executable, "-c", PEAKS_CODE,
+    child = subprocess.Popen([str(python or sys.executable), "-c", PEAKS_CODE,
                               "run", str(graph), "-o", str(store), "--overwrite",
                               "--no-progress", "--set", f"run.duration_s={duration}",
                               *(arg for setting in settings for arg in ("--set", setting))],

@@ -8,9 +8,11 @@ run's process and its worker together) and peak memory (the sum of the two proce
 bound of their peak together; and the largest sum of their proportional set sizes sampled every 0.2 s, shared
 pages counted once), the wall-time speed-ups and the load average around each run. Every store
 must record the same bytes (checked: a hash of every array). The machine's other load shares the cores,
-so the ratio of the medians is the figure to quote.
+so the ratio of the medians is the figure to quote. ``--against OTHER`` runs each mode of another checkout (its
+own ``.venv`` and Numba cache) too, alternated with this one's in every round: a change's side-by-side figure.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/framework_pipeline.py [--duration 10] [--repeats 3]
+    EVSDA_CACHE=off ... --modes threads --against /path/to/baseline-checkout --repeats 5
 """
 
 from __future__ import annotations
@@ -44,39 +46,49 @@ def main() -> None:
                         help="simulated seconds of the run that warms the compiled caches (a graph whose satellite "
                              "enters the field later needs longer, e.g. examples/iss_pass.yaml: 4) [s]")
     parser.add_argument("--modes", default=",".join(MODES), help=f"modes to run, of {', '.join(MODES)}")
+    parser.add_argument("--against", type=Path, help="another checkout (with its own .venv): each mode run there too")
     args = parser.parse_args()
+    pythons = {"": Path(sys.executable)}
+    if args.against is not None:
+        pythons[f"{args.against.name}:"] = args.against / ".venv" / "bin" / "python"
+        if not pythons[f"{args.against.name}:"].exists():
+            parser.error(f"--against {args.against}: expected a checkout with its own .venv")
     print(f"machine: {os.cpu_count()} cores; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
           f"EVSDA_THREADS={os.environ.get('EVSDA_THREADS', 'unset')}; {args.graph.name}, {args.duration:g} s simulated")
-    modes = args.modes.split(",")
+    modes = [tree + mode for mode in args.modes.split(",") for tree in pythons]
     runs: dict[str, list[dict]] = {mode: [] for mode in modes}
     digests = set()
     with tempfile.TemporaryDirectory() as tmp:
-        run_cli(args.warm_duration, Path(tmp) / "warm.zarr", graph=args.graph)   # warm the compiled caches
+        for python in pythons.values():             # warm the compiled caches
+            run_cli(args.warm_duration, Path(tmp) / "warm.zarr", graph=args.graph, python=python)
         for repeat in range(args.repeats):
             for mode in modes:
-                store = Path(tmp) / f"{mode}.zarr"
+                tree, _, plain = mode.rpartition(":")
+                store = Path(tmp) / f"{plain}.zarr"
                 load = os.getloadavg()[0]
-                os.environ.update(MODES[mode])          # what --[no-]pipeline and --[no-]workers set
-                run = run_cli(args.duration, store, graph=args.graph)
+                os.environ.update(MODES[plain])         # what --[no-]pipeline and --[no-]workers set
+                run = run_cli(args.duration, store, graph=args.graph, python=pythons[f"{tree}:" if tree else ""])
                 run["load"] = (load + os.getloadavg()[0]) / 2
                 runs[mode].append(run)
                 digests.add(store_digest(store))
-                print(f"  {repeat + 1}. {mode:9s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s  "
+                print(f"  {repeat + 1}. {mode:16s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s  "
                       f"peak {run['peak_mb']:5.0f} MB ({run['own_peak_mb']:.0f} + worker {run['worker_peak_mb']:.0f}; "
                       f"PSS together {run['pss_peak_mb']:.0f})"
                       f"  load {run['load']:.2f}", flush=True)
     print(f"\nmedians of {args.repeats} (alternated):")
     for mode, rows in runs.items():
         wall = statistics.median(r["wall_s"] for r in rows)
-        print(f"  {mode:9s} wall {wall:6.1f} s = {args.duration / wall:.2f}x real time; "
+        print(f"  {mode:16s} wall {wall:6.2f} s = {args.duration / wall:.2f}x real time; "
               f"CPU {statistics.median(r['cpu_s'] for r in rows):.1f} s; "
               f"peak {statistics.median(r['peak_mb'] for r in rows):.0f} MB (sum of the processes' peaks), "
               f"{statistics.median(r['pss_peak_mb'] for r in rows):.0f} MB (largest sampled PSS together); "
               f"load {statistics.median(r['load'] for r in rows):.2f}")
     walls = {mode: statistics.median(r["wall_s"] for r in rows) for mode, rows in runs.items()}
-    for mode in modes[1:]:
-        print(f"  {mode} / {modes[0]} wall-time speed-up: {walls[modes[0]] / walls[mode]:.2f}x; each round: "
-              + ", ".join(f"{a['wall_s'] / b['wall_s']:.2f}x" for a, b in zip(runs[modes[0]], runs[mode])))
+    pairs = ([(f"{tree}{mode}", mode) for mode in args.modes.split(",") for tree in list(pythons)[1:]]
+             if len(pythons) > 1 else [(modes[0], mode) for mode in modes[1:]])
+    for base, mode in pairs:
+        print(f"  {mode} against {base}: wall-time speed-up: {walls[base] / walls[mode]:.3f}x; each round: "
+              + ", ".join(f"{a['wall_s'] / b['wall_s']:.3f}x" for a, b in zip(runs[base], runs[mode])))
     print(f"  stores identical: {len(digests) == 1} ({len(digests)} distinct hash{'es' if len(digests) > 1 else ''})")
     if len(digests) != 1:
         raise SystemExit("the modes' stores differ")

@@ -7,6 +7,7 @@ internal error (a bug: traceback on stderr).
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import logging
 import math
@@ -360,6 +361,26 @@ def _failure_status(exc: BaseException) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``evsda`` command on ``argv`` (None: this process's command line, the ``evsda`` script's call, after which
+    the interpreter ends: see :func:`_skip_exit_collection`); its exit status."""
+    try:
+        return _main(argv)
+    finally:
+        if argv is None:
+            _skip_exit_collection()
+
+
+def _skip_exit_collection() -> None:
+    """Spare the interpreter's exit its cyclic garbage collections: they walk every object still alive (~170 000
+    after a run: the blocks' modules, Numba's dispatchers and LLVM wrappers) several times, ~0.4 s of CPU after
+    the tracked 10 s pass, against ~0.07 s once these objects are moved out of the collector's sight
+    (``gc.freeze``). Nothing is lost: the run's store, files and lock are closed, and the process's memory goes
+    back to the system whole when it ends. Only for the process's own command (a caller that goes on keeps its
+    collections)."""
+    gc.freeze()
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         parser = build_parser(contributed_commands())
     except UserError as exc:

@@ -1,0 +1,368 @@
+"""Where the wall time of a run goes, thread by thread (issue 13): a timeline of one ``evsda run``.
+
+Runs a graph (default: the tracked 10 s pass of benchmarks/end_to_end.yaml, pipelined as by default) in a
+child process that notes, on each thread, when each block step (block, window), each item of the blocks'
+parallel loops (:func:`evsda.graph.threads.parallel_map`), each recording of a window, each Numba cache load,
+each path choice and probe starts and ends, with the thread's CPU time at both ends. The parent reads every
+thread's scheduler statistics (``/proc/PID/task/TID/schedstat``: time on a core, time queued for one) and the
+machine's (``/proc/stat``) every ``--sample-ms``. It prints:
+
+* the stretches of the wall: the interpreter and imports, the graph's load, the blocks' set-up, the first
+  window until the pixels start (the optics' first window, its path-choice probes and Numba loads), the
+  steady part, the tail after the optics' last step, the finish and the store; for each, how many of the
+  run's threads were on a core on average and how much the machine's other processes ran;
+* how long the run had no core, one core or both busy (``--cores``), and the core-seconds left idle;
+* per thread: its steps, time on a core, time queued for a core (taken by other processes), and time in a
+  step off a core (waiting for the interpreter lock, or for helpers at the end of a parallel loop);
+* the optics' chain of windows: its steps' wall, and the gaps between one optics step and the next, with
+  what the optics waited for.
+
+``--trace out.json`` writes the spans and the cores-busy counter in Chrome's trace format (open it in
+https://ui.perfetto.dev). ``--against OTHER`` runs another checkout's ``evsda`` (its own ``.venv``) too,
+alternated. Run it with the probe cache off, as the benchmarks do:
+
+    EVSDA_CACHE=off OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/framework_timeline.py [--duration 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+GRAPH = Path(__file__).with_name("end_to_end.yaml")
+
+#: the child: ``evsda`` (its CLI's ``main``) with spans noted on every thread; argv[1] is where the spans go
+CHILD = r'''
+import json, sys, threading, time
+T0 = time.monotonic()
+import evsda.graph.cli as cli
+from evsda.graph import executor as ex, threads as th
+T_IMPORTED = time.monotonic()
+spans, names, local = [], {}, threading.local()
+
+def note(kind, label, window, t0, c0):
+    tid = threading.get_native_id()
+    names.setdefault(tid, threading.current_thread().name)
+    spans.append((tid, kind, label, window, t0, time.monotonic(), c0, time.thread_time()))
+
+def spanned(kind, label_of, window_of=lambda *a: -1):
+    def wrap(fn):
+        def inner(*args, **kwargs):
+            t0, c0 = time.monotonic(), time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                note(kind, label_of(*args), window_of(*args), t0, c0)
+        inner.__wrapped__ = fn
+        return inner
+    return wrap
+
+def step(fn):
+    def inner(self, name, window, inputs):
+        local.block, local.window = name, window.index
+        t0, c0 = time.monotonic(), time.thread_time()
+        try:
+            return fn(self, name, window, inputs)
+        finally:
+            note("step", name, window.index, t0, c0)
+            local.block = None
+    return inner
+
+plain_map = th.parallel_map
+def parallel_map(fn, items, threads):
+    block, window = getattr(local, "block", None), getattr(local, "window", -1)
+    def item(x):
+        t0, c0 = time.monotonic(), time.thread_time()
+        try:
+            return fn(x)
+        finally:
+            note("item", block, window, t0, c0)
+    return plain_map(item, items, threads)
+th.parallel_map = parallel_map
+
+ex.Executor._step_block = step(ex.Executor._step_block)
+ex.Executor._record_window = spanned("store", lambda *a: "record", lambda s, w, *a: w.index)(ex.Executor._record_window)
+ex.Executor._commit = spanned("store", lambda *a: "commit")(ex.Executor._commit)
+for method in ("_execute", "_run_windows", "_finish_blocks", "_finish_store"):
+    setattr(ex.Executor, method, spanned("phase", lambda *a, m=method: m)(getattr(ex.Executor, method)))
+
+plain_load = cli.load_graph
+def load_graph(*args, **kwargs):
+    t0, c0 = time.monotonic(), time.thread_time()
+    graph = plain_load(*args, **kwargs)
+    note("phase", "load_graph", -1, t0, c0)
+    for module in list(sys.modules.values()):             # the blocks imported parallel_map by name
+        if getattr(module, "parallel_map", None) is plain_map:
+            module.parallel_map = parallel_map
+    extras = [("numba.core.caching", "Cache", "load_overload", "numba load"),
+              ("evsda.blocks.optics.imaging", "Imager", "prepare", "path choice"),
+              ("evsda.blocks.optics.paths", "PathChooser", "_remembered", "probe")]
+    for module, cls, method, kind in extras:
+        owner = getattr(sys.modules.get(module), cls, None)
+        if owner is not None and hasattr(owner, method):
+            setattr(owner, method, spanned(kind, lambda *a: getattr(local, "block", None),
+                                           lambda *a: getattr(local, "window", -1))(getattr(owner, method)))
+    return graph
+cli.load_graph = load_graph
+
+spans_path, sys.argv = sys.argv[1], ["evsda", *sys.argv[2:]]
+try:
+    status = cli.main()                                    # as the evsda script calls it
+finally:
+    text = json.dumps({"t0": T0, "imported": T_IMPORTED, "end": time.monotonic(), "spans": spans,
+                       "names": {str(k): v for k, v in names.items()}})
+    with open(spans_path, "w") as f:
+        f.write(text[:-1] + ', "dumped": %r}' % time.monotonic())      # the exit starts here
+sys.exit(status)
+'''
+
+CLOCK_TICK_S = 1 / os.sysconf("SC_CLK_TCK")
+
+
+def _schedstat(pid: int) -> dict[int, tuple[int, int]]:
+    """Each thread of ``pid``: (time on a core, time queued for one) [ns]."""
+    out = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
+                on_core, queued, _ = f.read().split()
+            out[int(tid)] = (int(on_core), int(queued))
+        except (OSError, ValueError):
+            pass
+    return out
+
+
+def _machine_busy() -> float:
+    """The machine's busy time, every core, since boot [s] (``/proc/stat``)."""
+    with open("/proc/stat") as f:
+        values = [int(v) for v in f.readline().split()[1:]]
+    return (sum(values[:8]) - values[3] - values[4]) * CLOCK_TICK_S      # all but idle and iowait
+
+
+def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s: float, env: dict) -> dict:
+    """One timed run (``env``: more environment): the child's spans and the samples [(t, {tid: (on core,
+    queued)}, machine busy)]."""
+    with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
+        spans_path = Path(f.name)
+    env = {**os.environ, **env}
+    start = time.monotonic()
+    child = subprocess.Popen([str(python), "-c", CHILD, str(spans_path), "run", str(graph), "-o", str(store),
+                              "--overwrite", "--no-progress", "--quiet", "--set", f"run.duration_s={duration}"],
+                             env=env, stderr=subprocess.PIPE, text=True)
+    samples, last = [], {}
+    while child.poll() is None:
+        stats = _schedstat(child.pid)
+        last.update(stats)                                  # a thread that ended keeps its last reading
+        samples.append((time.monotonic(), dict(last), _machine_busy()))
+        time.sleep(sample_s)
+    end = time.monotonic()
+    samples.append((end, dict(last), _machine_busy()))
+    if child.returncode:
+        raise RuntimeError(f"evsda run failed ({child.returncode}): {child.stderr.read()[-3000:]}")
+    data = json.loads(spans_path.read_text())
+    spans_path.unlink()
+    data.update(start=start, stop=end, samples=samples)
+    return data
+
+
+def busy_series(data: dict, cores: int) -> list[tuple[float, float, float, float]]:
+    """Per sample interval: (start, end, the run's threads on a core, the machine's other processes on one)."""
+    out = []
+    for (t0, a, m0), (t1, b, m1) in zip(data["samples"], data["samples"][1:]):
+        dt = t1 - t0
+        if dt <= 0:
+            continue
+        ours = sum(b[tid][0] - a.get(tid, (0, 0))[0] for tid in b) / 1e9 / dt
+        others = max(0.0, (m1 - m0) / dt - ours)
+        out.append((t0, t1, min(ours, cores), min(others, cores)))
+    return out
+
+
+def average_over(series, a: float, b: float) -> tuple[float, float]:
+    """The run's and the others' cores busy on average over [a, b]."""
+    ours = others = 0.0
+    for t0, t1, o, x in series:
+        overlap = min(b, t1) - max(a, t0)
+        if overlap > 0:
+            ours += o * overlap
+            others += x * overlap
+    return (ours / (b - a), others / (b - a)) if b > a else (0.0, 0.0)
+
+
+def stretches(data: dict) -> list[tuple[str, float, float]]:
+    """The stretches of the wall: (what, start, end), on the parent's clock."""
+    spans = data["spans"]
+    phase = {s[2]: s for s in spans if s[1] == "phase"}
+    steps = [s for s in spans if s[1] == "step"]
+    optics = sorted((s for s in steps if s[2].endswith("optics")), key=lambda s: s[4])
+    pixels = sorted((s for s in steps if s[2].endswith("pixel")), key=lambda s: s[4])
+    marks = [("interpreter start and imports", data["start"], data["imported"]),
+             ("graph load (block imports)", data["imported"], phase["load_graph"][5]),
+             ("set-up (store, blocks' setup)", phase["load_graph"][5], phase["_run_windows"][4]),
+             ("window 0 until the pixels start", phase["_run_windows"][4], pixels[0][4] if pixels else phase["_run_windows"][4]),
+             ("steady: pixels started, optics on", pixels[0][4] if pixels else phase["_run_windows"][4],
+              optics[-1][5] if optics else phase["_run_windows"][5]),
+             ("tail: after the optics' last step", optics[-1][5] if optics else phase["_run_windows"][5],
+              phase["_run_windows"][5]),
+             ("finish, store, summary", phase["_run_windows"][5], data["end"]),
+             ("interpreter exit", data["dumped"], data["stop"])]
+    return marks
+
+
+def report(data: dict, cores: int, label: str) -> dict:
+    """Print the figures of one run; return the headline ones."""
+    series = busy_series(data, cores)
+    wall = data["stop"] - data["start"]
+    last = data["samples"][-1][1]
+    cpu = sum(on for on, _ in last.values()) / 1e9
+    queued = sum(q for _, q in last.values()) / 1e9
+    print(f"\n== {label}: wall {wall:.2f} s, the run's threads on a core {cpu:.2f} s ({cpu / wall:.2f} cores on "
+          f"average of {cores}), queued for a core {queued:.2f} s")
+    print("  stretch                                   from     to   wall  our cores  others' cores")
+    for what, a, b in stretches(data):
+        ours, others = average_over(series, a, b)
+        print(f"  {what:38s} {a - data['start']:6.2f} {b - data['start']:6.2f} {b - a:6.2f}   {ours:6.2f}     {others:6.2f}")
+    levels = [0.0] * 3
+    for t0, t1, ours, _ in series:
+        levels[0 if ours < 0.5 else 1 if ours < 1.5 else 2] += t1 - t0
+    idle = cores * wall - cpu
+    others_idle = sum((t1 - t0) * min(x, cores - o) for t0, t1, o, x in series)
+    print(f"  wall with no core busy (< 0.5) {levels[0]:.2f} s, one (0.5-1.5) {levels[1]:.2f} s, two (>= 1.5) "
+          f"{levels[2]:.2f} s; {idle:.2f} core-s not ours, of which other processes ran {others_idle:.2f}")
+
+    spans = data["spans"]
+    by_thread = defaultdict(list)
+    for s in spans:
+        by_thread[s[0]].append(s)
+    print("  thread                 blocks (steps / items)                           on core  queued  in step off core")
+    for tid, (on, q) in sorted(last.items(), key=lambda kv: -kv[1][0]):
+        own = by_thread.get(tid, [])
+        steps = [s for s in own if s[1] == "step"]
+        items = [s for s in own if s[1] == "item"]
+        counted = defaultdict(int)
+        for s in steps:
+            counted[s[2]] += 1
+        for s in items:
+            counted[f"{s[2]} items"] += 1
+        top = ", ".join(f"{n} {c}" for n, c in sorted(counted.items(), key=lambda kv: -kv[1])[:3])
+        in_steps = sum(s[5] - s[4] for s in steps)
+        off = in_steps - sum(s[7] - s[6] for s in steps)
+        name = data["names"].get(str(tid), "main" if tid == min(last) else "?")
+        if on / 1e9 >= 0.01:
+            print(f"  {name[:22]:22s} {top[:48]:48s} {on / 1e9:7.2f} {q / 1e9:7.2f}  {off:7.2f}")
+
+    print("  block            steps  wall in steps  CPU in steps  CPU of its items (all threads)")
+    blocks = defaultdict(lambda: [0, 0.0, 0.0, 0.0])
+    for s in spans:
+        if s[1] == "step":
+            b = blocks[s[2]]
+            b[0] += 1
+            b[1] += s[5] - s[4]
+            b[2] += s[7] - s[6]
+        elif s[1] == "item" and s[2]:
+            blocks[s[2]][3] += s[7] - s[6]
+    for name, (n, w, c, i) in sorted(blocks.items(), key=lambda kv: -kv[1][1])[:6]:
+        print(f"  {name:16s} {n:5d}  {w:13.2f}  {c:12.2f}  {i:10.2f}")
+    extra = defaultdict(lambda: [0, 0.0, 0.0])
+    for s in spans:
+        if s[1] in ("numba load", "path choice", "probe", "store"):
+            e = extra[(s[1], s[3] == 0)]
+            e[0] += 1
+            e[1] += s[5] - s[4]
+            e[2] += s[7] - s[6]
+    for (kind, first), (n, w, c) in sorted(extra.items()):
+        print(f"  {kind + (' (window 0)' if first else ''):28s} {n:5d} spans, wall {w:6.2f} s, CPU {c:6.2f} s")
+
+    optics = sorted((s for s in spans if s[1] == "step" and s[2].endswith("optics")), key=lambda s: s[3])
+    window_end = defaultdict(float)                      # each window's last step's end
+    for s in spans:
+        if s[1] == "step":
+            window_end[s[3]] = max(window_end[s[3]], s[5])
+    gaps = [b[4] - a[5] for a, b in zip(optics, optics[1:])]
+    limit = sum(min(g, max(0.0, window_end[b[3] - 2] - a[5])) for g, a, b in zip(gaps, optics, optics[1:])
+                if b[3] - 2 in window_end)
+    total_gap = sum(gaps)
+    print(f"  optics chain: {len(optics)} steps, {sum(s[5] - s[4] for s in optics):.2f} s in steps; gaps between "
+          f"steps {total_gap:.2f} s (median {statistics.median(gaps) * 1e3 if gaps else 0:.1f} ms), {limit:.2f} s "
+          f"of them waiting for window k - 2 to end (the windows-ahead limit)")
+    return {"wall_s": wall, "cpu_s": cpu, "queued_s": queued, "cores": cpu / wall,
+            "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap}
+
+
+def write_trace(data: dict, path: Path, cores: int) -> None:
+    """The spans and the cores-busy counter in Chrome's trace format [us]."""
+    t0 = data["start"]
+    events = [{"name": f"{s[2]} {s[3]}" if s[3] >= 0 else str(s[2]), "cat": s[1], "ph": "X", "pid": 1, "tid": s[0],
+               "ts": (s[4] - t0) * 1e6, "dur": (s[5] - s[4]) * 1e6, "args": {"cpu_s": s[7] - s[6]}}
+              for s in data["spans"]]
+    events += [{"name": "thread_name", "ph": "M", "pid": 1, "tid": int(tid), "args": {"name": name}}
+               for tid, name in data["names"].items()]
+    events += [{"name": "cores busy", "ph": "C", "pid": 1, "ts": (a - t0) * 1e6, "args": {"ours": o, "others": x}}
+               for a, _, o, x in busy_series(data, cores)]
+    path.write_text(json.dumps({"traceEvents": events}))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
+    parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds [s]")
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each checkout or variant, alternated")
+    parser.add_argument("--sample-ms", type=float, default=10.0, help="scheduler statistics read every [ms]")
+    parser.add_argument("--cores", type=int, default=len(os.sched_getaffinity(0)), help="the machine's cores")
+    parser.add_argument("--serial", action="store_true", help="one step at a time (EVSDA_PIPELINE=0)")
+    parser.add_argument("--against", type=Path, help="another checkout (with its own .venv), run alternately")
+    parser.add_argument("--variant", action="append", default=[], metavar="LABEL:VAR=VALUE[,VAR=VALUE]",
+                        help="this checkout with more environment, run alternately (repeat for more)")
+    parser.add_argument("--quiet", action="store_true", help="print only one line a run and the medians")
+    parser.add_argument("--trace", type=Path, help="write the last run's spans here (Chrome trace format)")
+    args = parser.parse_args()
+    pipeline = {"EVSDA_PIPELINE": "0" if args.serial else "1"}
+    runs = {"this": (Path(sys.executable), pipeline)}
+    for text in args.variant:
+        label, _, settings = text.partition(":")
+        runs[label] = (Path(sys.executable), {**pipeline, **dict(kv.split("=", 1) for kv in settings.split(","))})
+    if args.against is not None:
+        runs[str(args.against)] = (args.against / ".venv" / "bin" / "python", pipeline)
+    print(f"{args.graph.name}, {args.duration:g} s simulated, {'serial' if args.serial else 'pipelined'}; "
+          f"EVSDA_CACHE={os.environ.get('EVSDA_CACHE', 'unset')}, "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; load {os.getloadavg()[0]:.2f}")
+    headline = defaultdict(list)
+    with tempfile.TemporaryDirectory() as tmp:
+        for repeat in range(args.repeats):
+            for label, (python, env) in runs.items():
+                load = os.getloadavg()[0]
+                data = sample_run(python, args.graph, args.duration, Path(tmp) / "run.zarr", args.sample_ms / 1e3, env)
+                title = f"{label} run {repeat + 1}, load {load:.2f}-{os.getloadavg()[0]:.2f}"
+                if args.quiet:
+                    with open(os.devnull, "w") as sink:
+                        stdout, sys.stdout = sys.stdout, sink
+                        try:
+                            figures = report(data, args.cores, title)
+                        finally:
+                            sys.stdout = stdout
+                    print(f"  {title}: " + ", ".join(f"{k} {v:.2f}" for k, v in figures.items()), flush=True)
+                else:
+                    figures = report(data, args.cores, title)
+                headline[label].append(figures)
+                if args.trace is not None:
+                    write_trace(data, args.trace, args.cores)
+    if args.repeats > 1 or len(runs) > 1:
+        print("\nmedians (queued_s: the run's threads waiting for a core that another process held):")
+        for label, rows in headline.items():
+            print(f"  {label:30s} " + ", ".join(f"{k} {statistics.median(r[k] for r in rows):.2f}" for k in rows[0]))
+
+
+if __name__ == "__main__":
+    main()
