@@ -117,27 +117,7 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spl
     """Amplitudes of the ``n x n`` FFT coefficients and, with ``subharmonics``, the three levels' powers and phasors;
     with ``spline``, those of the screen's B-spline coefficients (:func:`fft_spline_corners`): the amplitudes
     divided by :func:`spline_response` along each axis, and each level's 3 x 3 gains (iy, ix) for its draws."""
-    df = 1.0 / (n * delta)
-    fx = sfft.fftfreq(n, delta)
-    # fftfreq's frequency k is the exact negative of its frequency n - k (k times 1/(n delta), negated), and every
-    # step below is a function of |f| element by element: computed on the frequencies 0..n/2 of each axis (a quarter
-    # of the grid) and mirrored, the same numbers
-    half = n // 2 + 1
-    u = np.abs(fx[:half])
-    psd = phase_psd(np.hypot(u[:, None], u[None, :]), r0, L0)
-    psd[0, 0] = 0.0                                             # no piston
-    # coefficients c_k = (a + i b) sqrt(PSD) df, times n^2 to undo ifft2's 1/n^2: sum_k c_k exp(2 pi i f_k . x)
-    amplitude = np.sqrt(psd) * (df * n * n)
-    if spline:
-        inverse = 1.0 / spline_response(fx, delta)
-        if np.array_equal(_mirrored(inverse[:half], n), inverse):   # the cosine even to the bit (else on the full grid)
-            amplitude *= inverse[:half, None] * inverse[None, :half]
-            amplitude = _mirrored(amplitude, n)
-        else:
-            amplitude = _mirrored(amplitude, n)
-            amplitude *= inverse[:, None] * inverse[None, :]
-    else:
-        amplitude = _mirrored(amplitude, n)
+    amplitude = _amplitudes(n, delta, r0, L0, spline)
     amplitude.setflags(write=False)
     if not subharmonics:
         return amplitude, None
@@ -159,6 +139,32 @@ def _spectra(n: int, delta: float, r0: float, L0: float, subharmonics: bool, spl
     inverse = [1.0 / spline_response(f1, delta) for f1 in frequencies]
     gains = tuple(np.outer(g, g) for g in inverse)
     return amplitude, (*low, gains)
+
+
+def _amplitudes(n: int, delta: float, r0: float, L0: float, spline: bool) -> np.ndarray:
+    """``sqrt(PSD(|f|)) df n^2`` [rad] on the ``n x n`` FFT frequencies (no piston), divided by the B-spline's response
+    along each axis with ``spline`` (:func:`_spectra`).
+
+    fftfreq's frequency k is the exact negative of its frequency n - k (k times 1/(n delta), negated), and every step
+    is a function of ``|f|`` element by element: they are computed on the frequencies 0..n/2 of each axis (a quarter
+    of the grid) and mirrored, the same numbers. That is checked on the grid's last row and on the spline's response
+    computed in full (a vectorised kernel that rounded by position would fail it): the whole grid otherwise."""
+    fx = sfft.fftfreq(n, delta)
+    inverse = 1.0 / spline_response(fx, delta) if spline else None
+    half = n // 2 + 1
+    u = np.abs(fx[:half])
+    psd = phase_psd(np.hypot(u[:, None], u[None, :]), r0, L0)
+    mirrored = (np.array_equal(_mirrored(psd[1], n), phase_psd(np.hypot(fx[-1], fx), r0, L0))
+                and (inverse is None or np.array_equal(_mirrored(inverse[:half], n), inverse)))
+    if not mirrored:
+        half = n
+        psd = phase_psd(np.hypot(fx[:, None], fx[None, :]), r0, L0)
+    psd[0, 0] = 0.0                                             # no piston
+    # coefficients c_k = (a + i b) sqrt(PSD) df, times n^2 to undo ifft2's 1/n^2: sum_k c_k exp(2 pi i f_k . x)
+    amplitude = np.sqrt(psd) * (1.0 / (n * delta) * n * n)
+    if spline:
+        amplitude *= inverse[:half, None] * inverse[None, :half]
+    return _mirrored(amplitude, n) if mirrored else amplitude
 
 
 def _mirrored(quarter: np.ndarray, n: int) -> np.ndarray:

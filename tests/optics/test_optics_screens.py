@@ -520,3 +520,23 @@ def test_fft_spectra_from_a_quarter_are_the_full_grids(n, delta, L0):
     inverse = 1.0 / spline_response(fx, delta)
     full *= inverse[:, None] * inverse[None, :]
     assert np.array_equal(_spectra.__wrapped__(n, delta, 0.1, L0, True, True)[0], full)
+
+
+def test_fft_spectra_computed_in_full_where_a_kernel_rounds_by_position(monkeypatch):
+    """Where the PSD's kernel gave position-dependent numbers (simulated), the mirror check fails and the amplitudes
+    are the full grid's."""
+    from scipy import fft as sfft
+
+    from evsda.blocks.optics import fft_screens
+
+    def by_position(f, r0, L0=np.inf):
+        f = np.asarray(f, dtype=float)
+        return phase_psd(f, r0, L0) * (1.0 + 1e-15 * np.arange(f.size).reshape(f.shape))
+
+    monkeypatch.setattr(fft_screens, "phase_psd", by_position)
+    n, delta = 64, 0.01
+    fx = sfft.fftfreq(n, delta)
+    psd = by_position(np.hypot(fx[:, None], fx[None, :]), 0.1, 20.0)
+    psd[0, 0] = 0.0
+    full = np.sqrt(psd) * (1.0 / (n * delta) * n * n)
+    assert np.array_equal(fft_screens._amplitudes(n, delta, 0.1, 20.0, False), full)
