@@ -33,8 +33,8 @@ from evsda.graph.graphfile import load_graph
 
 GRAPH = Path(__file__).with_name("end_to_end.yaml")
 #: compiled kernels the block calls on its own thread, all ``nogil``
-KERNELS = ("select_pixels", "take_and_run", "drive_rows", "own_changes", "under_stamps", "_adds_flux", "_sum_stamps",
-           "_summed_stamps")
+KERNELS = ("select_pixels", "take_and_run", "take_ranges", "drive_rows", "own_changes", "under_stamps", "_adds_flux",
+           "_sum_stamps", "_summed_stamps")
 
 
 def pixel_inputs(duration_s: float) -> tuple[pixel_block.DvsPixel, list]:

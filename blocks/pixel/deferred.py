@@ -133,6 +133,35 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
+def take_ranges(pixels, takes, applied, base, end, kept, offset, n_kept, changed, first, counts):
+    """The changes :func:`take_and_run` gives each of ``pixels`` (from :func:`select_pixels`), as
+    ``(lo, hi, quiet_lo)``: those that take pending background changes (``takes``) their
+    :meth:`SharedChanges.quiet_ranges` of the ``n_kept`` kept changes placed at ``offset`` (the first ``kept``
+    from before this window), marked taken (``applied`` set to ``end``: they take them all in this window's
+    run); ``changed[k]`` its own changes ``first[k]:first[k] + counts[k]``; the others none. One pass, compiled:
+    these were NumPy's gathers and scatters under the GIL."""
+    n = pixels.size
+    lo, hi, quiet_lo = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        p = pixels[i]
+        lo[i], hi[i], quiet_lo[i] = 0, 0, -1
+        if takes[i]:
+            pending = applied[p] - base
+            if pending < kept - 1:                    # quietly up to the last but one kept change
+                lo[i], quiet_lo[i] = offset + kept - 1, pending
+            else:
+                lo[i] = offset + pending
+            hi[i] = offset + n_kept
+            applied[p] = end
+        while k < changed.size and changed[k] < p:
+            k += 1
+        if k < changed.size and changed[k] == p:
+            lo[i], hi[i] = first[k], first[k] + counts[k]
+    return lo, hi, quiet_lo
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def take_quietly_reference(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large):
     """Give ``pixels[i]`` the changes ``lo[i] .. end - 1`` (``steps``, ``inputs`` rows) without looking
     for comparator events between them: the compiled loop's own updates (:func:`.pixel_loop._advance`

@@ -33,7 +33,7 @@ from evsda.graph.threads import parallel_map
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
-from .deferred import SharedChanges, select_pixels, take_and_run
+from .deferred import SharedChanges, select_pixels, take_and_run, take_ranges
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
 from .own_changes import own_changes, under_stamps
@@ -151,18 +151,14 @@ class EventDrivenPixels:
                                       np.int64(n_end), np.int64(s["shared_base"]), np.int64(history.end),
                                       *history.suffix_bounds(Y, PARA), self._envelope, leak_hz * dt, dt,
                                       self.defer_background, refresh)
-        lo, hi = np.zeros(pixels.size, np.int64), np.zeros(pixels.size, np.int64)
-        quiet_lo = np.full(pixels.size, -1, np.int64)
-        taking = pixels[takes]
-        lo[takes], hi[takes], quiet_lo[takes] = history.quiet_ranges(taking, kept, own_pixel.size)
-        where = np.searchsorted(pixels, changed)
-        lo[where], hi[where] = first, first + counts
+        lo, hi, quiet_lo = take_ranges(pixels, takes, s["applied"], np.int64(s["shared_base"]), np.int64(history.end),
+                                       np.int64(kept), np.int64(own_pixel.size), np.int64(s["shared_step"].size),
+                                       changed, first, counts)        # and marks those that take changes taken
         change_step = np.concatenate([own_step, s["shared_step"]])
         change_input = np.empty((own_flux.size + s["shared_input"].shape[0], len(REAL)))   # own rows, then kept
         drive_rows(np.ascontiguousarray(own_flux, dtype=float), self._drive, change_input[:own_flux.size])
         change_input[own_flux.size:] = s["shared_input"]
         self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log, quiet_lo, kept - 1)
-        history.taken(taking)
         history.taken(touched)
         self._windows += 1
         if self._windows % _PRUNE_EVERY == 0:                # a sweep of every pixel's count, for memory only
@@ -249,6 +245,8 @@ class EventDrivenPixels:
         quiet_lo = quiet_lo.copy()
 
         def kernel(index, buffers):
+            if index.size and index[-1] - index[0] + 1 == index.size:    # a run of items (ascending): views
+                index = slice(index[0], index[-1] + 1)
             out = take_and_run(s["real"], s["count"], s["next"], self._wake, self._envelope, pixels[index],
                                quiet_lo[index], np.int64(quiet_end), s["shared_step"], s["shared_input"], lo[index],
                                hi[index], change_step, change_input, np.int64(n_end), *self._constants, *buffers)
@@ -286,5 +284,6 @@ class EventDrivenPixels:
             for events, *_ in done:
                 log.add(*events)
             log.lose(sum(lost for *_, lost in done))
-            items = items[np.concatenate([np.arange(a, b) for _, a, b, _ in done])]
+            left = [np.arange(a, b) for _, a, b, _ in done if a < b]
+            items = items[np.concatenate(left)] if left else items[:0]
             capacity *= 2

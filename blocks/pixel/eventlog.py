@@ -17,9 +17,9 @@ class EventLog:
     def add(self, step, pixel, polarity, cause) -> None:
         shape = np.shape(pixel)
         if np.size(pixel):
-            self._chunks.append(tuple(np.broadcast_to(np.asarray(v, dtype), shape)
-                                      for v, dtype in ((step, np.int64), (pixel, np.int64),
-                                                       (polarity, np.int8), (cause, np.uint8))))
+            parts = (np.asarray(v, dtype) for v, dtype in ((step, np.int64), (pixel, np.int64), (polarity, np.int8),
+                                                           (cause, np.uint8)))
+            self._chunks.append(tuple(v if v.shape == shape else np.broadcast_to(v, shape) for v in parts))
 
     def lose(self, count) -> None:
         self.n_loss += int(count)
