@@ -160,20 +160,24 @@ def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s
     start = time.monotonic()
     child = subprocess.Popen([str(python), "-c", CHILD, str(spans_path), "run", str(graph), "-o", str(store),
                               "--overwrite", "--no-progress", "--quiet", "--set", f"run.duration_s={duration}"],
-                             env=env, stderr=subprocess.PIPE, text=True)
+                             env=env, stderr=(errors := tempfile.TemporaryFile("w+")))
     samples, last = [], {}
-    while child.poll() is None:
-        stats = _schedstat(child.pid)
-        last.update(stats)                                  # a thread that ended keeps its last reading
+    while True:
+        pid, status, usage = os.wait4(child.pid, os.WNOHANG)
+        if pid:
+            break
+        last.update(_schedstat(child.pid))                  # a thread that ended keeps its last reading
         samples.append((time.monotonic(), dict(last), _machine_busy()))
         time.sleep(sample_s)
     end = time.monotonic()
     samples.append((end, dict(last), _machine_busy()))
+    child.returncode = os.waitstatus_to_exitcode(status)           # reaped here, with its peak memory
     if child.returncode:
-        raise RuntimeError(f"evsda run failed ({child.returncode}): {child.stderr.read()[-3000:]}")
+        errors.seek(0)
+        raise RuntimeError(f"evsda run failed ({child.returncode}): {errors.read()[-3000:]}")
     data = json.loads(spans_path.read_text())
     spans_path.unlink()
-    data.update(start=start, stop=end, samples=samples)
+    data.update(start=start, stop=end, samples=samples, peak_mb=usage.ru_maxrss / 1024)
     return data
 
 
@@ -229,7 +233,7 @@ def report(data: dict, cores: int, label: str) -> dict:
     cpu = sum(on for on, _ in last.values()) / 1e9
     queued = sum(q for _, q in last.values()) / 1e9
     print(f"\n== {label}: wall {wall:.2f} s, the run's threads on a core {cpu:.2f} s ({cpu / wall:.2f} cores on "
-          f"average of {cores}), queued for a core {queued:.2f} s")
+          f"average of {cores}), queued for a core {queued:.2f} s, peak {data['peak_mb']:.0f} MB")
     print("  stretch                                   from     to   wall  our cores  others' cores")
     for what, a, b in stretches(data):
         ours, others = average_over(series, a, b)
@@ -297,7 +301,7 @@ def report(data: dict, cores: int, label: str) -> dict:
     print(f"  optics chain: {len(optics)} steps, {sum(s[5] - s[4] for s in optics):.2f} s in steps; gaps between "
           f"steps {total_gap:.2f} s (median {statistics.median(gaps) * 1e3 if gaps else 0:.1f} ms), {limit:.2f} s "
           f"of them waiting for window k - 2 to end (the windows-ahead limit)")
-    return {"wall_s": wall, "cpu_s": cpu, "queued_s": queued, "cores": cpu / wall,
+    return {"wall_s": wall, "cpu_s": cpu, "queued_s": queued, "cores": cpu / wall, "peak_mb": data["peak_mb"],
             "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap}
 
 
