@@ -393,14 +393,15 @@ class PathChooser:
             # the same screens held at each of AVERAGED_POSITIONS positions: how an analytic path's distance
             # falls as the frames at one position are averaged (a pixel's share of a PSF depends on where it sits)
             means = {name: np.zeros(len(AVERAGED_GROUPS)) for name in ANALYTIC_PATHS}
-            for offset in offsets[:AVERAGED_POSITIONS]:
+            positions = offsets[:AVERAGED_POSITIONS]
+            held = {name: imager.path_named[name].stamps(imager.path_named[name].renderer(zenith_rad), positions)
+                    for name in ANALYTIC_PATHS}                   # each position's analytic stamp
+            for p, offset in enumerate(positions):
                 still = np.broadcast_to(offset, offsets.shape)
                 pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, still)
+                grouped = [pupil.reshape(-1, k, *pupil.shape[1:]).mean(axis=1) for k in AVERAGED_GROUPS]
                 for name in ANALYTIC_PATHS:
-                    path = imager.path_named[name]
-                    analytic = path.stamps(path.renderer(zenith_rad), offset[None])[0]
-                    means[name] += [float(total_variation(pupil.reshape(-1, k, *pupil.shape[1:]).mean(axis=1),
-                                                          analytic, flux).mean()) for k in AVERAGED_GROUPS]
+                    means[name] += [float(total_variation(group, held[name][p], flux).mean()) for group in grouped]
             for name in ANALYTIC_PATHS:
                 fits[name] = fit_averaged(np.array(AVERAGED_GROUPS), means[name] / AVERAGED_POSITIONS)
         return distances, fits
