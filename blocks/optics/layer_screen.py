@@ -88,7 +88,7 @@ def _fresh_stages(n: int, width: int) -> tuple[tuple[int, np.ndarray, np.ndarray
         while stop < width and stencil_width(min(stop, n)) == stencil_width(min(made, n)):
             stop += 1
         steps = np.arange(made, stop, dtype=np.int64)
-        stages.append((made, np.zeros_like(steps), steps - n, np.full_like(steps, RIGHT)))
+        stages.append((made, np.zeros_like(steps), steps - n, np.full(steps.shape, RIGHT, np.int8)))  # int8: the walks' sides
         made = stop
     return tuple(stages)
 

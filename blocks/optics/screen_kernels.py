@@ -154,8 +154,13 @@ def _plan_into(low, high, epochs, n, margin, regenerate_only, origin, epoch, has
 
 @jit
 def _grow(array, capacity):
+    """``array`` (C order) in a new one of ``capacity`` rows. The compiled kernels copy arrays element by element,
+    never by a slice assignment from an array: its shape-mismatch error message alone (Numba's string formatting)
+    costs ~2-3 s of CPU on a first run without a cache (``benchmarks/optics_compile.py``)."""
     out = np.empty((capacity,) + array.shape[1:], array.dtype)
-    out[:array.shape[0]] = array
+    source, target = array.reshape(-1), out.reshape(-1)
+    for i in range(source.shape[0]):
+        target[i] = source[i]
     return out
 
 
@@ -361,12 +366,16 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
                 lo1, hi1 = min(lo1, before[op, 1]), max(hi1, before[op, 1])
             canvas = np.empty((hi0 + n - lo0, hi1 + n - lo1))      # only windows are written and read
             top, left = origin[0] - lo0, origin[1] - lo1
-            canvas[top:top + n, left:left + n] = window
+            for r in range(n):
+                for q in range(n):
+                    canvas[top + r, left + q] = window[r, q]
             extend_columns(canvas, before[s:e, 0] - lo0, before[s:e, 1] - lo1, sides[s:e], a, b, stencil_rows,
                            stencil_back, noise[used * n:(used + e - s) * n], n)
             used += e - s
             origin[0], origin[1] = after0, after1
-            window[:, :] = canvas[after0 - lo0:after0 - lo0 + n, after1 - lo1:after1 - lo1 + n]
+            for r in range(n):
+                for q in range(n):
+                    window[r, q] = canvas[after0 - lo0 + r, after1 - lo1 + q]
             top, left = lo0, lo1
         else:
             canvas = window
@@ -444,17 +453,18 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
         if kind.shape[0] and kind[0] < 0:
             failed = l
             break
-        frame_ops[l] = fo
+        for f in range(frames):
+            frame_ops[l, f] = fo[f]
         a0, a1 = op_at[l], op_at[l] + kind.shape[0]
         op_at[l + 1] = a1
         if a1 > sides.shape[0]:
             capacity = max(2 * sides.shape[0], a1)
             sides, op_epochs = _grow(sides, capacity), _grow(op_epochs, capacity)
             centres, befores = _grow(centres, capacity), _grow(befores, capacity)
-        sides[a0:a1] = side
-        op_epochs[a0:a1] = op_epoch
-        centres[a0:a1] = centre
-        befores[a0:a1] = before
+        for i in range(a1 - a0):
+            sides[a0 + i], op_epochs[a0 + i] = side[i], op_epoch[i]
+            centres[a0 + i, 0], centres[a0 + i, 1] = centre[i, 0], centre[i, 1]
+            befores[a0 + i, 0], befores[a0 + i, 1] = before[i, 0], before[i, 1]
         if e + starts.shape[0] + renewals.shape[0] > edges.shape[0]:
             edges = _grow(edges, 2 * (e + starts.shape[0] + renewals.shape[0]))
         if g + renewals.shape[0] + 1 > segments.shape[0]:
