@@ -92,9 +92,9 @@ class Pipeline:
                 state.stopped = True               # start nothing more; the pool waits for the running steps
 
 
-def _counted(step, name, window, inputs, urgency):
-    """``step(name, window, inputs)`` counted as a running step of ``urgency`` (:func:`.threads.running_step`)."""
-    with running_step(urgency):
+def _counted(step, name, window, inputs):
+    """``step(name, window, inputs)`` counted as a running step (:func:`.threads.running_step`)."""
+    with running_step():
         return step(name, window, inputs)
 
 
@@ -141,8 +141,7 @@ class _State:
                     continue
                 if all(self.done[u] >= k for u in self.p.upstream[name]):
                     inputs = self.p.gather(name, self.values[k])
-                    future = pool.submit(_counted, self.p.step, name, self.run.window(k), inputs,
-                                         (k, -self.p.position[name]))
+                    future = pool.submit(_counted, self.p.step, name, self.run.window(k), inputs)
                     self.running[future] = (name, k)
                     self.busy.add(name)
 

@@ -15,10 +15,8 @@ The blocks' parallel loops (sources rendered side by side, probe pairs, pixel ch
 ``ThreadPoolExecutor`` of their own, made and joined at every call: new threads every window (and new
 per-thread buffers, first touched again), and, with pipelined windows, the optics' and the pixels'
 pools side by side on top of the pipeline's threads. :func:`parallel_map` runs them on the calling
-thread plus helpers from one pool the process keeps, and hands out the cores as tokens: a helper works only
-while a core is free, so the threads at work stay within the cores, and a loop beside another step gets the
-second core as soon as that step ends (on the tracked pass the optics' ~14 sources a window had run on one
-thread whenever the pixels' step had been running when the loop began: 96 windows of 100).
+thread plus helpers from one pool the process keeps: ``threads - 1`` helpers serve every caller, so a
+window's threads are the pipeline's steps plus that many.
 """
 
 from __future__ import annotations
@@ -146,159 +144,71 @@ def _helper_pool(count: int) -> ThreadPoolExecutor:
 
 def _forget_helpers() -> None:
     """In a forked child: the parent's helper threads do not exist there."""
-    global _helpers, _helper_count, _busy, _helpers_wanted, _cores
-    _helpers, _helper_count, _busy, _helpers_wanted, _cores = None, 0, 0, 0, threading.Condition()
-    _waiting_loops.clear()
-    _here.__dict__.clear()
+    global _helpers, _helper_count
+    _helpers, _helper_count = None, 0
 
 
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_helpers)
 
 
-# Cores are handed out as tokens. A thread at work holds one: a pipelined step (:func:`running_step`), a
-# parallel loop's caller outside a step, a helper on an item. A helper takes a token for each item and gives it
-# back after it, so the helpers of a loop join it as cores come free (a step beside it ends) and leave it when
-# one is wanted elsewhere; of the loops waiting for a core, the one with the most urgent step gets it.
-_cores = threading.Condition()
-_busy = 0                                       # threads holding a core now
-_helpers_wanted = 0                             # helpers of the loops running now (the pool's size)
-_here = threading.local()                       # .counted: this thread holds a core; .urgency: its step's
+_steps_running = 0                              # pipelined block steps running now (:func:`running_step`)
 
 
 @contextmanager
-def _holding_core(urgency: tuple = ()):
-    """This thread counted as holding a core (once, however deeply nested), with ``urgency`` for its loops."""
-    global _busy
-    counted, previous = getattr(_here, "counted", False), getattr(_here, "urgency", ())
-    if not counted:
-        with _cores:
-            _busy += 1
-    _here.counted, _here.urgency = True, urgency if not counted or urgency else previous
+def running_step():
+    """Count a pipelined block step as running while in this context: :func:`parallel_map` gives such a step
+    one helper fewer for every other step running beside it (they share the cores)."""
+    global _steps_running
+    with _helpers_lock:
+        _steps_running += 1
     try:
         yield
     finally:
-        _here.counted, _here.urgency = counted, previous
-        if not counted:
-            with _cores:
-                _busy -= 1
-                _cores.notify_all()
-
-
-def running_step(urgency: tuple = ()):
-    """Count a pipelined block step as holding a core while in this context (a step beside it leaves its
-    :func:`parallel_map` loops one core fewer). ``urgency``: the step's rank when loops wait for a core, the
-    largest first (the pipeline gives ``(window, -position)``: the newest window, then the upstream block, the
-    critical path when the upstream block is the slowest)."""
-    return _holding_core(urgency)
-
-
-class _Loop:
-    """One :func:`parallel_map` call's shared book-keeping (guarded by ``_cores``)."""
-
-    def __init__(self, fn, items: list, limit: int, urgency: tuple):
-        self.fn, self.items, self.limit, self.urgency = fn, items, limit, urgency
-        self.results: list[Any] = [None] * len(items)
-        self.errors: dict[int, BaseException] = {}
-        self.taken = 0
-        self.waiting = 0                        # its helpers waiting for a core
-
-    def more(self) -> bool:
-        return self.taken < len(self.items) and not self.errors
-
-    def take(self) -> int:
-        self.taken += 1
-        if not self.more():
-            _cores.notify_all()                 # its waiting helpers leave
-        return self.taken - 1
-
-    def run(self, i: int) -> None:
-        try:
-            self.results[i] = self.fn(self.items[i])
-        except BaseException as exc:            # noqa: BLE001 -- re-raised by parallel_map, in the items' order
-            with _cores:
-                self.errors[i] = exc
-                _cores.notify_all()
-
-
-_waiting_loops: list[_Loop] = []                # loops with helpers waiting for a core
-
-
-def _may_help(loop: _Loop) -> bool:
-    """A helper of ``loop`` may take a core now: one is free (within the loop's limit) and no loop waiting for
-    one is more urgent."""
-    return _busy < loop.limit and all(other.urgency <= loop.urgency for other in _waiting_loops
-                                      if other.waiting and other.more())
-
-
-def _helper(loop: _Loop) -> None:
-    """A helper thread's part of ``loop``: the next item whenever a core is free for it, until none is left."""
-    global _busy
-    while True:
-        with _cores:
-            loop.waiting += 1
-            _waiting_loops.append(loop)
-            try:
-                while loop.more() and not _may_help(loop):
-                    _cores.wait()
-            finally:
-                loop.waiting -= 1
-                _waiting_loops.remove(loop)
-            if not loop.more():
-                return
-            _busy += 1
-            i = loop.take()
-        _here.counted, _here.urgency = True, loop.urgency
-        try:
-            loop.run(i)
-        finally:
-            _here.counted, _here.urgency = False, ()
-            with _cores:
-                _busy -= 1
-                _cores.notify_all()
+        with _helpers_lock:
+            _steps_running -= 1
 
 
 def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[T]:
-    """``[fn(item) for item in items]``, on up to ``threads`` threads: the calling thread and helpers of the pool
-    the process shares, each taking the next item not yet taken.
+    """``[fn(item) for item in items]``, on up to ``threads`` threads: the calling thread and ``threads - 1``
+    helpers of the pool the process shares, each taking the next item not yet taken.
 
-    ``threads`` counts every thread of the process at work (:func:`running_step`): a helper takes an item only
-    while fewer are, so a loop beside another pipelined step on two cores runs on its caller until that step ends,
-    then a helper joins it. The caller never waits for a helper or a core: it works through the items itself, and
-    a helper that starts late finds none left (so nested and concurrent calls cannot deadlock). If ``fn`` raises,
-    no further item is started, the items already started finish, and the error of the first failing item (in the
-    items' order) is raised, the one the loop above would raise. Which thread runs an item is not fixed, so ``fn``
+    The caller never waits for a busy helper: it works through the items itself, and a helper that starts
+    late finds none left (so nested and concurrent calls cannot deadlock). If ``fn`` raises, no further item
+    is started, the items already started finish, and the error of the first failing item (in the items'
+    order) is raised, the one the loop above would raise. Which thread runs an item is not fixed, so ``fn``
     must give the same result on any thread.
     """
-    global _helpers_wanted
     items = list(items)
-    helpers = min(threads, len(items)) - 1
+    helpers = min(threads - max(_steps_running - 1, 0), len(items)) - 1
     if helpers < 1:
         return [fn(item) for item in items]
-    with _holding_core():
-        loop = _Loop(fn, items, threads, _here.urgency)
-        with _cores:
-            _helpers_wanted += helpers
-            wanted = _helpers_wanted
-        started = []
-        try:
-            pool = _helper_pool(wanted)
-            started = [pool.submit(_helper, loop) for _ in range(helpers)]
-            while True:
-                with _cores:
-                    if not loop.more():
-                        break
-                    i = loop.take()
-                loop.run(i)
-        finally:
-            with _cores:
-                _helpers_wanted -= helpers
-                if loop.more():                   # interrupted: no helper starts another item
-                    loop.taken = len(items)
-                _cores.notify_all()
-            for future in started:
-                if not future.cancel():           # running: it finishes the item it took
-                    future.result()
-    if loop.errors:
-        raise loop.errors[min(loop.errors)]
-    return loop.results
+    results: list[Any] = [None] * len(items)
+    errors: dict[int, BaseException] = {}
+    taken = [0]
+    lock = threading.Lock()
+
+    def work() -> None:
+        while True:
+            with lock:
+                i = taken[0]
+                if i >= len(items) or errors:
+                    return
+                taken[0] += 1
+            try:
+                results[i] = fn(items[i])
+            except BaseException as exc:          # noqa: BLE001 -- re-raised below, in the items' order
+                with lock:
+                    errors[i] = exc
+
+    pool = _helper_pool(helpers)
+    started = [pool.submit(work) for _ in range(helpers)]
+    try:
+        work()
+    finally:
+        for future in started:
+            if not future.cancel():               # running: it finishes the item it took
+                future.result()
+    if errors:
+        raise errors[min(errors)]
+    return results
