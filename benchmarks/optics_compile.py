@@ -10,6 +10,7 @@ the medians of:
 * the CPU time of each compiled function's own compile (Numba's ``numba:compile`` events, nested compiles of the
   functions it calls subtracted), summed by package (optics, pixel, the rest) and listed largest first with the
   number of type specialisations compiled (more than one: the same loop compiled again for other argument types);
+* the same summed by module;
 * Numba's own helpers (``np.empty``, ``np.argsort``, the error message of a slice assignment) compiled inside them,
   with the functions that pulled them in (their time is counted in those functions' own);
 * the store's events digest (the same in every run: the compiles change no result).
@@ -120,6 +121,13 @@ def main() -> None:
     count = {p: sum(len(cold[0]["signatures"].get(n, ())) for n in names if package(n) == p) for p in share}
     print("  own compile CPU by package, cold: " + ", ".join(f"{p} {share[p]:.2f} s ({count[p]} specialisations)"
                                                          for p in share))
+    modules = {}
+    for n in names:
+        modules.setdefault(n.split(".<locals>")[0].rsplit(".", 1)[0], []).append(n)
+    by_module = sorted(((median(sum(r["own"].get(n, 0.0) for n in ns) for r in cold), m, ns)
+                        for m, ns in modules.items()), reverse=True)
+    print("  by module: " + ", ".join(f"{m} {t:.2f} s ({sum(len(cold[0]['signatures'].get(n, ())) for n in ns)})"
+                                      for t, m, ns in by_module))
     print(f"  {'function':58s} {'CPU [s]':>8s} {'specs':>5s}")
     for n in names[:args.top]:
         sigs = cold[0]["signatures"].get(n, [])
