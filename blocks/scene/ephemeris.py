@@ -8,7 +8,7 @@ built into Skyfield, and the planetary ephemeris is JPL DE421 as shipped by the
 from __future__ import annotations
 
 import functools
-import warnings
+import os
 from datetime import datetime
 
 import numpy as np
@@ -20,16 +20,23 @@ NS_PER_DAY = 86_400 * 1_000_000_000
 
 @functools.cache
 def loader() -> Loader:
-    """A Skyfield loader reading the files shipped by ``skyfield-data`` (never the network).
+    """A Skyfield loader reading the files shipped by ``skyfield-data`` (never the network)."""
+    return Loader(data_folder(), verbose=False)
 
-    ``skyfield-data`` warns when its copy of ``finals2000A.all`` is past its date; evsda
-    does not read that file (UT1 comes from Skyfield's built-in tables), so the warning
-    is silenced here.
+
+def data_folder() -> str:
+    """The folder of ``skyfield-data``'s files: its package's ``data`` folder.
+
+    ``skyfield_data.get_skyfield_data_path()`` returns this folder after warning when its copy of
+    ``finals2000A.all`` is past its date. evsda does not read that file (UT1 comes from Skyfield's built-in
+    tables), so the folder is taken directly rather than the warning silenced: ``warnings.catch_warnings`` swaps
+    the process's filter list and is not thread-safe, and in a pipelined run another thread leaving its own
+    (the store's) let the warning through.
     """
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        path = skyfield_data.get_skyfield_data_path()
-    return Loader(path, verbose=False)
+    folder = os.path.join(os.path.dirname(skyfield_data.__file__), "data")
+    if not os.path.isfile(os.path.join(folder, "de421.bsp")):
+        raise RuntimeError(f"skyfield-data's de421.bsp is not in {folder}: reinstall skyfield-data")
+    return folder
 
 
 @functools.cache

@@ -1,5 +1,6 @@
 """Apparent directions, azimuth/elevation and range against Skyfield called directly."""
 
+import os
 from datetime import datetime, timedelta, timezone
 
 import numpy as np
@@ -98,3 +99,23 @@ def test_knot_spacing_error_against_skyfield(iss, graz, pass_start, knot_step_s,
     ref = model.skyfield_observer().at(skyfield_time(pass_start, t_ns)).observe(target).apparent().xyz.m.T
     separation = np.arccos(np.clip(np.sum(unit(ours) * unit(ref), axis=-1), -1, 1))
     assert separation.max() < bound_arcsec * ARCSEC
+
+
+def test_skyfield_data_folder_without_its_expiry_check(monkeypatch):
+    """The loader reads skyfield-data's own folder without calling its expiry check, whose warning about
+    finals2000A.all (a file evsda never reads) cannot be silenced thread-safely in a pipelined run."""
+    import warnings
+
+    import skyfield_data
+
+    from evsda.blocks.scene.ephemeris import data_folder, loader
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        assert data_folder() == skyfield_data.get_skyfield_data_path()
+
+    def checked(*args, **kwargs):
+        raise AssertionError("the expiry check ran")
+
+    monkeypatch.setattr(skyfield_data, "get_skyfield_data_path", checked)
+    assert loader.__wrapped__().path_to("de421.bsp") == os.path.join(data_folder(), "de421.bsp")
