@@ -5,6 +5,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from evsda.blocks.pixel.sampling import stable_order
+
 
 @numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
 def own_changes(held, background, row_of, sample, flux):
@@ -101,46 +103,14 @@ def under_stamps(before, pixel, slot):
 
 @numba.njit(cache=True, nogil=True)
 def _sorted_runs(values):
-    """``values`` in ascending order: a natural merge sort, the rising runs merged pairwise until one is left.
+    """``values`` in ascending order, by :func:`.sampling.stable_order` (a natural merge sort of rising runs).
 
     :func:`under_stamps`' pixels are a few rising runs (the pixels before, sorted, then the stamps' new pixels,
     sorted within each sample), so this takes a few passes; NumPy's sort, compiled on a first run, took ~1 s of
     compiling there (its quicksort's pieces).
     """
-    n = values.size
-    a, b = values.copy(), np.empty(n, values.dtype)
-    bounds = np.empty(n + 1, np.int64)               # where the runs start, then n
-    runs = 0
-    for i in range(n):
-        if i == 0 or a[i] < a[i - 1]:
-            bounds[runs] = i
-            runs += 1
-    bounds[runs] = n
-    while runs > 1:
-        merged = 0
-        for r in range(0, runs, 2):
-            lo, mid = bounds[r], bounds[r + 1]
-            hi = bounds[r + 2] if r + 1 < runs else mid
-            i, j, k = lo, mid, lo
-            while i < mid and j < hi:
-                if a[j] < a[i]:
-                    b[k] = a[j]
-                    j += 1
-                else:
-                    b[k] = a[i]
-                    i += 1
-                k += 1
-            while i < mid:
-                b[k] = a[i]
-                i += 1
-                k += 1
-            while j < hi:
-                b[k] = a[j]
-                j += 1
-                k += 1
-            bounds[merged] = lo
-            merged += 1
-        bounds[merged] = n
-        runs = merged
-        a, b = b, a
-    return a
+    order = stable_order(values)
+    out = np.empty_like(values)
+    for i in range(values.size):
+        out[i] = values[order[i]]
+    return out

@@ -133,7 +133,7 @@ def _summed_stamps(flux, origin, samples, which, stamp, height, width):
             i += 1
         # A stamp row's keys rise one by one: where no two rows overlap, the rows ordered by their first keys
         # give the keys in order, each once, which is the stable sort's order (a few rows to sort, not every key)
-        by_row = _stable_order(runs[:n_runs])
+        by_row = stable_order(runs[:n_runs])
         apart, n = True, 0
         for r in range(n_runs):
             rank = by_row[r]
@@ -146,7 +146,7 @@ def _summed_stamps(flux, origin, samples, which, stamp, height, width):
         if apart:
             ordered = order[:m - first]
         else:
-            ordered = _stable_order(keys[first:m])   # stable: a key's additions keep the stamps' order
+            ordered = stable_order(keys[first:m])   # stable: a key's additions keep the stamps' order
         for j in ordered:
             if u == 0 or keys[first + j] != unique[u - 1]:
                 unique[u] = keys[first + j]
@@ -156,12 +156,13 @@ def _summed_stamps(flux, origin, samples, which, stamp, height, width):
 
 
 @numba.njit(cache=True, nogil=True)
-def _stable_order(keys):
+def stable_order(keys):
     """The indices that sort ``keys`` ascending, equal keys in index order: ``np.argsort(keys, kind="stable")``.
 
     A natural merge sort of the indices: the rising runs of ``keys`` (a stamp's rows' keys rise), merged pairwise
-    until one is left, the left run's index first on a tie. NumPy's argsort (its merge sort's pieces) took
-    1.2-1.9 s of a first run's compiling here; this takes ~0.4 s (``benchmarks/optics_compile.py``).
+    until one is left, the left run's index first on a tie; also :func:`.own_changes.under_stamps`' sort. NumPy's
+    argsort (its merge sort's pieces) took 1.2-1.9 s of a first run's compiling here; this takes ~0.4 s
+    (``benchmarks/optics_compile.py``).
     """
     n = keys.size
     a, b = np.empty(n, np.int64), np.empty(n, np.int64)

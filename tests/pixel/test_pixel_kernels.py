@@ -116,13 +116,13 @@ def test_summed_stamps_are_the_stable_sort_of_the_stamps_pixels(spread):
     assert np.asarray(want_flux).tobytes() == summed.tobytes()
 
 
-def test_stable_order_is_numpys_stable_argsort():
+def teststable_order_is_numpys_stable_argsort():
     # _summed_stamps' own sort against np.argsort(kind="stable"): ties in index order, runs, edge sizes
-    from evsda.blocks.pixel.sampling import _stable_order
+    from evsda.blocks.pixel.sampling import stable_order
     rng = np.random.default_rng(11)
     cases = [np.zeros(0, np.int64), np.array([7], np.int64), np.array([2, 2, 1, 1, 0, 0], np.int64),
              np.arange(50, dtype=np.int64), np.arange(50, dtype=np.int64)[::-1].copy(), np.full(33, 4, np.int64)]
     cases += [rng.integers(0, hi, n).astype(np.int64) for n in (2, 3, 17, 1000, 4097) for hi in (2, 5, 1 << 40)]
     cases += [np.concatenate([np.sort(rng.integers(0, 30, rng.integers(0, 12))) for _ in range(40)]).astype(np.int64)]
     for keys in cases:
-        np.testing.assert_array_equal(_stable_order(keys), np.argsort(keys, kind="stable"))
+        np.testing.assert_array_equal(stable_order(keys), np.argsort(keys, kind="stable"))
