@@ -31,6 +31,8 @@ _F32 = np.float32
 #: twiddles exp(2 pi i m / 80) [1], rounded once to float32
 _TWIDDLE_RE = np.cos(2 * np.pi * np.arange(LENGTH) / LENGTH).astype(np.float32)
 _TWIDDLE_IM = np.sin(2 * np.pi * np.arange(LENGTH) / LENGTH).astype(np.float32)
+#: both, for compiled callers of :func:`field_powers`
+TWIDDLES = (_TWIDDLE_RE, _TWIDDLE_IM)
 #: radix-5 constants cos/sin(2 pi / 5), cos/sin(4 pi / 5), the sines negated (forward transform), and sqrt(1/2)
 _C1, _S1 = _F32(0.3090169943749474241022934171828191), -_F32(0.9510565162951535721164393333793821)
 _C2, _S2 = _F32(-0.8090169943749474241022934171828191), -_F32(0.5877852522924731291687059546390728)
@@ -89,6 +91,21 @@ def _rows(amplitude_t, cosine_t, sine_t, grid, scratch, twr, twi):
         # 0.9 us a frame less than the pass writing each row's outputs 80 samples apart
         _radix5(scratch[2], scratch[3], scratch[0], 40, 40, 1)
         _lanes_to_rows(scratch[0], grid[f])
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def field_powers(amplitude_t, cosine_t, sine_t, grid, power, scratch, twr, twi):
+    """One frame of :func:`rows` then :func:`column_powers`: ``power = |fft2(field, (80, 80))|^2`` (float32, 80 x 80
+    flat) of the field ``amplitude (cosine + i sine)`` given transposed and flat (float32, 1600 each); ``grid``: float32
+    (6400,), the rows' spectra (40 rows of 80 complex64); ``scratch``: float32 (4, 6400). The same passes on the same
+    values as the two calls, so the same bits, for a caller that renders frame by frame in compiled code."""
+    _radix2_field(amplitude_t, cosine_t, sine_t, scratch[0], scratch[1], twr, twi, 40)
+    _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 40)
+    _radix5(scratch[2], scratch[3], scratch[0], 40, 40, 1)
+    _lanes_to_rows(scratch[0], grid)
+    _radix2(grid, scratch[0], scratch[1], twr, twi, 80)
+    _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 80)
+    _radix5_powers(scratch[2], scratch[3], power)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

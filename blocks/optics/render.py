@@ -119,6 +119,11 @@ class PupilRenderer:
         # and along x where the pupil fills the first half exactly (the tracked pass's 40 samples)
         self._rows = self._columns and 2 * n_pupil == size
         self._local = threading.local()
+        # there, each frame from its field to its stamp in one compiled call a block (:func:`_stamp_frames`: no
+        # interpreter between the steps, no interpreter lock held), where its products ``B PSF B^T`` (BLAS through
+        # Numba's ``np.dot``) give numpy's ``matmul`` bits, checked on this renderer's ``B`` (:meth:`_frames_agree`)
+        self._frames = False
+        self._frames = self._rows and self._frames_agree()
 
     def _workspace(self, frames: int) -> tuple[np.ndarray, ...]:
         """This thread's buffers for a chunk of ``frames <= STAMP_CHUNK`` frames (sources render on several threads):
@@ -141,6 +146,37 @@ class PupilRenderer:
             buffers = self._local.frames = (np.empty((c, n, n), real), np.empty((c, n, n), real),
                                             np.empty((c, m, m), real))
         return tuple(b[:frames] for b in buffers)
+
+    def _frame_buffers(self) -> tuple[np.ndarray, ...]:
+        """This thread's buffers for :func:`_stamp_frames`, one frame: the rows' spectra (6400,) float32, the PSF
+        (L, L), ``PSF B^T`` (L, M), the stamp (M, M) in the renderer's precision and the passes' scratch (4, L^2)."""
+        buffers = getattr(self._local, "one_frame", None)
+        if buffers is None:
+            size, m, real = self.padded, self.sampler.size, self.b.dtype
+            buffers = self._local.one_frame = (np.empty(size * size, np.float32), np.empty((size, size), real),
+                                               np.empty((size, m), real), np.empty((m, m), real),
+                                               np.empty((4, size * size), np.float32))
+        return buffers
+
+    def _frames_agree(self) -> bool:
+        """Whether :func:`_stamp_frames` gives the chunked path's stamps bit for bit on random phases (once a
+        renderer): its FFT passes are :mod:`.column_fft`'s, its products BLAS's ``sgemm`` as Numba calls it (scipy's
+        BLAS), which must give the same sums as numpy's ``matmul`` (its own BLAS)."""
+        rng = np.random.default_rng(3)
+        n = self.n
+        amplitude = rng.uniform(0.0, 1.0, (n, n))
+        phase = rng.normal(0.0, 3.0, (5, n, n))
+        offset = rng.uniform(-0.5, 0.5, (5, 2))
+        curvature = rng.normal(0.0, 10.0, 5)
+        chunked = self.stamps(amplitude, phase, offset, curvature)
+        self._frames = True
+        try:
+            compiled = self.stamps(amplitude, phase, offset, curvature)
+        except Exception:                 # noqa: BLE001 -- no BLAS for Numba's np.dot: keep the chunked path
+            return False
+        finally:
+            self._frames = False
+        return bool(np.array_equal(chunked.view(np.uint64), compiled.view(np.uint64)))
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Separable pupil factors ``exp(i k theta . r)`` (F, n) along y and x moving the image by ``offset_px``."""
@@ -183,6 +219,11 @@ class PupilRenderer:
                 tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
             np.sin(cosine, out=sine)
             np.cos(cosine, out=cosine)
+            if self._rows and self._frames:
+                given = amplitude_t if len(amplitude_t) == 1 else amplitude_t[block]
+                _stamp_frames(given, cosine, sine, self.b, self.b_t, (self.delta**2 / self.wavelength) ** 2,
+                              float(self.area), out[block], *self._frame_buffers(), *column_fft.TWIDDLES)
+                continue
             for sl in _chunks(len(image), STAMP_CHUNK):
                 grid, *rest = self._workspace(sl.stop - sl.start)
                 if self._rows:
@@ -311,6 +352,29 @@ def tilted_phase_transposed(phase_t, curvature, r2, ky, kx, x, out):
             source, radius2, target = phase_t[f, j], r2[j], out[f, j]
             for i in range(rows):
                 target[i] = ((source[i] + c * radius2[i]) + along_y * x[i]) + along_x
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _stamp_frames(amplitude_t, cosine_t, sine_t, b, b_t, factor, area, out, grid, psf, half, image, scratch, twr,
+                  twi):
+    """:meth:`PupilRenderer.stamps`' steps after the cosine and sine, frame by frame in one call: the field's padded
+    FFTs and ``|.|^2`` (:func:`.column_fft.field_powers`), ``B PSF B^T`` (two ``sgemm`` as numpy's ``matmul`` makes
+    them per frame) and :meth:`PupilRenderer._scale` (``float64(image) factor / area``). ``amplitude_t`` (1 or F, n,
+    n), ``cosine_t``, ``sine_t`` (F, n, n): transposed (x, y), float32; ``out`` (F, M, M) float64; the rest this
+    thread's buffers (:meth:`PupilRenderer._frame_buffers`) and the twiddles."""
+    frames, n = cosine_t.shape[0], cosine_t.shape[1]
+    m = image.shape[0]
+    flat_psf = psf.reshape(-1)
+    for f in range(frames):
+        a = amplitude_t[f if amplitude_t.shape[0] > 1 else 0]
+        column_fft.field_powers(a.reshape(n * n), cosine_t[f].reshape(n * n), sine_t[f].reshape(n * n), grid,
+                                flat_psf, scratch, twr, twi)
+        np.dot(psf, b_t, half)
+        np.dot(b, half, image)
+        target = out[f]
+        for i in range(m):
+            for j in range(m):
+                target[i, j] = np.float64(image[i, j]) * factor / area
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

@@ -264,7 +264,8 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
     # the length-80 transforms along y and x (column_fft) against scipy.fft.fft on padded spectra and fields over 12
     # decades, then the renderer with them against the same renderer through scipy for 40 and 39 pupil samples (both
     # pad to 80; 40 fill the rows' first half, for the transforms along x; with 39 the row the compiled pass along y
-    # reads but the pupil leaves empty must stay zero between chunks)
+    # reads but the pupil leaves empty must stay zero between chunks); with 40, frame by frame in one compiled call
+    # (BLAS's products through Numba) against chunk by chunk (numpy's matmul)
     import scipy.fft as sfft
 
     from evsda.blocks.optics import column_fft
@@ -295,13 +296,18 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
         compiled = PupilRenderer(StampSampler(7, 12.15e-6, 9), n, delta, 568.3e-9, telescope.collecting_area_m2)
         through_scipy = PupilRenderer(StampSampler(7, 12.15e-6, 9), n, delta, 568.3e-9, telescope.collecting_area_m2)
         through_scipy._columns = through_scipy._rows = False
+        # and the compiled steps chunk by chunk (numpy's products) against frame by frame in one call (BLAS's)
+        chunked = PupilRenderer(StampSampler(7, 12.15e-6, 9), n, delta, 568.3e-9, telescope.collecting_area_m2)
+        chunked._frames = False
         assert compiled.padded == 80 and compiled._columns and compiled._rows == (n == 40)
+        assert compiled._frames == (n == 40)
         amplitude = telescope.pupil(n, delta)
         phase = fft_phase_screens(rng, 2 * n, delta, 0.07)[0][None, :n, :n] + rng.standard_normal((37, n, n))
         offsets = rng.uniform(-0.5, 0.5, (37, 2))
         for frames in (slice(0, 37), slice(3, 20)):                      # buffers reused between calls
-            np.testing.assert_array_equal(compiled.stamps(amplitude, phase[frames], offsets[frames]),
-                                          through_scipy.stamps(amplitude, phase[frames], offsets[frames]))
+            expected = through_scipy.stamps(amplitude, phase[frames], offsets[frames])
+            np.testing.assert_array_equal(compiled.stamps(amplitude, phase[frames], offsets[frames]), expected)
+            np.testing.assert_array_equal(chunked.stamps(amplitude, phase[frames], offsets[frames]), expected)
 
 
 def test_pupil_stamps_do_not_depend_on_how_frames_are_grouped():
