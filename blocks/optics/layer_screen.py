@@ -48,7 +48,7 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
-from .normal_draws import standard_normal
+from .normal_draws import _TABLES, _UNSCALED, same_as_numpy
 from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
                              sample_grids_transposed, walk_segments)
 
@@ -74,6 +74,28 @@ def _generator(seed: tuple[int, ...], epoch: int, word: int) -> np.random.Genera
     """The random generator of a screen's draws addressed by its ``seed``, ``epoch`` and ``word`` (the regeneration
     count within the epoch, or :data:`.large_scales.SEED_WORD` for its large-scale modes)."""
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence([*seed, epoch & 0xFFFFFFFF, word])))
+
+
+_WORD = 2**64 - 1
+
+
+def _words(state: dict) -> np.ndarray:
+    """A PCG64 ``bit_generator.state`` as the four words the compiled draws take: state high, low, increment high,
+    low (:mod:`.normal_draws`)."""
+    pcg = state["state"]
+    return np.array([pcg["state"] >> 64, pcg["state"] & _WORD, pcg["inc"] >> 64, pcg["inc"] & _WORD], np.uint64)
+
+
+def _state(words: np.ndarray, spare: tuple[int, int]) -> dict:
+    """:func:`_words` back to a PCG64 ``bit_generator.state``, with its ``(has_uint32, uinteger)`` (``spare``)."""
+    high, low, inc_high, inc_low = (int(w) for w in words)
+    return {"bit_generator": "PCG64", "state": {"state": (high << 64) | low, "inc": (inc_high << 64) | inc_low},
+            "has_uint32": spare[0], "uinteger": spare[1]}
+
+
+# the compiled draws' tables (unused where NumPy draws: same_as_numpy() is False)
+_ZIGGURAT = _TABLES if _TABLES is not None else (np.zeros(256, np.uint64), np.zeros(256), np.zeros(256))
+_FIRST_STATE = np.random.PCG64(0).state
 
 
 @lru_cache(maxsize=8)
@@ -112,7 +134,9 @@ class LayerScreen:
         self.origin = np.zeros(2, dtype=np.int64)
         self.epoch = -1            # revisit period the screen belongs to
         self.n_regenerations = 0   # regenerations within the epoch (footprint ran off, or jumped far)
-        self._rng = np.random.Generator(np.random.PCG64(0))
+        # the screen's generator between walks: PCG64's words (its draws are made in the compiled walk) and the
+        # state's other fields, (has_uint32, uinteger), which normal draws leave as they are
+        self._words, self._spare = _words(_FIRST_STATE), (0, 0)
         # with keep_twin, the other (imaginary) half of the last FFT draw, for twin(): (samples, origin, epoch, count)
         self.keep_twin, self._twin = bool(keep_twin), None
 
@@ -123,16 +147,27 @@ class LayerScreen:
             self.n_regenerations += 1
         else:
             self.epoch, self.n_regenerations = int(epoch), 0
-        self._rng = _generator(self.seed, self.epoch, self.n_regenerations)
+        rng = _generator(self.seed, self.epoch, self.n_regenerations)
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
-        self.coefficients = self._fresh() if self.n <= SELF_START_SAMPLES else self._cut_from_fft()
+        self.coefficients = self._fresh(rng) if self.n <= SELF_START_SAMPLES else self._cut_from_fft(rng)
+        self._set_generator(rng)
 
-    def _cut_from_fft(self) -> np.ndarray:
+    def _set_generator(self, rng: np.random.Generator) -> None:
+        state = rng.bit_generator.state
+        self._words, self._spare = _words(state), (state["has_uint32"], state["uinteger"])
+
+    def _generator_now(self) -> np.random.Generator:
+        """A NumPy generator in the screen's present state (for draws made outside the compiled walk)."""
+        rng = np.random.Generator(np.random.PCG64(0))
+        rng.bit_generator.state = _state(self._words, self._spare)
+        return rng
+
+    def _cut_from_fft(self, rng: np.random.Generator) -> np.ndarray:
         """B-spline coefficients of a window cut from an FFT screen twice as wide (cf. Johansson & Gavel 1994: the
         low orders kept; :func:`.fft_spline_corners`). The draw's other screen, its imaginary half, is kept for
         :meth:`twin` when the screen was made with ``keep_twin``."""
         n, first = self.n, PREFILTER_HALF_WIDTH
-        cut = fft_spline_corners(self._rng, max(2 * n, n + 2 * first), n, first, self.delta, 1.0, self.L1)
+        cut = fft_spline_corners(rng, max(2 * n, n + 2 * first), n, first, self.delta, 1.0, self.L1)
         if self.keep_twin:
             self._twin = (np.ascontiguousarray(cut.imag), self.origin.copy(), self.epoch, self.n_regenerations)
         return np.ascontiguousarray(cut.real)
@@ -149,12 +184,12 @@ class LayerScreen:
             return None
         twin = LayerScreen(self.n, self.delta, seed, L0=self.L0, update=self.update)
         twin.epoch, twin.n_regenerations, twin.origin = epoch, count, origin.copy()
-        twin._rng = _generator(twin.seed, epoch, count)
+        twin._set_generator(_generator(twin.seed, epoch, count))
         twin.coefficients = coefficients
         return twin
 
-    def _fresh(self) -> np.ndarray:
-        """B-spline coefficients of a window made by conditional draws from a few exact columns."""
+    def _fresh(self, rng: np.random.Generator) -> np.ndarray:
+        """B-spline coefficients of a window made by conditional draws from a few exact columns (``rng``'s)."""
         n = self.n
         width = n + BURN_IN * n
         canvas = np.empty((n, width))
@@ -162,7 +197,7 @@ class LayerScreen:
         # made so far allow (the operators change where the stencil gains a column: 4, 8, 16, ...); the window
         # keeps the last n
         # (one draw for all: the exact columns' normals first, then each conditional column's n, in order)
-        noise = self._rng.standard_normal(n * width)
+        noise = rng.standard_normal(n * width)
         canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L1)
                                     @ noise[:FULL_COLUMNS * n]).reshape(FULL_COLUMNS, n).T
         for made, tops, lefts, sides in _fresh_stages(n, width):
@@ -259,7 +294,7 @@ class LayerScreen:
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:
         return {"coefficients": self.coefficients, "origin": self.origin.copy(), "epoch": self.epoch,
-                "n_regenerations": self.n_regenerations, "rng": self._rng.bit_generator.state}
+                "n_regenerations": self.n_regenerations, "rng": _state(self._words, self._spare)}
 
     def set_state(self, state: dict) -> None:
         coefficients = state.get("coefficients")
@@ -267,8 +302,9 @@ class LayerScreen:
         self.origin = np.asarray(state["origin"], dtype=np.int64)
         self.epoch = int(state["epoch"])
         self.n_regenerations = int(state["n_regenerations"])
-        self._rng = np.random.Generator(np.random.PCG64(0))
-        self._rng.bit_generator.state = state["rng"]
+        rng = np.random.Generator(np.random.PCG64(0))
+        rng.bit_generator.state = state["rng"]
+        self._set_generator(rng)
 
 
 # -- walking several screens --------------------------------------------------------------------------
@@ -305,9 +341,10 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     """:meth:`LayerScreen.walk` of each screen ``l`` on ``rows[l]``, ``cols[l]`` (contiguous (L, F, .)) in turn.
 
     :func:`.screen_kernels.plan_layers` plans every walk from integers (regenerations, extensions, canvases); the
-    regenerations are made and each run's conditional noise drawn, in the walks' order (one draw a run); then
-    :func:`.screen_kernels.walk_segments` makes and reads every canvas (``reads = (weight (L, F), out_t)``), the
-    large-scale modes added where frames read them. Each screen's draws, values and reads are those of its own
+    regenerations are made in the walks' order; then :func:`.screen_kernels.walk_segments` draws each run's
+    conditional noise from its screen's generator (one draw a run; NumPy's, where the compiled draws are not
+    NumPy's: :func:`.normal_draws.same_as_numpy`), makes and reads every canvas (``reads = (weight (L, F), out_t)``),
+    the large-scale modes added where frames read them. Each screen's draws, values and reads are those of its own
     walk: the screens share only the calls.
     """
     weight, out_t = reads if reads is not None else (np.zeros((len(screens), 0)), _NO_OUTPUT)
@@ -321,8 +358,10 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         r, c = rows[failed], cols[failed]
         span = np.max(np.stack([r[:, -1] - r[:, 0], c[:, -1] - c[:, 0]], axis=-1), axis=0)
         raise ValueError(f"a footprint of {span} samples does not fit a {screens[failed].n}-sample screen")
-    # each run of canvases (segment): the regeneration before it, its window, noise and modes' tables, in order
-    layout, windows, origins, noises, tables, operators, modes, last = [], [], [], [], ([], []), [], [], {}
+    # each run of canvases (segment): the regeneration before it, its window, generator and modes' tables, in order
+    layout, windows, origins, states, tables, operators, modes, last = [], [], [], [], ([], []), [], [], {}
+    compiled = same_as_numpy()
+    noises = []                 # NumPy's draws, where the compiled ones are not NumPy's
     window_at = noise_at = y_at = x_at = 0
     edges_at, layers_at = edges.tolist(), op_at.tolist()
     for layer, e0, e1, as_is, renew, lo0, hi0, lo1, hi1 in segments.tolist():
@@ -330,13 +369,17 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         if renew >= 0:
             op = layers_at[layer] + renew
             screen.regenerate(centre[op], int(op_epoch[op]))
+            last.pop(layer, None)                                   # the window and generator are the fresh ones
         n = screen.n
         count = n * (edges_at[e1 - 1] - edges_at[e0])
         if screen.coefficients is None or (not count and not reading):
             continue                                                # nothing to make or read
         operator, stencil = -1, 0
         if count:
-            noises.append(standard_normal(screen._rng, count))
+            if not compiled:
+                rng = screen._generator_now()
+                noises.append(rng.standard_normal(count))
+                screen._set_generator(rng)
             if screen._operator is None:
                 screen._operator = extension_operator(n, 1, screen.delta, screen.L1, n)
             operator, stencil = len(operators), len(screen._operator.stencil_rows)
@@ -355,6 +398,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         last[layer] = len(layout)
         windows.append(screen.coefficients.ravel())
         origins.append(screen.origin)
+        states.append(screen._words)
         layout.append([layer, n, e0, e1, as_is, layers_at[layer], layers_at[layer + 1], window_at, noise_at,
                        noise_at + count, operator, 0, 0, stencil, k, mode, 0, y_at, y_count, y_first, x_at, x_count,
                        x_first])
@@ -373,15 +417,17 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     if at is not None:
         used = layout[:, 15] >= 0
         layout[used, 15:17] = at[layout[used, 15]]
-    windows, origins = np.concatenate(windows), np.array(origins, np.int64)
-    bad = walk_segments(layout, windows, origins, sides, before, edges,
-                        np.concatenate(noises) if noises else _EMPTY, a, b, stencil_rows, stencil_back, frame_ops,
-                        rows, cols, weight, out_t, low, amplitudes,
+    windows, origins, states = np.concatenate(windows), np.array(origins, np.int64), np.array(states, np.uint64)
+    noise = np.concatenate(noises) if noises else np.empty(noise_at)
+    bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
+                        *_ZIGGURAT, a, b, stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low,
+                        amplitudes,
                         np.concatenate(tables[0]) if tables[0] else _EMPTY,
                         np.concatenate(tables[1]) if tables[1] else _EMPTY, STRIDE)
     for layer, s in last.items():
         n = int(layout[s, 1])
         screens[layer].coefficients = windows[layout[s, 7]:layout[s, 7] + n * n].reshape(n, n)
         screens[layer].origin = origins[s]
+        screens[layer]._words = states[s]
     if bad >= 0:
         raise ValueError("screen sampled outside its window")

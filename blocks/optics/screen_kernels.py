@@ -12,7 +12,8 @@
 * :func:`walk_canvases` makes a walk's canvases up to its next regeneration, adds the large-scale
   modes where their frames read (:func:`add_modes`) and reads them.
 * :func:`plan_layers` and :func:`walk_segments` do both for every layer of a line of sight in one
-  call each (the walks' regenerations and noise draws in between, in Python).
+  call each (the walks' regenerations in between, in Python; the conditional columns' normal draws in
+  :func:`walk_segments`, from each screen's PCG64 state: :mod:`.normal_draws`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ import math
 
 import numba
 import numpy as np
+
+from .normal_draws import _fill
 
 jit = numba.njit(cache=True, error_model="numpy", nogil=True)
 #: for the conditional draws' dot products: reassociated (SIMD) sums, the same machine code on every
@@ -508,13 +511,17 @@ LAYOUT_COLUMNS = 23
 
 
 @jit
-def walk_segments(layout, windows, origins, sides, before, edges, noise, a, b, stencil_rows, stencil_back, frame_ops,
-                  rows, cols, weight, out_t, low, amplitudes, high_y, high_x, stride):
+def walk_segments(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
+                  stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low, amplitudes, high_y, high_x,
+                  stride):
     """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
     order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
     layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into ``out_t``,
     from where its layer's previous segment stopped; its operator, noise and the modes' tables (:data:`LAYOUT_COLUMNS`)
-    are views into the packed arrays. Returns the first segment that read outside its canvas (-1: none)."""
+    are views into the packed arrays. With ``draw``, each segment's noise is first drawn into ``noise`` from its
+    screen's PCG64 state ``states[s]`` (:func:`.normal_draws._fill` with NumPy's ziggurat tables ``ki``, ``wi``,
+    ``fi``; the state left as the draws leave it), else ``noise`` holds it. Returns the first segment that read
+    outside its canvas (-1: none)."""
     frame = np.zeros(rows.shape[0], np.int64)
     for s in range(layout.shape[0]):
         layer, n, e0, e1, as_is = layout[s, 0], layout[s, 1], layout[s, 2], layout[s, 3], layout[s, 4] != 0
@@ -525,6 +532,8 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, a, b, s
                                                      layout[s, 21], layout[s, 22])
         window = windows[w0:w0 + n * n].reshape((n, n))
         m = n if z1 > z0 else 0                 # the operator's rows (none when nothing is drawn)
+        if draw and z1 > z0:
+            _fill(states[s], noise[z0:z1], unscaled, False, ki, wi, fi)
         stop = walk_canvases(window, origins[s], n, sides[op0:op1], before[op0:op1], edges[e0:e1], as_is,
                              noise[z0:z1], a[a0:a0 + m * n_st].reshape((m, n_st)), b[b0:b0 + m * m].reshape((m, m)),
                              stencil_rows[st0:st0 + n_st], stencil_back[st0:st0 + n_st], frame_ops[layer],
