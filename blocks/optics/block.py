@@ -326,7 +326,8 @@ class PointSourceOptics(Block):
         """One stretch in view of a source rendered every ``every``-th render time (:mod:`.render_interval`): render
         time ``k`` where ``k`` is a multiple of its interval, where the source was not in view at the render time
         before, or where its path changes; in between the last rendered stamp (energy fractions and placement) held.
-        ``record``: the stamp held from the render time before (previous stretch or window), returned updated."""
+        ``record``: the stamp held from the render time before (previous stretch or window), returned updated;
+        ``tr``: the track's held samples and its placement at every render time (``placed``, :meth:`.Imager.placement`)."""
         times = t_ns[at]
         continuing = record is not None and int(record["t_ns"]) == int(times[0]) - cadence_ns
         before = record["path"] if continuing else None
@@ -343,7 +344,7 @@ class PointSourceOptics(Block):
             r = at[rendered]
             o, s, _ = imager.render(
                 key, times[rendered] * 1e-9, tr["x"][r], tr["y"][r], tr["zenith"][r], tr["range"][r], seen[rendered],
-                azimuth_rad=tr["azimuth"][r], rotation_rad=tr["rotation"][r], paths=[paths[i] for i in rendered])
+                paths=[paths[i] for i in rendered], placed=tuple(p[r] for p in tr["placed"]))
             origins.append(o.astype(np.int32, copy=False))
             stamps.append(s)
             record = {"path": paths[rendered[-1]]}
@@ -399,9 +400,13 @@ class PointSourceOptics(Block):
         if self._intervals is not None:
             every = np.ones(visible.shape, np.int64)
             every[visible] = self._intervals.multiples(cadence_ns, seen[visible], columns["zenith"][visible])
+        # every frame's stamp placement and line of sight, all tracks in view at once (Imager.placement)
+        tracks = np.flatnonzero(visible.any(axis=0))
+        placed = imager.placement(*(columns[name][:, tracks] for name in ("x", "y", "zenith", "azimuth", "rotation")))
         jobs = []
-        for j in np.flatnonzero(visible.any(axis=0)):                             # tracks in order
+        for column, j in enumerate(tracks):                                       # tracks in order
             key, tr = ids[j], {name: values[:, j] for name, values in columns.items()}
+            tr["placed"] = tuple(p[:, column] for p in placed)
             idx = np.flatnonzero(visible[:, j])
             mine = seen[idx, j]
             paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], mine)      # path choices, in order
@@ -424,8 +429,8 @@ class PointSourceOptics(Block):
                 stretch_paths = paths[part]
                 if every is None:
                     o, stamps, _ = imager.render(key, t_s[at], tr["x"][at], tr["y"][at], tr["zenith"][at],
-                                                 tr["range"][at], seen[part], azimuth_rad=tr["azimuth"][at],
-                                                 rotation_rad=tr["rotation"][at], paths=stretch_paths)
+                                                 tr["range"][at], seen[part], paths=stretch_paths,
+                                                 placed=tuple(p[at] for p in tr["placed"]))
                 else:
                     o, stamps, record = self._render_held(imager, key, tr, at, seen[part], stretch_paths,
                                                           every[part], t_ns, cadence_ns, record)

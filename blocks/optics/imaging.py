@@ -48,7 +48,7 @@ from evsda.blocks.ports import FocalPlane
 from .analytic_path import AnalyticPath
 from .atmosphere import Atmosphere
 from .paths import ANALYTIC_PATHS, PATHS, PathChooser
-from .pupil_path import PupilPath
+from .pupil_path import PupilPath, layer_columns
 from .reference_path import ReferencePath
 from .render import PupilRenderer, StampSampler, stamp_placement
 from .sizing import PupilGeometry, choose_geometry
@@ -298,6 +298,13 @@ class Imager:
                              outwards * np.cos(psi0) - along_azimuth * np.sin(psi0)], axis=-1)
         return np.where(known[..., None], grounded, staring)
 
+    def placement(self, x_px, y_px, zenith_rad, azimuth_rad=None, rotation_rad=None) -> tuple[np.ndarray, ...]:
+        """Stamp origins (..., 2) int32 and sub-pixel offsets (..., 2) [pixel] (:func:`.stamp_placement`) and lines
+        of sight (..., 2) [1] (:meth:`sight`) of frames of any shape: a window's render times by its tracks in one
+        call, element by element, so the same numbers as a track's frames alone (:meth:`render`'s ``placed``)."""
+        origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
+        return origin, offset, self.sight(x_px, y_px, zenith_rad, azimuth_rad, rotation_rad)
+
     def footprints(self, layer, t_s, sight, zenith_rad, range_m):
         """Footprint centre on a layer (F, 2) (x, y) [m], ``h sight - v t`` (:meth:`sight`), and its scale (F,) [1]."""
         centre, scale = self.footprints_of([layer], t_s, sight, zenith_rad, range_m)
@@ -307,8 +314,12 @@ class Imager:
     def footprints_of(layers, t_s, sight, zenith_rad, range_m):
         """:meth:`footprints` of every layer at once: centres (L, F, 2) [m] and scales (L, F) [1], ``1 - L / R`` for a
         source at range ``R`` (``L = h sec z`` the slant distance to the layer)."""
-        altitude = np.array([layer.altitude_m for layer in layers])[:, None]
-        wind = np.array([layer.wind_m_s for layer in layers])[:, None, :]
+        return Imager.footprints_at(*layer_columns(layers)[:2], t_s, sight, zenith_rad, range_m)
+
+    @staticmethod
+    def footprints_at(altitude, wind, t_s, sight, zenith_rad, range_m):
+        """:meth:`footprints_of` from the layers' altitudes (L, 1) [m] and winds (L, 1, 2) [m/s] (:func:`layer_columns`,
+        which a caller may keep)."""
         slant = altitude / np.cos(zenith_rad)
         centre = altitude[:, :, None] * np.asarray(sight, dtype=float) - wind * np.asarray(t_s)[:, None]
         finite = np.isfinite(range_m)
@@ -348,21 +359,25 @@ class Imager:
     def render(self, source: str, t_s: np.ndarray, x_px: np.ndarray, y_px: np.ndarray,
                zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None, *,
                azimuth_rad: np.ndarray | None = None, rotation_rad: np.ndarray | None = None,
-               paths: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+               paths: list[str] | None = None,
+               placed: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """Stamps along a track: ``origin`` (F, 2) int32, energy fractions (F, M, M) [1], path per frame
         (``seen``: as for :meth:`prepare`; ``azimuth_rad``, ``rotation_rad``: the boresight's azimuth and the field
         rotation of each frame, :meth:`sight`; ``paths``: these frames' paths as :meth:`prepare` returned them, the
-        same choices without looking each frame's bin up again)."""
-        t_s, x_px, y_px = (np.asarray(a, dtype=float) for a in (t_s, x_px, y_px))
+        same choices without looking each frame's bin up again; ``placed``: these frames' :meth:`placement`, made
+        for a whole window at once, instead of from ``x_px``, ``y_px`` and the boresight here)."""
+        t_s = np.asarray(t_s, dtype=float)
         zenith_rad, range_m = _along(zenith_rad, t_s), _along(range_m, t_s)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
-        origin, offset = stamp_placement(x_px, y_px, self.geometry.stamp_size)
         size = self.geometry.stamp_size
         if paths is None:
             paths = self._paths(source, zenith_rad, range_m, seen)
-        if azimuth_rad is not None:
-            azimuth_rad, rotation_rad = _along(azimuth_rad, t_s), _along(rotation_rad, t_s)
-        sight = self.sight(x_px, y_px, zenith_rad, azimuth_rad, rotation_rad)
+        if placed is None:
+            if azimuth_rad is not None:
+                azimuth_rad, rotation_rad = _along(azimuth_rad, t_s), _along(rotation_rad, t_s)
+            placed = self.placement(np.asarray(x_px, dtype=float), np.asarray(y_px, dtype=float), zenith_rad,
+                                    azimuth_rad, rotation_rad)
+        origin, offset, sight = placed
         if len(set(paths)) == 1:                      # one path throughout (the usual stretch): all frames at once
             path = str(paths[0])
             with self._count_lock:

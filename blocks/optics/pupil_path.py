@@ -20,6 +20,14 @@ if TYPE_CHECKING:
     from .imaging import Imager
 
 
+def layer_columns(layers) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The layers' altitudes (L, 1) [m], winds (L, 1, 2) [m/s] and ``Cn^2 dh`` (L, 1) [m^(1/3)], as
+    :meth:`.Imager.footprints_at` and the screens' weights take them."""
+    return (np.array([layer.altitude_m for layer in layers])[:, None],
+            np.array([layer.wind_m_s for layer in layers])[:, None, :],
+            np.array([layer.cn2_dh for layer in layers])[:, None])
+
+
 class PupilPath:
     """Pupil-plane phase screens of each source and the stamps they give; sizing and sampling come from ``imager``."""
 
@@ -29,6 +37,9 @@ class PupilPath:
         self.screens: dict[str, list[LayerScreen]] = {}
         self.modal_screens: dict[str, list[ModalScreen]] = {}
         self._modes: np.ndarray | None = None
+        #: the turbulent layers' indices and :func:`.layer_columns`, and the pupil's sample positions [m]: the same for
+        #: every source and window (made at the first render, once the geometry is fixed)
+        self._layers: tuple | None = None
 
     def _layer_screens(self, source: str) -> list[LayerScreen]:
         if source not in self.screens:
@@ -65,25 +76,28 @@ class PupilPath:
         if not self.imager.atmosphere:
             return phase_t
         turbulent = np.isfinite(zenith_rad)
-        xp = (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m
         k2 = (2 * np.pi / self.imager.wavelength) ** 2
         epochs = self.imager.epochs_of(t_s)
         if self.screen_method == "zernike":
             return self._modal_phase(source, t_s, sight, zenith_rad, range_m, epochs)
-        turbulent_layers = [(layer, screen) for layer, screen in zip(self.imager.atmosphere.layers,
-                                                                     self._layer_screens(source)) if layer.cn2_dh > 0]
-        if not turbulent_layers:
+        if self._layers is None:
+            chosen = [i for i, layer in enumerate(self.imager.atmosphere.layers) if layer.cn2_dh > 0]
+            self._layers = (chosen, *layer_columns([self.imager.atmosphere.layers[i] for i in chosen]),
+                            (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m)
+        chosen, altitude, wind, cn2, xp = self._layers
+        if not chosen:
             return phase_t.transpose(0, 2, 1)
-        layers, screens = zip(*turbulent_layers)
+        every = self._layer_screens(source)
+        screens = [every[i] for i in chosen]
         zenith = np.where(turbulent, zenith_rad, 0.0)
         # every layer's footprints at once (L, F, 2), (L, F), its grids [samples] (L, F, n) and weights (L, F)
-        centre, scale = self.imager.footprints_of(layers, t_s, sight, zenith, range_m)
+        centre, scale = self.imager.footprints_at(altitude, wind, t_s, sight, zenith, range_m)
         rows, cols = np.empty((2, len(screens), frames, g.n_pupil))
         footprint_grids(centre, scale, xp, np.array([screen.delta for screen in screens]), rows, cols)
         # r0^(-5/6) of each layer (the screens are drawn for r0 = 1 m)
-        weight = np.sqrt((0.423 * k2 / np.cos(zenith))[None] * np.array([layer.cn2_dh for layer in layers])[:, None])
+        weight = np.sqrt((0.423 * k2 / np.cos(zenith))[None] * cn2)
         weight = np.where(turbulent, weight, 0.0)
-        accumulate_layers(list(screens), rows, cols, epochs, weight, phase_t)      # each layer in turn, one walk
+        accumulate_layers(screens, rows, cols, epochs, weight, phase_t)      # each layer in turn, one walk
         return phase_t.transpose(0, 2, 1)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:
@@ -114,7 +128,7 @@ class PupilPath:
 
     def set_state(self, state: dict) -> None:
         """Restore the layer screens (call once the coordinator's geometry is set)."""
-        self._modes = None
+        self._modes = self._layers = None
         self.screens = {}
         for key, states in state.items():
             screens = self._layer_screens(key)
