@@ -50,11 +50,12 @@ start = clock()
 import evsda.graph.cli
 spent["import the command line"] = clock() - start
 
+depths = {}
 def timed(owner, attribute, label):
     # wrap owner.attribute so that its CPU time adds to spent[label] (the outermost call only, if it recurses)
     import functools
     inner = getattr(owner, attribute)
-    depth = [0]
+    depth = depths.setdefault(label, [0])     # calls nested under another item of the same label count once
     @functools.wraps(inner)
     def wrapper(*args, **kwargs):
         if depth[0]:
@@ -88,7 +89,9 @@ graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}", *sys.argv[3:]]
 spent["load the graph (imports its blocks)"] = clock() - t
 parts = {"optics": ("evsda.blocks.optics", [
             ("paths", "PathChooser", "pupil_estimate", "  reference probes (pupil_fft vs Fresnel)"),
+            ("paths", "PathChooser", "_pair_distances", "  reference probes (pupil_fft vs Fresnel)"),
             ("paths", "PathChooser", "_probe", "  all path-choice probes"),
+            ("paths", "PathChooser", "probe_ahead", "  all path-choice probes"),
             ("pupil_path", "PupilPath", "turbulent_phase", "  pupil path: phase screens"),
             ("render", "PupilRenderer", "stamps", "  pupil path: stamps (FFT PSFs)"),
             ("analytic_path", "AnalyticPath", "render", "  analytic stamps (long exposure, airy)"),

@@ -104,7 +104,8 @@ def load_graph(*args, **kwargs):
             module.parallel_map = parallel_map
     extras = [("numba.core.caching", "Cache", "load_overload", "numba load"),
               ("evsda.blocks.optics.imaging", "Imager", "prepare", "path choice"),
-              ("evsda.blocks.optics.paths", "PathChooser", "_remembered", "probe")]
+              ("evsda.blocks.optics.paths", "PathChooser", "_remembered", "probe"),
+              ("evsda.blocks.optics.paths", "PathChooser", "probe_ahead", "probe")]
     for module, cls, method, kind in extras:
         owner = getattr(sys.modules.get(module), cls, None)
         if owner is not None and hasattr(owner, method):

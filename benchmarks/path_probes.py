@@ -13,7 +13,14 @@ probes (pairs, as ``auto`` makes them) with those through another checkout's ref
 prints how far the estimates of the two are apart. Every round starts cold, as a run's first probes do: the
 screens' spectra and the propagation's transfer functions kept within a process are emptied first.
 
+``--ahead`` times instead, in wall time on the process's threads (every core unless ``EVSDA_THREADS`` says
+otherwise), all the probes the pass's first window makes (both pupil-error bins and the analytic-path probes,
+their long-exposure tables included), alternating :meth:`.PathChooser.probe_ahead` (every bin's probes in one
+schedule, as the optics block makes them) and the choices made one bin after another (each bin's probes alone, as
+before), and checks that both give the same choices and estimates (compared with ``repr``).
+
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames] [--against DIR]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --ahead [--repeats 5]
 """
 
 from __future__ import annotations
@@ -33,7 +40,8 @@ import numpy as np
 from evsda.blocks.optics import fft_screens, propagation
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.layer_screen import LayerScreen
-from evsda.blocks.optics.paths import PUPIL_ERROR_ZENITH_BIN_RAD
+from evsda.blocks.optics.paths import ANALYTIC_PATHS, PUPIL_ERROR_ZENITH_BIN_RAD, PathChooser
+from evsda.blocks.threads import worker_threads
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
 
@@ -86,17 +94,64 @@ def forget_tables(checkout: Path | None) -> None:
             kept.cache_clear()
 
 
+def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
+    """``--ahead``: the probes of the first window's ``frames`` (zenith angles, ranges, what the pixels see) made
+    ahead and made one bin after another, alternated, from cold each round."""
+    chooser = imager.chooser
+    chooser.forced_path = "auto"
+
+    def cold():
+        chooser.forget()
+        for path in ANALYTIC_PATHS:
+            imager.path_named[path].forget()
+        forget_tables(None)
+
+    def choices():
+        return [chooser.choose_key(key, float(frames[0][i])) for key, i in first.items()]
+
+    first = {}
+    for i, key in enumerate(chooser.keys(*frames)):
+        first.setdefault(key, i)
+    ways = {"one bin after another": lambda: None, "made ahead": lambda: chooser.probe_ahead(*frames)}
+    times = {name: [] for name in ways}
+    made = {}
+    loads = []
+    for _ in range(repeats):
+        loads.append(os.getloadavg()[0])
+        for name, way in ways.items():
+            cold()
+            t, c = time.perf_counter(), time.process_time()
+            way()
+            chosen = choices()
+            times[name].append((time.perf_counter() - t, time.process_time() - c))
+            made[name] = repr((chosen, sorted(chooser._pupil_errors.items()), sorted(chooser._estimates.items())))
+    print(f"  the first window's {len(first)} bins ({len(chooser._pupil_errors)} pupil-error bins, "
+          f"{len(chooser._estimates)} analytic probes), {worker_threads()} threads:")
+    for name, values in times.items():
+        print(f"  {name}: {statistics.median(w for w, _ in values):.3f} s wall, "
+              f"{statistics.median(c for _, c in values):.3f} s CPU (medians of {repeats}; wall "
+              f"{', '.join(f'{w:.3f}' for w, _ in values)})")
+    first_way, second_way = ways
+    ratio = statistics.median(w for w, _ in times[second_way]) / statistics.median(w for w, _ in times[first_way])
+    print(f"  wall ratio {second_way} / {first_way}: {ratio:.2f}; load {statistics.median(loads):.1f}; choices and "
+          f"estimates {'the same' if made[first_way] == made[second_way] else 'DIFFERENT'}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--all-frames", action="store_true", help="every bin takes all 24 frames")
     parser.add_argument("--against", type=Path, help="another checkout: its propagation and FFT screens' cut")
+    parser.add_argument("--ahead", action="store_true", help="the first window's probes made ahead or one bin "
+                        "after another, wall time on the process's threads")
     args = parser.parse_args()
-    os.environ["EVSDA_THREADS"] = "1"
+    if not args.ahead:
+        os.environ["EVSDA_THREADS"] = "1"
     os.environ["EVSDA_CACHE"] = "off"      # the probes themselves, every round (not the results kept across runs)
 
-    imagers = []
+    imagers, windows = [], []
     step = PointSourceOptics.step
+    probe_ahead = PathChooser.probe_ahead
 
     @functools.wraps(step)                 # the registry checks step()'s parameters against the block's inputs
     def kept(self, *a, **k):
@@ -104,13 +159,21 @@ def main() -> None:
         imagers.append(self._imager)
         return out
 
+    def noted(self, *a):                   # the frames of the first window, as the block gives them
+        windows.append(a)
+        return probe_ahead(self, *a)
+
     PointSourceOptics.step = kept
+    PathChooser.probe_ahead = noted
     with tempfile.TemporaryDirectory() as tmp:
         run_graph(load_graph(str(GRAPH), ["run.duration_s=0.002", "telescope/optics.psf_path=pupil_fft"]),
                   Path(tmp) / "probe.zarr", overwrite=True)
     PointSourceOptics.step = step
+    PathChooser.probe_ahead = probe_ahead
     imager = imagers[-1]
     chooser = imager.chooser
+    if args.ahead:
+        return ahead_or_not(imager, windows[0], args.repeats)
     if args.all_frames:
         imager.tolerance = float("nan")
     bins = [(6, 19), (6, -1)]              # the tracked pass at 65 deg: the ISS (7.4e5 m) and the stars (far)

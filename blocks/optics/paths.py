@@ -60,6 +60,7 @@ streaking stars'), and each bin's estimate is taken at the bin's worst edge:
 from __future__ import annotations
 
 import logging
+import threading
 import zlib
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -271,6 +272,8 @@ class PathChooser:
         self._choices: dict[tuple, PathChoice] = {}
         self._pupil_errors: dict[tuple, float] = {}
         self._estimates: dict[tuple, tuple[dict, dict]] = {}
+        self._ahead: dict[tuple, Any] = {}       # probes made by probe_ahead, until their bins' choices take them
+        self._scintillation: dict[tuple, float] = {}   # scintillation index of each pupil-error bin
 
     def key(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> tuple:
         """The bin of these conditions (:func:`conditions_key`), with what the pixels see
@@ -348,6 +351,119 @@ class PathChooser:
         mean distance from ``PROBE_FRAMES`` pupil-path stamps (one without turbulence) plus the pupil path's."""
         return dict(self._probe(zenith_rad, range_m)[0])
 
+    def _seen_step(self, seen: tuple[int, int, int, int]) -> float:
+        """The most a source of this bin of what the pixels see can move a pixel's filtered log intensity [1]
+        (:meth:`.PixelView.seen_step` at the bin's worst edges)."""
+        rate_px_s, source, sky_low, _, _ = seen_edges(seen)
+        return self.pixels.seen_step(source, sky_low, rate_px_s)
+
+    def _probed(self, key: tuple) -> tuple[float, float] | None:
+        """The conditions (zenith angle [rad], range [m]) whose probes (:meth:`_probe`) the choice of bin ``key``
+        makes, or None where it makes none (a forced path; a source no pixel can see, :meth:`_choose_seen`)."""
+        if self.forced_path != "auto":
+            return None
+        if len(key) > 2 and self._seen_step(key[2:]) < self.pixels.threshold_min:
+            return None
+        return representative_conditions(key[:2])
+
+    def probe_ahead(self, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> None:
+        """Make, side by side on the process's cores, every probe that the choices of these frames' bins
+        (:meth:`keys`) will need and that no earlier choice made: the reference frame pairs of every pupil-error
+        bin and the analytic-path probes of every bin, in one schedule (:meth:`_measure`). The choices then take
+        them as they are made, in the same order and with the same numbers as without this call (each probe is a
+        function of its bin and the seed alone, each bin's verdict taken pair by pair in order).
+
+        A window's sources meet several bins at once (the first window of a run all of them): made one choice
+        after another, each bin's probes ran alone, on both cores only where a bin had two frame pairs to
+        measure at a time."""
+        wanted: dict[tuple[float, float], None] = {}
+        for key in dict.fromkeys(self.keys(zenith_rad, range_m, seen)):
+            if key not in self._choices:
+                conditions = self._probed(key)
+                if conditions is not None and conditions not in self._estimates:
+                    wanted[conditions] = None
+        runs: dict[tuple, tuple[_PairRun, dict]] = {}
+        analytic: dict[float, list[tuple[float, float]]] = {}      # by zenith angle: the bins sharing a table
+        for zenith, range_m_ in wanted:
+            reference = self._reference_bin(zenith, range_m_)
+            if reference is not None:
+                key, conditions, _ = reference
+                if key not in self._pupil_errors and key not in runs and not self._made("reference", conditions):
+                    runs[key] = (_PairRun(key, conditions["zenith_rad"], conditions["range_m"],
+                                          conditions["scintillation"], self.imager.tolerance), conditions)
+            if not self._made("analytic", {"zenith_rad": zenith, "range_m": range_m_}):
+                analytic.setdefault(zenith, []).append((zenith, range_m_))
+        if not runs and not analytic:
+            return
+        self.imager.pupil_renderer                 # made before the threads read it
+        made = self._measure([run for run, _ in runs.values()], list(analytic.values()))
+        for key, (_, conditions) in runs.items():
+            self._ahead[self._ahead_key("reference", conditions)] = made["reference", key]
+        for group in analytic.values():
+            for zenith, range_m_ in group:
+                conditions = {"zenith_rad": zenith, "range_m": range_m_}
+                self._ahead[self._ahead_key("analytic", conditions)] = made["analytic", (zenith, range_m_)]
+
+    def _made(self, probe: str, conditions: dict) -> bool:
+        """Whether a probe's result is already at hand: made ahead, or kept across runs (:meth:`_remembered`)."""
+        return (self._ahead_key(probe, conditions) in self._ahead
+                or PROBE_CACHE.get(self._cache_key(probe, conditions))[0])
+
+    def _measure(self, runs: list[_PairRun], analytic: list[list[tuple[float, float]]]) -> dict[tuple, Any]:
+        """The reference frame pairs of ``runs`` until each one's verdict, and the analytic-path probes of
+        ``analytic`` (groups of conditions, one group per zenith-angle bin: made in order on one thread, they share
+        its long-exposure table), on every core (:func:`.parallel_map`): each thread takes, in turn, a bin's first
+        pairs (which every verdict needs), else an analytic group, else the next pair of a bin none of whose pairs
+        is being measured, else (rather than idle) the next pair of any open bin (dropped if a pair before it
+        decides: at most one a thread). Returns ``{("reference", key): (distances, verdict), ("analytic",
+        conditions): (distances, fits)}``."""
+        least = (REFERENCE_PROBE_FRAMES[0] + 1) // 2
+        analytic = list(analytic)
+        lock = threading.Lock()
+        failed: list[bool] = []
+        out: dict[tuple, Any] = {}
+
+        def next_unit() -> tuple | None:
+            if failed:
+                return None
+            for run in runs:
+                if run.verdict is None and run.taken < least:
+                    return run, run.take()
+            if analytic:
+                return None, analytic.pop(0)
+            for idle in (True, False):
+                for run in runs:
+                    if run.open() and (run.running == 0 or not idle):
+                        return run, run.take()
+            return None
+
+        def worker(_: int) -> None:
+            while True:
+                with lock:
+                    unit = next_unit()
+                if unit is None:
+                    return
+                run, what = unit
+                try:
+                    if run is None:
+                        for zenith, range_m in what:
+                            value = self._analytic_distances(zenith, range_m)
+                            with lock:
+                                out["analytic", (zenith, range_m)] = value
+                    else:
+                        values = self._pair_distances(run.key, run.zenith_rad, run.range_m, what)
+                        with lock:
+                            run.done(what, values)
+                except BaseException:
+                    failed.append(True)
+                    raise
+
+        threads = worker_threads()
+        parallel_map(worker, range(threads), threads)
+        for run in runs:
+            out["reference", run.key] = (run.measured, run.verdict)
+        return out
+
     def _probe(self, zenith_rad: float, range_m: float) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
         """The instantaneous estimates of :meth:`estimate_errors` and, for each analytic path, the fit
         ``(b, s)`` of its distance from means of frames at one position (:func:`fit_averaged`); kept per bin
@@ -416,8 +532,19 @@ class PathChooser:
         telescope, wavelength, atmosphere (every layer and the outer scale), pixel scale, sampling (the pupil
         and stamp grids, the layers' screens), the reference grid, tolerance, focus, the run's seed, whether
         the detector's averaging is probed, and the probes' frame counts and bins."""
+        ahead = self._ahead.pop(self._ahead_key(probe, conditions), None)
+        made = compute if ahead is None else lambda: ahead
+        return PROBE_CACHE.remember(self._cache_key(probe, conditions), made, encode, decode)
+
+    @staticmethod
+    def _ahead_key(probe: str, conditions: dict) -> tuple[str, str]:
+        """The name of a probe's result in :attr:`_ahead` (made by :meth:`probe_ahead`)."""
+        return probe, repr(sorted(conditions.items()))
+
+    def _cache_key(self, probe: str, conditions: dict) -> dict:
+        """The key of a probe's result in :data:`PROBE_CACHE` (:meth:`_remembered`)."""
         imager = self.imager
-        key = {"probe": probe, "conditions": conditions,
+        return {"probe": probe, "conditions": conditions,
                "telescope": asdict(imager.telescope), "wavelength_m": imager.wavelength,
                "atmosphere": None if imager.atmosphere is None else asdict(imager.atmosphere),
                "pixel_scale_rad": imager.pixel_scale, "geometry": imager.geometry.state(),
@@ -425,7 +552,6 @@ class PathChooser:
                "seed": list(imager.seed), "averaging": self.pixels is not None,
                "frames": [PROBE_FRAMES, list(REFERENCE_PROBE_FRAMES), list(AVERAGED_GROUPS), AVERAGED_POSITIONS,
                           ACCEPT_STANDARD_ERRORS, REJECT_STANDARD_ERRORS, PUPIL_ERROR_ZENITH_BIN_RAD]}
-        return PROBE_CACHE.remember(key, compute, encode, decode)
 
     def _choose_seen(self, zenith_rad: float, range_m: float, seen: tuple[int, int, int, int],
                      context: str) -> PathChoice:
@@ -433,7 +559,7 @@ class PathChooser:
         can see, else the cheapest path whose distance from the mean of the frames the pixels average is in tolerance."""
         imager, pixels = self.imager, self.pixels
         rate_px_s, source, sky_low, sky_high, sight_px_s = seen_edges(seen)
-        step = pixels.seen_step(source, sky_low, rate_px_s)
+        step = self._seen_step(seen)
         if step < pixels.threshold_min:          # no probe needed: whatever the PSF, no pixel fires
             reason = (f"path 'long_exposure': the source cannot make a pixel fire: at most {source:.3g} photon/s on "
                       f"one pixel over a sky of {sky_low:.3g}, at >= {rate_px_s:.3g} pixel/s, moves its filtered log "
@@ -474,22 +600,15 @@ class PathChooser:
         the same screens, :meth:`.ReferencePath.pupil_phase`), measured frame pair by frame pair until
         :func:`pupil_verdict` decides. A scintillation term above the tolerance settles it alone.
         """
-        imager = self.imager
-        if not imager.turbulent(zenith_rad):
+        reference = self._reference_bin(zenith_rad, range_m)
+        if reference is None:
             return PupilError(0.0, 0.0, 0, True, "(no turbulence)")
-        z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
-        r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
-        key = (z_bin, r_bin)
+        key, conditions, sigma2 = reference
         if key not in self._pupil_errors:
-            zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
-            distance = FAR_RANGE_M if r_bin < 0 else 2.0 ** (r_bin + 0.5)
-            sigma2 = imager.atmosphere.scintillation_index(imager.telescope.diameter_m, imager.wavelength, zenith,
-                                                           distance)
-            scintillation = scintillation_error(sigma2)
+            zenith, distance = conditions["zenith_rad"], conditions["range_m"]
+            scintillation = conditions["scintillation"]
             measured, (within, verdict) = self._remembered(
-                "reference", {"bin": list(key), "zenith_rad": zenith, "range_m": distance,
-                              "scintillation": scintillation},
-                lambda: self._reference_distances(key, zenith, distance, scintillation),
+                "reference", conditions, lambda: self._reference_distances(key, zenith, distance, scintillation),
                 lambda value: {"distances": value[0], "within": value[1][0], "verdict": value[1][1]},
                 lambda stored: ([float(d) for d in stored["distances"]], (bool(stored["within"]),
                                                                          str(stored["verdict"]))))
@@ -498,9 +617,29 @@ class PathChooser:
             error = max(float(np.mean(measured)) if n else 0.0, scintillation)
             self._pupil_errors[key] = PupilError(error, se, n, within, verdict)
             LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, range %.3g m: error %.3g +- %.2g "
-                     "(%d reference frames; scintillation index %.3g): %s pupil_fft", imager.label,
+                     "(%d reference frames; scintillation index %.3g): %s pupil_fft", self.imager.label,
                      np.rad2deg(zenith), distance, error, se, n, sigma2, "keeps" if within else "rejects")
         return self._pupil_errors[key]
+
+    def _reference_bin(self, zenith_rad: float, range_m: float) -> tuple[tuple[int, int], dict, float] | None:
+        """The pupil-error bin of these conditions, its probe's conditions (the bin's zenith angle [rad] and
+        range [m], the scintillation term [1] there) and the scintillation index [1] it comes from; None without
+        turbulence."""
+        imager = self.imager
+        if not imager.turbulent(zenith_rad):
+            return None
+        z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
+        r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
+        key = (z_bin, r_bin)
+        zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
+        distance = FAR_RANGE_M if r_bin < 0 else 2.0 ** (r_bin + 0.5)
+        if key in self._scintillation:
+            sigma2 = self._scintillation[key]
+        else:
+            sigma2 = self._scintillation[key] = imager.atmosphere.scintillation_index(
+                imager.telescope.diameter_m, imager.wavelength, zenith, distance)
+        return key, {"bin": list(key), "zenith_rad": zenith, "range_m": distance,
+                     "scintillation": scintillation_error(sigma2)}, sigma2
 
     def _reference_distances(self, key: tuple, zenith_rad: float, range_m: float,
                              scintillation: float) -> tuple[list[float], tuple[bool, str]]:
@@ -509,37 +648,23 @@ class PathChooser:
 
         Frames come in pairs whose screens are the two halves of the same FFT draws
         (:meth:`.ReferencePath.probe_pair`); each pair's screens have their own seed (the probe's name), so
-        pairs are measured on every core (:func:`.worker_threads`): the first ``REFERENCE_PROBE_FRAMES[0]``
-        frames together, then a pair per thread at a time, the verdict taken pair by pair in order (pairs past
+        pairs are measured on every core (:meth:`_measure`), the verdict taken pair by pair in order (pairs past
         it are dropped), so the frames and the verdict are those of one pair at a time, whatever the threads."""
-        imager, reference = self.imager, self.imager.reference
+        run = _PairRun(key, zenith_rad, range_m, scintillation, self.imager.tolerance)
+        return self._measure([run], [])["reference", key]
+
+    def _pair_distances(self, key: tuple, zenith_rad: float, range_m: float, pair: int) -> list[float]:
+        """The distances [1] of frame pair ``pair`` of the reference probe of pupil-error bin ``key`` (its screens
+        named by the bin and the pair: the same numbers on any thread, in any order)."""
+        imager = self.imager
         offset = np.zeros((1, 2))
-        least, most = REFERENCE_PROBE_FRAMES
-        tolerance = imager.tolerance
-        verdict = pupil_verdict([], scintillation, tolerance, (least, most))
-        if verdict is not None:
-            return [], verdict
-
-        def distances(pair: int) -> list[float]:
-            names = (f"__probe {key} {2 * pair}", f"__probe {key} {2 * pair + 1}")
-            out = []
-            for field, phase in reference.probe_pair(names, zenith_rad, range_m):
-                stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
-                fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
-                out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
-            return out
-
-        threads = worker_threads()
-        measured: list[float] = []
-        while True:
-            done = len(measured) // 2
-            batch = ((least + 1) // 2 - done if len(measured) < least
-                     else min(threads, (most - len(measured) + 1) // 2))
-            for values in parallel_map(distances, range(done, done + batch), threads):
-                measured.extend(values)
-                verdict = pupil_verdict(measured, scintillation, tolerance, (least, most))
-                if verdict is not None:
-                    return measured, verdict
+        names = (f"__probe {key} {2 * pair}", f"__probe {key} {2 * pair + 1}")
+        out = []
+        for field, phase in imager.reference.probe_pair(names, zenith_rad, range_m):
+            stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
+            fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
+            out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
+        return out
 
     def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
         """Pupil phase [rad] (frames, n, n) of the probe: defocus plus independent FFT screens at the sight line's r0."""
@@ -562,3 +687,37 @@ class PathChooser:
         self._choices.clear()
         self._pupil_errors.clear()
         self._estimates.clear()
+        self._ahead.clear()
+        self._scintillation.clear()
+
+
+class _PairRun:
+    """One pupil-error bin's reference frame pairs as threads measure them (:meth:`PathChooser._measure`), and the
+    verdict (:func:`pupil_verdict`) taken on them pair by pair in order: ``measured``, the distances of the pairs up
+    to the one that decided, and ``verdict`` are those of the pairs measured one after another."""
+
+    def __init__(self, key: tuple, zenith_rad: float, range_m: float, scintillation: float, tolerance: float):
+        self.key, self.zenith_rad, self.range_m = key, zenith_rad, range_m
+        self.scintillation, self.tolerance = scintillation, tolerance
+        self.taken = 0                          # pairs handed to threads
+        self.running = 0                        # of which not done yet
+        self.pairs: dict[int, list[float]] = {}
+        self.measured: list[float] = []
+        self.verdict = pupil_verdict([], scintillation, tolerance)
+
+    def open(self) -> bool:
+        """Whether another pair may be needed: no verdict yet, pairs left."""
+        return self.verdict is None and 2 * self.taken < REFERENCE_PROBE_FRAMES[1]
+
+    def take(self) -> int:
+        self.taken += 1
+        self.running += 1
+        return self.taken - 1
+
+    def done(self, pair: int, distances: list[float]) -> None:
+        """Pair ``pair``'s distances; the verdict moves on over every pair done in order."""
+        self.running -= 1
+        self.pairs[pair] = distances
+        while self.verdict is None and len(self.measured) // 2 in self.pairs:
+            self.measured.extend(self.pairs[len(self.measured) // 2])
+            self.verdict = pupil_verdict(self.measured, self.scintillation, self.tolerance)

@@ -1,0 +1,71 @@
+"""`auto`'s probes made ahead (paths.PathChooser.probe_ahead): every bin a window meets, probed in one schedule on
+every core, gives the choices, estimates and verdicts that one choice at a time gives, bit for bit, whatever the
+threads; a pair's verdict is taken in pair order however the pairs finish."""
+
+import numpy as np
+import pytest
+
+from evsda.blocks.optics import paths
+from evsda.blocks.optics.paths import PathChooser, _PairRun, pupil_verdict
+
+from .test_optics_probe_cache import RANGE_M, SEEN, ZENITH_RAD, make_imager
+
+#: a window's frames: the satellite (LEO) and a star (far) at the same zenith angle: two pupil-error bins (two
+#: reference probes) and two analytic-path probes sharing one long-exposure table
+ZENITHS = np.full(4, ZENITH_RAD)
+RANGES = np.array([RANGE_M, np.inf, RANGE_M, np.inf])
+SEENS = np.array([SEEN] * 4)
+
+
+def one_at_a_time(imager):
+    chooser = imager.chooser
+    choices = [chooser.choose(z, r, "s", s) for z, r, s in zip(ZENITHS, RANGES, SEENS)]
+    return repr((choices, [chooser.pupil_estimate(z, r) for z, r in zip(ZENITHS, RANGES)],
+                 sorted(chooser._estimates.items(), key=repr)))
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_probes_made_ahead_give_the_choices_made_one_at_a_time(monkeypatch, threads):
+    expected = one_at_a_time(make_imager())
+    monkeypatch.setenv("EVSDA_THREADS", threads)
+    imager = make_imager()
+    imager.chooser.probe_ahead(ZENITHS, RANGES, SEENS)
+    assert len(imager.chooser._ahead) == 4                    # two reference, two analytic probes
+    with monkeypatch.context() as m:                           # the choices take them: no probe runs again
+        for name in ("_reference_distances", "_pair_distances", "_analytic_distances"):
+            m.setattr(PathChooser, name, lambda *a, **k: pytest.fail("a probe ran twice"))
+        assert one_at_a_time(imager) == expected
+    assert not imager.chooser._ahead
+    imager.chooser.probe_ahead(ZENITHS, RANGES, SEENS)        # every bin chosen: nothing to make
+    assert not imager.chooser._ahead
+
+
+def test_a_failing_probe_made_ahead_raises_its_error(monkeypatch):
+    imager = make_imager()
+
+    def fail(*args, **kwargs):
+        raise ValueError("probe failed")
+    monkeypatch.setattr(PathChooser, "_pair_distances", fail)
+    with pytest.raises(ValueError, match="probe failed"):
+        imager.chooser.probe_ahead(ZENITHS, RANGES, SEENS)
+
+
+def test_the_verdict_is_taken_in_pair_order_however_the_pairs_finish():
+    rng = np.random.default_rng(5)
+    tolerance = 0.1
+    for mean in (0.05, 0.09, 0.1, 0.13):                     # within early, close calls, beyond
+        pairs = [list(rng.normal(mean, 0.03, 2)) for _ in range(paths.REFERENCE_PROBE_FRAMES[1] // 2)]
+        measured, verdict = [], None
+        for pair in pairs:                                     # one pair after another, as the probes were made
+            measured += pair
+            verdict = pupil_verdict(measured, 0.0, tolerance)
+            if verdict is not None:
+                break
+        orders = [range(len(pairs)), range(len(pairs))[::-1], *(rng.permutation(len(pairs)) for _ in range(30))]
+        for order in orders:
+            run = _PairRun((0, 0), 0.0, 0.0, 0.0, tolerance)
+            for _ in pairs:
+                run.take()
+            for pair in order:
+                run.done(int(pair), pairs[pair])
+            assert (run.measured, run.verdict) == (measured, verdict), (mean, order)
