@@ -549,14 +549,27 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
 
 
 @jit
-def footprint_grids(centre, scale, xp, delta, rows, cols):
-    """Every layer's footprint grids [samples]: ``rows[l, f, i] = (centre[l, f, 1] + scale[l, f] xp[i]) / delta[l]``
-    and ``cols`` from ``centre[l, f, 0]`` (centres (L, F, 2) (x, y) [m], scales (L, F) [1], pupil coordinates ``xp``
-    [m], screen spacings ``delta`` (L,) [m])."""
-    for layer in range(centre.shape[0]):
-        d = delta[layer]
-        for f in range(centre.shape[1]):
-            cy, cx, s = centre[layer, f, 1], centre[layer, f, 0], scale[layer, f]
+def layer_grids(altitude, wind, cn2_dh, delta, t_s, sight, cos_zenith, range_m, turbulent, xp, k2, rows, cols,
+                weight):
+    """Every layer's footprint grids [samples] and phase weights, frame by frame (:meth:`.Imager.footprints_of`'s
+    footprints and the pupil path's weights in one pass, the same arithmetic).
+
+    A layer at ``altitude[l]`` [m] with wind ``wind[l]`` (x, y) [m/s] seen along ``sight[f]`` (x, y) [rad] at
+    ``t_s[f]`` [s] has its footprint centred at ``altitude sight - wind t`` [m] and scaled by ``1 - L / R`` (``L =
+    altitude / cos_zenith[f]`` the slant distance, ``R = range_m[f]`` [m]; 1 for a source at infinity), so
+    ``rows[l, f, i] = (centre_y + scale xp[i]) / delta[l]`` and ``cols`` from ``centre_x`` (pupil coordinates
+    ``xp`` [m], screen spacings ``delta`` [m]); ``weight[l, f] = sqrt(0.423 k2 / cos_zenith[f] cn2_dh[l])``, the
+    layer's ``r0^(-5/6)`` (Hardy 1998 Eq. 3.40; ``k2 = (2 pi / lambda)^2`` [m^-2], ``cn2_dh`` [m^(1/3)]), 0 where
+    the frame is not ``turbulent``."""
+    for layer in range(altitude.shape[0]):
+        h, d, j = altitude[layer], delta[layer], cn2_dh[layer]
+        wx, wy = wind[layer, 0], wind[layer, 1]
+        for f in range(t_s.shape[0]):
+            r = range_m[f]
+            s = 1.0 - h / cos_zenith[f] / r if math.isfinite(r) else 1.0
+            cx = h * sight[f, 0] - wx * t_s[f]
+            cy = h * sight[f, 1] - wy * t_s[f]
             for i in range(xp.shape[0]):
                 rows[layer, f, i] = (cy + s * xp[i]) / d
                 cols[layer, f, i] = (cx + s * xp[i]) / d
+            weight[layer, f] = math.sqrt(0.423 * k2 / cos_zenith[f] * j) if turbulent[f] else 0.0

@@ -289,6 +289,54 @@ def test_batched_walk_reads_what_frame_by_frame_covers_read():
 
 
 
+def test_walks_draw_numpys_normals_inside_the_compiled_walk(monkeypatch):
+    # the conditional columns' noise drawn in the compiled walk from the screen's PCG64 words against NumPy's own
+    # draws (the path where the compiled draws are not NumPy's): the same screens, reads and generator states
+    from evsda.blocks.optics import layer_screen
+
+    def walk():
+        screens = [LayerScreen(20, 0.025, (7, 0), L0=25.0), LayerScreen(38, 0.0101, (7, 1), L0=25.0)]
+        frames, grid = 40, np.linspace(0.0, 7.0, 16)
+        path = np.array([[0.6, 0.9], [-0.7, 0.3]])[:, None] * np.arange(frames)[None, :, None]
+        rows, cols = path[..., :1] + grid, path[..., 1:] + grid
+        out = np.zeros((frames, len(grid), len(grid)))
+        for epoch in (0, 0, 1):
+            accumulate_layers(screens, rows + 30 * epoch, cols, np.full(frames, epoch, np.int64),
+                              np.ones((2, frames)), out)
+        return out, [(s.coefficients.tobytes(), s.state()["rng"]) for s in screens]
+
+    compiled = walk()
+    monkeypatch.setattr(layer_screen, "same_as_numpy", lambda: False)
+    numpys = walk()
+    assert compiled[0].tobytes() == numpys[0].tobytes() and compiled[1] == numpys[1]
+
+
+def test_layer_grids_are_the_footprints_and_weights_in_numpy():
+    # the compiled footprint grids and weights against Imager.footprints_of's broadcast sums and the weights' numpy
+    # expression, bit for bit (a source at infinity, a near one, a frame below the horizon)
+    from evsda.blocks.optics.screen_kernels import layer_grids
+
+    layers = [Layer(105.3, 2e-13, 5.7, 0.3), Layer(4403.8, 5e-14, 15.2, 2.1), Layer(16299.3, 1e-14, 8.8, -1.0)]
+    frames, rng = 9, np.random.default_rng(4)
+    t_s, sight = 0.5 + 0.002 * np.arange(frames), rng.normal(0.0, 1e-3, (frames, 2))
+    zenith_rad = rng.uniform(0.1, 1.2, frames)
+    zenith_rad[3] = np.nan
+    range_m = np.where(np.arange(frames) < 5, np.inf, rng.uniform(4e5, 2e6, frames))
+    xp, delta, k2 = (np.arange(40) - 20) * (0.1 / 19), np.array([0.025, 0.0101, 0.03]), (2 * np.pi / 6e-7) ** 2
+    turbulent = np.isfinite(zenith_rad)
+    zenith = np.where(turbulent, zenith_rad, 0.0)
+    centre, scale = Imager.footprints_of(layers, t_s, sight, zenith, range_m)
+    cn2 = np.array([layer.cn2_dh for layer in layers])
+    expected_weight = np.where(turbulent, np.sqrt((0.423 * k2 / np.cos(zenith))[None] * cn2[:, None]), 0.0)
+    rows, cols = np.empty((2, len(layers), frames, len(xp)))
+    weight = np.empty((len(layers), frames))
+    layer_grids(np.array([layer.altitude_m for layer in layers]), np.array([layer.wind_m_s for layer in layers]),
+                cn2, delta, t_s, sight, np.cos(zenith), range_m, turbulent, xp, k2, rows, cols, weight)
+    assert rows.tobytes() == ((centre[..., 1:] + scale[..., None] * xp) / delta[:, None, None]).tobytes()
+    assert cols.tobytes() == ((centre[..., :1] + scale[..., None] * xp) / delta[:, None, None]).tobytes()
+    assert weight.tobytes() == expected_weight.tobytes() and weight[0, 3] == 0.0
+
+
 def test_layers_walked_together_read_what_each_walked_in_turn_reads():
     # accumulate_layers (one plan, one compiled walk for all layers) against each layer's own accumulate in turn into
     # the same output, bit for bit, over three calls: screens of two sizes, one regenerate-only, one without
