@@ -19,6 +19,11 @@ FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1
 * the pixel-integration products ``B PSF B^T`` alone;
 * the pupil path's stamps against the bare FFTs, pocketfft's and the renderer's (issue 13 asks the optics for <= 3x).
 
+``--threads`` adds how well two threads overlap the pupil path (wall clock, medians of the rounds): two threads each
+rendering ``FRAMES`` frames 10 times at once against the same 20 calls one after the other on one thread; 2x is no
+interpreter lock held, 1x all of it (it needs two free cores: the load is printed). With ``--against`` the other
+checkout's renderer is measured the same way, alternated.
+
 ``--profile`` adds where ``stamps()``'s time goes: cProfile (CPU clock) over 50 calls, each function's own time
 per PSF (the profiler adds ~1 us per call it sees, ~1 us a PSF here).
 
@@ -27,6 +32,7 @@ from the screens' transposed sum on: a renderer without the defocus argument get
 transposing copy, the defocus array added, then ``stamps``); one in four calls has a satellite's defocus.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pupil_stamps.py [--repeats 7] [--profile] [--against DIR]
+        [--threads]
 """
 
 from __future__ import annotations
@@ -40,6 +46,7 @@ import os
 import pstats
 import statistics
 import sys
+import threading
 import time
 import types
 from pathlib import Path
@@ -86,6 +93,21 @@ def pupil_path_render(renderer, amplitude, phase_t, offsets, curvature, r2):
     return renderer.stamps(amplitude, phase, offsets)
 
 
+def overlap(work, calls: int = 10) -> float:
+    """Wall time of ``2 calls`` of ``work`` one after the other over that of two threads making ``calls`` each."""
+    start = time.perf_counter()
+    for _ in range(2 * calls):
+        work()
+    alone = time.perf_counter() - start
+    threads = [threading.Thread(target=lambda: [work() for _ in range(calls)]) for _ in range(2)]
+    start = time.perf_counter()
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return alone / (time.perf_counter() - start)
+
+
 def profile(renderer, amplitude, phase, offsets, calls: int = 50) -> None:
     """Each function's own CPU time per PSF inside ``stamps()`` (numpy's ufuncs and BLAS count in their caller)."""
     profiler = cProfile.Profile(time.process_time)
@@ -106,6 +128,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7, help="alternated rounds (medians)")
     parser.add_argument("--profile", action="store_true", help="each function's own time in stamps()")
     parser.add_argument("--against", type=Path, help="another checkout: its pupil path from the screens' sum on")
+    parser.add_argument("--threads", action="store_true", help="two threads' overlap of the pupil path (wall)")
     args = parser.parse_args()
     telescope = Telescope(0.2, 0.4)                                     # library:telescopes/astrograph_200mm.yaml
     renderer = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
@@ -172,7 +195,12 @@ def main() -> None:
     phase_t = np.ascontiguousarray(phase.transpose(0, 2, 1))
     curvature = np.pi / WAVELENGTH_M * np.where(np.arange(FRAMES) % 4 == 0, 1 / 7.4e5, 0.0)
     binding_row, own_row = "  the same through the binding", "  the same as the renderer runs them"
+    chunked = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
+                            telescope.collecting_area_m2)
+    chunked._frames = False
     cases = {"stamps() whole": (lambda: renderer.stamps(amplitude, phase, offsets), FRAMES),
+             "  the same chunk by chunk (numpy's products)": (lambda: chunked.stamps(amplitude, phase, offsets),
+                                                              FRAMES),
              "pupil path from the screens' sum": (lambda: pupil_path_render(renderer, amplitude, phase_t, offsets,
                                                                              curvature, renderer.r2), FRAMES),
              "stamps() whole, double precision": (lambda: double.stamps(amplitude, phase, offsets), FRAMES),
@@ -208,6 +236,19 @@ def main() -> None:
     path = statistics.median(times["pupil path from the screens' sum"])
     print(f"  the pupil path's stamps against the bare FFTs: {path / statistics.median(times[binding_row]):.2f}x "
           f"pocketfft's, {path / statistics.median(times[own_row]):.2f}x its own")
+    if args.threads:
+        paths = {"this tree": cases["pupil path from the screens' sum"][0]}
+        if args.against:
+            paths[str(args.against)] = cases[f"  the same, {args.against}"][0]
+        overlaps, loads = {name: [] for name in paths}, []
+        for _ in range(args.repeats):
+            loads.append(os.getloadavg()[0])
+            for name, work in paths.items():
+                overlaps[name].append(overlap(work))
+        print(f"two threads at once against one after the other (wall; medians of {args.repeats} rounds, "
+              f"load {statistics.median(loads):.1f}; 2x: no interpreter lock held):")
+        for name, values in overlaps.items():
+            print(f"  {name:40s} {statistics.median(values):5.2f}x  ({', '.join(f'{v:.2f}' for v in values)})")
     if args.profile:
         profile(renderer, amplitude, phase, offsets)
 
