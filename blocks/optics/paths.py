@@ -395,7 +395,6 @@ class PathChooser:
                 analytic.setdefault(zenith, []).append((zenith, range_m_))
         if not runs and not analytic:
             return
-        self.imager.pupil_renderer                 # made before the threads read it
         made = self._measure([run for run, _ in runs.values()], list(analytic.values()))
         for key, (_, conditions) in runs.items():
             self._ahead[self._ahead_key("reference", conditions)] = made["reference", key]
@@ -411,31 +410,79 @@ class PathChooser:
 
     def _measure(self, runs: list[_PairRun], analytic: list[list[tuple[float, float]]]) -> dict[tuple, Any]:
         """The reference frame pairs of ``runs`` until each one's verdict, and the analytic-path probes of
-        ``analytic`` (groups of conditions, one group per zenith-angle bin: made in order on one thread, they share
-        its long-exposure table), on every core (:func:`.parallel_map`): each thread takes, in turn, a bin's first
-        pairs (which every verdict needs), else an analytic group, else the next pair of a bin none of whose pairs
-        is being measured, else (rather than idle) the next pair of any open bin (dropped if a pair before it
-        decides: at most one a thread). Returns ``{("reference", key): (distances, verdict), ("analytic",
-        conditions): (distances, fits)}``."""
+        ``analytic`` (groups of conditions, one group per zenith-angle bin: they share its long-exposure table), on
+        every core (:func:`.parallel_map`). Each thread takes, in turn:
+
+        * the pupil renderer (made once; its first call of compiled code loads Numba's typing and target contexts,
+          ~0.2 s of interpreter on the run's first probes), else
+        * a group's analytic-path tables (the long-exposure profile's Bessel functions leave the interpreter free:
+          they run while the renderer is made), else
+        * a bin's first pairs (which every verdict needs), else an analytic group, else
+        * the next pair of a bin none of whose pairs is being measured, else (rather than idle) the next pair of
+          any open bin (dropped if a pair before it decides: at most one a thread).
+
+        Returns ``{("reference", key): (distances, verdict), ("analytic", conditions): (distances, fits)}``."""
         least = (REFERENCE_PROBE_FRAMES[0] + 1) // 2
-        analytic = list(analytic)
+        groups = list(enumerate(analytic))
+        tables = [(i, group[0][0]) for i, group in groups]
+        tabled = [threading.Event() for _ in groups]
+        rendering = threading.Event()
         lock = threading.Lock()
+        renderer: list[bool] = []
         failed: list[bool] = []
         out: dict[tuple, Any] = {}
 
         def next_unit() -> tuple | None:
             if failed:
                 return None
+            if not renderer:
+                renderer.append(True)
+                return ("renderer",)
+            if tables:
+                return ("table", *tables.pop(0))
             for run in runs:
                 if run.verdict is None and run.taken < least:
-                    return run, run.take()
-            if analytic:
-                return None, analytic.pop(0)
+                    return "pair", run, run.take()
+            if groups:
+                return ("analytic", *groups.pop(0))
             for idle in (True, False):
                 for run in runs:
                     if run.open() and (run.running == 0 or not idle):
-                        return run, run.take()
+                        return "pair", run, run.take()
             return None
+
+        def made(event: threading.Event, make: Callable[[], Any]) -> None:
+            try:
+                make()
+            except BaseException:
+                failed.append(True)
+                raise
+            finally:
+                event.set()                        # threads waiting for it go on (and stop if it failed)
+
+        def run_unit(unit: tuple) -> None:
+            kind = unit[0]
+            if kind == "renderer":
+                return made(rendering, lambda: self.imager.pupil_renderer)
+            if kind == "table":
+                _, i, zenith = unit
+                return made(tabled[i], lambda: [self.imager.path_named[path].renderer(zenith)
+                                                for path in ANALYTIC_PATHS])
+            rendering.wait()
+            if kind == "analytic":
+                _, i, group = unit
+                tabled[i].wait()
+                if failed:
+                    return
+                for zenith, range_m in group:
+                    value = self._analytic_distances(zenith, range_m)
+                    with lock:
+                        out["analytic", (zenith, range_m)] = value
+            elif not failed:
+                _, run, pair = unit
+                values = self._pair_distances(run.key, run.zenith_rad, run.range_m, pair)
+                with lock:
+                    run.done(pair, values)
 
         def worker(_: int) -> None:
             while True:
@@ -443,17 +490,8 @@ class PathChooser:
                     unit = next_unit()
                 if unit is None:
                     return
-                run, what = unit
                 try:
-                    if run is None:
-                        for zenith, range_m in what:
-                            value = self._analytic_distances(zenith, range_m)
-                            with lock:
-                                out["analytic", (zenith, range_m)] = value
-                    else:
-                        values = self._pair_distances(run.key, run.zenith_rad, run.range_m, what)
-                        with lock:
-                            run.done(what, values)
+                    run_unit(unit)
                 except BaseException:
                     failed.append(True)
                     raise
