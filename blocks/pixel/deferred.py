@@ -33,6 +33,7 @@ import numpy as np
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
+from .own_sweep import take_own
 from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA,
                          STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, advanced, quiet_until, relaxed_by,
                          run_pixels)
@@ -178,8 +179,9 @@ def take_quietly_reference(real, count, pixels, lo, end, steps, inputs, leak_hz,
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_end, shared_step, shared_input,
-                 change_lo, change_hi, change_step, change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw,
-                 th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause):
+                 change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end, leak_hz, dt, large,
+                 k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor, ev_step, ev_pixel, ev_pol,
+                 ev_cause):
     """:func:`take_quietly` of the ``pixels`` with ``quiet_lo >= 0`` (their changes ``quiet_lo .. quiet_end - 1``
     of ``shared_step``, ``shared_input``), then :func:`.pixel_loop.run_pixels` of them all: one chunk's pixels
     while their rows are in cache, in the chunks' threads. Per pixel the same arithmetic in the same order as
@@ -188,6 +190,8 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
     if quiet.any():
         take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
                      large)
+    take_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
+             leak_hz, dt, large)
     return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
                       change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
                       th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0, _LAZY)

@@ -65,6 +65,7 @@ class EventDrivenPixels:
         self._fresh = False
         self._windows = 0
         self._slot = np.full(state["real"].shape[0], -1, np.int32)    # scratch of :func:`.own_changes.under_stamps`
+        self._rows = np.empty((0, len(REAL)))                         # scratch of the window's input changes
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._drive = drive_constants(model)
@@ -155,14 +156,22 @@ class EventDrivenPixels:
                                        np.int64(kept), np.int64(own_pixel.size), np.int64(s["shared_step"].size),
                                        changed, first, counts)        # and marks those that take changes taken
         change_step = np.concatenate([own_step, s["shared_step"]])
-        change_input = np.empty((own_flux.size + s["shared_input"].shape[0], len(REAL)))   # own rows, then kept
-        drive_rows(np.ascontiguousarray(own_flux, dtype=float), self._drive, change_input[:own_flux.size])
-        change_input[own_flux.size:] = s["shared_input"]
-        self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log, quiet_lo, kept - 1)
+        change_input = self._change_rows(own_flux.size + s["shared_input"].shape[0])      # own rows, then kept
+        change_input[own_flux.size:] = s["shared_input"]     # the own rows: driven from own_flux by take_and_run
+        self._run_changes(pixels, lo, hi, change_step, change_input, n_end, log, quiet_lo, kept - 1,
+                          np.ascontiguousarray(own_flux, dtype=float))
         history.taken(touched)
         self._windows += 1
         if self._windows % _PRUNE_EVERY == 0:                # a sweep of every pixel's count, for memory only
             history.prune()
+
+    def _change_rows(self, n: int) -> np.ndarray:
+        """``n`` rows of the state table's width for a window's input changes, from a buffer kept across windows:
+        a new array of ~10 MB each window was written through fresh pages (the kernel zeroing each on its first
+        touch)."""
+        if self._rows.shape[0] < n:
+            self._rows = np.empty((max(n, 2 * self._rows.shape[0]), len(REAL)))
+        return self._rows[:n]
 
     def _holds(self, rows: np.ndarray) -> bool:
         """Whether the envelope holds the background changes ``rows`` (their ``Y`` and parasitic rates)."""
@@ -201,7 +210,7 @@ class EventDrivenPixels:
         steps = self.s["shared_step"]
         scratch = EventLog()
         self._run_changes(pixels, lo, hi, steps, self.s["shared_input"], int(steps[-1]) + 1, scratch, quiet_lo,
-                          kept - 1)
+                          kept - 1, np.zeros(0))
         if scratch._chunks or scratch.n_loss:
             raise RuntimeError("a pixel left out of a background change would have fired (deferral bound violated)")
         history.taken(pixels)
@@ -237,20 +246,23 @@ class EventDrivenPixels:
         self._fresh = False                                   # the wake steps are those of the states before
 
     def _run_changes(self, pixels, lo, hi, change_step, change_input, n_end: int, log: EventLog, quiet_lo,
-                     quiet_end: int) -> None:
+                     quiet_end: int, own_flux: np.ndarray) -> None:
         """The event-driven loop (:func:`.pixel_loop.run_pixels`) over ``pixels``, pixel ``pixels[i]`` with the
         changes ``lo[i]:hi[i]`` of ``change_step``/``change_input``, after the kept background changes
         ``quiet_lo[i] .. quiet_end - 1`` (none where -1) taken quietly (:func:`.deferred.take_and_run`)."""
         s = self.s
-        quiet_lo = quiet_lo.copy()
+        quiet_lo, lo = quiet_lo.copy(), lo.copy()
 
         def kernel(index, buffers):
             if index.size and index[-1] - index[0] + 1 == index.size:    # a run of items (ascending): views
                 index = slice(index[0], index[-1] + 1)
+            chunk_lo = lo[index]
             out = take_and_run(s["real"], s["count"], s["next"], self._wake, self._envelope, pixels[index],
-                               quiet_lo[index], np.int64(quiet_end), s["shared_step"], s["shared_input"], lo[index],
-                               hi[index], change_step, change_input, np.int64(n_end), *self._constants, *buffers)
+                               quiet_lo[index], np.int64(quiet_end), s["shared_step"], s["shared_input"], chunk_lo,
+                               hi[index], change_step, change_input, np.int64(own_flux.size), own_flux, self._drive,
+                               np.int64(n_end), *self._constants, *buffers)
             quiet_lo[index] = -1             # taken: a chunk run again with more room for events takes them once
+            lo[index] = chunk_lo             # past the changes swept (take_own): taken once too
             return out
 
         self._run(pixels.size, kernel, log)

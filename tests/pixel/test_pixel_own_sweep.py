@@ -1,0 +1,106 @@
+"""The stamp pixels' own input changes swept many pixels at a time (blocks/pixel/own_sweep.py) change no event.
+
+The event-driven loop takes a pixel's input changes one after the other, pixel after pixel. The sweep
+takes the pixels under stamps together, change after change, as long as nothing is due before a change,
+and leaves the rest (each pixel's last change, its events and what follows them) to the loop. Events,
+lost-event counts and the pixels' final state must be those of the loop alone, bit for bit, whatever the
+windows, the threads and the room for events, in both forms of the filter; the scene makes the stamp
+flicker (every pixel under it changes at every sample), so that pixels fire in the middle of their
+changes and leave the sweep there.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from evsda.blocks.pixel import DvsPixel
+from evsda.blocks.ports import FocalPlane, Irradiance
+from evsda.graph import RunInfo, Window
+
+FP = FocalPlane(64, 48, 10e-6, 0.5)
+NOISY = dict(leak_rate_hz=2.0, shot_noise_rate_hz=5.0, parasitic_rate_per_lux_hz=1e-3, refractory_period_s=2e-4)
+
+
+def irradiance(window: Window) -> Irradiance:
+    """A sky drifting by 3e-4 every 10 ms and, at 1 kHz, a 7 x 7 stamp crossing the field whose flux flickers by
+    ~10 % from sample to sample (every pixel under it changes at every sample)."""
+    t = np.arange(-(-window.start_ns // 10**6) * 10**6, window.stop_ns, 10**6, dtype=np.int64)
+    sky = 2e5 * (1 + 3e-4 * np.floor(t / 1e7))
+    x = 5 + 150 * t * 1e-9
+    origin = np.stack([np.round(x).astype(np.int32), np.full(t.size, 20, np.int32)], axis=-1)[:, None]
+    flicker = 1.0 + 0.1 * np.sin(t * 1e-6 * 2.1)[:, None, None, None] * np.cos(np.arange(7) * 0.7)[None, None, :, None]
+    stamp = 3e6 * flicker * np.ones((t.size, 1, 7, 7))
+    return Irradiance(FP, 550e-9, t, sky, origin, stamp)
+
+
+def loop_alone(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_end, shared_step, shared_input,
+               change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end, *rest):
+    """:func:`.deferred.take_and_run` without the sweep: the own rows driven at once, every change by the loop."""
+    from evsda.blocks.pixel.deferred import take_quietly
+    from evsda.blocks.pixel.drive_kernel import drive_rows
+    from evsda.blocks.pixel.pixel_loop import _LAZY, NEVER, run_pixels
+
+    drive_rows(own_flux, drive_k, change_input[:n_own])
+    quiet = quiet_lo >= 0
+    leak_hz, dt, large = rest[:3]
+    if quiet.any():
+        take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
+                     large)
+    return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
+                      change_input, n_end, *rest, np.int64(0), 0.0, _LAZY)
+
+
+def run(monkeypatch, window_s: float, sweep: bool, form: str, threads: str = "1", room: int = 1024,
+        duration_s: float = 0.12):
+    from evsda.blocks.pixel import eventdriven, own_sweep
+
+    monkeypatch.setenv("EVSDA_THREADS", threads)
+    monkeypatch.setattr(eventdriven, "_FIRST_CAPACITY", room)     # 0: chunks run again with more room
+    counted = {"swept": 0, "sweepable": 0}
+    if sweep:
+        take_and_run = eventdriven.take_and_run
+
+        def counting(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_end, shared_step, shared_input,
+                     change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end, leak_hz, dt,
+                     large, *rest):
+            own = (change_hi <= n_own) & (change_hi - change_lo >= 1 + own_sweep.MIN_SWEPT)   # the changes swept,
+            swept = own_sweep.take_own(real.copy(), count.copy(), pixels, change_lo.copy(), change_hi, change_step,
+                                       change_input.copy(), n_own, own_flux, drive_k, n_end, leak_hz, dt, large)
+            counted["sweepable"] += int(np.sum((change_hi - change_lo - 1)[own]))            # counted on copies (the
+            counted["swept"] += swept                     # sum after the call, which lets the other threads run)
+            return take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_end, shared_step,
+                                shared_input, change_lo, change_hi, change_step, change_input, n_own, own_flux,
+                                drive_k, n_end, leak_hz, dt, large, *rest)
+
+        monkeypatch.setattr(eventdriven, "take_and_run", counting)
+    else:
+        monkeypatch.setattr(eventdriven, "take_and_run", loop_alone)
+    block = DvsPixel(seed=7, lowpass_form=form, **NOISY)
+    block.setup(RunInfo(duration_ns=round(duration_s * 1e9)))
+    out, lost = [], 0
+    for i in range(int(round(duration_s / window_s))):
+        window = Window.from_seconds(i * window_s, (i + 1) * window_s, index=i)
+        e = block.step(window, irradiance=irradiance(window))["events"]
+        out.append((e.t_ns, e.x, e.y, e.p, e.cause))
+        lost += e.n_loss
+    state = {name: block.pixel_field(name) for name in ("flux", "filtered", "memorised", "theta_on", "step", "ready")}
+    return [np.concatenate(parts) for parts in zip(*out)], lost, state, counted
+
+
+@pytest.mark.parametrize("window_s, threads, form, room", [(0.02, "1", "large_signal", 1024),
+                                                           (0.04, "2", "large_signal", 0),
+                                                           (0.03, "2", "small_signal", 1024)])
+def test_swept_changes_make_the_events_of_the_loop_alone(monkeypatch, window_s, threads, form, room):
+    reference, lost, state, _ = run(monkeypatch, 0.03, False, form)
+    events, lost_swept, state_swept, counted = run(monkeypatch, window_s, True, form, threads, room)
+    # thousands of stamp changes swept; pixels that fire between their changes leave the sweep there
+    assert 2_000 < counted["swept"] < counted["sweepable"]
+    t, x, y, p, cause = reference
+    under = (np.abs(x.astype(float) - (5 + 150 * t * 1e-9)) < 5) & (np.abs(y.astype(float) - 23) < 5)
+    assert np.sum(under & (cause == 0)) > 100                     # the flicker makes the stamp's pixels fire
+    for a, b in zip(reference, events):
+        np.testing.assert_array_equal(a, b)
+    assert lost == lost_swept
+    for key in state:
+        np.testing.assert_array_equal(state[key], state_swept[key])
