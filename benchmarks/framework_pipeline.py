@@ -89,7 +89,8 @@ def main() -> None:
     for base, mode in pairs:
         print(f"  {mode} against {base}: wall-time speed-up: {walls[base] / walls[mode]:.3f}x; each round: "
               + ", ".join(f"{a['wall_s'] / b['wall_s']:.3f}x" for a, b in zip(runs[base], runs[mode])))
-    print(f"  stores identical: {len(digests) == 1} ({len(digests)} distinct hash{'es' if len(digests) > 1 else ''})")
+    print(f"  stores identical: {len(digests) == 1} ({len(digests)} distinct hash{'es' if len(digests) > 1 else ''}: "
+          f"{', '.join(d[:8] for d in sorted(digests))})")
     if len(digests) != 1:
         raise SystemExit("the modes' stores differ")
 

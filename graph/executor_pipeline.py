@@ -9,8 +9,15 @@ heavy parts release the GIL (compiled loops declared ``nogil``, FFTs, compressio
 
 Rules:
 
-* at most :data:`WINDOWS_AHEAD` windows beyond the oldest unrecorded one are in flight (each holds its
-  values in memory);
+* a block that feeds others steps over window ``k`` once one of them has finished window ``k - 1 -``
+  :data:`WINDOWS_AHEAD`, and a block that feeds none once every block has (1: the optics of ``k + 1`` beside
+  the pixels of ``k``; the cheap blocks upstream of the optics, the sources, are then done with ``k + 2``
+  before the pixels end ``k``, off the optics' chain); no step runs more than ``1 +`` :data:`WINDOWS_AHEAD`
+  windows beyond the oldest unrecorded window (each in flight holds its values in memory);
+* the thread that finishes a step starts the steps this makes ready, itself running the same block's next step
+  if ready, else the one furthest upstream (the next optics window, say, goes on at once on the thread that
+  ended the previous one, or the pixels' step it waited for): no round trip through a scheduling thread, each of
+  whose wake-ups waits for the interpreter lock;
 * windows are handed back in order, to the calling thread, which records them (one thread writes the store);
 * a commit is a barrier: before the first step of window ``k + 1`` starts, the pipeline asks whether the
   blocks' state after window ``k`` is to be committed; if so, nothing of ``k + 1`` starts until ``k`` is handed
@@ -27,15 +34,16 @@ state, and neither changes a value after returning it nor the values it is given
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from .block import RunInfo, Window
 from .errors import UserError
 from .threads import running_step
 
-#: windows in flight beyond the oldest one not yet recorded (1: the optics of k + 1 beside the pixels of k)
+#: windows a block runs ahead of the blocks it feeds (1: the optics of k + 1 beside the pixels of k)
 WINDOWS_AHEAD = 1
 
 Values = dict[tuple[str, str], Any]
@@ -66,6 +74,7 @@ class Pipeline:
         self.order = list(order)
         self.position = {name: i for i, name in enumerate(self.order)}
         self.upstream = {name: [u for u in upstream[name] if u in self.position] for name in self.order}
+        self.downstream = {name: [d for d in self.order if name in self.upstream[d]] for name in self.order}
         self.gather, self.step = gather, step
 
     def windows(self, run: RunInfo, start: int, stop: int, loaded: Callable[[int], Values],
@@ -73,99 +82,140 @@ class Pipeline:
         """``(window, [(block, outputs)] in topological order, commit)`` for windows ``start .. stop - 1``, in
         order. ``loaded(k)``: window ``k``'s values that no block here computes (read in order, once);
         ``commit_due(k)``: whether to commit after window ``k``, asked once per window (``commit``)."""
-        state = _State(self, run, start, stop, loaded, commit_due)
         with ThreadPoolExecutor(max(1, len(self.order)), thread_name_prefix="evsda-step") as pool:
+            state = _State(self, run, start, stop, loaded, commit_due, pool)
             try:
-                while state.next_out < stop:
-                    state.launch(pool)
-                    if state.window_complete(state.next_out):
-                        yield state.hand_back()
-                        continue
-                    if not state.running:
-                        if state.failure is not None:
-                            raise state.failure[1]
-                        raise RuntimeError("pipeline stalled with nothing running (a bug in evsda)")
-                    finished, _ = wait(state.running, return_when=FIRST_COMPLETED)
-                    for future in finished:
-                        state.harvest(future)
+                with state.lock:
+                    state.launch()
+                while state.released < stop:
+                    yield state.next_window()
+                    with state.lock:
+                        state.commits.pop(state.released, None)
+                        state.released += 1            # recorded (and committed): the steps it held back may start
+                        state.launch()
             finally:
-                state.stopped = True               # start nothing more; the pool waits for the running steps
-
-
-def _counted(step, name, window, inputs):
-    """``step(name, window, inputs)`` counted as a running step (:func:`.threads.running_step`)."""
-    with running_step():
-        return step(name, window, inputs)
+                with state.lock:
+                    state.stopped = True           # start nothing more; the pool waits for the running steps
 
 
 class _State:
-    """The book-keeping of one :meth:`Pipeline.windows` call."""
+    """The book-keeping of one :meth:`Pipeline.windows` call; every field is guarded by :attr:`lock`."""
 
     def __init__(self, pipeline: Pipeline, run: RunInfo, start: int, stop: int,
-                 loaded: Callable[[int], Values], commit_due: Callable[[int], bool]):
-        self.p, self.run, self.start, self.stop = pipeline, run, start, stop
+                 loaded: Callable[[int], Values], commit_due: Callable[[int], bool], pool: ThreadPoolExecutor):
+        self.p, self.run, self.start, self.stop, self.pool = pipeline, run, start, stop, pool
         self.loaded, self.commit_due = loaded, commit_due
+        self.lock = threading.Condition()
         self.values: dict[int, Values] = {}                         # window -> {(block, port): value}
         self.produced: dict[int, dict[int, tuple[str, dict]]] = {}  # window -> {position: (block, outputs)}
         self.done = {name: start - 1 for name in pipeline.order}    # the last window each block finished
-        self.running: dict[Future, tuple[str, int]] = {}
         self.busy: set[str] = set()
+        self.running = 0                                            # steps started and not yet harvested
         self.commits: dict[int, bool] = {}                          # commit decisions, by window
         self.failure: tuple[tuple[int, int], BaseException] | None = None
-        self.next_out = start
+        self.crash: BaseException | None = None                     # an error of this module's own (a bug)
+        self.created = start - 1                                    # the last window whose values exist
+        self.next_out = start                                       # the next window to hand back
+        self.released = start                                       # windows before it are recorded
         self.stopped = False
 
-    def window_complete(self, k: int) -> bool:
-        return all(done >= k for done in self.done.values())
+    def next_window(self) -> tuple[Window, list[tuple[str, dict]], bool]:
+        """The oldest window once complete, with its commit decision (its values are dropped); or the error."""
+        with self.lock:
+            while not all(done >= self.next_out for done in self.done.values()):
+                if self.crash is not None:
+                    raise self.crash
+                if not self.running:
+                    if self.failure is not None:
+                        raise self.failure[1]
+                    raise RuntimeError("pipeline stalled with nothing running (a bug in evsda)")
+                self.lock.wait()
+            k = self.next_out
+            commit = self.commits.pop(k) if k in self.commits else self.commit_due(k)
+            self.commits[k] = commit                   # the barrier holds until the window is released
+            entries = self.produced.pop(k)
+            del self.values[k]
+            self.next_out += 1
+        return self.run.window(k), [entries[i] for i in sorted(entries)], commit
 
     def _may_start(self, k: int) -> bool:
-        """Window ``k`` may start: its previous window is handed back, or will not be committed."""
-        if k == self.start or self.next_out > k - 1:
-            return True
-        if k - 1 not in self.commits:
-            self.commits[k - 1] = self.commit_due(k - 1)
-        return not self.commits[k - 1]
+        """Window ``k`` may start: no window before it is still to be committed (asked in order, once each)."""
+        for j in range(max(self.released, self.start), k):
+            if j not in self.commits:
+                self.commits[j] = self.commit_due(j)
+            if self.commits[j]:
+                return False
+        return True
 
-    def launch(self, pool: ThreadPoolExecutor) -> None:
-        """Start every step whose dependencies are met, window by window."""
-        for k in range(self.next_out, min(self.stop, self.next_out + 1 + WINDOWS_AHEAD)):
-            if self.stopped or not self._may_start(k):
-                return
-            if k not in self.values:
-                self.values[k] = dict(self.loaded(k))
-                self.produced[k] = {}
-            for name in self.p.order:
-                if name in self.busy or self.done[name] != k - 1:
-                    continue
-                if self.failure is not None and (k, self.p.position[name]) >= self.failure[0]:
-                    continue
-                if all(self.done[u] >= k for u in self.p.upstream[name]):
-                    inputs = self.p.gather(name, self.values[k])
-                    future = pool.submit(_counted, self.p.step, name, self.run.window(k), inputs)
-                    self.running[future] = (name, k)
-                    self.busy.add(name)
+    def _horizon(self, name: str) -> int:
+        """The last window ``name`` may step over now."""
+        fed = self.p.downstream[name]
+        behind = max(self.done[d] for d in fed) if fed else min(self.done.values())
+        return min(behind + 1 + WINDOWS_AHEAD, self.released + 1 + WINDOWS_AHEAD, self.stop - 1)
 
-    def harvest(self, future: Future) -> None:
+    def launch(self, keep: str | None = None) -> tuple[str, int, dict] | None:
+        """Start every step whose dependencies are met, on the pool; but if ``keep`` (the block whose step the
+        calling thread just finished) is given, return one to run on the calling thread: that block's next one if
+        ready (a chain of windows goes on where it is), else the one furthest upstream. Called with :attr:`lock`
+        held."""
+        if self.stopped or self.crash is not None:
+            return None
+        ready = []
+        for name in self.p.order:
+            k = self.done[name] + 1
+            if name in self.busy or k > self._horizon(name):
+                continue
+            if self.failure is not None and (k, self.p.position[name]) >= self.failure[0]:
+                continue
+            if all(self.done[u] >= k for u in self.p.upstream[name]) and self._may_start(k):
+                ready.append((name, k))
+        if keep is not None:
+            ready.sort(key=lambda task: task[0] != keep)          # stable: then in topological order
+        kept = None
+        for name, k in ready:
+            while self.created < k:                                  # each window's loaded values, in order
+                self.created += 1
+                self.values[self.created] = dict(self.loaded(self.created))
+                self.produced[self.created] = {}
+            task = (name, k, self.p.gather(name, self.values[k]))
+            self.busy.add(name)
+            self.running += 1
+            if keep is not None and kept is None:
+                kept = task
+            else:
+                self.pool.submit(self._work, task)
+        return kept
+
+    def _work(self, task: tuple[str, int, dict] | None) -> None:
+        """Run ``task``, then whatever it makes ready that this thread keeps, until nothing is left to keep."""
+        try:
+            while task is not None:
+                name, k, inputs = task
+                outputs, error = None, None
+                try:
+                    with running_step():
+                        outputs = self.p.step(name, self.run.window(k), inputs)
+                except BaseException as exc:           # noqa: BLE001 -- raised by the calling thread, in order
+                    error = exc
+                del inputs
+                with self.lock:
+                    self._harvest(name, k, outputs, error)
+                    task = self.launch(keep=name)
+                    self.lock.notify_all()
+        except BaseException as exc:                   # noqa: BLE001 -- a bug here: the calling thread raises it
+            with self.lock:
+                self.crash = exc
+                self.lock.notify_all()
+
+    def _harvest(self, name: str, k: int, outputs: dict | None, error: BaseException | None) -> None:
         """Take a finished step's outputs, or note its error if it comes first in the serial order."""
-        name, k = self.running.pop(future)
         self.busy.discard(name)
-        error = future.exception()
+        self.running -= 1
         if error is not None:
             key = (k, self.p.position[name])
             if self.failure is None or key < self.failure[0]:
                 self.failure = (key, error)
             return
-        outputs = future.result()
         self.values[k].update({(name, port): value for port, value in outputs.items()})
         self.produced[k][self.p.position[name]] = (name, outputs)
         self.done[name] = k
-
-    def hand_back(self) -> tuple[Window, list[tuple[str, dict]], bool]:
-        """The oldest window, complete, with its commit decision; its values are dropped."""
-        k = self.next_out
-        commit = self.commits.pop(k) if k in self.commits else self.commit_due(k)
-        entries = self.produced.pop(k)
-        produced = [entries[i] for i in sorted(entries)]
-        del self.values[k]
-        self.next_out += 1
-        return self.run.window(k), produced, commit

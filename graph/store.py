@@ -67,6 +67,9 @@ PRODUCT_CHUNK_BYTES = 256 << 10
 EVENT_CHUNK = 1 << 20           # default number of events per chunk yielded by iter_events
 #: appended data waits in memory until a commit or until this many bytes are pending
 FLUSH_BYTES = 64 << 20
+#: whole chunks are written once this many bytes of them are pending (the tracked pass's 62 MB of events then
+#: compress while the run goes on, in the cores' idle time, not all in the run's tail)
+WHOLE_CHUNK_BYTES = EVENT_CHUNK_BYTES
 #: fast, multithreaded compression: bit-shuffled LZ4 suits sorted timestamps and small integers
 COMPRESSOR = BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")
 #: codecs of numeric arrays, of string arrays and of checkpoints; the CRC-32C comes last, over the stored bytes
@@ -119,6 +122,7 @@ class RunStore:
         self._written: dict[str, int] = dict(self._lengths)
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
+        self._whole_bytes: dict[str, int] = {}      # per array: bytes pending in whole chunks
         self._arrays: dict[str, zarr.Array] = {}
         self._checked = False       # a read-only store's structure has been checked
         self._truth_sources: dict[tuple[str, str], int] | None = None   # (block, source_id) -> source number
@@ -287,11 +291,18 @@ class RunStore:
                 attrs: dict[str, Any] | None = None) -> None:
         """Queue ``data`` for appending to array ``key`` (written by :meth:`flush`); ``dims`` and ``attrs``
         name the array's dimensions and describe it when it is created."""
-        self._array(key, data.dtype, chunk, data.shape[1:], dims, attrs)
+        rows = self._array(key, data.dtype, chunk, data.shape[1:], dims, attrs).chunks[0]
         self._pending.setdefault(key, []).append(data)
         self._lengths[key] = self._lengths.get(key, 0) + data.shape[0]
         self._pending_bytes += data.nbytes
-        if self._pending_bytes > FLUSH_BYTES:
+        whole = self._lengths[key] // rows * rows - self._written.get(key, 0)
+        if whole > 0 and data.shape[0]:
+            self._whole_bytes[key] = whole * (data.nbytes // data.shape[0])
+
+    def _appended(self) -> None:
+        """After an append: write the whole chunks pending once there are :data:`WHOLE_CHUNK_BYTES` of them, or
+        once :data:`FLUSH_BYTES` are pending in all."""
+        if self._pending_bytes > FLUSH_BYTES or sum(self._whole_bytes.values()) >= WHOLE_CHUNK_BYTES:
             self.flush(whole_chunks_only=True)
 
     def flush(self, whole_chunks_only: bool = False) -> None:
@@ -316,6 +327,7 @@ class RunStore:
                 self._written[key] = stop
         self._pending = remaining
         self._pending_bytes = sum(parts[0].nbytes for parts in remaining.values())
+        self._whole_bytes.clear()
         with ThreadPoolExecutor(max(1, len(jobs))) as pool:
             list(pool.map(_write_slice, jobs))
 
@@ -357,6 +369,7 @@ class RunStore:
         for name, (dtype, attrs) in columns.items():
             self._append(f"events/{name}", np.asarray(events[name]).astype(dtype, copy=False),
                          EVENT_CHUNK_BYTES // dtype.itemsize, ("event",), attrs)
+        self._appended()
         if focal_plane is not None:
             self._set_attr_once("events", "focal_plane", lambda: focal_plane.to_arrays()[1])
 
@@ -374,6 +387,7 @@ class RunStore:
                 values = values.astype(np.dtypes.StringDType())
             self._append(f"{group}/{name}", values, max(chunk_bytes // max(values.itemsize, 1), 1), (dim,),
                          (attrs or {}).get(name, {}))
+        self._appended()
 
     def read_table(self, group: str) -> dict[str, np.ndarray]:
         """Every committed row of the table ``group`` (see :meth:`append_table`)."""
@@ -434,6 +448,7 @@ class RunStore:
                          ("window", f"{name}_axis"), {"units": "1"})
         self._append(f"{base}/_attrs", np.array([json.dumps(attrs)], dtype=np.dtypes.StringDType()), 1024,
                      ("window",), {"long_name": "each window's scalar fields (JSON)"})
+        self._appended()
         self._set_attr_once(base, "type", lambda: type(value).type_name())
 
     def has_product(self, block: str, port: str) -> bool:
