@@ -56,8 +56,6 @@ RING_RATIO = 3.0
 SECTORS = 4
 #: positions ``p = STRIDE h + l``: the modes' cosines are tabulated at ``l`` once and computed at ``STRIDE h`` per read
 STRIDE = 16
-#: strides the modes' per-stride tables reach beyond what a walk asks for, either way (kept for the next walks) [1]
-STRIDE_MARGIN = 64
 #: last word of a large-scale draw's seed (a screen's own draws end in a regeneration count, far below it)
 SEED_WORD = 0xFFFFFFFF
 
@@ -127,35 +125,9 @@ class LargeScales:
         within = np.multiply.outer(np.r_[self.wy, self.wx], np.arange(float(STRIDE)))   # phases within a stride
         cos, sin = np.cos(within), np.sin(within)
         k = len(self.wy)
-        self._low_y, self._low_x = (cos[:k], sin[:k]), (cos[k:], sin[k:])
         self.low = np.ascontiguousarray(np.stack([cos[:k], sin[:k], cos[k:], sin[k:]]))     # (4, K, STRIDE)
         self.amplitudes = np.ascontiguousarray(np.stack([self.a, self.b]))                  # (2, K)
-        self._strides = [(np.zeros((2, k, 0)), 0), (np.zeros((2, k, 0)), 0)]               # y, x: (table, first)
-
-    def strides(self, first: int, stop: int, axis: int) -> tuple[np.ndarray, int]:
-        """``cos``, ``sin`` (2, K, .) of the modes' phases along ``axis`` (0: y, 1: x) at every ``STRIDE``-th position
-        from the returned stride's index on, covering absolute positions ``first .. stop - 1`` [samples]: the tables
-        :func:`.screen_kernels.mode_phasors` completes at any position in between (each value from its own stride
-        alone, so a table is kept and reused while walks stay within it, and made ``STRIDE_MARGIN`` strides wider
-        either way when one leaves it)."""
-        low, high = first // STRIDE, (stop - 1) // STRIDE
-        table, start = self._strides[axis]
-        if low < start or high >= start + table.shape[2]:
-            low, high = low - STRIDE_MARGIN, high + STRIDE_MARGIN
-            phase = np.multiply.outer(self.wx if axis else self.wy, float(STRIDE) * np.arange(low, high + 1))
-            table, start = np.stack([np.cos(phase), np.sin(phase)]), low
-            self._strides[axis] = (table, start)
-        return table, start
-
-    def cut(self, first: int, stop: int, axis: int) -> tuple[np.ndarray, int, int]:
-        """The strides of :meth:`strides`' table that positions ``first .. stop - 1`` [samples] along ``axis`` reach:
-        ``cos``, ``sin`` (2, K, count) flattened, the first stride's index and ``count``."""
-        table, start = self._strides[axis]
-        s0, s1 = first // STRIDE - start, (stop - 1) // STRIDE - start + 1
-        if s0 < 0 or s1 > table.shape[2]:                    # (strides' test, without its call where it holds)
-            table, start = self.strides(first, stop, axis)
-            s0, s1 = first // STRIDE - start, (stop - 1) // STRIDE - start + 1
-        return table[:, :, s0:s1].ravel(), start + s0, s1 - s0
+        self.frequencies = np.ascontiguousarray(np.stack([self.wy, self.wx]))               # (2, K)
 
     def add_to(self, coefficients: np.ndarray, top: int, left: int) -> np.ndarray:
         """``coefficients`` (an array whose first sample is at absolute (``top``, ``left``)) plus the modes' B-spline
@@ -169,17 +141,14 @@ class LargeScales:
         row ``r`` from column ``first[r]`` to ``stop[r]`` (exclusive), the coefficients plus the modes' B-spline
         coefficients, and nothing defined elsewhere (the reads stay within those spans)."""
         height, width = coefficients.shape
-        cos_y, sin_y = self._phasors(self.wy, self._low_y, top, height)
-        cos_x, sin_x = self._phasors(self.wx, self._low_x, left, width)
+        cos_y, sin_y = self._phasors(0, top, height)
+        cos_x, sin_x = self._phasors(1, left, width)
         out = np.empty((height, width))
         add_modes(coefficients, out, cos_y, sin_y, cos_x, sin_x, self.a, self.b, first, stop)
         return out
 
-    @staticmethod
-    def _phasors(w: np.ndarray, low: tuple[np.ndarray, np.ndarray], start: int, count: int):
-        """``cos``, ``sin`` of ``w[k] p`` (K, count) at ``p = start ..``: a cosine per stride, then products."""
-        first, last = start // STRIDE, (start + count - 1) // STRIDE
-        phase = np.multiply.outer(w, float(STRIDE) * np.arange(first, last + 1))
-        cos, sin = np.empty((2, len(w), count))
-        mode_phasors(low[0], low[1], np.cos(phase), np.sin(phase), first, start, count, STRIDE, cos, sin)
+    def _phasors(self, axis: int, start: int, count: int):
+        """``cos``, ``sin`` of ``w[k] p`` (K, count) along ``axis`` (0: y, 1: x) at ``p = start ..``."""
+        cos, sin = np.empty((2, len(self.a), count))
+        mode_phasors(self.frequencies[axis], self.low[2 * axis], self.low[2 * axis + 1], start, count, STRIDE, cos, sin)
         return cos, sin

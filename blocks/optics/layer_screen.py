@@ -65,7 +65,7 @@ PREFILTER_HALF_WIDTH = 16
 _NO_OUTPUT = np.zeros((0, 1, 1))
 _EMPTY = np.zeros(0)
 _NO_OPERATOR = (_EMPTY, _EMPTY, np.zeros(0, np.int64), np.zeros(0, np.int64))
-_NO_MODES = (_EMPTY, _EMPTY)
+_NO_MODES = (_EMPTY, _EMPTY, _EMPTY)
 #: most sets of operators and of large-scale modes kept packed for :func:`walk_layers` (a few per source)
 PACKED_SETS = 512
 
@@ -359,12 +359,12 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         span = np.max(np.stack([r[:, -1] - r[:, 0], c[:, -1] - c[:, 0]], axis=-1), axis=0)
         raise ValueError(f"a footprint of {span} samples does not fit a {screens[failed].n}-sample screen")
     # each run of canvases (segment): the regeneration before it, its window, generator and modes' tables, in order
-    layout, windows, origins, states, tables, operators, modes, last = [], [], [], [], ([], []), [], [], {}
+    layout, windows, origins, states, operators, modes, last = [], [], [], [], [], [], {}
     compiled = same_as_numpy()
     noises = []                 # NumPy's draws, where the compiled ones are not NumPy's
-    window_at = noise_at = y_at = x_at = 0
+    window_at = noise_at = 0
     edges_at, layers_at = edges.tolist(), op_at.tolist()
-    for layer, e0, e1, as_is, renew, lo0, hi0, lo1, hi1 in segments.tolist():
+    for layer, e0, e1, as_is, renew in segments.tolist():
         screen = screens[layer]
         if renew >= 0:
             op = layers_at[layer] + renew
@@ -384,26 +384,19 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
                 screen._operator = extension_operator(n, 1, screen.delta, screen.L1, n)
             operator, stencil = len(operators), len(screen._operator.stencil_rows)
             operators.append(screen._operator)
-        k, mode, y_count, y_first, x_count, x_first = 0, -1, 0, 0, 0, 0   # modes; the strides of their tables
+        k, mode = 0, -1                                             # the large-scale modes
         if reading and screen.L1 != screen.L0:
-            # the per-stride tables of the modes' phasors, only the strides the run's canvases reach
             large = screen._large_scales()
             k = len(large.a)
             mode = len(modes) if k else -1
             modes.append(large)
-            y_table, y_first, y_count = large.cut(lo0, hi0, 0)
-            x_table, x_first, x_count = large.cut(lo1, hi1, 1)
-            tables[0].append(y_table)
-            tables[1].append(x_table)
         last[layer] = len(layout)
         windows.append(screen.coefficients.ravel())
         origins.append(screen.origin)
         states.append(screen._words)
         layout.append([layer, n, e0, e1, as_is, layers_at[layer], layers_at[layer + 1], window_at, noise_at,
-                       noise_at + count, operator, 0, 0, stencil, k, mode, 0, y_at, y_count, y_first, x_at, x_count,
-                       x_first])
+                       noise_at + count, operator, 0, 0, stencil, k, mode, 0, 0])
         window_at, noise_at = window_at + n * n, noise_at + count
-        y_at, x_at = y_at + 2 * k * y_count, x_at + 2 * k * x_count
     if not layout:
         return
     layout = np.array(layout, np.int64)
@@ -413,17 +406,16 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     if at is not None:
         used = layout[:, 10] >= 0
         layout[used, 10:13] = at[layout[used, 10]][:, :3]
-    (low, amplitudes), at = _packed(tuple(modes), lambda m: (m.low, m.amplitudes)) if modes else (_NO_MODES, None)
+    (low, amplitudes, frequencies), at = (_packed(tuple(modes), lambda m: (m.low, m.amplitudes, m.frequencies))
+                                          if modes else (_NO_MODES, None))
     if at is not None:
         used = layout[:, 15] >= 0
-        layout[used, 15:17] = at[layout[used, 15]]
+        layout[used, 15:18] = at[layout[used, 15]]
     windows, origins, states = np.concatenate(windows), np.array(origins, np.int64), np.array(states, np.uint64)
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
     bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
                         *_ZIGGURAT, a, b, stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low,
-                        amplitudes,
-                        np.concatenate(tables[0]) if tables[0] else _EMPTY,
-                        np.concatenate(tables[1]) if tables[1] else _EMPTY, STRIDE)
+                        amplitudes, frequencies, STRIDE)
     for layer, s in last.items():
         n = int(layout[s, 1])
         screens[layer].coefficients = windows[layout[s, 7]:layout[s, 7] + n * n].reshape(n, n)

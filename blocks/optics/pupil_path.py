@@ -95,7 +95,7 @@ class PupilPath:
         weight = np.empty((len(screens), frames))
         layer_grids(altitude[:, 0], wind[:, 0], cn2[:, 0], np.array([screen.delta for screen in screens]),
                     np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(sight, dtype=float),
-                    np.cos(np.where(turbulent, zenith_rad, 0.0)), np.broadcast_to(range_m, (frames,)).astype(float),
+                    np.cos(np.where(turbulent, zenith_rad, 0.0)), np.ascontiguousarray(range_m, dtype=float),
                     turbulent, xp, k2, rows, cols, weight)
         accumulate_layers(screens, rows, cols, epochs, weight, phase_t)      # each layer in turn, one walk
         return phase_t.transpose(0, 2, 1)

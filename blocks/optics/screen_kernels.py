@@ -268,22 +268,27 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
 
 
 @jit
-def mode_phasors(low_cos, low_sin, high_cos, high_sin, first_high, start, count, stride, cos_out, sin_out):
-    """``cos`` and ``sin`` of each mode's phase ``w[k] p`` at integer positions ``p = start .. start + count - 1``
-    [samples] into ``cos_out``, ``sin_out`` (K, count), from ``p = stride h + l``: ``low_*[k, l]`` at ``w l`` and
-    ``high_*[k, h - first_high]`` at ``w stride h`` by the angle-addition formulas (each value from its own ``h`` and
-    ``l`` only, wherever it lies in the output). ``h`` and ``l`` are counted along, not divided out per value."""
+def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out):
+    """``cos`` and ``sin`` of each mode's phase ``w[k] p`` (``w`` [rad per sample]) at integer positions ``p = start ..
+    start + count - 1`` [samples] into ``cos_out``, ``sin_out`` (K, count), from ``p = stride h + l``: ``low_*[k, l]``
+    at ``w l`` (tabled) and ``cos``, ``sin`` of ``w (stride h)`` by the angle-addition formulas (each value from its
+    own ``h`` and ``l`` only, wherever it lies in the output: the cosine and sine of each ``h`` are libm's, as NumPy's
+    ``cos``, ``sin`` of the same double). ``h`` and ``l`` are counted along, not divided out per value."""
     h0 = start // stride
+    span = float(stride)
     for k in range(low_cos.shape[0]):
-        h, low = h0 - first_high, start - stride * h0
+        h, low = h0, start - stride * h0
+        phase = w[k] * (span * h)
+        ch, sh = math.cos(phase), math.sin(phase)
         for i in range(count):
-            ch, sh = high_cos[k, h], high_sin[k, h]
             cl, sl = low_cos[k, low], low_sin[k, low]
             cos_out[k, i] = ch * cl - sh * sl
             sin_out[k, i] = sh * cl + ch * sl
             low += 1
-            if low == stride:
+            if low == stride and i + 1 < count:
                 low, h = 0, h + 1
+                phase = w[k] * (span * h)
+                ch, sh = math.cos(phase), math.sin(phase)
 
 
 @jit
@@ -337,8 +342,7 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
 
 @jit
 def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, stencil_rows,
-                  stencil_back, frame_ops, frame, rows, cols, weight, out_t, low, high_y, first_high_y, high_x,
-                  first_high_x, amplitudes, stride):
+                  stencil_back, frame_ops, frame, rows, cols, weight, out_t, low, frequencies, amplitudes, stride):
     """Make and read a run of a walk's canvases (:func:`plan_walk`'s operations ``edges[c] .. edges[c + 1] - 1``,
     no regeneration among them; with ``as_is``, the present window before them) in one call: each canvas holds the
     window (``window`` (n, n),
@@ -346,9 +350,9 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
     (:func:`extend_columns`, ``n`` normal draws per step from ``noise``, in order); then the frames from ``frame``
     whose operations it completes (``frame_ops[f] <= canvas_stop[c]``) are read from it (:func:`sample_grids_transposed`
     into ``out_t``; none when ``weight`` has no frames), with the large-scale modes added where they read
-    (:func:`read_spans`, :func:`add_modes`; their phasors by :func:`mode_phasors` from the per-stride tables
-    ``high_y`` (2, K, .) from stride ``first_high_y`` and ``high_x``, and ``low`` (4, K, stride): cos, sin along y,
-    then x; ``amplitudes`` (2, K), no modes when K = 0). An empty operation range is the window as it is.
+    (:func:`read_spans`, :func:`add_modes`; their phasors by :func:`mode_phasors` from the angular frequencies
+    ``frequencies`` (2, K) along y, x and the tables ``low`` (4, K, stride): cos, sin along y, then x; ``amplitudes``
+    (2, K), no modes when K = 0). An empty operation range is the window as it is.
 
     The same arithmetic on the same arrays as making the canvases and reading them one call at a time. Returns the
     next frame to read, or -1 when a grid reaches outside its canvas.
@@ -394,8 +398,8 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
                 read_spans(rows[frame:stop], cols[frame:stop], top, left, height, width, first, end)
                 cos_y, sin_y = np.empty((modes, height)), np.empty((modes, height))
                 cos_x, sin_x = np.empty((modes, width)), np.empty((modes, width))
-                mode_phasors(low[0], low[1], high_y[0], high_y[1], first_high_y, top, height, stride, cos_y, sin_y)
-                mode_phasors(low[2], low[3], high_x[0], high_x[1], first_high_x, left, width, stride, cos_x, sin_x)
+                mode_phasors(frequencies[0], low[0], low[1], top, height, stride, cos_y, sin_y)
+                mode_phasors(frequencies[1], low[2], low[3], left, width, stride, cos_x, sin_x)
                 source = canvas
                 canvas = np.empty((height, width))
                 add_modes(source, canvas, cos_y, sin_y, cos_x, sin_x, amplitudes[0], amplitudes[1], first, end)
@@ -405,27 +409,10 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
     return frame
 
 
-@jit
-def run_extent(origin, before, sides, first, stop, n):
-    """Absolute rows ``lo0 .. hi0 - 1`` and columns ``lo1 .. hi1 - 1`` that the canvases of a walk's operations
-    ``first .. stop - 1`` (:func:`plan_walk`), and the window at ``origin`` they start from, cover."""
-    lo0, lo1, hi0, hi1 = origin[0], origin[1], origin[0], origin[1]
-    for op in range(first, stop):
-        lo0, hi0 = min(lo0, before[op, 0]), max(hi0, before[op, 0])
-        lo1, hi1 = min(lo1, before[op, 1]), max(hi1, before[op, 1])
-    if stop > first:
-        last = sides[stop - 1]
-        after0 = before[stop - 1, 0] + (1 if last == DOWN else (-1 if last == UP else 0))
-        after1 = before[stop - 1, 1] + (1 if last == RIGHT else (-1 if last == LEFT else 0))
-        lo0, hi0 = min(lo0, after0), max(hi0, after0)
-        lo1, hi1 = min(lo1, after1), max(hi1, after1)
-    return lo0, hi0 + n, lo1, hi1 + n
-
-
 #: columns of :func:`plan_layers`' segments: the layer, its edges ``edges[e0:e1]`` (the walk's canvases, operations
-#: counted from the layer's first), whether the window is read as it is first, the regeneration before it (the
-#: layer's operation; -1: none), and the absolute rows ``lo0 .. hi0 - 1`` and columns ``lo1 .. hi1 - 1`` it covers
-SEGMENT_COLUMNS = 9
+#: counted from the layer's first), whether the window is read as it is first, and the regeneration before it (the
+#: layer's operation; -1: none)
+SEGMENT_COLUMNS = 5
 
 
 @jit
@@ -472,8 +459,6 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
             edges = _grow(edges, 2 * (e + starts.shape[0] + renewals.shape[0]))
         if g + renewals.shape[0] + 1 > segments.shape[0]:
             segments = _grow(segments, 2 * (g + renewals.shape[0] + 1))
-        n = ns[l]
-        origin = origins[l].copy()
         # the window as it is, then its canvases up to the first regeneration; then from each regeneration's fresh
         # window to the next (LayerScreen.walk's runs)
         last = renewals[0] if renewals.shape[0] else starts.shape[0] - 1
@@ -492,11 +477,7 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
                 for c in range(renewals[r - 1] + 1, following + 1):
                     edges[e] = starts[c]
                     e += 1
-                origin[0] = np.int64(math.floor(centre[renew, 0])) - n // 2
-                origin[1] = np.int64(math.floor(centre[renew, 1])) - n // 2
-            lo0, hi0, lo1, hi1 = run_extent(origin, before, side, edges[e0], edges[e - 1], n)
-            segments[g, 0], segments[g, 1], segments[g, 2], segments[g, 3] = l, e0, e, r == 0
-            segments[g, 4], segments[g, 5], segments[g, 6], segments[g, 7], segments[g, 8] = renew, lo0, hi0, lo1, hi1
+            segments[g, 0], segments[g, 1], segments[g, 2], segments[g, 3], segments[g, 4] = l, e0, e, r == 0, renew
             g += 1
     total = op_at[layers] if failed < 0 else 0
     return (failed, sides[:total], befores[:total], centres[:total], op_epochs[:total], op_at, frame_ops, edges[:e],
@@ -505,20 +486,19 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
 
 #: columns of :func:`walk_segments`' layout: the segment's layer, window size ``n``, edges ``e0``, ``e1``, ``as_is``,
 #: then where its arrays start in the packed ones: the layer's operations (first, stop), its window, noise (first,
-#: stop), operator (``A``, ``B``, stencil and its length; none without noise), the large-scale modes (``K``; ``low``, ``amplitudes``, the per-stride tables
-#: along y and x, their lengths and first strides)
-LAYOUT_COLUMNS = 23
+#: stop), operator (``A``, ``B``, stencil and its length; none without noise), the large-scale modes (``K``; ``low``,
+#: ``amplitudes``, ``frequencies``)
+LAYOUT_COLUMNS = 18
 
 
 @jit
 def walk_segments(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
-                  stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low, amplitudes, high_y, high_x,
-                  stride):
+                  stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low, amplitudes, frequencies, stride):
     """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
     order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
     layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into ``out_t``,
-    from where its layer's previous segment stopped; its operator, noise and the modes' tables (:data:`LAYOUT_COLUMNS`)
-    are views into the packed arrays. With ``draw``, each segment's noise is first drawn into ``noise`` from its
+    from where its layer's previous segment stopped; its operator, noise and the modes (:data:`LAYOUT_COLUMNS`) are
+    views into the packed arrays. With ``draw``, each segment's noise is first drawn into ``noise`` from its
     screen's PCG64 state ``states[s]`` (:func:`.normal_draws._fill` with NumPy's ziggurat tables ``ki``, ``wi``,
     ``fi``; the state left as the draws leave it), else ``noise`` holds it. Returns the first segment that read
     outside its canvas (-1: none)."""
@@ -527,9 +507,7 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
         layer, n, e0, e1, as_is = layout[s, 0], layout[s, 1], layout[s, 2], layout[s, 3], layout[s, 4] != 0
         op0, op1, w0, z0, z1 = layout[s, 5], layout[s, 6], layout[s, 7], layout[s, 8], layout[s, 9]
         a0, b0, st0, n_st = layout[s, 10], layout[s, 11], layout[s, 12], layout[s, 13]
-        k, low0, amp0 = layout[s, 14], layout[s, 15], layout[s, 16]
-        hy0, hy_len, first_y, hx0, hx_len, first_x = (layout[s, 17], layout[s, 18], layout[s, 19], layout[s, 20],
-                                                     layout[s, 21], layout[s, 22])
+        k, low0, amp0, freq0 = layout[s, 14], layout[s, 15], layout[s, 16], layout[s, 17]
         window = windows[w0:w0 + n * n].reshape((n, n))
         m = n if z1 > z0 else 0                 # the operator's rows (none when nothing is drawn)
         if draw and z1 > z0:
@@ -539,8 +517,7 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
                              stencil_rows[st0:st0 + n_st], stencil_back[st0:st0 + n_st], frame_ops[layer],
                              frame[layer], rows[layer], cols[layer], weight[layer], out_t,
                              low[low0:low0 + 4 * k * stride].reshape((4, k, stride)),
-                             high_y[hy0:hy0 + 2 * k * hy_len].reshape((2, k, hy_len)), first_y,
-                             high_x[hx0:hx0 + 2 * k * hx_len].reshape((2, k, hx_len)), first_x,
+                             frequencies[freq0:freq0 + 2 * k].reshape((2, k)),
                              amplitudes[amp0:amp0 + 2 * k].reshape((2, k)), stride)
         if stop < 0:
             return s
