@@ -123,6 +123,8 @@ class Imager:
         self.frame: tuple[float, float, float] | None = None
         #: the last render time [ns] at which each source whose screens are held was in view (:meth:`release`)
         self.last_seen_ns: dict[str, int] = {}
+        #: :attr:`hold_ns` and the geometry it was worked out for
+        self._hold: tuple[PupilGeometry | None, int | None] = (None, None)
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -217,14 +219,18 @@ class Imager:
         ``n delta`` of it (:mod:`.sizing`), so after ``min over layers of n delta / |v|`` some layer's
         footprint has left the window it had and would need the screen continued farther than the
         screen kept: the screens are dropped then (a layer without wind limits nothing); at most
-        ``MAX_HOLD_S`` (the memory held for sources that never come back).
+        ``MAX_HOLD_S`` (the memory held for sources that never come back). Worked out once a geometry.
         """
-        limit = MAX_HOLD_S
-        if self.atmosphere is not None and self.geometry is not None:
-            for layer, n, delta in zip(self.atmosphere.layers, self.geometry.layer_n, self.geometry.layer_delta_m):
-                if layer.cn2_dh > 0 and layer.wind_speed_m_s > 0:
-                    limit = min(limit, n * delta / layer.wind_speed_m_s)
-        return int(round(limit * 1e9))
+        geometry, hold = self._hold
+        if geometry is not self.geometry or hold is None:
+            limit = MAX_HOLD_S
+            if self.atmosphere is not None and self.geometry is not None:
+                for layer, n, delta in zip(self.atmosphere.layers, self.geometry.layer_n, self.geometry.layer_delta_m):
+                    if layer.cn2_dh > 0 and layer.wind_speed_m_s > 0:
+                        limit = min(limit, n * delta / layer.wind_speed_m_s)
+            hold = int(round(limit * 1e9))
+            self._hold = (self.geometry, hold)
+        return hold
 
     def keeps(self, source: str, t_ns: int) -> bool:
         """Whether a source in view again at render time ``t_ns`` continues its held screens (:attr:`hold_ns`)."""
@@ -239,7 +245,8 @@ class Imager:
     def release(self, t_ns: int) -> None:
         """Drop the screens of sources not in view since ``hold_ns`` or more before render time ``t_ns``: none can
         keep them at a later render time. Reads render times only, so windows and resumes do not change it."""
-        gone = [s for s in sorted(self.holding()) if int(t_ns) - self.last_seen_ns.get(s, -2**62) >= self.hold_ns]
+        hold = self.hold_ns
+        gone = [s for s in sorted(self.holding()) if int(t_ns) - self.last_seen_ns.get(s, -2**62) >= hold]
         self.forget(gone)
 
     def epochs_of(self, t_s: np.ndarray) -> np.ndarray:

@@ -112,18 +112,19 @@ class PupilRenderer:
         # took 2.3x longer per frame (the same products, the same bits)
         self.b_t = np.ascontiguousarray(self.b.T)
         self.dtype = dtype
-        # the compiled transforms along y where they reproduce pocketfft's bits: length 80 in single precision, the
-        # pupil's rows within the first half (:mod:`.column_fft`)
-        self._columns = (size == column_fft.LENGTH and 2 * n_pupil <= size and dtype == np.complex64
-                         and _compiled_columns_agree())
-        # and along x where the pupil fills the first half exactly (the tracked pass's 40 samples)
-        self._rows = self._columns and 2 * n_pupil == size
         self._local = threading.local()
-        # there, each frame from its field to its stamp in one compiled call a block (:func:`_stamp_frames`: no
-        # interpreter between the steps, no interpreter lock held), where its products ``B PSF B^T`` (BLAS through
-        # Numba's ``np.dot``) give numpy's ``matmul`` bits, checked on this renderer's ``B`` (:meth:`_frames_agree`)
-        self._frames = False
-        self._frames = self._rows and self._frames_agree()
+        # where the pupil fills the first half of an 80-point single-precision FFT exactly (the tracked pass's 40
+        # samples), each frame goes from its field to its stamp in one compiled call a block (:func:`_stamp_frames`:
+        # :mod:`.column_fft`'s passes, then ``B PSF B^T`` through Numba's ``np.dot``; no interpreter between the
+        # steps, no interpreter lock held) where that gives pocketfft's and numpy's bits (:meth:`_frames_agree`)
+        fits = size == column_fft.LENGTH and dtype == np.complex64
+        self._frames = self._columns = self._rows = False
+        self._frames = fits and 2 * n_pupil == size and self._frames_agree()
+        # elsewhere (and for fields given whole, :meth:`stamps_from_field`) chunk by chunk: the compiled transforms
+        # along y where they reproduce pocketfft's bits, the pupil's rows within the first half (the same passes as
+        # the frames' where those agree), and along x where the pupil fills it
+        self._columns = fits and 2 * n_pupil <= size and (self._frames or _compiled_columns_agree())
+        self._rows = self._columns and 2 * n_pupil == size
 
     def _workspace(self, frames: int) -> tuple[np.ndarray, ...]:
         """This thread's buffers for a chunk of ``frames <= STAMP_CHUNK`` frames (sources render on several threads):
@@ -159,24 +160,29 @@ class PupilRenderer:
         return buffers
 
     def _frames_agree(self) -> bool:
-        """Whether :func:`_stamp_frames` gives the chunked path's stamps bit for bit on random phases (once a
-        renderer): its FFT passes are :mod:`.column_fft`'s, its products BLAS's ``sgemm`` as Numba calls it (scipy's
-        BLAS), which must give the same sums as numpy's ``matmul`` (its own BLAS)."""
+        """Whether :func:`_stamp_frames` gives, on random fields and offsets (once a renderer), the bits of scipy's
+        pocketfft transforms (padded rows, then columns), numpy's float32 ``|.|^2`` and ``matmul`` products and the
+        float64 scale: the chunked path's steps through scipy (tested equal to its compiled steps). Its products are
+        BLAS's ``sgemm`` as Numba calls it (scipy's BLAS), which must give numpy's (its own BLAS) sums."""
         rng = np.random.default_rng(3)
-        n = self.n
-        amplitude = rng.uniform(0.0, 1.0, (n, n))
-        phase = rng.normal(0.0, 3.0, (5, n, n))
-        offset = rng.uniform(-0.5, 0.5, (5, 2))
-        curvature = rng.normal(0.0, 10.0, 5)
-        chunked = self.stamps(amplitude, phase, offset, curvature)
-        self._frames = True
+        frames, n, size = 5, self.n, self.padded
+        amplitude = rng.uniform(0.0, 1.0, (1, n, n)).astype(np.float32)
+        cosine, sine = rng.uniform(-1.0, 1.0, (2, frames, n, n)).astype(np.float32)
+        grid = np.zeros((frames, size, size), np.complex64)
+        grid[:, :n, :n] = (cosine + 1j * sine).astype(np.complex64) * amplitude
+        _fft(grid[:, :n], 2)
+        _fft(grid, 1)
+        image = np.matmul(self.b, np.matmul(grid.real**2 + grid.imag**2, self.b_t))
+        expected = np.empty((frames, self.sampler.size, self.sampler.size))
+        self._scale(image, expected)
+        transposed = [np.ascontiguousarray(a.transpose(0, 2, 1)) for a in (amplitude, cosine, sine)]
+        out = np.empty_like(expected)
         try:
-            compiled = self.stamps(amplitude, phase, offset, curvature)
-        except Exception:                 # noqa: BLE001 -- no BLAS for Numba's np.dot: keep the chunked path
+            _stamp_frames(*transposed, self.b, self.b_t, (self.delta**2 / self.wavelength) ** 2, float(self.area), out,
+                          *self._frame_buffers(), *column_fft.TWIDDLES)
+        except Exception:                 # noqa: BLE001 -- no BLAS for Numba's np.dot: the chunked path then
             return False
-        finally:
-            self._frames = False
-        return bool(np.array_equal(chunked.view(np.uint64), compiled.view(np.uint64)))
+        return bool(np.array_equal(expected.view(np.uint64), out.view(np.uint64)))
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Separable pupil factors ``exp(i k theta . r)`` (F, n) along y and x moving the image by ``offset_px``."""
