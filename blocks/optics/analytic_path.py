@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numba
@@ -123,33 +125,50 @@ class AnalyticPath:
     def _zenith_key(self, zenith_rad: float) -> tuple[int, int]:
         return conditions_key(zenith_rad, np.inf, self.imager.turbulent(zenith_rad))
 
-    def renderer(self, zenith_rad: float) -> RadialRenderer:
-        """The stamp renderer at this zenith angle [rad], made once per zenith-angle bin (once for ``airy``)."""
+    def table_key(self, zenith_rad: float) -> tuple[tuple[int, int] | None, float]:
+        """The key of this zenith angle's table (None: the Airy pattern, one for all) and its ``r0`` [m] (that of
+        the centre of the zenith-angle bin; inf: no turbulence, or ``airy``)."""
         imager = self.imager
         r0 = imager.r0(zenith_rad) if self.path == "long_exposure" else np.inf
-        key = None if not np.isfinite(r0) else self._zenith_key(zenith_rad)
+        if not np.isfinite(r0):
+            return None, np.inf
+        key = self._zenith_key(zenith_rad)
+        return key, imager.r0(representative_conditions(key)[0])
+
+    def renderer(self, zenith_rad: float) -> RadialRenderer:
+        """The stamp renderer at this zenith angle [rad], made once per zenith-angle bin (once for ``airy``); a
+        long-exposure table's two halves on two threads where the process has them free (:func:`.parallel_map`)."""
+        key, _ = self.table_key(zenith_rad)
         if key not in self._renderers:
-            if np.isfinite(r0):
-                r0 = imager.r0(representative_conditions(key)[0])
-            s = imager.sampler
-            theta = np.linspace(0.0, (s.size / 2 + 2) * np.sqrt(2) * imager.pixel_scale, PROFILE_SAMPLES)
-            if np.isfinite(r0):
-                profile = self._long_exposure_table(r0, theta)
-            else:
-                profile = imager.telescope.airy(theta, imager.wavelength)
-            self._renderers[key] = RadialRenderer(s, theta, profile)
+            parts = parallel_map(lambda part: part(), self.table_parts(zenith_rad), worker_threads())
+            self.keep_table(zenith_rad, parts)
         return self._renderers[key]
 
-    def _long_exposure_table(self, r0: float, theta: np.ndarray) -> np.ndarray:
-        """:func:`.long_exposure_profile` [sr^-1] at radii ``theta`` [rad], its two halves on two threads where the
-        process has them free (:func:`.parallel_map`): the same numbers, since the profile is computed radius by
-        radius (in blocks of 512 radii, which both halves keep: PROFILE_SAMPLES / 2 is a multiple of 512)."""
+    def table_parts(self, zenith_rad: float) -> list[Callable[[], np.ndarray]]:
+        """What makes this zenith angle's table, in parts to compute on any threads and give :meth:`keep_table` in
+        order: the long-exposure profile [sr^-1] in two halves of the radii (the same numbers as the whole: the
+        profile is computed radius by radius, in blocks of 512 radii, which both halves keep: PROFILE_SAMPLES / 2
+        is a multiple of 512), or the Airy pattern whole; none when the table is made."""
         imager = self.imager
+        key, r0 = self.table_key(zenith_rad)
+        if key in self._renderers:
+            return []
+        theta = self._radii()
+        if not np.isfinite(r0):
+            return [lambda: imager.telescope.airy(theta, imager.wavelength)]
+        return [functools.partial(long_exposure_profile, imager.telescope, imager.wavelength, r0, imager.outer_scale_m,
+                                  half, PROFILE_FREQUENCIES) for half in np.split(theta, [theta.size // 2])]
 
-        def table(radii: np.ndarray) -> np.ndarray:
-            return long_exposure_profile(imager.telescope, imager.wavelength, r0, imager.outer_scale_m, radii,
-                                         PROFILE_FREQUENCIES)
-        return np.concatenate(parallel_map(table, np.split(theta, [theta.size // 2]), worker_threads()))
+    def keep_table(self, zenith_rad: float, parts: list[np.ndarray]) -> RadialRenderer:
+        """Keep the renderer of this zenith angle's table from its parts (:meth:`table_parts`' values, in order)."""
+        key, _ = self.table_key(zenith_rad)
+        self._renderers[key] = RadialRenderer(self.imager.sampler, self._radii(), np.concatenate(parts))
+        return self._renderers[key]
+
+    def _radii(self) -> np.ndarray:
+        """The table's radii [rad], from the centre to past the stamp's corner."""
+        s = self.imager.sampler
+        return np.linspace(0.0, (s.size / 2 + 2) * np.sqrt(2) * self.imager.pixel_scale, PROFILE_SAMPLES)
 
     def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         """Stamps (F, M, M) [1] at sub-pixel ``offset`` (F, 2), frames grouped by zenith-angle bin

@@ -78,6 +78,7 @@ from .pixel_view import averaged_frames, footprint_speeds
 from .reference_path import FAR_RANGE_M
 
 if TYPE_CHECKING:
+    from .analytic_path import AnalyticPath
     from .imaging import Imager
     from .pixel_view import PixelView
 
@@ -415,8 +416,9 @@ class PathChooser:
 
         * the pupil renderer (made once; its first call of compiled code loads Numba's typing and target contexts,
           ~0.2 s of interpreter on the run's first probes), else
-        * a group's analytic-path tables (the long-exposure profile's Bessel functions leave the interpreter free:
-          they run while the renderer is made), else
+        * a part of a group's analytic-path tables (:meth:`.AnalyticPath.table_parts`: a long-exposure table's
+          two halves; the profile's Bessel functions leave the interpreter free, so they run while the renderer
+          is made), else
         * a bin's first pairs (which every verdict needs), else an analytic group, else
         * the next pair of a bin none of whose pairs is being measured, else (rather than idle) the next pair of
           any open bin (dropped if a pair before it decides: at most one a thread).
@@ -424,8 +426,23 @@ class PathChooser:
         Returns ``{("reference", key): (distances, verdict), ("analytic", conditions): (distances, fits)}``."""
         least = (REFERENCE_PROBE_FRAMES[0] + 1) // 2
         groups = list(enumerate(analytic))
-        tables = [(i, group[0][0]) for i, group in groups]
+        # each group's tables not made yet (path, zenith angle, parts' values) and their parts as units
+        tables: list[list[tuple[AnalyticPath, float, list]]] = [[] for _ in groups]
+        parts, planned = [], set()
+        for i, group in groups:
+            zenith = group[0][0]
+            for name in ANALYTIC_PATHS:
+                path = self.imager.path_named[name]
+                todo = path.table_parts(zenith)
+                if todo and (name, path.table_key(zenith)[0]) not in planned:
+                    planned.add((name, path.table_key(zenith)[0]))
+                    tables[i].append((path, zenith, [None] * len(todo)))
+                    parts += [("part", i, len(tables[i]) - 1, j, part) for j, part in enumerate(todo)]
+        left = [sum(len(values) for _, _, values in group) for group in tables]
         tabled = [threading.Event() for _ in groups]
+        for i, count in enumerate(left):
+            if not count:
+                tabled[i].set()
         rendering = threading.Event()
         lock = threading.Lock()
         renderer: list[bool] = []
@@ -438,8 +455,8 @@ class PathChooser:
             if not renderer:
                 renderer.append(True)
                 return ("renderer",)
-            if tables:
-                return ("table", *tables.pop(0))
+            if parts:
+                return parts.pop(0)
             for run in runs:
                 if run.verdict is None and run.taken < least:
                     return "pair", run, run.take()
@@ -464,10 +481,20 @@ class PathChooser:
             kind = unit[0]
             if kind == "renderer":
                 return made(rendering, lambda: self.imager.pupil_renderer)
-            if kind == "table":
-                _, i, zenith = unit
-                return made(tabled[i], lambda: [self.imager.path_named[path].renderer(zenith)
-                                                for path in ANALYTIC_PATHS])
+            if kind == "part":
+                _, i, t, j, part = unit
+                try:
+                    tables[i][t][2][j] = part()
+                except BaseException:
+                    failed.append(True)
+                    tabled[i].set()
+                    raise
+                with lock:
+                    left[i] -= 1
+                    last = not left[i]
+                if last:                           # the group's last part: its tables kept, its probes go on
+                    made(tabled[i], lambda: [path.keep_table(zenith, values) for path, zenith, values in tables[i]])
+                return None
             rendering.wait()
             if kind == "analytic":
                 _, i, group = unit

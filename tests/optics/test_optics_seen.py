@@ -182,14 +182,21 @@ def test_the_array_keys_are_each_frames_key():
 
 
 def test_long_exposure_table_in_halves_is_the_whole_table(monkeypatch):
-    """AnalyticPath's long-exposure table, its halves on two threads, equals long_exposure_profile on all radii."""
+    """AnalyticPath's long-exposure table, its halves on two threads (or on the path probes' threads, which take
+    table_parts), equals long_exposure_profile on all radii."""
     from evsda.blocks.optics import analytic_path
     from evsda.blocks.optics.psf import long_exposure_profile
 
     monkeypatch.setenv("EVSDA_THREADS", "2")
-    imager = type("ImagerStub", (), {"telescope": Telescope(0.2, 0.4), "wavelength": WAVELENGTH,
-                                     "outer_scale_m": 25.0})()
-    theta = np.linspace(0.0, 3e-4, analytic_path.PROFILE_SAMPLES)
-    table = analytic_path.AnalyticPath(imager, "long_exposure")._long_exposure_table(0.05, theta)
-    whole = long_exposure_profile(imager.telescope, WAVELENGTH, 0.05, 25.0, theta, analytic_path.PROFILE_FREQUENCIES)
-    np.testing.assert_array_equal(table, whole)
+    atmosphere = Atmosphere.hufnagel_valley(2).scaled_to_r0(0.05)
+    im = imager(atmosphere)
+    zenith = np.deg2rad(30.3)
+    im.ensure_geometry(zenith)
+    path = im.path_named["long_exposure"]
+    parts = path.table_parts(zenith)
+    assert len(parts) == 2
+    r0 = im.r0(representative_conditions((int(np.floor(zenith / np.deg2rad(1.0))), -1))[0])
+    theta = np.linspace(0.0, (im.sampler.size / 2 + 2) * np.sqrt(2) * im.pixel_scale, analytic_path.PROFILE_SAMPLES)
+    whole = long_exposure_profile(im.telescope, WAVELENGTH, r0, atmosphere.L0, theta, analytic_path.PROFILE_FREQUENCIES)
+    np.testing.assert_array_equal(path.renderer(zenith).profile, whole)
+    np.testing.assert_array_equal(np.concatenate([part() for part in parts[::-1]][::-1]), whole)
