@@ -10,10 +10,11 @@ heavy parts release the GIL (compiled loops declared ``nogil``, FFTs, compressio
 Rules:
 
 * a block that feeds others steps over window ``k`` once one of them has finished window ``k - 1 -``
-  :data:`WINDOWS_AHEAD`, and a block that feeds none once every block has (1: the optics of ``k + 1`` beside
-  the pixels of ``k``; the cheap blocks upstream of the optics, the sources, are then done with ``k + 2``
-  before the pixels end ``k``, off the optics' chain); no step runs more than ``1 +`` :data:`WINDOWS_AHEAD`
-  windows beyond the oldest unrecorded window (each in flight holds its values in memory);
+  :data:`WINDOWS_AHEAD` (or is on its first window, which carries its one-time set-up), and a block that feeds
+  none once every block has (1: the optics of ``k + 1`` beside the pixels of ``k``; the cheap blocks upstream of
+  the optics, the sources, are then done with ``k + 2`` before the pixels end ``k``, off the optics' chain); no
+  step runs more than ``1 +`` :data:`WINDOWS_AHEAD` windows beyond the oldest unrecorded window (each in flight
+  holds its values in memory);
 * the thread that finishes a step starts the steps this makes ready, itself running the same block's next step
   if ready, else the one furthest upstream (the next optics window, say, goes on at once on the thread that
   ended the previous one, or the pixels' step it waited for): no round trip through a scheduling thread, each of
@@ -150,7 +151,9 @@ class _State:
     def _horizon(self, name: str) -> int:
         """The last window ``name`` may step over now."""
         fed = self.p.downstream[name]
-        behind = max(self.done[d] for d in fed) if fed else min(self.done.values())
+        # a block's first step carries its one-time set-up (Numba's cache loads, its state from its first input),
+        # several later steps' worth: the blocks feeding it go on one window further meanwhile
+        behind = max(max(self.done[d], self.start) for d in fed) if fed else min(self.done.values())
         return min(behind + 1 + WINDOWS_AHEAD, self.released + 1 + WINDOWS_AHEAD, self.stop - 1)
 
     def launch(self, keep: str | None = None) -> tuple[str, int, dict] | None:
