@@ -64,8 +64,8 @@ PREFILTER_HALF_WIDTH = 16
 # a walk's output when it reads nothing; packed arrays when no run draws noise or has large-scale modes
 _NO_OUTPUT = np.zeros((0, 1, 1))
 _EMPTY = np.zeros(0)
-_NO_OPERATOR = (_EMPTY, _EMPTY, np.zeros(0, np.int64), np.zeros(0, np.int64))
-_NO_MODES = (_EMPTY, _EMPTY, _EMPTY)
+_NO_OPERATOR = ((_EMPTY, _EMPTY, np.zeros(0, np.int64), np.zeros(0, np.int64)), np.zeros((0, 4), np.int64))
+_NO_MODES = ((_EMPTY, _EMPTY, _EMPTY), np.zeros((0, 3), np.int64))
 #: most sets of operators and of large-scale modes kept packed for :func:`walk_layers` (a few per source)
 PACKED_SETS = 512
 
@@ -395,27 +395,21 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         origins.append(screen.origin)
         states.append(screen._words)
         layout.append([layer, n, e0, e1, as_is, layers_at[layer], layers_at[layer + 1], window_at, noise_at,
-                       noise_at + count, operator, 0, 0, stencil, k, mode, 0, 0])
+                       noise_at + count, operator, stencil, k, mode])
         window_at, noise_at = window_at + n * n, noise_at + count
     if not layout:
         return
     layout = np.array(layout, np.int64)
-    (a, b, stencil_rows, stencil_back), at = (_packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows,
-                                                                                    o.stencil_cols))
-                                              if operators else (_NO_OPERATOR, None))
-    if at is not None:
-        used = layout[:, 10] >= 0
-        layout[used, 10:13] = at[layout[used, 10]][:, :3]
-    (low, amplitudes, frequencies), at = (_packed(tuple(modes), lambda m: (m.low, m.amplitudes, m.frequencies))
-                                          if modes else (_NO_MODES, None))
-    if at is not None:
-        used = layout[:, 15] >= 0
-        layout[used, 15:18] = at[layout[used, 15]]
+    (a, b, stencil_rows, stencil_back), operator_at = (
+        _packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows, o.stencil_cols)) if operators
+        else _NO_OPERATOR)
+    (low, amplitudes, frequencies), mode_at = (_packed(tuple(modes), lambda m: (m.low, m.amplitudes, m.frequencies))
+                                               if modes else _NO_MODES)
     windows, origins, states = np.concatenate(windows), np.array(origins, np.int64), np.array(states, np.uint64)
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
     bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
-                        *_ZIGGURAT, a, b, stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low,
-                        amplitudes, frequencies, STRIDE)
+                        *_ZIGGURAT, a, b, stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight,
+                        out_t, low, amplitudes, frequencies, mode_at, STRIDE)
     for layer, s in last.items():
         n = int(layout[s, 1])
         screens[layer].coefficients = windows[layout[s, 7]:layout[s, 7] + n * n].reshape(n, n)

@@ -486,19 +486,21 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
 
 #: columns of :func:`walk_segments`' layout: the segment's layer, window size ``n``, edges ``e0``, ``e1``, ``as_is``,
 #: then where its arrays start in the packed ones: the layer's operations (first, stop), its window, noise (first,
-#: stop), operator (``A``, ``B``, stencil and its length; none without noise), the large-scale modes (``K``; ``low``,
-#: ``amplitudes``, ``frequencies``)
-LAYOUT_COLUMNS = 18
+#: stop); its operator (a row of ``operator_at``; -1: none, without noise) and the stencil's length; the large-scale
+#: modes' count ``K`` and their row of ``mode_at`` (-1: none)
+LAYOUT_COLUMNS = 14
 
 
 @jit
 def walk_segments(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
-                  stencil_rows, stencil_back, frame_ops, rows, cols, weight, out_t, low, amplitudes, frequencies, stride):
+                  stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, low, amplitudes,
+                  frequencies, mode_at, stride):
     """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
     order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
     layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into ``out_t``,
     from where its layer's previous segment stopped; its operator, noise and the modes (:data:`LAYOUT_COLUMNS`) are
-    views into the packed arrays. With ``draw``, each segment's noise is first drawn into ``noise`` from its
+    views into the packed arrays (the operators' ``A``, ``B`` and stencil from ``operator_at``'s first three columns,
+    the modes' ``low``, ``amplitudes`` and ``frequencies`` from ``mode_at``'s). With ``draw``, each segment's noise is first drawn into ``noise`` from its
     screen's PCG64 state ``states[s]`` (:func:`.normal_draws._fill` with NumPy's ziggurat tables ``ki``, ``wi``,
     ``fi``; the state left as the draws leave it), else ``noise`` holds it. Returns the first segment that read
     outside its canvas (-1: none)."""
@@ -506,8 +508,12 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
     for s in range(layout.shape[0]):
         layer, n, e0, e1, as_is = layout[s, 0], layout[s, 1], layout[s, 2], layout[s, 3], layout[s, 4] != 0
         op0, op1, w0, z0, z1 = layout[s, 5], layout[s, 6], layout[s, 7], layout[s, 8], layout[s, 9]
-        a0, b0, st0, n_st = layout[s, 10], layout[s, 11], layout[s, 12], layout[s, 13]
-        k, low0, amp0, freq0 = layout[s, 14], layout[s, 15], layout[s, 16], layout[s, 17]
+        operator, n_st, k, mode = layout[s, 10], layout[s, 11], layout[s, 12], layout[s, 13]
+        a0 = b0 = st0 = low0 = amp0 = freq0 = 0
+        if operator >= 0:
+            a0, b0, st0 = operator_at[operator, 0], operator_at[operator, 1], operator_at[operator, 2]
+        if mode >= 0:
+            low0, amp0, freq0 = mode_at[mode, 0], mode_at[mode, 1], mode_at[mode, 2]
         window = windows[w0:w0 + n * n].reshape((n, n))
         m = n if z1 > z0 else 0                 # the operator's rows (none when nothing is drawn)
         if draw and z1 > z0:
