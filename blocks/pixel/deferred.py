@@ -33,7 +33,7 @@ import numpy as np
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
-from .own_sweep import take_own
+from .own_sweep import drive_left, sweep_own
 from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA,
                          STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, advanced, quiet_until, relaxed_by,
                          run_pixels)
@@ -190,8 +190,9 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
     if quiet.any():
         take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
                      large)
-    take_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
-             leak_hz, dt, large)
+    sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end, leak_hz, dt,
+              large)                                           # own_sweep.take_own: the sweep, then the rows left
+    drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
     return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
                       change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
                       th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0, _LAZY)

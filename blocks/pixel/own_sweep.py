@@ -6,7 +6,7 @@ changes a pixel, ~77 000 a window), and seldom fire between them. In the event-d
 no crossing before the next one (:func:`.crossing.band_bound`: ``a^j``, ``e^-D`` and a logarithm in
 the large-signal form), one pixel's changes after the other's, as scalar code, and its row of input
 (:func:`.drive_kernel.drive_rows`: two logarithms, made for every change before the loop). Here the pixels
-of a chunk with at least ``MIN_SWEPT + 1`` own changes are swept together, change after change: in round
+of a chunk with at least ``MIN_SWEPT`` own changes are swept together, change after change: in round
 ``r`` every pixel still in the sweep takes its ``r``-th change, in loops over the pixels that the compiler
 vectorises (:mod:`.fastmath`'s functions give the same bits there), with the same arithmetic in the same
 order as the event-driven loop:
@@ -21,14 +21,15 @@ order as the event-driven loop:
 * after the change the bound up to the last step the loop would act on (:func:`.pixel_loop._schedule_before`):
   where it holds the schedule is ``LATER``; where it fails the crossing is searched (one pixel at a
   time, as :func:`.pixel_loop._schedule_before` does), and a crossing before the next change ends the
-  pixel's sweep.
+  pixel's sweep; after the pixel's last change, with nothing due before the window's end, the schedule
+  the loop makes there instead (``LATER`` where :func:`.pixel_loop.quiet_until` shows no crossing in the
+  window, else the search).
 
-A pixel's last change is left to the event-driven loop (after it the schedule is chosen differently,
-:func:`.pixel_loop.kept_schedule`), which then takes the pixel from the change the sweep stopped at, in
-the state the sweep left, with the rows of the changes left driven then (only those: the sweep reads each
-change's flux, not a row of the state table's width): its events are those it would have made alone
-(tested, and the events of the whole tracked pass: ``benchmarks/pixel_gil.py``'s digest). The sweep writes
-no events.
+The event-driven loop then takes each pixel from the change the sweep stopped at (after its last: only
+its events and the schedule it keeps), in the state the sweep left, with the rows of the changes left
+driven then (only those: the sweep reads each change's flux, not a row of the state table's width): its
+events are those it would have made alone (tested, and the events of the whole tracked pass:
+``benchmarks/pixel_gil.py``'s digest). The sweep writes no events.
 """
 
 from __future__ import annotations
@@ -41,40 +42,47 @@ from .crossing import J_LIMIT, NEVER, NO_STEP, band_holds, power, relaxed_at, se
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_log, drive_rest, drive_rows
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LATER, LOG_A, M_, NOISE_SCALE, OWED,
                          PARA, READY, SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _fetch_row, _settle_step, advanced, drifted,
-                         next_crossing_known)
+                         next_crossing_known, quiet_until)
 
 TILE = 128                   # pixels swept together (ordered by their number of changes, so rounds shrink a tile)
-MIN_SWEPT = 2                # pixels with fewer changes to sweep are left to the event-driven loop (a pixel due for a
-#                              noise event takes the last kept background change and the window's: one to sweep)
+MIN_SWEPT = 2                # pixels with fewer own changes are left to the event-driven loop (one change: nothing
+#                              shared with the next, whose advance reuses the bound after the last)
 # per-pixel fields of a tile (rows of the sweep's flattened tables, [field * TILE + lane]); N_*: the change's input
 (F_FLUX, F_L, F_M, F_LEAK, F_PARA_C, F_Y, F_LOG_A, F_PARA, F_ACCEPT, F_TH_ON, F_TH_OFF, F_SCALE, F_KNOWN, F_RELAXED,
  N_FLUX, N_Y, N_LOG_A, N_PARA, N_ACCEPT, N_FLOAT) = range(20)
 (I_STEP, I_READY, I_DUE, I_CMP, I_J_KNOWN, I_PTR, I_GO, I_CHANGE, I_NEXT, I_FRESH, I_SEARCH, N_INT) = range(12)
+# the sweep's fields read from the state table, the first _CHANGED of them written back (loops: less to compile)
+_STATE = ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y), (F_LOG_A, LOG_A),
+          (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON), (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE))
+_CHANGED = 9
+_SEARCH, _KEPT = 1, 2        # I_SEARCH: the bound failed; after the pixel's last change (run_pixels' lazy schedule)
 jit = numba.njit(cache=True, error_model="numpy")
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
 def take_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
              leak_hz, dt, large):
     """Take the own changes of ``pixels[i]`` (``change_lo[i]:change_hi[i]`` of ``change_step``, below ``n_own``:
     photon flux ``own_flux``, their rows of ``change_input`` not yet driven) that the event-driven loop would take
-    before anything else happens to the pixel, all but its last, and move ``change_lo[i]`` past them; then drive
-    the rows of the own changes left (:func:`.drive_kernel.drive_rows`) for :func:`.pixel_loop.run_pixels`, which
-    takes the pixels from there. Pixels with fewer than ``MIN_SWEPT`` own changes to sweep are left as they are.
+    before anything else happens to the pixel, and move ``change_lo[i]`` past them; then drive the rows of the
+    own changes left (:func:`.drive_kernel.drive_rows`) for :func:`.pixel_loop.run_pixels`, which takes the pixels
+    from there (with lazy schedules, as :func:`.deferred.take_and_run` runs it). Pixels with fewer than
+    ``MIN_SWEPT`` own changes are left as they are.
 
     Updates the pixels' state rows as :func:`.pixel_loop.run_pixels` would (the comparator schedule ``LATER`` or
-    the search's crossing; see the module). Returns the number of changes swept.
+    the search's crossing; see the module). Returns the number of changes swept. Two compiled calls (``nogil``),
+    which :func:`.deferred.take_and_run` makes itself (a compiled function calling them costs ~0.6 s more of a
+    first run's compile).
     """
-    total = _sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end,
-                       leak_hz, dt, large)
-    _drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
+    total = sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end,
+                      leak_hz, dt, large)
+    drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
     return total
 
 
-@jit
-def _drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input):
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input):
     """The rows of ``change_input`` of the own changes (below ``n_own``) left to the pixels, driven from
-    ``own_flux`` (:func:`.drive_kernel.drive_rows`, on the fluxes gathered)."""
+    ``own_flux`` (:func:`.drive_kernel.drive_rows` of the fluxes gathered)."""
     n_left = 0
     for i in range(pixels.size):
         if change_hi[i] <= n_own:
@@ -92,33 +100,34 @@ def _drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_i
     for i in range(pixels.size):
         if change_hi[i] <= n_own:
             for ptr in range(change_lo[i], change_hi[i]):
-                for column in (FLUX, Y, LOG_A, PARA, ACCEPT):
-                    change_input[ptr, column] = rows[k, column]
+                change_input[ptr, FLUX], change_input[ptr, Y], change_input[ptr, LOG_A] = rows[k, FLUX], rows[k, Y], \
+                    rows[k, LOG_A]
+                change_input[ptr, PARA], change_input[ptr, ACCEPT] = rows[k, PARA], rows[k, ACCEPT]
                 k += 1
 
 
-@jit
-def _sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end, leak_hz,
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end, leak_hz,
                dt, large):
     """:func:`take_own`'s sweep (see the module), the change's drive computed from its flux as it is taken."""
     n = pixels.size
-    # the pixels with own changes to sweep (all but their last), most first: a counting sort by their number
+    # the pixels with own changes to sweep, most first: a counting sort by their number
     most = 0
     for i in range(n):
         if change_hi[i] <= n_own:
-            most = max(most, change_hi[i] - change_lo[i] - 1)
+            most = max(most, change_hi[i] - change_lo[i])
     if most < MIN_SWEPT:
         return 0
     starts = np.zeros(most + 2, np.int64)
     for i in range(n):
-        k = change_hi[i] - change_lo[i] - 1
+        k = change_hi[i] - change_lo[i]
         if k >= MIN_SWEPT and change_hi[i] <= n_own:
             starts[most - k + 1] += 1
     for k in range(1, starts.size):
         starts[k] += starts[k - 1]
     order = np.empty(starts[-1], np.int64)
     for i in range(n):
-        k = change_hi[i] - change_lo[i] - 1
+        k = change_hi[i] - change_lo[i]
         if k >= MIN_SWEPT and change_hi[i] <= n_own:
             order[starts[most - k]] = i
             starts[most - k] += 1
@@ -134,14 +143,9 @@ def _sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, ow
                 _fetch_row(real, count, pixels[order[t0 + s + _AHEAD]])
             i = order[t0 + s]
             p = pixels[i]
-            swept[s] = change_hi[i] - change_lo[i] - 1
-            fs[F_FLUX * TILE + s], fs[F_L * TILE + s], fs[F_M * TILE + s] = real[p, FLUX], real[p, L_], real[p, M_]
-            fs[F_LEAK * TILE + s], fs[F_PARA_C * TILE + s] = real[p, C_LEAK], real[p, C_PARA]
-            fs[F_Y * TILE + s], fs[F_LOG_A * TILE + s], fs[F_PARA * TILE + s] = real[p, Y], real[p, LOG_A], \
-                real[p, PARA]
-            fs[F_ACCEPT * TILE + s], fs[F_TH_ON * TILE + s], fs[F_TH_OFF * TILE + s] = real[p, ACCEPT], \
-                real[p, TH_ON], real[p, TH_OFF]
-            fs[F_SCALE * TILE + s] = real[p, NOISE_SCALE]
+            swept[s] = change_hi[i] - change_lo[i]
+            for field, column in _STATE:
+                fs[field * TILE + s] = real[p, column]
             step, ready, shot_next = count[p, STEP], count[p, READY], count[p, SHOT_NEXT]
             due = min(shot_next, _settle_step(ready, count[p, OWED]))
             cmp_next = count[p, CMP_NEXT]
@@ -161,24 +165,22 @@ def _sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, ow
                 m -= 1                                # the pixels with an r-th change to sweep: a prefix
             for s in range(m):                        # this round's change: its step, the next one's and its flux
                 ptr = js[I_PTR * TILE + s]
-                js[I_CHANGE * TILE + s], js[I_NEXT * TILE + s] = change_step[ptr], change_step[ptr + 1]
+                js[I_CHANGE * TILE + s] = change_step[ptr]
+                js[I_NEXT * TILE + s] = change_step[ptr + 1] if r + 1 < swept[s] else NEVER     # none: its last
                 fs[N_FLUX * TILE + s] = own_flux[ptr]
             _drive(fs, m, drive_k)
             n_fresh = _enter(fs, js, m, n_end, leak_hz, dt, large)
             if n_fresh:
-                _fresh(fs, js, m, leak_hz, dt, large, r == 0)
+                _fresh(fs, js, m, leak_hz, dt, large)
             if _bound(fs, js, m, n_end, leak_dt, dt, large):
-                _search(fs, js, m, leak_dt, dt, large)
+                _search(fs, js, m, n_end, leak_dt, dt, large)
         for s in range(size):                         # back to the state tables, where changes were taken
             i = order[t0 + s]
             taken = js[I_PTR * TILE + s] - change_lo[i]
             if taken:
                 p = pixels[i]
-                real[p, FLUX], real[p, L_], real[p, M_] = fs[F_FLUX * TILE + s], fs[F_L * TILE + s], fs[F_M * TILE + s]
-                real[p, C_LEAK], real[p, C_PARA] = fs[F_LEAK * TILE + s], fs[F_PARA_C * TILE + s]
-                real[p, Y], real[p, LOG_A], real[p, PARA] = fs[F_Y * TILE + s], fs[F_LOG_A * TILE + s], \
-                    fs[F_PARA * TILE + s]
-                real[p, ACCEPT] = fs[F_ACCEPT * TILE + s]
+                for field, column in _STATE[:_CHANGED]:
+                    real[p, column] = fs[field * TILE + s]
                 count[p, STEP], count[p, CMP_NEXT] = js[I_STEP * TILE + s], js[I_CMP * TILE + s]
                 change_lo[i] += taken
                 total += taken
@@ -237,31 +239,22 @@ def _enter(fs, js, m, n_end, leak_hz, dt, large):
 
 
 @jit
-def _fresh(fs, js, m, leak_hz, dt, large, every):
+def _fresh(fs, js, m, leak_hz, dt, large):
     """The advance of the tile's pixels marked ``I_FRESH`` (:func:`.pixel_loop.advanced` without a known ``a^j``:
-    the same bits, as a known ``a^j`` was taken by the same :func:`.crossing.power`). ``every``: most pixels are
-    (the first round), and every pixel computes it in a loop the compiler vectorises."""
-    if every:
-        for s in range(m):
-            fresh = js[I_FRESH * TILE + s] != 0
-            filtered, memorised = fs[F_L * TILE + s], fs[F_M * TILE + s]
-            c_leak, c_para = fs[F_LEAK * TILE + s], fs[F_PARA_C * TILE + s]
-            j = js[I_CHANGE * TILE + s] - 1 - js[I_STEP * TILE + s]
-            moved_l, moved_m, moved_leak, moved_para = advanced(
-                j, NO_STEP, 0.0, 0.0, filtered, memorised, c_leak, c_para, fs[F_Y * TILE + s], fs[F_LOG_A * TILE + s],
-                fs[F_PARA * TILE + s], fs[F_TH_ON * TILE + s], fs[F_SCALE * TILE + s], leak_hz, dt, large)
-            fs[F_L * TILE + s] = moved_l if fresh else filtered
-            fs[F_M * TILE + s] = moved_m if fresh else memorised
-            fs[F_LEAK * TILE + s] = moved_leak if fresh else c_leak
-            fs[F_PARA_C * TILE + s] = moved_para if fresh else c_para
-        return
+    the same bits, as a known ``a^j`` was taken by the same :func:`.crossing.power`), computed by every pixel in a
+    loop the compiler vectorises (most are, in the first round; later rounds seldom have any)."""
     for s in range(m):
-        if js[I_FRESH * TILE + s] != 0:
-            j = js[I_CHANGE * TILE + s] - 1 - js[I_STEP * TILE + s]
-            fs[F_L * TILE + s], fs[F_M * TILE + s], fs[F_LEAK * TILE + s], fs[F_PARA_C * TILE + s] = advanced(
-                j, NO_STEP, 0.0, 0.0, fs[F_L * TILE + s], fs[F_M * TILE + s], fs[F_LEAK * TILE + s],
-                fs[F_PARA_C * TILE + s], fs[F_Y * TILE + s], fs[F_LOG_A * TILE + s], fs[F_PARA * TILE + s],
-                fs[F_TH_ON * TILE + s], fs[F_SCALE * TILE + s], leak_hz, dt, large)
+        fresh = js[I_FRESH * TILE + s] != 0
+        filtered, memorised = fs[F_L * TILE + s], fs[F_M * TILE + s]
+        c_leak, c_para = fs[F_LEAK * TILE + s], fs[F_PARA_C * TILE + s]
+        j = js[I_CHANGE * TILE + s] - 1 - js[I_STEP * TILE + s]
+        moved_l, moved_m, moved_leak, moved_para = advanced(
+            j, NO_STEP, 0.0, 0.0, filtered, memorised, c_leak, c_para, fs[F_Y * TILE + s], fs[F_LOG_A * TILE + s],
+            fs[F_PARA * TILE + s], fs[F_TH_ON * TILE + s], fs[F_SCALE * TILE + s], leak_hz, dt, large)
+        fs[F_L * TILE + s] = moved_l if fresh else filtered
+        fs[F_M * TILE + s] = moved_m if fresh else memorised
+        fs[F_LEAK * TILE + s] = moved_leak if fresh else c_leak
+        fs[F_PARA_C * TILE + s] = moved_para if fresh else c_para
 
 
 @jit
@@ -297,16 +290,20 @@ def _bound(fs, js, m, n_end, leak_dt, dt, large):
         js[I_J_KNOWN * TILE + s] = j_max if go else js[I_J_KNOWN * TILE + s]
         js[I_CMP * TILE + s] = LATER if go else js[I_CMP * TILE + s]
         js[I_PTR * TILE + s] += 1 if go else 0
-        search = go & (not holds)
-        js[I_SEARCH * TILE + s] = 1 if search else 0
+        # after its last change, with nothing due before the window's end, the loop keeps a bound instead
+        # (run_pixels with lazy schedules, as take_and_run runs it): _search
+        kept = go & (t_next >= NEVER) & (last == n_end - 1)
+        search = go & ((not holds) | kept)
+        js[I_SEARCH * TILE + s] = (_KEPT if kept else _SEARCH) if search else 0
         n_search += 1 if search else 0
     return n_search
 
 
 @jit
-def _search(fs, js, m, leak_dt, dt, large):
+def _search(fs, js, m, n_end, leak_dt, dt, large):
     """The crossing up to the next change of the pixels marked ``I_SEARCH`` (:func:`.pixel_loop._schedule_before`
-    where its bound failed)."""
+    where its bound failed), or after their last change (``_KEPT``) the schedule :func:`.pixel_loop.run_pixels`
+    makes there."""
     for s in range(m):
         if js[I_SEARCH * TILE + s] != 0:
             step, ready, t_next, j_max = js[I_STEP * TILE + s], js[I_READY * TILE + s], js[I_NEXT * TILE + s], \
@@ -316,7 +313,13 @@ def _search(fs, js, m, leak_dt, dt, large):
                 fs[F_TH_ON * TILE + s], fs[F_TH_OFF * TILE + s], fs[F_SCALE * TILE + s]
             j0 = max(ready - step, np.int64(1))
             horizon = min(t_next - 1 - step, J_LIMIT)
-            if max(horizon, j0) != j_max:
+            if js[I_SEARCH * TILE + s] == _KEPT:      # run_pixels' schedule after its last change (lazy)
+                cmp_next = LATER
+                if not quiet_until(filtered, y, memorised, th_on, th_off, scale, para, step, -np.inf, np.inf, 0.0,
+                                   leak_dt, dt) >= n_end:
+                    cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
+                                                   scale, NEVER, leak_dt, dt, large)[0]
+            elif max(horizon, j0) != j_max:
                 cmp_next, j_known, known, relaxed = next_crossing_known(step, ready, y, memorised, filtered, log_a,
                                                                         para, th_on, th_off, scale, t_next, leak_dt,
                                                                         dt, large)
