@@ -50,17 +50,18 @@ from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import zarr
-from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
 from . import registry
 from .errors import StoreError
 from .files import os_reason
 from .lock import LOCK_NAME, describe_holder, read_holder
 from .ports import EVENT_STREAM, PORT_TYPES, PortValue, from_json, jsonable
+
+if TYPE_CHECKING:
+    import zarr
 
 EVENT_CHUNK_BYTES = 4 << 20     # events/ arrays are chunked by size: few files, fast appends
 PRODUCT_CHUNK_BYTES = 256 << 10
@@ -70,12 +71,42 @@ FLUSH_BYTES = 64 << 20
 #: whole chunks are written once this many bytes of them are pending (the tracked pass's 62 MB of events then
 #: compress while the run goes on, in the cores' idle time, not all in the run's tail)
 WHOLE_CHUNK_BYTES = EVENT_CHUNK_BYTES
-#: fast, multithreaded compression: bit-shuffled LZ4 suits sorted timestamps and small integers
-COMPRESSOR = BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")
-#: codecs of numeric arrays, of string arrays and of checkpoints; the CRC-32C comes last, over the stored bytes
-NUMERIC_CODECS = (COMPRESSOR, Crc32cCodec())
-STRING_CODECS = (ZstdCodec(level=3), Crc32cCodec())
-CHECKPOINT_CODECS = (BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc32cCodec())
+_CODECS = ("COMPRESSOR", "NUMERIC_CODECS", "STRING_CODECS", "CHECKPOINT_CODECS")
+
+
+def _zarr():
+    """Zarr, imported where a store is first opened or made: ~0.15 s of CPU that a command which writes no store
+    (``evsda --version``, ``blocks``, ``schema``) does without, and that a run spends after its first window, beside
+    the optics of the next ones, not before its first step."""
+    import zarr
+
+    if "COMPRESSOR" not in globals():
+        from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
+
+        #: fast, multithreaded compression: bit-shuffled LZ4 suits sorted timestamps and small integers
+        compressor = BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")
+        #: codecs of numeric arrays, of string arrays and of checkpoints; the CRC-32C comes last, over the stored
+        #: bytes
+        globals().update(COMPRESSOR=compressor, NUMERIC_CODECS=(compressor, Crc32cCodec()),
+                         STRING_CODECS=(ZstdCodec(level=3), Crc32cCodec()),
+                         CHECKPOINT_CODECS=(BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc32cCodec()))
+    return zarr
+
+
+def _codecs(name: str) -> tuple:
+    """One of the codec chains (:data:`_CODECS`), as the module holds it now."""
+    _zarr()
+    return globals()[name]
+
+
+def __getattr__(name: str):
+    """The codec chains (``COMPRESSOR``, ``NUMERIC_CODECS``, ``STRING_CODECS``, ``CHECKPOINT_CODECS``), made with
+    Zarr on first use."""
+    if name in _CODECS:
+        return _codecs(name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 CHECKPOINT_CHUNK_BYTES = 1 << 24   # checkpoint archives are written and read in chunks of this size
 #: every chunk is written, even one of zeros, so that a missing chunk file means damage
 ARRAY_CONFIG = {"write_empty_chunks": True}
@@ -143,7 +174,7 @@ class RunStore:
             check_replaceable(path)
             _clear(path)
         try:
-            group = zarr.create_group(str(path), zarr_format=3, attributes={
+            group = _zarr().create_group(str(path), zarr_format=3, attributes={
                 "format": FORMAT, **(attrs or {}), "committed": {"windows": 0, "lengths": {}}})
         except OSError as exc:
             raise StoreError(f"cannot create run store {path}: {os_reason(exc)}") from None
@@ -158,7 +189,7 @@ class RunStore:
         if not is_run_store(path):
             raise StoreError(f"{path} is not an evsda run store (no zarr.json with format '{FORMAT}')")
         try:
-            group = zarr.open_group(str(path), mode=mode, zarr_format=3)
+            group = _zarr().open_group(str(path), mode=mode, zarr_format=3)
         except OSError as exc:
             raise StoreError(f"cannot open run store {path}: {os_reason(exc)}") from None
         except Exception as exc:  # zarr raises several kinds for a damaged store
@@ -278,7 +309,7 @@ class RunStore:
             if key in self.group:
                 array = self.group[key].with_config(ARRAY_CONFIG)
             else:
-                codecs = NUMERIC_CODECS if dtype.kind in "biuf" else STRING_CODECS
+                codecs = _codecs("NUMERIC_CODECS" if dtype.kind in "biuf" else "STRING_CODECS")
                 leaf = key.rsplit("/", 1)[-1]
                 dims = dims or (f"{leaf}_index", *(f"{leaf}_axis{i}" for i in range(1, 1 + len(trailing))))
                 array = self.group.create_array(key, shape=(0, *trailing), chunks=(chunk, *trailing), dtype=dtype,
@@ -607,7 +638,7 @@ class RunStore:
                    "unit": (np.array([merged_units.get(k, "") for k in names], dtype=np.dtypes.StringDType()),
                             {"long_name": "unit of each metric"})}
         for name, (data, attrs) in columns.items():
-            codecs = NUMERIC_CODECS if data.dtype.kind == "f" else STRING_CODECS
+            codecs = _codecs("NUMERIC_CODECS" if data.dtype.kind == "f" else "STRING_CODECS")
             array = group.create_array(name, shape=data.shape, chunks=(max(1, data.size),), dtype=data.dtype,
                                        compressors=list(codecs), config=ARRAY_CONFIG, overwrite=True,
                                        dimension_names=["metric"], attributes=attrs)
@@ -640,7 +671,7 @@ class RunStore:
         skeleton = {block: _encode_state(state, arrays) for block, state in states.items()}
         group = self.group.require_group("checkpoint")
         array = group.create_array(name, shape=(0,), dtype=np.uint8, chunks=(CHECKPOINT_CHUNK_BYTES,),
-                                   compressors=list(CHECKPOINT_CODECS), overwrite=True, config=ARRAY_CONFIG,
+                                   compressors=list(_codecs("CHECKPOINT_CODECS")), overwrite=True, config=ARRAY_CONFIG,
                                    dimension_names=[f"{name}_byte"], attributes={"units": "byte"})
         with _ChunkedWriter(array, CHECKPOINT_CHUNK_BYTES) as stream:
             np.savez(stream, **arrays)
