@@ -421,7 +421,7 @@ class PathChooser:
           is made), else
         * a bin's first pairs (which every verdict needs), else an analytic group, else
         * the next pair of a bin none of whose pairs is being measured, else (rather than idle) the next pair of
-          any open bin (dropped if a pair before it decides: at most one a thread).
+          any open bin (dropped after its first frame if a pair before it decides: at most one a thread).
 
         Returns ``{("reference", key): (distances, verdict), ("analytic", conditions): (distances, fits)}``."""
         least = (REFERENCE_PROBE_FRAMES[0] + 1) // 2
@@ -507,7 +507,10 @@ class PathChooser:
                         out["analytic", (zenith, range_m)] = value
             elif not failed:
                 _, run, pair = unit
-                values = self._pair_distances(run.key, run.zenith_rad, run.range_m, pair)
+                # a pair taken while one before it was being measured is dropped after its first frame if that
+                # one decided (the verdict, once taken, stays)
+                values = self._pair_distances(run.key, run.zenith_rad, run.range_m, pair,
+                                              lambda: run.verdict is None)
                 with lock:
                     run.done(pair, values)
 
@@ -718,17 +721,25 @@ class PathChooser:
         run = _PairRun(key, zenith_rad, range_m, scintillation, self.imager.tolerance)
         return self._measure([run], [])["reference", key]
 
-    def _pair_distances(self, key: tuple, zenith_rad: float, range_m: float, pair: int) -> list[float]:
+    def _pair_distances(self, key: tuple, zenith_rad: float, range_m: float, pair: int,
+                        needed: Callable[[], bool] = lambda: True) -> list[float] | None:
         """The distances [1] of frame pair ``pair`` of the reference probe of pupil-error bin ``key`` (its screens
-        named by the bin and the pair: the same numbers on any thread, in any order)."""
+        named by the bin and the pair: the same numbers on any thread, in any order); None, without its second
+        frame, where ``needed()`` says after the first that the pair is no longer needed."""
         imager = self.imager
         offset = np.zeros((1, 2))
         names = (f"__probe {key} {2 * pair}", f"__probe {key} {2 * pair + 1}")
         out = []
-        for field, phase in imager.reference.probe_pair(names, zenith_rad, range_m):
-            stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
-            fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
-            out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
+        frames = imager.reference.probe_pair(names, zenith_rad, range_m)
+        try:
+            for field, phase in frames:
+                stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
+                fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
+                out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
+                if len(out) == 1 and not needed():
+                    return None
+        finally:
+            frames.close()
         return out
 
     def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:
@@ -779,8 +790,9 @@ class _PairRun:
         self.running += 1
         return self.taken - 1
 
-    def done(self, pair: int, distances: list[float]) -> None:
-        """Pair ``pair``'s distances; the verdict moves on over every pair done in order."""
+    def done(self, pair: int, distances: list[float] | None) -> None:
+        """Pair ``pair``'s distances (None: dropped, after the verdict); the verdict moves on over every pair done in
+        order."""
         self.running -= 1
         self.pairs[pair] = distances
         while self.verdict is None and len(self.measured) // 2 in self.pairs:

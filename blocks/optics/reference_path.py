@@ -4,6 +4,7 @@ through every layer's screen to the aperture (:mod:`.propagation`, grids from :m
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -133,24 +134,27 @@ class ReferencePath:
         return screens
 
     def probe_pair(self, names: tuple[str, str], zenith_rad: float,
-                   range_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
+                   range_m: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Pupil field (:meth:`field`) and pupil-path phase (:meth:`pupil_phase`) of two independent frames of the
         path chooser's probe, at ``t = 0`` on the boresight, on screens just wide enough (``slack`` 1) named
         ``names``, dropped after use. The second frame's screens are the imaginary halves of the first's FFT
         draws (:meth:`.LayerScreen.twin`; screens cut from FFT screens, wider than
         :data:`.layer_screen.SELF_START_SAMPLES`; narrower ones are drawn for each frame): two frames for one
-        frame's draws and transforms."""
+        frame's draws and transforms. The frames come one at a time: a probe that needs no second frame closes
+        the iterator after the first."""
         sight = np.zeros(2)
         first, second = names
-        frames = [(self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True),
-                   self.pupil_phase(first, 0.0, sight, zenith_rad, range_m))]
-        twins = {i: screen.twin((*self.imager.source_seed(second, 1), i))
-                 for i, screen in self.screens.pop(first, {}).items()}
-        self.screens[second] = {i: twin for i, twin in twins.items() if twin is not None}
-        frames.append((self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0),
-                       self.pupil_phase(second, 0.0, sight, zenith_rad, range_m)))
-        del self.screens[second]
-        return frames
+        try:
+            yield (self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True),
+                   self.pupil_phase(first, 0.0, sight, zenith_rad, range_m))
+            twins = {i: screen.twin((*self.imager.source_seed(second, 1), i))
+                     for i, screen in self.screens.pop(first, {}).items()}
+            self.screens[second] = {i: twin for i, twin in twins.items() if twin is not None}
+            yield (self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0),
+                   self.pupil_phase(second, 0.0, sight, zenith_rad, range_m))
+        finally:
+            self.screens.pop(first, None)
+            self.screens.pop(second, None)
 
     def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         out = np.empty((len(t_s), self.imager.geometry.stamp_size, self.imager.geometry.stamp_size))

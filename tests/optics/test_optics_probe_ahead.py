@@ -69,3 +69,19 @@ def test_the_verdict_is_taken_in_pair_order_however_the_pairs_finish():
             for pair in order:
                 run.done(int(pair), pairs[pair])
             assert (run.measured, run.verdict) == (measured, verdict), (mean, order)
+
+
+def test_a_pair_no_longer_needed_stops_after_its_first_frame_and_keeps_no_screens():
+    imager = make_imager()
+    chooser, reference = imager.chooser, imager.reference
+    calls = []
+    field = reference.field
+
+    def counted(*args, **kwargs):
+        calls.append(args[0])
+        return field(*args, **kwargs)
+    reference.field = counted
+    assert chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0, lambda: False) is None
+    assert len(calls) == 1 and not reference.screens                 # one frame made, its screens dropped
+    distances = chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0)
+    assert len(calls) == 3 and len(distances) == 2 and not reference.screens
