@@ -48,7 +48,7 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
-from .normal_draws import _TABLES, _UNSCALED, same_as_numpy
+from .normal_draws import _TABLES, _UNSCALED, same_as_numpy, standard_normal
 from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
                              sample_grids_transposed, walk_segments)
 
@@ -197,7 +197,7 @@ class LayerScreen:
         # made so far allow (the operators change where the stencil gains a column: 4, 8, 16, ...); the window
         # keeps the last n
         # (one draw for all: the exact columns' normals first, then each conditional column's n, in order)
-        noise = rng.standard_normal(n * width)
+        noise = standard_normal(rng, n * width)
         canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L1)
                                     @ noise[:FULL_COLUMNS * n]).reshape(FULL_COLUMNS, n).T
         for made, tops, lefts, sides in _fresh_stages(n, width):
