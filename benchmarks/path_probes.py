@@ -95,8 +95,9 @@ def forget_tables(checkout: Path | None) -> None:
 
 
 def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
-    """``--ahead``: the probes of the first window's ``frames`` (zenith angles, ranges, what the pixels see) made
-    ahead and made one bin after another, alternated, from cold each round."""
+    """``--ahead``: the probes of the first window's ``frames`` (zenith angles, ranges, what the pixels see, in view:
+    (render times, tracks) as the block gives them) made ahead and made one bin after another, alternated, from cold
+    each round."""
     chooser = imager.chooser
     chooser.forced_path = "auto"
 
@@ -107,11 +108,12 @@ def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
         forget_tables(None)
 
     def choices():
-        return [chooser.choose_key(key, float(frames[0][i])) for key, i in first.items()]
+        return [chooser.choose_key(key, zenith_rad) for key, zenith_rad in first.items()]
 
+    zenith, range_m, seen, visible = frames
     first = {}
-    for i, key in enumerate(chooser.keys(*frames)):
-        first.setdefault(key, i)
+    for i, key in enumerate(chooser.keys(zenith[visible], range_m[visible], seen[visible])):
+        first.setdefault(key, float(zenith[visible][i]))
     ways = {"one bin after another": lambda: None, "made ahead": lambda: chooser.probe_ahead(*frames)}
     times = {name: [] for name in ways}
     made = {}

@@ -401,7 +401,7 @@ class PointSourceOptics(Block):
             every = np.ones(visible.shape, np.int64)
             every[visible] = self._intervals.multiples(cadence_ns, seen[visible], columns["zenith"][visible])
         # the probes of every bin this window meets first, side by side on every core, before the choices take them
-        imager.chooser.probe_ahead(columns["zenith"][visible], columns["range"][visible], seen[visible])
+        imager.chooser.probe_ahead(columns["zenith"], columns["range"], seen, visible)
         # every frame's stamp placement and line of sight, all tracks in view at once (Imager.placement)
         tracks = np.flatnonzero(visible.any(axis=0))
         placed = imager.placement(*(columns[name][:, tracks] for name in ("x", "y", "zenith", "azimuth", "rotation")))

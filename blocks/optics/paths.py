@@ -367,16 +367,30 @@ class PathChooser:
             return None
         return representative_conditions(key[:2])
 
-    def probe_ahead(self, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None = None) -> None:
-        """Make, side by side on the process's cores, every probe that the choices of these frames' bins
-        (:meth:`keys`) will need and that no earlier choice made: the reference frame pairs of every pupil-error
-        bin and the analytic-path probes of every bin, in one schedule (:meth:`_measure`). The choices then take
-        them as they are made, in the same order and with the same numbers as without this call (each probe is a
-        function of its bin and the seed alone, each bin's verdict taken pair by pair in order).
+    def probe_ahead(self, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None,
+                    visible: np.ndarray) -> None:
+        """Make, side by side on the process's cores, every probe that the choices of a window's bins (:meth:`keys`)
+        will need and that no earlier choice made: the reference frame pairs of every pupil-error bin and the
+        analytic-path probes of every bin, in one schedule (:meth:`_measure`). The choices then take them as they
+        are made, in the same order and with the same numbers as without this call (each probe is a function of its
+        bin and the seed alone, each bin's verdict taken pair by pair in order).
+
+        ``zenith_rad``, ``range_m`` (frames, tracks), ``seen`` (frames, tracks, 3 or 4) as for :meth:`keys`, and
+        ``visible`` (frames, tracks): the frames in view. Only each track's first and last frame in view are
+        looked at (0.4 ms a window for all of them, at every window; a bin met only in between is probed when its
+        choice is made, as without this call).
 
         A window's sources meet several bins at once (the first window of a run all of them): made one choice
         after another, each bin's probes ran alone, on both cores only where a bin had two frame pairs to
         measure at a time."""
+        tracks = np.flatnonzero(visible.any(axis=0))
+        if not tracks.size:
+            return
+        first = visible[:, tracks].argmax(axis=0)
+        last = len(visible) - 1 - visible[::-1, tracks].argmax(axis=0)
+        at = (np.concatenate([first, last]), np.concatenate([tracks, tracks]))
+        zenith_rad, range_m = np.asarray(zenith_rad, dtype=float)[at], np.asarray(range_m, dtype=float)[at]
+        seen = None if seen is None else np.asarray(seen, dtype=float)[at]
         wanted: dict[tuple[float, float], None] = {}
         for key in dict.fromkeys(self.keys(zenith_rad, range_m, seen)):
             if key not in self._choices:

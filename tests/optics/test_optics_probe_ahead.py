@@ -15,6 +15,8 @@ from .test_optics_probe_cache import RANGE_M, SEEN, ZENITH_RAD, make_imager
 ZENITHS = np.full(4, ZENITH_RAD)
 RANGES = np.array([RANGE_M, np.inf, RANGE_M, np.inf])
 SEENS = np.array([SEEN] * 4)
+#: the same frames as a window's (render times, tracks): the satellite's track, then the star's
+WINDOW = (ZENITHS.reshape(2, 2), RANGES.reshape(2, 2), SEENS.reshape(2, 2, 3), np.ones((2, 2), bool))
 
 
 def one_at_a_time(imager):
@@ -29,14 +31,14 @@ def test_probes_made_ahead_give_the_choices_made_one_at_a_time(monkeypatch, thre
     expected = one_at_a_time(make_imager())
     monkeypatch.setenv("EVSDA_THREADS", threads)
     imager = make_imager()
-    imager.chooser.probe_ahead(ZENITHS, RANGES, SEENS)
+    imager.chooser.probe_ahead(*WINDOW)
     assert len(imager.chooser._ahead) == 4                    # two reference, two analytic probes
     with monkeypatch.context() as m:                           # the choices take them: no probe runs again
         for name in ("_reference_distances", "_pair_distances", "_analytic_distances"):
             m.setattr(PathChooser, name, lambda *a, **k: pytest.fail("a probe ran twice"))
         assert one_at_a_time(imager) == expected
     assert not imager.chooser._ahead
-    imager.chooser.probe_ahead(ZENITHS, RANGES, SEENS)        # every bin chosen: nothing to make
+    imager.chooser.probe_ahead(*WINDOW)        # every bin chosen: nothing to make
     assert not imager.chooser._ahead
 
 
@@ -47,7 +49,7 @@ def test_a_failing_probe_made_ahead_raises_its_error(monkeypatch):
         raise ValueError("probe failed")
     monkeypatch.setattr(PathChooser, "_pair_distances", fail)
     with pytest.raises(ValueError, match="probe failed"):
-        imager.chooser.probe_ahead(ZENITHS, RANGES, SEENS)
+        imager.chooser.probe_ahead(*WINDOW)
 
 
 def test_the_verdict_is_taken_in_pair_order_however_the_pairs_finish():
