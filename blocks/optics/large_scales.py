@@ -115,19 +115,22 @@ class LargeScales:
         u = rng.random((rings, SECTORS, 2))                      # radius quantile, angle within the sector
         radius = c.radius(u[:, :, 0])
         angle = np.pi * (np.arange(SECTORS)[None, :] + u[:, :, 1]) / SECTORS
-        # angular frequencies per sample [rad], y (rows) and x (columns)
-        self.wy = (2 * np.pi * delta * radius * np.sin(angle)).ravel()
-        self.wx = (2 * np.pi * delta * radius * np.cos(angle)).ravel()
+        k = rings * SECTORS
+        # angular frequencies per sample [rad], y (rows) and x (columns), filled in place (np.r_ and np.stack cost
+        # more than the arithmetic at these sizes)
+        self.frequencies = np.empty((2, k))
+        np.multiply(2 * np.pi * delta * radius, np.sin(angle), out=self.frequencies[0].reshape(rings, SECTORS))
+        np.multiply(2 * np.pi * delta * radius, np.cos(angle), out=self.frequencies[1].reshape(rings, SECTORS))
+        self.wy, self.wx = self.frequencies
         gain = 3.0 / (2.0 + np.cos(self.wy)) * 3.0 / (2.0 + np.cos(self.wx))   # samples -> B-spline coefficients
         scale = np.sqrt(np.repeat(c.power / SECTORS, SECTORS)) * gain
-        draws = rng.standard_normal((2, rings * SECTORS))
-        self.a, self.b = scale * draws[0], scale * draws[1]
-        within = np.multiply.outer(np.r_[self.wy, self.wx], np.arange(float(STRIDE)))   # phases within a stride
-        cos, sin = np.cos(within), np.sin(within)
-        k = len(self.wy)
-        self.low = np.ascontiguousarray(np.stack([cos[:k], sin[:k], cos[k:], sin[k:]]))     # (4, K, STRIDE)
-        self.amplitudes = np.ascontiguousarray(np.stack([self.a, self.b]))                  # (2, K)
-        self.frequencies = np.ascontiguousarray(np.stack([self.wy, self.wx]))               # (2, K)
+        self.amplitudes = scale * rng.standard_normal((2, k))                              # (2, K)
+        self.a, self.b = self.amplitudes
+        within = np.multiply.outer(self.frequencies.ravel(), np.arange(float(STRIDE)))    # phases within a stride
+        self.low = np.empty((4, k, STRIDE))                                               # cos, sin along y, then x
+        for axis in (0, 1):
+            np.cos(within[axis * k:(axis + 1) * k], out=self.low[2 * axis])
+            np.sin(within[axis * k:(axis + 1) * k], out=self.low[2 * axis + 1])
 
     def add_to(self, coefficients: np.ndarray, top: int, left: int) -> np.ndarray:
         """``coefficients`` (an array whose first sample is at absolute (``top``, ``left``)) plus the modes' B-spline

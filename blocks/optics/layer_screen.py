@@ -358,7 +358,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         r, c = rows[failed], cols[failed]
         span = np.max(np.stack([r[:, -1] - r[:, 0], c[:, -1] - c[:, 0]], axis=-1), axis=0)
         raise ValueError(f"a footprint of {span} samples does not fit a {screens[failed].n}-sample screen")
-    # each run of canvases (segment): the regeneration before it, its window, generator and modes' tables, in order
+    # each run of canvases (segment): the regeneration before it, its window, generator, operator and modes, in order
     layout, windows, origins, states, operators, modes, last = [], [], [], [], [], [], {}
     compiled = same_as_numpy()
     noises = []                 # NumPy's draws, where the compiled ones are not NumPy's
