@@ -328,24 +328,27 @@ def _packed(objects: tuple, arrays_of) -> tuple[tuple[np.ndarray, ...], np.ndarr
 
 
 def accumulate_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
-                      weight: np.ndarray, out_t: np.ndarray) -> None:
+                      weight: np.ndarray, out_t: np.ndarray, fresh: bool = False) -> None:
     """:meth:`LayerScreen.accumulate` of each screen ``l`` in turn on its grids ``rows[l]`` (F, ny), ``cols[l]`` (F, nx)
     [delta] with ``weight[l]`` (F,) into one ``out_t`` (F, nx, ny): the same sums in the same order, bit for bit, in
-    two compiled calls for all (:func:`walk_layers`)."""
+    two compiled calls for all (:func:`walk_layers`). With ``fresh``, ``out_t`` is written as if it held zeros (it
+    may be uninitialised: no zeroing pass over it)."""
     walk_layers(screens, np.ascontiguousarray(rows, dtype=float), np.ascontiguousarray(cols, dtype=float),
-                np.ascontiguousarray(epochs, dtype=np.int64), (np.ascontiguousarray(weight, dtype=float), out_t))
+                np.ascontiguousarray(epochs, dtype=np.int64), (np.ascontiguousarray(weight, dtype=float), out_t),
+                fresh)
 
 
 def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
-                reads: tuple | None = None) -> None:
+                reads: tuple | None = None, fresh: bool = False) -> None:
     """:meth:`LayerScreen.walk` of each screen ``l`` on ``rows[l]``, ``cols[l]`` (contiguous (L, F, .)) in turn.
 
     :func:`.screen_kernels.plan_layers` plans every walk from integers (regenerations, extensions, canvases); the
     regenerations are made in the walks' order; then :func:`.screen_kernels.walk_segments` draws each run's
     conditional noise from its screen's generator (one draw a run; NumPy's, where the compiled draws are not
     NumPy's: :func:`.normal_draws.same_as_numpy`), makes and reads every canvas (``reads = (weight (L, F), out_t)``),
-    the large-scale modes added where frames read them. Each screen's draws, values and reads are those of its own
-    walk: the screens share only the calls.
+    the large-scale modes added where frames read them (with ``fresh``, the first layer's reads written into
+    ``out_t`` as if it held zeros). Each screen's draws, values and reads are those of its own walk: the screens
+    share only the calls.
     """
     weight, out_t = reads if reads is not None else (np.zeros((len(screens), 0)), _NO_OUTPUT)
     reading = weight.shape[1] > 0
@@ -398,6 +401,8 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
                        noise_at + count, operator, stencil, k, mode])
         window_at, noise_at = window_at + n * n, noise_at + count
     if not layout:
+        if fresh:
+            out_t[...] = 0.0
         return
     layout = np.array(layout, np.int64)
     (a, b, stencil_rows, stencil_back), operator_at = (
@@ -409,7 +414,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
     bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
                         *_ZIGGURAT, a, b, stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight,
-                        out_t, low, amplitudes, frequencies, mode_at, STRIDE)
+                        out_t, fresh and reading, low, amplitudes, frequencies, mode_at, STRIDE)
     for layer, s in last.items():
         n = int(layout[s, 1])
         screens[layer].coefficients = windows[layout[s, 7]:layout[s, 7] + n * n].reshape(n, n)

@@ -72,9 +72,9 @@ class PupilPath:
         (``sight`` (F, 2): :meth:`.Imager.sight`); FFT screens give a transposed view (the stamps read it as it is)."""
         g = self.imager.geometry
         frames = len(t_s)
-        phase_t = np.zeros((frames, g.n_pupil, g.n_pupil))        # transposed: (F, x, y), see LayerScreen.accumulate
+        shape = (frames, g.n_pupil, g.n_pupil)          # the phase transposed: (F, x, y), see LayerScreen.accumulate
         if not self.imager.atmosphere:
-            return phase_t
+            return np.zeros(shape)
         turbulent = np.isfinite(zenith_rad)
         k2 = (2 * np.pi / self.imager.wavelength) ** 2
         epochs = self.imager.epochs_of(t_s)
@@ -86,7 +86,7 @@ class PupilPath:
                             (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m)
         chosen, altitude, wind, cn2, xp = self._layers
         if not chosen:
-            return phase_t.transpose(0, 2, 1)
+            return np.zeros(shape).transpose(0, 2, 1)
         every = self._layer_screens(source)
         screens = [every[i] for i in chosen]
         # every layer's footprint grids [samples] (L, F, n) and weights r0^(-5/6) (L, F) in one compiled pass, the
@@ -97,7 +97,8 @@ class PupilPath:
                     np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(sight, dtype=float),
                     np.cos(np.where(turbulent, zenith_rad, 0.0)), np.ascontiguousarray(range_m, dtype=float),
                     turbulent, xp, k2, rows, cols, weight)
-        accumulate_layers(screens, rows, cols, epochs, weight, phase_t)      # each layer in turn, one walk
+        phase_t = np.empty(shape)                       # written by the first layer's reads: no zeroing pass
+        accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True)      # each layer in turn, one walk
         return phase_t.transpose(0, 2, 1)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:

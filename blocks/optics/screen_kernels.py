@@ -222,8 +222,9 @@ def _taps(u, offset, index, weights):
 
 
 @jit
-def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t):
-    """``out_t[f] += weight[f] * screen(rows[f], cols[f]).T`` for frames ``first <= f < stop``.
+def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t, assign=False):
+    """``out_t[f] += weight[f] * screen(rows[f], cols[f]).T`` for frames ``first <= f < stop`` (with ``assign``,
+    ``out_t[f] = 0.0 + ...``: the same bits as adding to zeros, whatever ``out_t`` held).
 
     ``rows`` (F, ny) and ``cols`` (F, nx) are increasing absolute positions [samples]; the
     coefficient array's first sample is at (``top``, ``left``); ``out_t`` is (F, nx, ny), the
@@ -262,8 +263,12 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
             a0, a1, a2, a3 = wx[0, j], wx[1, j], wx[2, j], wx[3, j]
             l0, l1, l2, l3 = lines[c], lines[c + 1], lines[c + 2], lines[c + 3]
             target = out_t[f, j]
-            for i in range(ny):
-                target[i] += g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
+            if assign:
+                for i in range(ny):
+                    target[i] = 0.0 + g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
+            else:
+                for i in range(ny):
+                    target[i] += g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
     return True
 
 
@@ -342,14 +347,16 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
 
 @jit
 def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, stencil_rows,
-                  stencil_back, frame_ops, frame, rows, cols, weight, out_t, low, frequencies, amplitudes, stride):
+                  stencil_back, frame_ops, frame, rows, cols, weight, out_t, assign, low, frequencies, amplitudes,
+                  stride):
     """Make and read a run of a walk's canvases (:func:`plan_walk`'s operations ``edges[c] .. edges[c + 1] - 1``,
     no regeneration among them; with ``as_is``, the present window before them) in one call: each canvas holds the
     window (``window`` (n, n),
     its first sample at absolute ``origin``, both updated) and the windows of its one-column steps
     (:func:`extend_columns`, ``n`` normal draws per step from ``noise``, in order); then the frames from ``frame``
     whose operations it completes (``frame_ops[f] <= canvas_stop[c]``) are read from it (:func:`sample_grids_transposed`
-    into ``out_t``; none when ``weight`` has no frames), with the large-scale modes added where they read
+    into ``out_t``, written rather than added to with ``assign``; none when ``weight`` has no frames), with the
+    large-scale modes added where they read
     (:func:`read_spans`, :func:`add_modes`; their phasors by :func:`mode_phasors` from the angular frequencies
     ``frequencies`` (2, K) along y, x and the tables ``low`` (4, K, stride): cos, sin along y, then x; ``amplitudes``
     (2, K), no modes when K = 0). An empty operation range is the window as it is.
@@ -403,7 +410,7 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
                 source = canvas
                 canvas = np.empty((height, width))
                 add_modes(source, canvas, cos_y, sin_y, cos_x, sin_x, amplitudes[0], amplitudes[1], first, end)
-            if not sample_grids_transposed(canvas, top, left, rows, cols, weight, frame, stop, out_t):
+            if not sample_grids_transposed(canvas, top, left, rows, cols, weight, frame, stop, out_t, assign):
                 return -1
         frame = stop
     return frame
@@ -493,8 +500,8 @@ LAYOUT_COLUMNS = 14
 
 @jit
 def walk_segments(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
-                  stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, low, amplitudes,
-                  frequencies, mode_at, stride):
+                  stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, fresh, low,
+                  amplitudes, frequencies, mode_at, stride):
     """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
     order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
     layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into ``out_t``,
@@ -502,8 +509,9 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
     views into the packed arrays (the operators' ``A``, ``B`` and stencil from ``operator_at``'s first three columns,
     the modes' ``low``, ``amplitudes`` and ``frequencies`` from ``mode_at``'s). With ``draw``, each segment's noise is first drawn into ``noise`` from its
     screen's PCG64 state ``states[s]`` (:func:`.normal_draws._fill` with NumPy's ziggurat tables ``ki``, ``wi``,
-    ``fi``; the state left as the draws leave it), else ``noise`` holds it. Returns the first segment that read
-    outside its canvas (-1: none)."""
+    ``fi``; the state left as the draws leave it), else ``noise`` holds it. With ``fresh``, the first layer's reads
+    are written into ``out_t`` (as if added to zeros: each layer reads every frame once) and the others added.
+    Returns the first segment that read outside its canvas (-1: none)."""
     frame = np.zeros(rows.shape[0], np.int64)
     for s in range(layout.shape[0]):
         layer, n, e0, e1, as_is = layout[s, 0], layout[s, 1], layout[s, 2], layout[s, 3], layout[s, 4] != 0
@@ -522,6 +530,7 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
                              noise[z0:z1], a[a0:a0 + m * n_st].reshape((m, n_st)), b[b0:b0 + m * m].reshape((m, m)),
                              stencil_rows[st0:st0 + n_st], stencil_back[st0:st0 + n_st], frame_ops[layer],
                              frame[layer], rows[layer], cols[layer], weight[layer], out_t,
+                             fresh and layer == layout[0, 0],
                              low[low0:low0 + 4 * k * stride].reshape((4, k, stride)),
                              frequencies[freq0:freq0 + 2 * k].reshape((2, k)),
                              amplitudes[amp0:amp0 + 2 * k].reshape((2, k)), stride)

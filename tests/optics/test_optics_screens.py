@@ -311,6 +311,25 @@ def test_walks_draw_numpys_normals_inside_the_compiled_walk(monkeypatch):
     assert compiled[0].tobytes() == numpys[0].tobytes() and compiled[1] == numpys[1]
 
 
+def test_a_fresh_walk_writes_what_adding_to_zeros_gives():
+    # accumulate_layers(fresh=True) into an array full of garbage against the same walk added to zeros, bit for bit
+    # (a frame of zero weight included: 0 + 0 x keeps the sign of the zero), with a regeneration mid-walk
+    def walk(out, fresh):
+        screens = [LayerScreen(20, 0.025, (5, 0), L0=25.0), LayerScreen(20, 0.03, (5, 1), L0=25.0)]
+        frames, grid = 30, np.linspace(0.0, 6.0, 12)
+        path = np.array([[0.4, 0.8], [0.3, -0.6]])[:, None] * np.arange(frames)[None, :, None]
+        path[1, frames // 2:] += 400.0
+        weight = np.ones((2, frames))
+        weight[:, 3] = 0.0
+        accumulate_layers(screens, path[..., :1] + grid, path[..., 1:] + grid, np.zeros(frames, np.int64), weight,
+                          out, fresh=fresh)
+        return out
+
+    added = walk(np.zeros((30, 12, 12)), False)
+    written = walk(np.full((30, 12, 12), np.nan), True)
+    assert written.tobytes() == added.tobytes()
+
+
 def test_layer_grids_are_the_footprints_and_weights_in_numpy():
     # the compiled footprint grids and weights against Imager.footprints_of's broadcast sums and the weights' numpy
     # expression, bit for bit (a source at infinity, a near one, a frame below the horizon)
