@@ -7,7 +7,8 @@ Runs a graph (default: the tracked 10 s pass of benchmarks/end_to_end.yaml) in a
 * compiled calls made without the interpreter lock (Numba functions compiled ``nogil``, called from Python; the time
   of their first call, the compiled code's load from Numba's cache, is left out and counted with the rest), by
   function;
-* the path choice's probes (``PathChooser._probe``: the probes helper's, at the head of the run), whole;
+* the path choice's probes (``PathChooser._probe`` and, where it exists, ``probe_ahead``: the probes
+  helper's, at the head of the run), whole;
 * the rest: the interpreter and numpy between those calls. NumPy's own loops (the stamps' ``sin`` and ``cos``, the
   pocketfft transforms of the probes) release the lock too, so this is an upper bound of what holds it.
 
@@ -65,16 +66,22 @@ from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
 from evsda.blocks.optics import block, paths
 
+inside = defaultdict(int)
+
 def timed(owner, attribute, label, outer=False):
     inner = getattr(owner, attribute)
     @functools.wraps(inner)
     def wrapper(*args, **kwargs):
+        if inside[label]:                               # the outermost call of a label only
+            return inner(*args, **kwargs)
         t, before = clock(), dict(spent)
+        inside[label] += 1
         if outer:
             depth[0] += 1
         try:
             return inner(*args, **kwargs)
         finally:
+            inside[label] -= 1
             if outer:
                 depth[0] -= 1
             else:                                       # nested compiled calls count here, not twice
@@ -85,7 +92,9 @@ def timed(owner, attribute, label, outer=False):
     setattr(owner, attribute, wrapper)
 
 timed(block.PointSourceOptics, "step", "step", outer=True)
-timed(paths.PathChooser, "_probe", "probes")
+for name in ("_probe", "probe_ahead"):                  # the probes made as choices need them, or a window ahead
+    if hasattr(paths.PathChooser, name):
+        timed(paths.PathChooser, name, "probes")
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
 with tempfile.TemporaryDirectory() as tmp:
     run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
