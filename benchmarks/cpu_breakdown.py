@@ -92,6 +92,8 @@ parts = {"optics": ("evsda.blocks.optics", [
             ("paths", "PathChooser", "_pair_distances", "  reference probes (pupil_fft vs Fresnel)"),
             ("paths", "PathChooser", "_probe", "  all path-choice probes"),
             ("paths", "PathChooser", "probe_ahead", "  all path-choice probes"),
+            ("render", "PupilRenderer", "__init__", "  pupil renderer's set-up (Numba's first load; within the probes "
+             "when made ahead)"),
             ("pupil_path", "PupilPath", "turbulent_phase", "  pupil path: phase screens"),
             ("render", "PupilRenderer", "stamps", "  pupil path: stamps (FFT PSFs)"),
             ("analytic_path", "AnalyticPath", "render", "  analytic stamps (long exposure, airy)"),
