@@ -234,6 +234,37 @@ def test_strong_turbulence_short_exposures_resolve_r0_and_average_to_the_seeing_
     assert half_light == pytest.approx(seeing, rel=0.2)
 
 
+def test_a_windows_placement_at_once_is_each_tracks_own_and_renders_the_same():
+    # the block places every track in view at once (Imager.placement on render times x tracks, the ground frame's
+    # lines of sight included, frames out of view NaN): each track's column is what its own frames give, and a
+    # render handed it gives the stamps of a render that places its frames itself
+    atmosphere = Atmosphere.hufnagel_valley(2)
+    imagers = [Imager(Telescope(0.2), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(psf_path="pupil_fft"),
+                      seed=(4,)) for _ in range(2)]
+    rng = np.random.default_rng(2)
+    frames, tracks = 6, 3
+    x, y = rng.uniform(100, 500, (2, frames, tracks))
+    x[2:4, 1] = np.nan
+    zenith = np.full((frames, tracks), 0.5) + rng.uniform(0, 1e-3, (frames, tracks))
+    azimuth, rotation = np.full((frames, tracks), 1.1), np.full((frames, tracks), 0.2)
+    for imager in imagers:
+        imager.ensure_geometry(0.5)
+        imager.set_frame(1.1, 0.5, 0.2)
+    together = imagers[0].placement(x, y, zenith, azimuth, rotation)
+    for j in range(tracks):
+        alone = imagers[0].placement(x[:, j].copy(), y[:, j].copy(), zenith[:, j].copy(), azimuth[:, j].copy(),
+                                     rotation[:, j].copy())
+        for a, b in zip(together, alone):
+            np.testing.assert_array_equal(a[:, j], b)
+    t = 0.001 * np.arange(frames)
+    placed = tuple(p[:, 0] for p in together)
+    given = imagers[0].render("s", t, x[:, 0], y[:, 0], zenith[:, 0], 4e5, placed=placed)
+    own = imagers[1].render("s", t, x[:, 0], y[:, 0], zenith[:, 0], 4e5, azimuth_rad=azimuth[:, 0],
+                            rotation_rad=rotation[:, 0])
+    np.testing.assert_array_equal(given[0], own[0])
+    np.testing.assert_array_equal(given[1], own[1])
+
+
 def test_zernike_screens_and_revisits_run_deterministically():
     kwargs = dict(aperture_m=0.2, screen_method="zernike", screen_update="regenerate", n_zernike_modes=20,
                   screen_revisit_s=0.005, psf_path="pupil_fft", seed=9)
