@@ -6,7 +6,8 @@ changes a pixel, ~77 000 a window), and seldom fire between them. In the event-d
 no crossing before the next one (:func:`.crossing.band_bound`: ``a^j``, ``e^-D`` and a logarithm in
 the large-signal form), one pixel's changes after the other's, as scalar code, and its row of input
 (:func:`.drive_kernel.drive_rows`: two logarithms, made for every change before the loop). Here the pixels
-of a chunk with at least ``MIN_SWEPT`` own changes are swept together, change after change: in round
+of a chunk with at least ``MIN_SWEPT`` changes are swept together (own changes, or the background's: a pixel
+due for a noise event takes the last kept change and the window's), change after change: in round
 ``r`` every pixel still in the sweep takes its ``r``-th change, in loops over the pixels that the compiler
 vectorises (:mod:`.fastmath`'s functions give the same bits there), with the same arithmetic in the same
 order as the event-driven loop:
@@ -73,8 +74,8 @@ def take_own(real, count, pixels, change_lo, change_hi, change_step, change_inpu
     which :func:`.deferred.take_and_run` makes itself (a compiled function calling them costs ~0.6 s more of a
     first run's compile).
     """
-    total = sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end,
-                      leak_hz, dt, large)
+    total = sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k,
+                      n_end, leak_hz, dt, large)
     drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
     return total
 
@@ -107,28 +108,28 @@ def drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_in
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own_flux, drive_k, n_end, leak_hz,
-               dt, large):
-    """:func:`take_own`'s sweep (see the module), the change's drive computed from its flux as it is taken."""
+def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
+              leak_hz, dt, large):
+    """:func:`take_own`'s sweep (see the module), the change's drive computed from its flux as it is taken (own
+    changes: ``own_flux``; the background's, at and above ``n_own``: the ``FLUX`` of their rows, driven again)."""
     n = pixels.size
-    # the pixels with own changes to sweep, most first: a counting sort by their number
+    # the pixels with changes to sweep, most first: a counting sort by their number
     most = 0
     for i in range(n):
-        if change_hi[i] <= n_own:
-            most = max(most, change_hi[i] - change_lo[i])
+        most = max(most, change_hi[i] - change_lo[i])
     if most < MIN_SWEPT:
         return 0
     starts = np.zeros(most + 2, np.int64)
     for i in range(n):
         k = change_hi[i] - change_lo[i]
-        if k >= MIN_SWEPT and change_hi[i] <= n_own:
+        if k >= MIN_SWEPT:
             starts[most - k + 1] += 1
     for k in range(1, starts.size):
         starts[k] += starts[k - 1]
     order = np.empty(starts[-1], np.int64)
     for i in range(n):
         k = change_hi[i] - change_lo[i]
-        if k >= MIN_SWEPT and change_hi[i] <= n_own:
+        if k >= MIN_SWEPT:
             order[starts[most - k]] = i
             starts[most - k] += 1
     fs = np.zeros(N_FLOAT * TILE)
@@ -167,7 +168,7 @@ def sweep_own(real, count, pixels, change_lo, change_hi, change_step, n_own, own
                 ptr = js[I_PTR * TILE + s]
                 js[I_CHANGE * TILE + s] = change_step[ptr]
                 js[I_NEXT * TILE + s] = change_step[ptr + 1] if r + 1 < swept[s] else NEVER     # none: its last
-                fs[N_FLUX * TILE + s] = own_flux[ptr]
+                fs[N_FLUX * TILE + s] = own_flux[ptr] if ptr < n_own else change_input[ptr, FLUX]
             _drive(fs, m, drive_k)
             n_fresh = _enter(fs, js, m, n_end, leak_hz, dt, large)
             if n_fresh:

@@ -64,7 +64,7 @@ def run(monkeypatch, window_s: float, sweep: bool, form: str, threads: str = "1"
         def counting(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_end, shared_step, shared_input,
                      change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end, leak_hz, dt,
                      large, *rest):
-            own = (change_hi <= n_own) & (change_hi - change_lo >= own_sweep.MIN_SWEPT)   # the changes swept,
+            own = change_hi - change_lo >= own_sweep.MIN_SWEPT                          # the changes swept,
             swept = own_sweep.take_own(real.copy(), count.copy(), pixels, change_lo.copy(), change_hi, change_step,
                                        change_input.copy(), n_own, own_flux, drive_k, n_end, leak_hz, dt, large)
             counted["sweepable"] += int(np.sum((change_hi - change_lo)[own]))                # counted on copies (the
