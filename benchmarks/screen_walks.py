@@ -53,11 +53,11 @@ for owner, name in ((layer_screen, "walk_segments"), (layer_screen, "plan_layers
     if hasattr(owner, name):
         timed(owner, name, False)
 accumulate = pupil_path.accumulate_layers
-def counted(screens, rows, *args):
+def counted(screens, rows, *args, **kwargs):
     counts["calls"] += 1
     counts["frames"] += rows.shape[1]
     counts["layer reads"] += rows.shape[0] * rows.shape[1]
-    return accumulate(screens, rows, *args)
+    return accumulate(screens, rows, *args, **kwargs)
 pupil_path.accumulate_layers = counted
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
 with tempfile.TemporaryDirectory() as tmp:

@@ -222,7 +222,7 @@ def _taps(u, offset, index, weights):
 
 
 @jit
-def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t, assign=False):
+def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t, assign):
     """``out_t[f] += weight[f] * screen(rows[f], cols[f]).T`` for frames ``first <= f < stop`` (with ``assign``,
     ``out_t[f] = 0.0 + ...``: the same bits as adding to zeros, whatever ``out_t`` held).
 

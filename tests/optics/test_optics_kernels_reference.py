@@ -46,7 +46,7 @@ def test_sampler_is_its_sums_in_order():
     cols = 8 + rng.uniform(0, 30, (3, 1)) + 0.8 * np.arange(9)[None]
     weight = rng.uniform(0.5, 2.0, 3)
     fast, slow = np.ones((3, 9, 7)), np.ones((3, 7, 9))
-    assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 0, 3, fast)
+    assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 0, 3, fast, False)
     reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
     np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
 
@@ -60,7 +60,7 @@ def test_transposed_sampler_is_the_same_sums_in_order():
     weight = rng.uniform(0.5, 2.0, 4)
     fast, slow = rng.standard_normal((4, 40, 42)), np.empty((4, 42, 40))
     slow[:] = fast.transpose(0, 2, 1)
-    assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 1, 4, fast)
+    assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 1, 4, fast, False)
     reference_sample(coefficients, 2, 3, rows[1:], cols[1:], weight[1:], slow[1:])
     np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
-    assert not sample_grids_transposed(coefficients, 2, 3, rows + 40, cols, weight, 0, 4, fast)
+    assert not sample_grids_transposed(coefficients, 2, 3, rows + 40, cols, weight, 0, 4, fast, False)
