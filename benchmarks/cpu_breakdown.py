@@ -32,15 +32,15 @@ with the probe cache as ``--cache``'s first column, alternated side by side.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-GRAPH = Path(__file__).with_name("end_to_end.yaml")
+sys.path.insert(0, str(Path(__file__).parent))
+
+from end_to_end import GRAPH, ONE_THREAD, fresh  # noqa: E402
 
 CHILD = r"""
 import json, sys, tempfile, time
@@ -125,13 +125,7 @@ def one_run(graph: Path, duration: float, cache: dict[str, str], checkout: Path 
             settings: tuple[str, ...] = ()) -> dict:
     """One fresh run's figures; ``checkout``: run another checkout's code (its ``.venv``) instead of this one;
     ``settings``: ``--set`` values."""
-    env = {**os.environ, "EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0", **cache}
-    python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
-    out = subprocess.run([python, "-c", CHILD, str(graph.resolve()), str(duration), *settings], capture_output=True,
-                         text=True, env=env, cwd=checkout)
-    if out.returncode:
-        raise RuntimeError(out.stderr[-3000:])
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return fresh(CHILD, {**ONE_THREAD, **cache}, (str(graph.resolve()), str(duration), *settings), checkout)
 
 
 #: the probe-result cache (evsda.graph.result_cache) each column runs with: switched off; empty at the start of

@@ -36,11 +36,20 @@ from pathlib import Path
 GRAPH = Path(__file__).with_name("end_to_end.yaml")
 
 
-def fresh(code: str, env: dict | None = None) -> dict:
-    """Run ``code`` in a fresh interpreter; it prints one JSON object as its last line."""
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                         env={**os.environ, **(env or {})})
+def fresh(code: str, env: dict | None = None, args=(), checkout: Path | None = None) -> dict:
+    """Run ``code`` in a fresh interpreter (with ``args`` as its ``sys.argv[1:]`` and ``env`` added to the
+    environment); it prints one JSON object as its last line. ``checkout``: run another checkout's code (its
+    ``.venv``, from its folder) instead of this one's."""
+    python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
+    out = subprocess.run([python, "-c", code, *args], capture_output=True, text=True,
+                         env={**os.environ, **(env or {})}, cwd=checkout)
+    if out.returncode:
+        raise RuntimeError(out.stderr[-3000:])
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+#: one thread, one step at a time: the process's CPU around a block's steps is that block's own
+ONE_THREAD = {"EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0"}
 
 
 IMPORT_CLI = """

@@ -22,14 +22,14 @@ calls from compiled code to compiled code are not seen. ``--against DIR`` runs a
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 
-GRAPH = Path(__file__).with_name("end_to_end.yaml")
+sys.path.insert(0, str(Path(__file__).parent))
+
+from end_to_end import GRAPH, ONE_THREAD, fresh  # noqa: E402
 
 CHILD = r"""
 import functools, json, sys, tempfile, time
@@ -103,13 +103,8 @@ print(json.dumps(spent))
 
 
 def one_run(graph: Path, duration: float, checkout: Path | None) -> dict:
-    env = {**os.environ, "EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0", "EVSDA_CACHE": "off"}
-    python = sys.executable if checkout is None else str(checkout / ".venv" / "bin" / "python")
-    out = subprocess.run([python, "-c", CHILD, str(graph.resolve()), str(duration)], capture_output=True, text=True,
-                         env=env, cwd=checkout)
-    if out.returncode:
-        raise RuntimeError(out.stderr[-3000:])
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    """One fresh run's figures, the probe cache off; ``checkout``: another checkout's code (its ``.venv``)."""
+    return fresh(CHILD, {**ONE_THREAD, "EVSDA_CACHE": "off"}, (str(graph.resolve()), str(duration)), checkout)
 
 
 def main() -> None:
