@@ -57,7 +57,12 @@ _STATE = ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_P
           (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON), (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE))
 _CHANGED = 9
 _SEARCH, _KEPT = 1, 2        # I_SEARCH: the bound failed; after the pixel's last change (run_pixels' lazy schedule)
+# a first run compiles each compiled function called from another again into the caller's code: the sweep and
+# drive_left are inlined into deferred.take_and_run (Numba's IR, not compiled on their own there), and so are the
+# small steps _enter and _search into the sweep; the vectorised loops stay functions (inlined, the sweep compiles
+# slower: benchmarks/pixel_compile.py)
 jit = numba.njit(cache=True, error_model="numpy")
+inline = numba.njit(cache=True, error_model="numpy", inline="always")
 
 
 def take_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
@@ -71,8 +76,7 @@ def take_own(real, count, pixels, change_lo, change_hi, change_step, change_inpu
 
     Updates the pixels' state rows as :func:`.pixel_loop.run_pixels` would (the comparator schedule ``LATER`` or
     the search's crossing; see the module). Returns the number of changes swept. Two compiled calls (``nogil``),
-    which :func:`.deferred.take_and_run` makes itself (a compiled function calling them costs ~0.6 s more of a
-    first run's compile).
+    which :func:`.deferred.take_and_run` makes itself (inlined there: a first run compiles them once, in it).
     """
     total = sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k,
                       n_end, leak_hz, dt, large)
@@ -80,7 +84,7 @@ def take_own(real, count, pixels, change_lo, change_hi, change_step, change_inpu
     return total
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input):
     """The rows of ``change_input`` of the own changes (below ``n_own``) left to the pixels, driven from
     ``own_flux`` (:func:`.drive_kernel.drive_rows` of the fluxes gathered)."""
@@ -107,7 +111,7 @@ def drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_in
                 k += 1
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
               leak_hz, dt, large):
     """:func:`take_own`'s sweep (see the module), the change's drive computed from its flux as it is taken (own
@@ -203,7 +207,7 @@ def _drive(fs, m, drive_k):
             fs[N_FLUX * TILE + s], fs[N_Y * TILE + s], fs[N_LOG_A * TILE + s], drive_k)
 
 
-@jit
+@inline
 def _enter(fs, js, m, n_end, leak_hz, dt, large):
     """Which of the tile's pixels ``0 .. m - 1`` take their change (``I_GO``: nothing due before it), and their
     advance to the step before it where the last bound's ``a^j`` serves (:func:`.pixel_loop.advanced`'s cases
@@ -300,7 +304,7 @@ def _bound(fs, js, m, n_end, leak_dt, dt, large):
     return n_search
 
 
-@jit
+@inline
 def _search(fs, js, m, n_end, leak_dt, dt, large):
     """The crossing up to the next change of the pixels marked ``I_SEARCH`` (:func:`.pixel_loop._schedule_before`
     where its bound failed), or after their last change (``_KEPT``) the schedule :func:`.pixel_loop.run_pixels`
