@@ -402,9 +402,11 @@ def _main(argv: list[str] | None) -> int:
 def _quiet_abandoned_writes() -> None:
     """After a command stopped by a signal or an error: a Zarr write it left under way stays pending on
     Zarr's event loop, and asyncio reports it ("Task was destroyed but it is pending!") when the loop is
-    dropped at exit. Such a write was never committed (``--resume`` redoes it), so the report would only
-    add lines after the one that says what happened."""
+    dropped at exit; a Zarr call stopped between making its coroutine and handing it to the loop leaves a
+    coroutine Python reports as "never awaited" when it is collected. Such a write was never committed
+    (``--resume`` redoes it), so the reports would only add lines after the one that says what happened."""
     logging.getLogger("asyncio").disabled = True
+    warnings.filterwarnings("ignore", message=r"coroutine .* was never awaited", category=RuntimeWarning)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
