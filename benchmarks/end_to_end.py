@@ -52,6 +52,30 @@ def fresh(code: str, env: dict | None = None, args=(), checkout: Path | None = N
 ONE_THREAD = {"EVSDA_THREADS": "1", "EVSDA_PIPELINE": "0"}
 
 
+def checkouts(parser: argparse.ArgumentParser, against: Path | None) -> dict[str, Path | None]:
+    """This checkout (``None``) and, given ``--against``, another one with its own ``.venv``, by name."""
+    trees: dict[str, Path | None] = {"this checkout": None}
+    if against is not None:
+        if not (against / ".venv" / "bin" / "python").exists():
+            parser.error(f"--against {against}: expected a checkout with its own .venv")
+        trees[str(against)] = against
+    return trees
+
+
+def alternated(trees: dict[str, Path | None], repeats: int, run, show) -> tuple[dict[str, list], list[float]]:
+    """``run(checkout)`` ``repeats`` times for each of ``trees``, alternated so that they share the machine's
+    load; ``show(round, name, result, load)`` after each run. Returns the results by name and each run's load
+    average (the mean of the readings before and after it)."""
+    runs, loads = {name: [] for name in trees}, []
+    for k in range(repeats):
+        for name, checkout in trees.items():
+            before = os.getloadavg()[0]
+            runs[name].append(run(checkout))
+            loads.append((before + os.getloadavg()[0]) / 2)
+            show(k, name, runs[name][-1], loads[-1])
+    return runs, loads
+
+
 IMPORT_CLI = """
 import json, time
 t = time.perf_counter()

@@ -22,14 +22,13 @@ calls from compiled code to compiled code are not seen. ``--against DIR`` runs a
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from end_to_end import GRAPH, ONE_THREAD, fresh  # noqa: E402
+from end_to_end import GRAPH, ONE_THREAD, alternated, checkouts, fresh  # noqa: E402
 
 CHILD = r"""
 import functools, json, sys, tempfile, time
@@ -114,18 +113,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="fresh runs of each tree (medians)")
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv), alternated")
     args = parser.parse_args()
-    trees = {"this tree": None, **({str(args.against): args.against} if args.against else {})}
-    runs, loads = {name: [] for name in trees}, []
-    for _ in range(args.repeats):
-        for name, checkout in trees.items():
-            before = os.getloadavg()[0]
-            runs[name].append(one_run(args.graph, args.duration, checkout))
-            loads.append((before + os.getloadavg()[0]) / 2)
-            print(f"  {name}: step {runs[name][-1]['step']:.2f} s CPU", flush=True)
+    trees = checkouts(parser, args.against)
+    runs, loads = alternated(trees, args.repeats, lambda checkout: one_run(args.graph, args.duration, checkout),
+                             lambda k, name, r, load: print(f"  {name}: step {r['step']:.2f} s CPU", flush=True))
     print(f"\n{args.graph.name}, {args.duration:g} s simulated, the optics' step on one thread [CPU s]; medians of "
           f"{args.repeats} fresh runs, load {statistics.median(loads):.1f} ({min(loads):.1f}-{max(loads):.1f})")
     keys = sorted({k for rs in runs.values() for r in rs for k in r if k.startswith("nogil ")},
-                  key=lambda k: -statistics.median(r.get(k, 0.0) for r in runs["this tree"]))
+                  key=lambda k: -statistics.median(r.get(k, 0.0) for r in runs["this checkout"]))
     med = {name: {k: statistics.median(r.get(k, 0.0) for r in rs) for k in ["step", "probes", *keys]}
            for name, rs in runs.items()}
     for m in med.values():

@@ -13,14 +13,13 @@ layer reads counted. ``--against OTHER`` runs another checkout (its own ``.venv`
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from end_to_end import GRAPH, ONE_THREAD, fresh  # noqa: E402
+from end_to_end import GRAPH, ONE_THREAD, alternated, checkouts, fresh  # noqa: E402
 
 CHILD = r"""
 import functools, json, sys, tempfile, time
@@ -78,20 +77,13 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="fresh runs each (medians)")
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv), run alternately")
     args = parser.parse_args()
-    trees = {"this checkout": None}
-    if args.against is not None:
-        if not (args.against / ".venv" / "bin" / "python").exists():
-            parser.error(f"--against {args.against}: expected a checkout with its own .venv")
-        trees[str(args.against)] = args.against
-    runs, loads = {t: [] for t in trees}, []
-    for k in range(args.repeats):
-        for name, tree in trees.items():
-            before = os.getloadavg()[0]
-            runs[name].append(one_run(args.graph, args.duration, tree))
-            loads.append((before + os.getloadavg()[0]) / 2)
-            r = runs[name][-1]
-            print(f"  run {k + 1} ({name}): screens {r['screens']:.2f} s CPU, compiled {r['compiled (nogil)']:.2f} s, "
-                  f"load {loads[-1]:.2f}", flush=True)
+    trees = checkouts(parser, args.against)
+
+    def show(k, name, r, load):
+        print(f"  run {k + 1} ({name}): screens {r['screens']:.2f} s CPU, compiled {r['compiled (nogil)']:.2f} s, "
+              f"load {load:.2f}", flush=True)
+
+    runs, loads = alternated(trees, args.repeats, lambda tree: one_run(args.graph, args.duration, tree), show)
     print(f"\n{args.graph.name}, {args.duration:g} s simulated, one thread; medians of {args.repeats} fresh runs, load "
           f"{statistics.median(loads):.2f} ({min(loads):.2f}-{max(loads):.2f})")
     for name in trees:
