@@ -8,10 +8,11 @@ probes' frame pairs made from both halves of each complex FFT draw (``both``: as
 its own draw, the probes' cost before). Prints the medians of ``--repeats`` rounds and each bin's
 estimate, frames and verdict. ``--all-frames`` makes every bin take all 24 frames (a tolerance no
 estimate can clear: the same count both ways, the cost per frame). ``--against DIR`` alternates this tree's
-probes (pairs, as ``auto`` makes them) with those through another checkout's reference path (its
-``blocks/optics/reference_path.py`` with its ``propagation.py``, ``layer_screen.py`` and ``fft_screens.py``), and
-prints how far the estimates of the two are apart. Every round starts cold, as a run's first probes do: the
-screens' spectra and the propagation's transfer functions kept within a process are emptied first.
+probes (pairs, as ``auto`` makes them) with those through another checkout's path chooser and reference path (its
+``blocks/optics/paths.py`` and ``reference_path.py`` with its ``propagation.py``, ``layer_screen.py`` and
+``fft_screens.py``), and prints how far the estimates of the two are apart. Every round starts cold, as a run's
+first probes do: the screens' spectra and the propagation's transfer functions and vacuum steps kept within a
+process are emptied first.
 
 ``--ahead`` times instead, in wall time on the process's threads (every core unless ``EVSDA_THREADS`` says
 otherwise), all the probes the pass's first window makes (both pupil-error bins and the analytic-path probes,
@@ -21,6 +22,16 @@ before), and checks that both give the same choices and estimates (compared with
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames] [--against DIR]
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --ahead [--repeats 5]
+
+``--fresh`` times what a run pays: in fresh processes (this checkout's and, with ``--against``, the other's own
+``.venv``, alternated), a run of ``--graph`` (default: the tracked pass, its first window: ``--duration 0.1``) with
+the probe cache off and one step at a time (``EVSDA_PIPELINE=0``, so that the process's CPU time during the probes
+is theirs), on the process's threads; it prints the medians of the first window's probes (wall and CPU: the run's
+first compiled code is among them, Numba's typing and target contexts, ~0.2 s of interpreter) and of all of the
+run's probes, and whether every run gave the same choices and estimates (a digest of their ``repr``).
+
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --fresh [--against DIR] [--repeats 5]
+        [--graph examples/iss_pass.yaml --duration 4]
 """
 
 from __future__ import annotations
@@ -30,6 +41,7 @@ import functools
 import importlib.util
 import os
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -54,6 +66,7 @@ def checkout_module(checkout: Path, name: str):
     spec = importlib.util.spec_from_file_location(f"evsda.blocks.optics._against_{name}",
                                                   checkout / "blocks" / "optics" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module                 # its dataclasses look their module up
     spec.loader.exec_module(module)
     return module
 
@@ -63,21 +76,26 @@ def checkout_modules(checkout: Path) -> dict:
     """Another checkout's reference path: its ``reference_path.py`` with its ``propagation.py``, ``layer_screen.py``
     and that one's ``fft_screens.py`` (the FFT screens' draws, spectra and transforms); the rest is this tree's."""
     modules = {name: checkout_module(checkout, name)
-               for name in ("reference_path", "propagation", "layer_screen", "fft_screens")}
-    modules["reference_path"].propagate = modules["propagation"].propagate
+               for name in ("reference_path", "propagation", "layer_screen", "fft_screens", "paths")}
+    for name in ("propagate", "propagate_point_source", "point_source_field"):
+        if hasattr(modules["propagation"], name):
+            setattr(modules["reference_path"], name, getattr(modules["propagation"], name))
     modules["reference_path"].LayerScreen = modules["layer_screen"].LayerScreen
     modules["layer_screen"].fft_spline_corners = modules["fft_screens"].fft_spline_corners
     return modules
 
 
 def against(checkout: Path, imager) -> Callable[[], None]:
-    """Make ``imager``'s reference path that of ``checkout`` (:func:`checkout_modules`); returns the undo."""
-    reference = imager.reference
-    kept = reference.__class__
-    reference.__class__ = checkout_modules(checkout)["reference_path"].ReferencePath
+    """Make ``imager``'s reference path and path chooser those of ``checkout`` (:func:`checkout_modules`: the
+    chooser's probes call the reference path's methods as they are there); returns the undo."""
+    reference, chooser = imager.reference, imager.chooser
+    kept = reference.__class__, chooser.__class__
+    modules = checkout_modules(checkout)
+    reference.__class__ = modules["reference_path"].ReferencePath
+    chooser.__class__ = modules["paths"].PathChooser
 
     def undo():
-        reference.__class__ = kept
+        reference.__class__, chooser.__class__ = kept
     return undo
 
 
@@ -89,9 +107,10 @@ def forget_tables(checkout: Path | None) -> None:
         trees.append(checkout_modules(checkout))
     for modules in trees:
         modules["fft_screens"]._spectra.cache_clear()
-        kept = getattr(modules["propagation"], "_kept_transfer_functions", None)
-        if kept is not None:
-            kept.cache_clear()
+        for name in ("_kept_transfer_functions", "_vacuum_head"):
+            kept = getattr(modules["propagation"], name, None)
+            if kept is not None:
+                kept.cache_clear()
 
 
 def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
@@ -139,14 +158,83 @@ def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
           f"estimates {'the same' if made[first_way] == made[second_way] else 'DIFFERENT'}")
 
 
+#: the child of ``--fresh``: argv graph, duration; prints the probes' spans (wall, CPU) and the choices' digest
+FRESH = r"""
+import functools, hashlib, json, sys, tempfile, time
+from evsda.blocks.optics.block import PointSourceOptics
+from evsda.blocks.optics.paths import PathChooser
+from evsda.graph.executor import run_graph
+from evsda.graph.graphfile import load_graph
+spans, imagers = [], []
+probe_ahead, step = PathChooser.probe_ahead, PointSourceOptics.step
+
+def timed(self, *args):
+    t, c = time.perf_counter(), time.process_time()
+    try:
+        return probe_ahead(self, *args)
+    finally:
+        spans.append((time.perf_counter() - t, time.process_time() - c))
+
+@functools.wraps(step)
+def kept(self, *args, **kwargs):
+    out = step(self, *args, **kwargs)
+    if self._imager not in imagers:
+        imagers.append(self._imager)
+    return out
+
+PathChooser.probe_ahead, PointSourceOptics.step = timed, kept
+graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
+with tempfile.TemporaryDirectory() as tmp:
+    run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
+made = repr([(sorted(c._choices.items()), sorted(c._pupil_errors.items()), sorted(c._estimates.items(), key=repr))
+             for c in (imager.chooser for imager in imagers)])
+print(json.dumps({"first": spans[0], "all": [sum(s[0] for s in spans), sum(s[1] for s in spans)],
+                  "digest": hashlib.sha256(made.encode()).hexdigest()[:16]}))
+"""
+
+
+def fresh_runs(args) -> None:
+    """``--fresh``: the probes as a run pays them, in fresh processes of each checkout, alternated."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from end_to_end import alternated, checkouts, fresh
+
+    trees = checkouts(argparse.ArgumentParser(), args.against)
+    env = {"EVSDA_CACHE": "off", "EVSDA_PIPELINE": "0"}
+
+    def run(checkout):
+        return fresh(FRESH, env, (str(args.graph.resolve()), str(args.duration)), checkout)
+
+    def show(k, name, out, load):
+        print(f"  run {k + 1} ({name}): first window's probes {out['first'][0]:.3f} s wall, {out['first'][1]:.3f} s "
+              f"CPU; all {out['all'][0]:.3f} s wall; load {load:.2f}", flush=True)
+
+    runs, loads = alternated(trees, args.repeats, run, show)
+    print(f"\n{args.graph.name}, {args.duration:g} s, {os.environ.get('EVSDA_THREADS', 'all')} threads, medians of "
+          f"{args.repeats} fresh runs, load {statistics.median(loads):.2f} ({min(loads):.2f}-{max(loads):.2f}):")
+    for name, values in runs.items():
+        first = [v["first"] for v in values]
+        print(f"  {name}: first window's probes {statistics.median(w for w, _ in first):.3f} s wall, "
+              f"{statistics.median(c for _, c in first):.3f} s CPU; all probes "
+              f"{statistics.median(v['all'][0] for v in values):.3f} s wall, "
+              f"{statistics.median(v['all'][1] for v in values):.3f} s CPU")
+    digests = {v["digest"] for values in runs.values() for v in values}
+    print(f"  choices and estimates: {'the same in every run' if len(digests) == 1 else 'DIFFERENT'} "
+          f"({', '.join(sorted(digests))})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--all-frames", action="store_true", help="every bin takes all 24 frames")
-    parser.add_argument("--against", type=Path, help="another checkout: its propagation and FFT screens' cut")
+    parser.add_argument("--against", type=Path, help="another checkout: its probes, propagation and FFT screens' cut")
     parser.add_argument("--ahead", action="store_true", help="the first window's probes made ahead or one bin "
                         "after another, wall time on the process's threads")
+    parser.add_argument("--fresh", action="store_true", help="the probes as a run pays them, in fresh processes")
+    parser.add_argument("--graph", type=Path, default=GRAPH, help="with --fresh: the graph (default: the pass)")
+    parser.add_argument("--duration", type=float, default=0.1, help="with --fresh: simulated seconds [s]")
     args = parser.parse_args()
+    if args.fresh:
+        return fresh_runs(args)
     if not args.ahead:
         os.environ["EVSDA_THREADS"] = "1"
     os.environ["EVSDA_CACHE"] = "off"      # the probes themselves, every round (not the results kept across runs)

@@ -428,14 +428,17 @@ class PathChooser:
         ``analytic`` (groups of conditions, one group per zenith-angle bin: they share its long-exposure table), on
         every core (:func:`.parallel_map`). Each thread takes, in turn:
 
-        * the pupil renderer (made once; its first call of compiled code loads Numba's typing and target contexts,
-          ~0.2 s of interpreter on the run's first probes), else
+        * the pupil renderer (made once; where it holds the run's first call of compiled code, that loads Numba's
+          typing and target contexts, ~0.2 s of interpreter, which every compiled call waits for), else
         * a part of a group's analytic-path tables (:meth:`.AnalyticPath.table_parts`: a long-exposure table's
           two halves; the profile's Bessel functions leave the interpreter free, so they run while the renderer
           is made), else
         * a bin's first pairs (which every verdict needs), else an analytic group, else
         * the next pair of a bin none of whose pairs is being measured, else (rather than idle) the next pair of
           any open bin (dropped after its first frame if a pair before it decides: at most one a thread).
+
+        A pair's screens and Fresnel propagations need no renderer: they do not wait for it, only their stamps do
+        (a thread that would wait makes table parts meanwhile).
 
         Returns ``{("reference", key): (distances, verdict), ("analytic", conditions): (distances, fits)}``."""
         least = (REFERENCE_PROBE_FRAMES[0] + 1) // 2
@@ -491,6 +494,17 @@ class PathChooser:
             finally:
                 event.set()                        # threads waiting for it go on (and stop if it failed)
 
+        def rendered() -> bool:
+            """Wait for the renderer, making table parts meanwhile; False if a unit failed."""
+            while not rendering.is_set():
+                with lock:
+                    unit = parts.pop(0) if parts and not failed else None
+                if unit is None:
+                    rendering.wait()
+                else:
+                    run_unit(unit)
+            return not failed
+
         def run_unit(unit: tuple) -> None:
             kind = unit[0]
             if kind == "renderer":
@@ -509,9 +523,9 @@ class PathChooser:
                 if last:                           # the group's last part: its tables kept, its probes go on
                     made(tabled[i], lambda: [path.keep_table(zenith, values) for path, zenith, values in tables[i]])
                 return None
-            rendering.wait()
             if kind == "analytic":
                 _, i, group = unit
+                rendering.wait()
                 tabled[i].wait()
                 if failed:
                     return
@@ -524,7 +538,9 @@ class PathChooser:
                 # a pair taken while one before it was being measured is dropped after its first frame if that
                 # one decided (the verdict, once taken, stays)
                 values = self._pair_distances(run.key, run.zenith_rad, run.range_m, pair,
-                                              lambda: run.verdict is None)
+                                              lambda: run.verdict is None, rendered)
+                if failed:
+                    return
                 with lock:
                     run.done(pair, values)
 
@@ -736,24 +752,34 @@ class PathChooser:
         return self._measure([run], [])["reference", key]
 
     def _pair_distances(self, key: tuple, zenith_rad: float, range_m: float, pair: int,
-                        needed: Callable[[], bool] = lambda: True) -> list[float] | None:
+                        needed: Callable[[], bool] = lambda: True,
+                        rendered: Callable[[], bool] = lambda: True) -> list[float] | None:
         """The distances [1] of frame pair ``pair`` of the reference probe of pupil-error bin ``key`` (its screens
         named by the bin and the pair: the same numbers on any thread, in any order); None, without its second
-        frame, where ``needed()`` says after the first that the pair is no longer needed."""
+        frame, where ``needed()`` says after the first that the pair is no longer needed.
+
+        Both frames' fields are made first, without the pupil renderer; then ``rendered()`` (which returns once
+        the renderer is made: False if that failed, and the pair is dropped), then their stamps."""
         imager = self.imager
         offset = np.zeros((1, 2))
         names = (f"__probe {key} {2 * pair}", f"__probe {key} {2 * pair + 1}")
-        out = []
+        made = []
         frames = imager.reference.probe_pair(names, zenith_rad, range_m)
         try:
-            for field, phase in frames:
-                stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
-                fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
-                out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
-                if len(out) == 1 and not needed():
+            for frame in frames:
+                made.append(frame)
+                if len(made) == 1 and not needed():
                     return None
         finally:
             frames.close()
+        if not rendered():
+            return None
+        out = []
+        for before, phase in made:
+            field = before * imager.pupil_amplitude          # the reference field (ReferencePath.field's numbers)
+            stamp = imager.pupil_renderer.stamps_from_field(field[None], offset)
+            fast = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase[None], offset)
+            out.append(float(total_variation(fast, stamp, stamp.sum())[0]))
         return out
 
     def _probe_phase(self, rng: np.random.Generator, zenith_rad: float, range_m: float, frames: int) -> np.ndarray:

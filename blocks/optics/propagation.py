@@ -129,7 +129,8 @@ def plane_spacings(delta1: float, deltan: float, z: Sequence[float]) -> np.ndarr
 
 def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: float, z: Sequence[float],
               screens: Mapping[int, np.ndarray] | None = None, source_curvature: float = np.inf,
-              collimate: float = np.inf, absorber: bool = True, workers: int = -1) -> np.ndarray:
+              collimate: float = np.inf, absorber: bool = True, workers: int = -1,
+              start: tuple[int, np.ndarray] | None = None, stop: int | None = None) -> np.ndarray:
     """Multi-plane angular-spectrum propagation, paper Eq. 4 (Schmidt 2010 Listing 9.1).
 
     ``source`` is sampled every ``delta1`` [m]; ``z`` [m] are the positions of the planes
@@ -142,6 +143,10 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     ``collimate`` ``R_c`` [m] multiplies the result by ``exp(-i pi r^2 / (lambda R_c))``
     (the last factor of Eq. 4, ``R_c = Z`` for a point source). Both are merged exactly
     into the method's own chirps (module docstring).
+
+    ``stop = k`` (``k >= 1``) returns the field on plane ``k`` before its screen and absorber, in the FFT's order
+    (``ifftshift``'s); ``start = (k, u)`` goes on from such a field ``u`` made with the same arguments (``source``
+    is then read only for its size): the same numbers as the whole (:func:`propagate_point_source`).
     """
     n = source.shape[0]
     z = np.asarray(z, dtype=float)
@@ -150,25 +155,36 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     steps = np.diff(np.r_[0.0, z])
     screens = screens or {}
     index = np.arange(n) - n // 2
-    # source plane: Q1 of Eq. 4 merged with the source curvature
-    x1 = index * delta1
-    coefficient = (delta1 - deltan) / (wavelength * total * delta1) + _inverse(source_curvature) / wavelength
-    u = source * chirp(coefficient, x1, x1)
-    if 0 in screens:
-        u = _times(_phasor(screens[0]), u)
-    # between the source and the observation plane the field is kept in the FFT's order (``ifftshift``): the
-    # products below are element by element, so the screens and the absorber are put in that order instead of
-    # the field being shifted back and forth at every step
-    u = sfft.ifftshift(u)
+    if start is None:
+        # source plane: Q1 of Eq. 4 merged with the source curvature
+        x1 = index * delta1
+        coefficient = (delta1 - deltan) / (wavelength * total * delta1) + _inverse(source_curvature) / wavelength
+        u = source * chirp(coefficient, x1, x1)
+        if 0 in screens:
+            u = _times(_phasor(screens[0]), u)
+        # between the source and the observation plane the field is kept in the FFT's order (``ifftshift``): the
+        # products below are element by element, so the screens and the absorber are put in that order instead of
+        # the field being shifted back and forth at every step
+        u = sfft.ifftshift(u)
+        first = 0
+    else:
+        first, u = start
+        if first not in screens:                    # the absorber below works in place: not on the given field
+            u = u.copy()
     sg = _absorber_fft_order(n) if absorber else None
     transfer = _transfer_functions(n, float(wavelength), tuple(delta.tolist()), tuple(steps.tolist()),
                                    16 * n * n * len(steps) <= TRANSFER_CACHE_BYTES)
     for i, h in enumerate(transfer):
-        # Q2 of Eq. 4 on the frequencies of plane i
-        u = sfft.fft2(u, workers=workers, overwrite_x=True)
-        u *= h
-        u = sfft.ifft2(u, workers=workers, overwrite_x=True)
-        u /= delta[i + 1] / delta[i]
+        if i + 1 < first:                           # in the field started from
+            continue
+        if i + 1 > first:
+            # Q2 of Eq. 4 on the frequencies of plane i
+            u = sfft.fft2(u, workers=workers, overwrite_x=True)
+            u *= h
+            u = sfft.ifft2(u, workers=workers, overwrite_x=True)
+            u /= delta[i + 1] / delta[i]
+            if i + 1 == stop:
+                return u
         if i + 1 in screens:
             u = _times(_phasor(screens[i + 1], shifted=True), u)
         if sg is not None:
@@ -177,6 +193,42 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     xn = index * deltan
     coefficient = -(delta1 - deltan) / (wavelength * total * deltan) - _inverse(collimate) / wavelength
     return _times(chirp(coefficient, xn, xn), sfft.fftshift(u))
+
+
+def propagate_point_source(n: int, delta1: float, deltan: float, wavelength: float, distance: float,
+                           roi_diameter: float, z: Sequence[float], screens: Mapping[int, np.ndarray],
+                           collimate: float = np.inf, workers: int = -1) -> np.ndarray:
+    """:func:`propagate` of :func:`point_source_field` (``curvature=False``, merged as ``source_curvature=-distance``)
+    through ``screens``, with the absorber: the same numbers, with the steps before the first screen made once.
+
+    Those steps, the source plane and the vacuum up to the first screened plane, read nothing but the grid and
+    the source (every frame of a path probe's bin shares them: ~5 ms of a 256-point grid's ~22): they are kept
+    for the last two grids, under the transfer functions' rule (:data:`TRANSFER_CACHE_BYTES`)."""
+    z = tuple(float(v) for v in z)
+    first = min(screens, default=0)
+    keep = 16 * n * n * len(z) <= TRANSFER_CACHE_BYTES
+    arguments = (n, float(delta1), float(deltan), float(wavelength), float(distance), float(roi_diameter), z)
+    if first < 1 or not keep:
+        return propagate(_point_source(*arguments[:6]), wavelength, delta1, deltan, z, screens,
+                         source_curvature=-distance, collimate=collimate, workers=workers)
+    head = _vacuum_head(*arguments, first, workers)
+    return propagate(head, wavelength, delta1, deltan, z, screens, source_curvature=-distance, collimate=collimate,
+                     workers=workers, start=(first, head))
+
+
+def _point_source(n: int, delta1: float, deltan: float, wavelength: float, distance: float,
+                  roi_diameter: float) -> np.ndarray:
+    return point_source_field(n, delta1, wavelength, distance, roi_diameter, curvature=False)
+
+
+@lru_cache(maxsize=2)
+def _vacuum_head(n: int, delta1: float, deltan: float, wavelength: float, distance: float, roi_diameter: float,
+                 z: tuple[float, ...], first: int, workers: int) -> np.ndarray:
+    """:func:`propagate_point_source`'s field on plane ``first`` before its screen (FFT order), read-only."""
+    head = propagate(_point_source(n, delta1, deltan, wavelength, distance, roi_diameter), wavelength, delta1,
+                     deltan, z, source_curvature=-distance, workers=workers, stop=first)
+    head.setflags(write=False)
+    return head
 
 
 def _times(factor: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.special import erf
 
 from .layer_screen import LayerScreen
-from .propagation import point_source_field, propagate
+from .propagation import propagate_point_source
 from .sampling import PropagationGeometry, PropagationGrid, check_grid, choose_grid, planes_for
 from .screen_kernels import MARGIN
 
@@ -52,12 +52,15 @@ class ReferencePath:
         index = {i: grid.planes_m.index(z) + 1 for i, z in layer_planes.items()}
         return geometry, grid, index
 
-    def field(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float,
-                        range_m: float, slack: float = 1.3, keep_twin: bool = False) -> np.ndarray:
+    def field(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float, range_m: float,
+              slack: float = 1.3, keep_twin: bool = False, aperture: bool = True) -> np.ndarray:
         """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude (``sight`` (2,):
         where the line of sight crosses the layers, :meth:`.Imager.sight`).
 
-        New screens are ``slack`` times the grid wide and keep their twins with ``keep_twin`` (:meth:`_screens`)."""
+        New screens are ``slack`` times the grid wide and keep their twins with ``keep_twin`` (:meth:`_screens`).
+        Without ``aperture``, the field that reaches the aperture (times ``imager.pupil_amplitude`` it is the
+        field, the same numbers): made without the pupil renderer (the path probes make it on one thread while
+        another makes the renderer)."""
         g = self.imager.geometry
         geometry, grid, index = self.grid(zenith_rad, range_m)
         distance = geometry.distance_m
@@ -77,16 +80,15 @@ class ReferencePath:
                              int(self.imager.epochs_of(np.array([t_s]))[0]))
                 weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
                 screens[plane] = weight * screen.sample(rows, cols)[0]
-        source_field = point_source_field(grid.n, grid.delta1_m, self.imager.wavelength, distance, geometry.roi_m,
-                                          curvature=False)
         # the FFTs on the calling thread: sources, and the path probes' frames, are rendered on every core
-        field = propagate(source_field, self.imager.wavelength, grid.delta1_m, grid.deltan_m, grid.planes_m, screens,
-                          source_curvature=-distance, collimate=distance if self.imager.focus == "source" else np.inf,
-                          workers=1)
+        field = propagate_point_source(grid.n, grid.delta1_m, grid.deltan_m, self.imager.wavelength, distance,
+                                       geometry.roi_m, grid.planes_m, screens,
+                                       collimate=distance if self.imager.focus == "source" else np.inf, workers=1)
         start = grid.n // 2 - g.n_pupil // 2
         pupil = field[start:start + g.n_pupil, start:start + g.n_pupil]
         # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)
-        return pupil * (1j * self.imager.wavelength * distance / erf(2 * np.pi) ** 2) * self.imager.pupil_amplitude
+        pupil = pupil * (1j * self.imager.wavelength * distance / erf(2 * np.pi) ** 2)
+        return pupil * self.imager.pupil_amplitude if aperture else pupil
 
     def pupil_phase(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float,
                               range_m: float) -> np.ndarray:
@@ -135,22 +137,22 @@ class ReferencePath:
 
     def probe_pair(self, names: tuple[str, str], zenith_rad: float,
                    range_m: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Pupil field (:meth:`field`) and pupil-path phase (:meth:`pupil_phase`) of two independent frames of the
-        path chooser's probe, at ``t = 0`` on the boresight, on screens just wide enough (``slack`` 1) named
-        ``names``, dropped after use. The second frame's screens are the imaginary halves of the first's FFT
-        draws (:meth:`.LayerScreen.twin`; screens cut from FFT screens, wider than
-        :data:`.layer_screen.SELF_START_SAMPLES`; narrower ones are drawn for each frame): two frames for one
-        frame's draws and transforms. The frames come one at a time: a probe that needs no second frame closes
-        the iterator after the first."""
+        """Pupil field before the aperture (:meth:`field` without ``aperture``) and pupil-path phase
+        (:meth:`pupil_phase`) of two independent frames of the path chooser's probe, at ``t = 0`` on the
+        boresight, on screens just wide enough (``slack`` 1) named ``names``, dropped after use. The second
+        frame's screens are the imaginary halves of the first's FFT draws (:meth:`.LayerScreen.twin`; screens cut
+        from FFT screens, wider than :data:`.layer_screen.SELF_START_SAMPLES`; narrower ones are drawn for each
+        frame): two frames for one frame's draws and transforms. The frames come one at a time: a probe that
+        needs no second frame closes the iterator after the first."""
         sight = np.zeros(2)
         first, second = names
         try:
-            yield (self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True),
+            yield (self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True, aperture=False),
                    self.pupil_phase(first, 0.0, sight, zenith_rad, range_m))
             twins = {i: screen.twin((*self.imager.source_seed(second, 1), i))
                      for i, screen in self.screens.pop(first, {}).items()}
             self.screens[second] = {i: twin for i, twin in twins.items() if twin is not None}
-            yield (self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0),
+            yield (self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0, aperture=False),
                    self.pupil_phase(second, 0.0, sight, zenith_rad, range_m))
         finally:
             self.screens.pop(first, None)

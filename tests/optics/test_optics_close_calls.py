@@ -91,9 +91,9 @@ def test_probe_verdict_does_not_depend_on_the_threads(monkeypatch):
 
 
 def test_probe_pair_first_frame_is_a_frame_alone_and_the_second_its_twin():
-    # the first frame of a pair is the probe frame made alone (same seed, bit for bit); the second frame's
-    # screens are the imaginary halves of the same draws (independence and statistics: test_optics_screens.py),
-    # not a draw of its own
+    # the first frame of a pair is the probe frame made alone (same seed, bit for bit; the pair's fields are those
+    # before the aperture, the field once times it); the second frame's screens are the imaginary halves of the
+    # same draws (independence and statistics: test_optics_screens.py), not a draw of its own
     imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PointSourceOptics.Params(), seed=(1,))
     imager.ensure_geometry(ZENITH_RAD)
     reference = imager.reference
@@ -107,7 +107,7 @@ def test_probe_pair_first_frame_is_a_frame_alone_and_the_second_its_twin():
     (field_a, phase_a), (field_b, phase_b) = reference.probe_pair(("a", "b"), ZENITH_RAD, RANGE_M)
     assert not reference.screens                                            # the probes' screens are dropped
     field, phase = alone("a")
-    np.testing.assert_array_equal(field, field_a)
+    np.testing.assert_array_equal(field, field_a * imager.pupil_amplitude)
     np.testing.assert_array_equal(phase, phase_a)
     inside = imager.pupil_amplitude > 0
     spread = np.std(phase_a[inside])

@@ -184,6 +184,40 @@ def test_kept_transfer_functions_give_the_field_made_afresh(monkeypatch):
     assert np.abs(afresh).max() > 0
 
 
+@pytest.mark.parametrize("screened", [(1, 3), (3, 4), (4,), (), (0, 2)])
+def test_a_point_source_from_its_kept_vacuum_steps_is_the_whole_propagation(screened, monkeypatch):
+    # the steps before the first screen read only the grid: kept, and gone on from, they give the whole
+    # propagation's field bit for bit, first made and when taken from the cache, and are not changed by their use
+    from evsda.blocks.optics import propagation
+    n, distance, roi = 128, 4e5, 0.4
+    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
+    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
+    spacing = plane_spacings(delta1, deltan, planes)
+    rng = np.random.default_rng(2)
+    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+    propagation._vacuum_head.cache_clear()
+    for collimate in (np.inf, distance):
+        screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] for i in screened}
+        whole = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                          collimate=collimate, workers=1)
+        for _ in range(2):
+            kept = propagation.propagate_point_source(n, delta1, deltan, LAMBDA, distance, roi, planes, screens,
+                                                      collimate=collimate, workers=1)
+            np.testing.assert_array_equal(kept, whole)
+        if min(screened, default=0) > 2:                           # from an unscreened plane (its absorber next)
+            head = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                             workers=1, stop=2)
+            head.setflags(write=False)
+            np.testing.assert_array_equal(propagate(source, LAMBDA, delta1, deltan, planes, screens,
+                                                    source_curvature=-distance, collimate=collimate, workers=1,
+                                                    start=(2, head)), whole)
+    assert propagation._vacuum_head.cache_info().currsize == (1 if screened and min(screened) > 0 else 0)
+    monkeypatch.setattr(propagation, "TRANSFER_CACHE_BYTES", 0)      # too large a grid to keep: made every time
+    np.testing.assert_array_equal(
+        propagation.propagate_point_source(n, delta1, deltan, LAMBDA, distance, roi, planes, screens,
+                                           collimate=distance, workers=1), whole)
+
+
 @pytest.mark.parametrize("n", [256, 255, 64])
 def test_compiled_phasors_are_numpys_and_in_the_ffts_order(n):
     """The screens' phasors (one compiled pass after numpy's float32 sine and cosine) against the same steps in
