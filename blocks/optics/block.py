@@ -247,9 +247,9 @@ class PointSourceOptics(Block):
         carried = {name: np.asarray(held[name], dtype=float) for name in fields
                    if held is not None and name in held and np.asarray(held[name]).shape == (n_src,)} \
             if before.any() else {}
-        out = {}
+        out, index = {}, np.clip(index, 0, None)
         for name, values in fields.items():
-            sampled = values[np.clip(index, 0, None)] if n_t else np.full((len(t_ns), n_src), np.nan)
+            sampled = values[index] if n_t else np.full((len(t_ns), n_src), np.nan)
             if name in carried:
                 sampled[before] = carried[name]
             out[name] = sampled
@@ -336,18 +336,25 @@ class PointSourceOptics(Block):
             fresh[0] |= paths[0] != before
         else:
             fresh |= np.array([p != q for p, q in zip(paths, [before, *paths[:-1]])])
+        if fresh.all():                                 # every frame rendered: nothing held
+            o, stamps, _ = imager.render(key, times * 1e-9, None, None, tr["zenith"][at], tr["range"][at], seen,
+                                         paths=paths, placed=tuple(p[at] for p in tr["placed"]))
+            origin = o.astype(np.int32, copy=False)
+            return origin, stamps, {"path": paths[-1], "origin": origin[-1].copy(), "stamp": stamps[-1].copy(),
+                                    "t_ns": int(times[-1])}
         rendered = np.flatnonzero(fresh)                # (a stretch that does not continue starts with a new path)
         # each frame's stamp: the last rendered at or before it, counted from the stamp held from before the stretch
         which = np.cumsum(fresh)
         origins, stamps = [record["origin"][None]] if continuing else [], [record["stamp"][None]] if continuing else []
         if rendered.size:
             r = at[rendered]
+            picked = rendered.tolist()
             o, s, _ = imager.render(
-                key, times[rendered] * 1e-9, tr["x"][r], tr["y"][r], tr["zenith"][r], tr["range"][r], seen[rendered],
-                paths=[paths[i] for i in rendered], placed=tuple(p[r] for p in tr["placed"]))
+                key, times[rendered] * 1e-9, None, None, tr["zenith"][r], tr["range"][r], seen[rendered],
+                paths=[paths[i] for i in picked], placed=tuple(p[r] for p in tr["placed"]))
             origins.append(o.astype(np.int32, copy=False))
             stamps.append(s)
-            record = {"path": paths[rendered[-1]]}
+            record = {"path": paths[picked[-1]]}
         if not continuing:
             which -= 1
         origin, stamps = np.concatenate(origins)[which], np.concatenate(stamps)[which]
@@ -405,13 +412,23 @@ class PointSourceOptics(Block):
         # every frame's stamp placement and line of sight, all tracks in view at once (Imager.placement)
         tracks = np.flatnonzero(visible.any(axis=0))
         placed = imager.placement(*(columns[name][:, tracks] for name in ("x", "y", "zenith", "azimuth", "rotation")))
+        # every frame in view, track by track: the path choices' bins of all of them in one call (element by element,
+        # the same keys as a track's alone), split at the tracks' counts
+        in_view = visible[:, tracks].T                                            # (tracks, render times)
+        track_of, frame_of = np.nonzero(in_view)
+        bins = imager.chooser.keys(columns["zenith"][frame_of, tracks[track_of]],
+                                   columns["range"][frame_of, tracks[track_of]],
+                                   seen[frame_of, tracks[track_of]])
+        ends = np.cumsum(in_view.sum(axis=1)).tolist()
         jobs = []
         for column, j in enumerate(tracks):                                       # tracks in order
             key, tr = ids[j], {name: values[:, j] for name, values in columns.items()}
             tr["placed"] = tuple(p[:, column] for p in placed)
-            idx = np.flatnonzero(visible[:, j])
+            first, stop = ends[column - 1] if column else 0, ends[column]
+            idx = frame_of[first:stop]
             mine = seen[idx, j]
-            paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], mine)      # path choices, in order
+            paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], mine,     # path choices, in order
+                                   keys=bins[first:stop])
             jobs.append((len(jobs), key, tr, idx, mine, paths, None if every is None else every[idx, j]))
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
@@ -423,7 +440,8 @@ class PointSourceOptics(Block):
             record = self.held_stamps.get(key)
             # each stretch of consecutive render times in view; one back after more than hold_ns out of view
             # (since this window's last stretch or the render time the imager last saw it) gets new screens
-            stops = [*(np.flatnonzero(np.diff(idx) > 1) + 1).tolist(), len(idx)]
+            stops = ([len(idx)] if idx[-1] - idx[0] == len(idx) - 1        # one stretch (the usual window)
+                     else [*(np.flatnonzero(np.diff(idx) > 1) + 1).tolist(), len(idx)])
             for first, stop in zip([0, *stops[:-1]], stops):
                 at, part = idx[first:stop], slice(first, stop)
                 if not imager.keeps(key, t_ns[at[0]]):

@@ -335,30 +335,36 @@ class Imager:
 
     # -- rendering --------------------------------------------------------------------------------
     def _paths(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None,
-               prepare: bool = False) -> list[str]:
-        """Each frame's path: the choice of its bin (:meth:`.PathChooser.keys`), made at the first frame of each
-        bin in order (and, with ``prepare``, the analytic path's table for that frame's zenith angle)."""
-        keys = self.chooser.keys(zenith_rad, range_m, seen)
+               prepare: bool = False, keys: list[tuple] | None = None) -> list[str]:
+        """Each frame's path: the choice of its bin (:meth:`.PathChooser.keys`, or ``keys`` made for these frames),
+        made at the first frame of each bin in order (and, with ``prepare``, the analytic path's table for that
+        frame's zenith angle)."""
+        if keys is None:
+            keys = self.chooser.keys(zenith_rad, range_m, seen)
+        # each bin's first frame (the smallest index, written last), in the order the frames meet them
+        first = dict(zip(reversed(keys), range(len(keys) - 1, -1, -1)))
         chosen = {}
-        for i, key in enumerate(keys):
-            if key not in chosen:
-                chosen[key] = path = self.chooser.choose_key(key, float(zenith_rad[i]), source).path
-                if prepare and path in ANALYTIC_PATHS:
-                    self.path_named[path].renderer(zenith_rad[i])
-        return [chosen[key] for key in keys]
+        for key, i in sorted(first.items(), key=lambda item: item[1]):
+            chosen[key] = path = self.chooser.choose_key(key, float(zenith_rad[i]), source).path
+            if prepare and path in ANALYTIC_PATHS:
+                self.path_named[path].renderer(zenith_rad[i])
+        if len(chosen) == 1:                          # one bin throughout (the usual track)
+            return [path] * len(keys)
+        return list(map(chosen.__getitem__, keys))
 
     def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray,
-                seen: np.ndarray | None = None) -> list[str]:
+                seen: np.ndarray | None = None, keys: list[tuple] | None = None) -> list[str]:
         """Make the path choices and shared tables a track needs, so that sources can then render concurrently;
         returns each frame's path (for :meth:`render`'s ``paths``).
 
         ``seen`` (F, 3): each frame's apparent rate [pixel/s], collected source flux [photon/s] and sky
-        [photon/s per pixel], for a chooser that knows the detector (:meth:`.PathChooser.key`)."""
+        [photon/s per pixel], for a chooser that knows the detector (:meth:`.PathChooser.key`); ``keys``: these
+        frames' bins, if made already (:meth:`.PathChooser.keys` of many tracks' frames at once)."""
         range_m = np.asarray(range_m, dtype=float)
         zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), range_m.shape)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
         self.pupil_renderer
-        paths = self._paths(source, zenith_rad, range_m, seen, prepare=True)
+        paths = self._paths(source, zenith_rad, range_m, seen, prepare=True, keys=keys)
         if self.pupil.screen_method == "zernike" and self.atmosphere:
             self.pupil.pupil_modes
         return paths

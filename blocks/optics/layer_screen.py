@@ -404,7 +404,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         if fresh:
             out_t[...] = 0.0
         return
-    layout = np.array(layout, np.int64)
+    rows_of, layout = layout, np.array(layout, np.int64)
     (a, b, stencil_rows, stencil_back), operator_at = (
         _packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows, o.stencil_cols)) if operators
         else _NO_OPERATOR)
@@ -416,8 +416,8 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
                         *_ZIGGURAT, a, b, stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight,
                         out_t, fresh and reading, low, amplitudes, frequencies, mode_at, STRIDE)
     for layer, s in last.items():
-        n = int(layout[s, 1])
-        screens[layer].coefficients = windows[layout[s, 7]:layout[s, 7] + n * n].reshape(n, n)
+        n, at = rows_of[s][1], rows_of[s][7]
+        screens[layer].coefficients = windows[at:at + n * n].reshape(n, n)
         screens[layer].origin = origins[s]
         screens[layer]._words = states[s]
     if bad >= 0:

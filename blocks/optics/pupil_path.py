@@ -82,9 +82,11 @@ class PupilPath:
             return self._modal_phase(source, t_s, sight, zenith_rad, range_m, epochs)
         if self._layers is None:
             chosen = [i for i, layer in enumerate(self.imager.atmosphere.layers) if layer.cn2_dh > 0]
-            self._layers = (chosen, *layer_columns([self.imager.atmosphere.layers[i] for i in chosen]),
-                            (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m)
-        chosen, altitude, wind, cn2, xp = self._layers
+            self._layers = (chosen, *(np.ascontiguousarray(c[:, 0]) for c in layer_columns(
+                                [self.imager.atmosphere.layers[i] for i in chosen])),
+                            (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m,
+                            np.array([float(g.layer_delta_m[i]) for i in chosen]))      # the screens' spacings
+        chosen, altitude, wind, cn2, xp, spacing = self._layers
         if not chosen:
             return np.zeros(shape).transpose(0, 2, 1)
         every = self._layer_screens(source)
@@ -93,7 +95,7 @@ class PupilPath:
         # footprints as :meth:`.Imager.footprints_at` makes them (the screens are drawn for r0 = 1 m)
         rows, cols = np.empty((2, len(screens), frames, g.n_pupil))
         weight = np.empty((len(screens), frames))
-        layer_grids(altitude[:, 0], wind[:, 0], cn2[:, 0], np.array([screen.delta for screen in screens]),
+        layer_grids(altitude, wind, cn2, spacing,
                     np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(sight, dtype=float),
                     np.cos(np.where(turbulent, zenith_rad, 0.0)), np.ascontiguousarray(range_m, dtype=float),
                     turbulent, xp, k2, rows, cols, weight)
