@@ -22,6 +22,9 @@ from functools import lru_cache
 import numba
 import numpy as np
 import scipy.fft as sfft
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 from scipy.special import erf, fresnel
 
 
@@ -155,6 +158,7 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     steps = np.diff(np.r_[0.0, z])
     screens = screens or {}
     index = np.arange(n) - n // 2
+    fused = fused_steps_agree()
     if start is None:
         # source plane: Q1 of Eq. 4 merged with the source curvature
         x1 = index * delta1
@@ -169,7 +173,7 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
         first = 0
     else:
         first, u = start
-        if first not in screens:                    # the absorber below works in place: not on the given field
+        if fused or first not in screens:           # the steps below work in place: not on the given field
             u = u.copy()
     sg = _absorber_fft_order(n) if absorber else None
     transfer = _transfer_functions(n, float(wavelength), tuple(delta.tolist()), tuple(steps.tolist()),
@@ -177,14 +181,21 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     for i, h in enumerate(transfer):
         if i + 1 < first:                           # in the field started from
             continue
+        divide = i + 1 > first and i + 1 != stop
         if i + 1 > first:
             # Q2 of Eq. 4 on the frequencies of plane i
             u = sfft.fft2(u, workers=workers, overwrite_x=True)
             u *= h
             u = sfft.ifft2(u, workers=workers, overwrite_x=True)
-            u /= delta[i + 1] / delta[i]
-            if i + 1 == stop:
+            if not divide:
+                u /= delta[i + 1] / delta[i]
                 return u
+        if fused:                                   # the division, the screen and the absorber in one pass
+            _step(u, divide, delta[i + 1] / delta[i], *_screen_parts(screens.get(i + 1)),
+                  _NO_ABSORBER if sg is None else sg, sg is not None)
+            continue
+        if divide:
+            u /= delta[i + 1] / delta[i]
         if i + 1 in screens:
             u = _times(_phasor(screens[i + 1], shifted=True), u)
         if sg is not None:
@@ -278,6 +289,99 @@ def _phasor(phase: np.ndarray, shifted: bool = False) -> np.ndarray:
     out = np.empty(phase.shape, dtype=complex)
     _unit_phasors(np.cos(rounded), np.sin(rounded), phase.shape[0] // 2 if shifted else 0, out)
     return out
+
+
+def _screen_parts(phase: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, bool]:
+    """The float32 cosine and sine of a screen's phase (NumPy's, as :func:`_phasor` takes them), ``ifftshift``'s
+    shift, and whether there is a screen, for :func:`_step`."""
+    if phase is None:
+        return _NO_SCREEN, _NO_SCREEN, 0, False
+    rounded = phase.astype(np.float32)
+    return np.cos(rounded), np.sin(rounded), phase.shape[0] // 2, True
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """``a b + c`` rounded once (LLVM's ``llvm.fma.f64``), as NumPy's vectorised complex product rounds its parts."""
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        fma = builder.module.declare_intrinsic("llvm.fma", [double], ir.FunctionType(double, [double] * 3))
+        return builder.call(fma, args)
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@numba.njit(cache=True, nogil=True)
+def _step(u, divide, ratio, cos, sin, shift, screened, absorber, absorbed):
+    """One pass over the field ``u`` (FFT order) for what :func:`propagate` does after a step's transforms, with
+    NumPy's roundings: ``u /= ratio`` (NumPy's complex division by ``ratio + 0i``: times ``1 / ratio``, Smith's
+    form), then with ``screened`` ``u = phasor * u`` (:func:`_phasor`'s unit phasor of ``cos`` and ``sin`` at
+    ``ifftshift``'s ``shift``, :func:`_unit_phasors`; NumPy's complex product ``(a_r b_r - a_i b_i, a_r b_i + a_i
+    b_r)`` with one rounding per fused multiply-add), then with ``absorbed`` ``u *= absorber`` (a product with
+    ``absorber + 0i``). :func:`fused_steps_agree` checks the bits against NumPy's steps once per process."""
+    n = u.shape[0]
+    ratio_i = 0.0
+    rat = ratio_i / ratio
+    scale = 1.0 / (ratio + ratio_i * rat)
+    for i in range(n):
+        row = (i + shift) % n
+        for j in range(n):
+            ur = u[i, j].real
+            ui = u[i, j].imag
+            if divide:
+                ur, ui = (ur + ui * rat) * scale, (ui - ur * rat) * scale
+            if screened:
+                column = j + shift if j + shift < n else j + shift - n
+                c = np.float64(cos[row, column])
+                s = np.float64(sin[row, column])
+                modulus = np.sqrt(c * c + s * s)
+                pr = c / modulus
+                pi = s / modulus
+                ur, ui = _fma(pr, ur, -(pi * ui)), _fma(pr, ui, pi * ur)
+            if absorbed:
+                a = absorber[i, j]
+                ur, ui = _fma(ur, a, -(ui * 0.0)), _fma(ur, 0.0, ui * a)
+            u[i, j] = complex(ur, ui)
+
+
+_NO_SCREEN = np.empty((0, 0), np.float32)
+_NO_ABSORBER = np.empty((0, 0))
+_NO_ABSORBER.setflags(write=False)            # the absorber's type: read-only (one compiled signature)
+
+
+@lru_cache(maxsize=1)
+def fused_steps_agree(n: int = 33) -> bool:
+    """Whether :func:`_step` gives NumPy's steps' numbers bit for bit here (NumPy's complex product uses fused
+    multiply-adds where the machine has them): checked once per process on a random field, screen and absorber
+    of an odd size, each step alone and together; :func:`propagate` makes its steps with NumPy where not."""
+    rng = np.random.default_rng(20251126)
+    field = rng.normal(0.0, 1.0, (n, n)) + 1j * rng.normal(0.0, 1.0, (n, n))
+    phase = rng.normal(0.0, 30.0, (n, n))
+    absorber = np.fft.ifftshift(absorbing_boundary(n)).copy()
+    absorber.setflags(write=False)
+    ratio = 1.0 + rng.uniform()
+    # the phasor as _unit_phasors makes it, in NumPy (tests/optics: the same numbers)
+    cos, sin, shift, _ = _screen_parts(phase)
+    c, s = np.fft.ifftshift(cos).astype(float), np.fft.ifftshift(sin).astype(float)
+    modulus = np.sqrt(np.square(c) + np.square(s))
+    phasor = c / modulus + 1j * (s / modulus)
+    for divide, screened, absorbed in ((True, False, False), (False, True, False), (False, False, True),
+                                       (True, True, True)):
+        expected = field.copy()
+        if divide:
+            expected /= ratio
+        if screened:
+            expected = np.multiply(phasor, expected, out=phasor.copy())
+        if absorbed:
+            expected *= absorber
+        got = field.copy()
+        try:
+            _step(got, divide, ratio, cos if screened else _NO_SCREEN, sin if screened else _NO_SCREEN,
+                  shift if screened else 0, screened, absorber if absorbed else _NO_ABSORBER, absorbed)
+        except Exception:                          # pragma: no cover - a Numba that cannot compile it: NumPy's steps
+            return False
+        if not np.array_equal(got.view(np.uint64), expected.view(np.uint64)):
+            return False
+    return True
 
 
 @numba.njit(cache=True, nogil=True)

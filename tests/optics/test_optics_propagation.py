@@ -218,6 +218,34 @@ def test_a_point_source_from_its_kept_vacuum_steps_is_the_whole_propagation(scre
                                            collimate=distance, workers=1), whole)
 
 
+@pytest.mark.parametrize("n", [128, 127])
+def test_fused_steps_give_the_field_of_numpys_steps(n, monkeypatch):
+    # a step's division, screen phasor and absorber made in one compiled pass (propagation._step) give the field
+    # NumPy's steps give, bit for bit, through every plane, from a kept start, and on the way to a stop
+    from evsda.blocks.optics import propagation
+    if not propagation.fused_steps_agree():
+        pytest.skip("NumPy's complex product rounds otherwise here: propagate makes its steps with NumPy")
+    distance, roi = 4e5, 0.4
+    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
+    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
+    spacing = plane_spacings(delta1, deltan, planes)
+    rng = np.random.default_rng(n)
+    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] * 20 for i in (2, 3, 5)}
+    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+
+    def fields():
+        head = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance, stop=2)
+        head.setflags(write=False)
+        return [propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                          collimate=distance, start=start) for start in (None, (2, head))] + [head]
+
+    fused = fields()
+    monkeypatch.setattr(propagation, "fused_steps_agree", lambda: False)
+    for a, b in zip(fused, fields(), strict=True):
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64))
+    assert np.array_equal(fused[0], fused[1])
+
+
 @pytest.mark.parametrize("n", [256, 255, 64])
 def test_compiled_phasors_are_numpys_and_in_the_ffts_order(n):
     """The screens' phasors (one compiled pass after numpy's float32 sine and cosine) against the same steps in
