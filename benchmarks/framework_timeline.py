@@ -15,7 +15,10 @@ machine's (``/proc/stat``) every ``--sample-ms``. It prints:
 * per thread: its steps, time on a core, time queued for a core (taken by other processes), and time in a
   step off a core (waiting for the interpreter lock, or for helpers at the end of a parallel loop);
 * the optics' chain of windows: its steps' wall, and the gaps between one optics step and the next, with
-  what the optics waited for.
+  what the optics waited for;
+* with ``--quiet``, one line a run: wall, CPU, cores, peak memory, the wall with one core or none busy, the
+  optics' gaps, when the graph was loaded and the pixels' first step started, and the wall after the optics' last
+  step (the tail, the finish and the exit).
 
 ``--trace out.json`` writes the spans and the cores-busy counter in Chrome's trace format (open it in
 https://ui.perfetto.dev). ``--against OTHER`` runs another checkout's ``evsda`` (its own ``.venv``) too,
@@ -302,8 +305,12 @@ def report(data: dict, cores: int, label: str) -> dict:
     print(f"  optics chain: {len(optics)} steps, {sum(s[5] - s[4] for s in optics):.2f} s in steps; gaps between "
           f"steps {total_gap:.2f} s (median {statistics.median(gaps) * 1e3 if gaps else 0:.1f} ms), {limit:.2f} s "
           f"of them waiting for window k - 2 to end (the windows-ahead limit)")
+    marks = {what: (a, b) for what, a, b in stretches(data)}
     return {"wall_s": wall, "cpu_s": cpu, "queued_s": queued, "cores": cpu / wall, "peak_mb": data["peak_mb"],
-            "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap}
+            "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap,
+            "loaded_s": marks["graph load (block imports)"][1] - data["start"],
+            "pixels_start_s": marks["window 0 until the pixels start"][1] - data["start"],
+            "after_optics_s": data["stop"] - marks["tail: after the optics' last step"][0]}
 
 
 def write_trace(data: dict, path: Path, cores: int) -> None:
