@@ -121,7 +121,9 @@ class EventDrivenPixels:
         pixels under stamps (now or before) get their own input changes; every other pixel
         shares the changes of the background, if any, and takes them only when they can
         matter (:mod:`.deferred`): when it is due for an event, or its comparator could reach
-        a threshold under them before the window's end.
+        a threshold under them before the window's end. A pixel under a stamp with background changes it was
+        left out of takes them in the same turn as its own changes: those before the last quietly, the last as the
+        first of its own changes (the row driven from its flux: the same bits as the background's row).
         """
         s = self.s
         history = SharedChanges(s, len(REAL))
@@ -129,17 +131,27 @@ class EventDrivenPixels:
         shared = empty
         own_pixel, own_step, own_flux = empty, empty, np.zeros(0)
         touched, stamp_row = under_stamps(s["off_background"], stamps.pixel, self._slot)   # under stamps, now or before
-        self._catch_up(history, history.behind(touched))      # earlier background changes first
+        kept = s["shared_step"].size                          # changes from before this window
+        behind = history.behind(touched)                      # with earlier background changes not taken
+        if behind.size and not steps.size:
+            self._catch_up(history, behind)
+            behind = empty
         if steps.size:
             shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
             if touched.size:
-                row, col, own_flux, off = own_changes(s["real"][touched, FLUX], background, stamp_row, stamps.sample,
-                                                      stamps.flux)
+                held = s["real"][touched, FLUX]
+                if behind.size:         # their flux after the changes they were left out of
+                    held[np.searchsorted(touched, behind)] = s["shared_input"][kept - 1, FLUX]
+                row, col, own_flux, off = own_changes(held, background, stamp_row, stamps.sample, stamps.flux)
                 own_pixel, own_step = touched[row], steps[col].astype(np.int64)       # sorted by pixel, then step
                 s["off_background"] = touched[off]
+                if behind.size:         # the last kept change first, as an own change (those before it: quietly)
+                    at = np.searchsorted(own_pixel, behind)
+                    own_pixel = np.insert(own_pixel, at, behind)
+                    own_step = np.insert(own_step, at, s["shared_step"][kept - 1])
+                    own_flux = np.insert(own_flux, at, s["shared_input"][kept - 1, FLUX])
         first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
-        kept = s["shared_step"].size                          # changes from before this window
         if shared.size:
             rows = self._inputs(background[shared])
             history.append(steps[shared], rows)
@@ -155,6 +167,10 @@ class EventDrivenPixels:
         lo, hi, quiet_lo = take_ranges(pixels, takes, s["applied"], np.int64(s["shared_base"]), np.int64(history.end),
                                        np.int64(kept), np.int64(own_pixel.size), np.int64(s["shared_step"].size),
                                        changed, first, counts)        # and marks those that take changes taken
+        if behind.size:                 # the kept changes before their last, taken quietly
+            pending = s["applied"][behind] - int(s["shared_base"])
+            quiet = pending < kept - 1
+            quiet_lo[np.searchsorted(pixels, behind[quiet])] = pending[quiet]
         change_step = np.concatenate([own_step, s["shared_step"]])
         change_input = self._change_rows(own_flux.size + s["shared_input"].shape[0])      # own rows, then kept
         change_input[own_flux.size:] = s["shared_input"]     # the own rows: driven from own_flux by take_and_run

@@ -100,7 +100,7 @@ class PixelModel:
         """
         flux = np.asarray(photon_flux, dtype=float)
         if not distinct and flux.ndim == 1 and flux.size > 65536:
-            values, inverse = np.unique(flux, return_inverse=True)
+            values, inverse = distinct_values(flux)
             if values.size < flux.size // 16:
                 return Drive(*(v[inverse] for v in self._drive(values)))
         return self._drive(flux)
@@ -123,3 +123,20 @@ class PixelModel:
         shot = noise.shot_noise_rate_hz(y, p.shot_noise_rate_hz, p.shot_noise_intensity_factor,
                                         p.log_current_max, self.shot_noise_floor) * self.dt_s
         return Drive(y, eps, lowpass.log_retention(eps), parasitic, shot)
+
+
+def distinct_values(flux: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(flux, return_inverse=True)`` of a 1-d array, the same arrays; where all but a few values
+    equal the first (a uniform background and the stamps' pixels) only those few are sorted (a sort of every
+    pixel of a 1280 x 720 sensor took ~40 ms at the pixels' start). Nonzero finite values are equal only when
+    their bits are, so the distinct values are the same; zeros and non-finite values take ``np.unique``."""
+    first = flux[0]
+    other = flux != first
+    rest = flux[other]
+    if rest.size < flux.size // 16 and first != 0.0 and np.isfinite(first) and np.all(np.isfinite(rest)) \
+            and not np.any(rest == 0.0):
+        values = np.unique(np.append(rest, first))
+        inverse = np.full(flux.size, np.searchsorted(values, first), np.intp)
+        inverse[other] = np.searchsorted(values, rest)
+        return values, inverse
+    return np.unique(flux, return_inverse=True)

@@ -125,7 +125,13 @@ def shot_gap(key, pixel, count, q):
 def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, credit, noise_scale, n_start, leak_hz,
                  dt, large, key, q):
     """Fill every pixel's state row (its input columns already set) from its initial state, at step ``n_start - 1``,
-    and schedule its first shot-noise trial and comparator event: one pass over the tables."""
+    and schedule its first shot-noise trial and comparator event: one pass over the tables.
+
+    The comparator's schedule is the one a turn's end keeps (:func:`kept_schedule`): where :func:`quiet_until`
+    bounds the first crossing (almost every pixel: its first leak event seconds ahead), that bound, the search
+    left for the turn at which its crossing could be used (most pixels take a background change or a noise event
+    first, after which it is searched again anyway); the same events as the search here (it was ~150 ms of CPU
+    on a 1280 x 720 sensor, the filter settled a rounding off its target)."""
     for pixel in range(count.shape[0]):
         real[pixel, L_], real[pixel, M_] = filtered[pixel], memorised[pixel]
         real[pixel, TH_ON], real[pixel, TH_OFF] = th_on[pixel], th_off[pixel]
@@ -137,11 +143,11 @@ def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, cre
         count[pixel, STEP], count[pixel, READY] = step, ready
         shot_next = step + shot_gap(key, pixel, np.int64(0), q * noise_scale[pixel])
         count[pixel, SHOT_NEXT] = shot_next
-        cmp_next = next_crossing_known(step, ready, real[pixel, Y], memorised[pixel], filtered[pixel],
-                                       real[pixel, LOG_A], real[pixel, PARA], th_on[pixel], th_off[pixel],
-                                       noise_scale[pixel], NEVER, leak_hz * dt, dt, large)[0]
+        cmp_next = kept_schedule(step, ready, real[pixel, Y], memorised[pixel], filtered[pixel], real[pixel, LOG_A],
+                                 real[pixel, PARA], th_on[pixel], th_off[pixel], noise_scale[pixel], leak_hz * dt, dt,
+                                 large)
         count[pixel, CMP_NEXT] = cmp_next
-        next_step[pixel] = min(cmp_next, shot_next, NEVER)       # owes nothing: no settling step
+        next_step[pixel] = min(schedule_bound(cmp_next), shot_next, NEVER)       # owes nothing: no settling step
 
 
 @inline

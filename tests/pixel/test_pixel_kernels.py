@@ -12,7 +12,7 @@ import yaml
 from evsda.blocks.pixel import DvsPixel
 from evsda.blocks.pixel.drive_kernel import drive_constants, drive_into, drive_rows
 from evsda.blocks.pixel.fastmath import exp_, log1p_, log_
-from evsda.blocks.pixel.model import PixelModel
+from evsda.blocks.pixel.model import PixelModel, distinct_values
 from evsda.blocks.pixel.pixel_loop import ACCEPT, FLUX, LOG_A, PARA, REAL, Y
 
 
@@ -126,3 +126,20 @@ def teststable_order_is_numpys_stable_argsort():
     cases += [np.concatenate([np.sort(rng.integers(0, 30, rng.integers(0, 12))) for _ in range(40)]).astype(np.int64)]
     for keys in cases:
         np.testing.assert_array_equal(stable_order(keys), np.argsort(keys, kind="stable"))
+
+
+def test_distinct_values_are_numpys_unique():
+    """The drive's distinct fluxes (``model.distinct_values``: only the values other than the first sorted) are
+    ``np.unique``'s values and inverse, bit for bit, with zeros of either sign, infinities and NaN among them."""
+    rng = np.random.default_rng(3)
+    for trial in range(120):
+        n = int(rng.integers(1, 100_000))
+        background = (3.7, 1e5, 0.0, -0.0, 2.5e-300, np.nan, float(rng.random()))[trial % 7]
+        flux = np.full(n, background)
+        k = int(rng.integers(0, max(1, n // (10 if trial % 2 else 40))))
+        flux[rng.integers(0, n, k)] = rng.choice([0.0, -0.0, 1.0, 7.25, background, np.inf, 3.3e-310]
+                                                 + list(rng.random(5)), k)
+        values, inverse = np.unique(flux, return_inverse=True)
+        got, got_inverse = distinct_values(flux)
+        assert got.tobytes() == values.tobytes()
+        assert got_inverse.dtype == inverse.dtype and np.array_equal(got_inverse, inverse)
