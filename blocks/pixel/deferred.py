@@ -61,7 +61,7 @@ _LOOK_BLOCK = 1024            # pixels scanned for those to look at before their
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
 def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
-                  envelope, leak_dt, dt, defer, refresh):
+                  envelope, leak_dt, dt, defer, refresh, first, stop):
     """The pixels a window must process, in order, and whether each takes pending background changes.
 
     A pixel is processed when it is due before ``n_end`` (``next_step``), has its own input
@@ -76,15 +76,21 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
     own change is neither due nor able to fire, and only ``wake`` is read of it (8 bytes, not its
     state rows). ``refresh`` sets ``wake`` of every pixel (a new envelope) and reads them all. The
     pixels to look at are listed a block at a time, so that their rows are asked for ahead of use.
+    Only the pixels ``first .. stop - 1`` are looked at (ranges apart can run in threads).
     """
-    n = next_step.size
-    pixels = np.empty(n, np.int64)
-    takes = np.empty(n, np.bool_)
+    n = min(stop, next_step.size)
+    pixels = np.empty(max(n - first, 0), np.int64)
+    takes = np.empty(max(n - first, 0), np.bool_)
     look = np.empty(_LOOK_BLOCK, np.int64)
-    m, it, ic, ic_scan = 0, 0, 0, 0
+    m, it, ic = 0, 0, 0
+    while it < touched.size and touched[it] < first:
+        it += 1
+    while ic < changed.size and changed[ic] < first:
+        ic += 1
+    ic_scan = ic
     skip = defer and not refresh
     y_env_high, y_env_low, para_env_high = envelope[0], envelope[1], envelope[2]
-    for p0 in range(0, n, _LOOK_BLOCK):
+    for p0 in range(first, n, _LOOK_BLOCK):
         # the block's pixels to look at: those awake before n_end or with an own change (every pixel without skip)
         p1, k = min(n, p0 + _LOOK_BLOCK), 0
         p = p0

@@ -160,13 +160,21 @@ class EventDrivenPixels:
         if refresh:
             self._renew_envelope()
         leak_hz, dt = self._constants[:2]
-        pixels, takes = select_pixels(s["real"], s["count"], s["next"], self._wake, s["applied"], touched, changed,
-                                      np.int64(n_end), np.int64(s["shared_base"]), np.int64(history.end),
-                                      *history.suffix_bounds(Y, PARA), self._envelope, leak_hz * dt, dt,
-                                      self.defer_background, refresh)
-        lo, hi, quiet_lo = take_ranges(pixels, takes, s["applied"], np.int64(s["shared_base"]), np.int64(history.end),
-                                       np.int64(kept), np.int64(own_pixel.size), np.int64(s["shared_step"].size),
-                                       changed, first, counts)        # and marks those that take changes taken
+        suffix = history.suffix_bounds(Y, PARA)
+        base, end = np.int64(s["shared_base"]), np.int64(history.end)
+
+        def select(span):             # the pixels of span to process and their changes (marks those taking them)
+            pixels, takes = select_pixels(s["real"], s["count"], s["next"], self._wake, s["applied"], touched,
+                                          changed, np.int64(n_end), base, end, *suffix, self._envelope, leak_hz * dt,
+                                          dt, self.defer_background, refresh, *span)
+            return (pixels,) + take_ranges(pixels, takes, s["applied"], base, end, np.int64(kept),
+                                           np.int64(own_pixel.size), np.int64(s["shared_step"].size), changed, first,
+                                           counts)
+
+        n, parts = s["next"].size, worker_threads()     # the sensor in parts, in threads: the same lists
+        spans = [(np.int64(n * i // parts), np.int64(n * (i + 1) // parts)) for i in range(parts)]
+        selected = parallel_map(select, spans, parts)
+        pixels, lo, hi, quiet_lo = selected[0] if parts == 1 else (np.concatenate(v) for v in zip(*selected))
         if behind.size:                 # the kept changes before their last, taken quietly
             pending = s["applied"][behind] - int(s["shared_base"])
             quiet = pending < kept - 1
