@@ -293,10 +293,11 @@ def _phasor(phase: np.ndarray, shifted: bool = False) -> np.ndarray:
 
 def _screen_parts(phase: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, int, bool]:
     """The float32 cosine and sine of a screen's phase (NumPy's, as :func:`_phasor` takes them), ``ifftshift``'s
-    shift, and whether there is a screen, for :func:`_step`."""
+    shift, and whether there is a screen, for :func:`_step` (C-ordered whatever the screen's layout: one compiled
+    signature)."""
     if phase is None:
         return _NO_SCREEN, _NO_SCREEN, 0, False
-    rounded = phase.astype(np.float32)
+    rounded = np.ascontiguousarray(phase, dtype=np.float32)
     return np.cos(rounded), np.sin(rounded), phase.shape[0] // 2, True
 
 
