@@ -140,12 +140,13 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def take_ranges(pixels, takes, applied, base, end, kept, offset, n_kept, changed, first, counts):
+def take_ranges(pixels, takes, applied, base, end, kept, offset, n_kept, changed, first, counts, quiet_from):
     """The changes :func:`take_and_run` gives each of ``pixels`` (from :func:`select_pixels`), as
     ``(lo, hi, quiet_lo)``: those that take pending background changes (``takes``) their
     :meth:`SharedChanges.quiet_ranges` of the ``n_kept`` kept changes placed at ``offset`` (the first ``kept``
     from before this window), marked taken (``applied`` set to ``end``: they take them all in this window's
-    run); ``changed[k]`` its own changes ``first[k]:first[k] + counts[k]``; the others none. One pass, compiled:
+    run); ``changed[k]`` its own changes ``first[k]:first[k] + counts[k]``, after the kept changes
+    ``quiet_from[k]`` (-1: none) to the last but one taken quietly; the others none. One pass, compiled:
     these were NumPy's gathers and scatters under the GIL."""
     n = pixels.size
     lo, hi, quiet_lo = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
@@ -164,7 +165,7 @@ def take_ranges(pixels, takes, applied, base, end, kept, offset, n_kept, changed
         while k < changed.size and changed[k] < p:
             k += 1
         if k < changed.size and changed[k] == p:
-            lo[i], hi[i] = first[k], first[k] + counts[k]
+            lo[i], hi[i], quiet_lo[i] = first[k], first[k] + counts[k], quiet_from[k]
     return lo, hi, quiet_lo
 
 

@@ -132,26 +132,25 @@ class EventDrivenPixels:
         own_pixel, own_step, own_flux = empty, empty, np.zeros(0)
         touched, stamp_row = under_stamps(s["off_background"], stamps.pixel, self._slot)   # under stamps, now or before
         kept = s["shared_step"].size                          # changes from before this window
-        behind = history.behind(touched)                      # with earlier background changes not taken
-        if behind.size and not steps.size:
-            self._catch_up(history, behind)
-            behind = empty
+        behind = s["applied"][touched] < history.end          # with earlier background changes not taken
+        if behind.any() and not steps.size:
+            self._catch_up(history, touched[behind])
+            behind[:] = False
         if steps.size:
             shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
             if touched.size:
                 held = s["real"][touched, FLUX]
-                if behind.size:         # their flux after the changes they were left out of
-                    held[np.searchsorted(touched, behind)] = s["shared_input"][kept - 1, FLUX]
-                row, col, own_flux, off = own_changes(held, background, stamp_row, stamps.sample, stamps.flux)
-                own_pixel, own_step = touched[row], steps[col].astype(np.int64)       # sorted by pixel, then step
+                if kept:                # behind: their flux after the changes they were left out of
+                    held[behind] = s["shared_input"][kept - 1, FLUX]
+                # the last kept change first for those (column -1), as an own change; those before it quietly
+                row, col, own_flux, off = own_changes(held, background, stamp_row, stamps.sample, stamps.flux, behind)
+                own_pixel = touched[row]                                              # sorted by pixel, then step
+                own_step = np.r_[s["shared_step"][kept - 1] if kept else 0, steps][col + 1].astype(np.int64)
                 s["off_background"] = touched[off]
-                if behind.size:         # the last kept change first, as an own change (those before it: quietly)
-                    at = np.searchsorted(own_pixel, behind)
-                    own_pixel = np.insert(own_pixel, at, behind)
-                    own_step = np.insert(own_step, at, s["shared_step"][kept - 1])
-                    own_flux = np.insert(own_flux, at, s["shared_input"][kept - 1, FLUX])
         first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
         changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
+        pending = s["applied"][changed] - int(s["shared_base"])       # the kept changes they have not taken
+        quiet_from = np.where(pending < kept - 1, pending, -1)
         if shared.size:
             rows = self._inputs(background[shared])
             history.append(steps[shared], rows)
@@ -169,16 +168,12 @@ class EventDrivenPixels:
                                           dt, self.defer_background, refresh, *span)
             return (pixels,) + take_ranges(pixels, takes, s["applied"], base, end, np.int64(kept),
                                            np.int64(own_pixel.size), np.int64(s["shared_step"].size), changed, first,
-                                           counts)
+                                           counts, quiet_from)
 
         n, parts = s["next"].size, worker_threads()     # the sensor in parts, in threads: the same lists
         spans = [(np.int64(n * i // parts), np.int64(n * (i + 1) // parts)) for i in range(parts)]
         selected = parallel_map(select, spans, parts)
         pixels, lo, hi, quiet_lo = selected[0] if parts == 1 else (np.concatenate(v) for v in zip(*selected))
-        if behind.size:                 # the kept changes before their last, taken quietly
-            pending = s["applied"][behind] - int(s["shared_base"])
-            quiet = pending < kept - 1
-            quiet_lo[np.searchsorted(pixels, behind[quiet])] = pending[quiet]
         change_step = np.concatenate([own_step, s["shared_step"]])
         change_input = self._change_rows(own_flux.size + s["shared_input"].shape[0])      # own rows, then kept
         change_input[own_flux.size:] = s["shared_input"]     # the own rows: driven from own_flux by take_and_run

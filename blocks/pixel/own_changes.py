@@ -9,7 +9,7 @@ from evsda.blocks.pixel.sampling import stable_order
 
 
 @numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
-def own_changes(held, background, row_of, sample, flux):
+def own_changes(held, background, row_of, sample, flux, lead):
     """Where the photon flux of each listed pixel changes in a window: ``(row, column, value, off)``.
 
     Pixel ``i`` (of ``held.size``, sorted; ``held[i]`` its flux before the window [photon s^-1])
@@ -18,7 +18,8 @@ def own_changes(held, background, row_of, sample, flux):
     Returns the (pixel, sample) pairs whose value differs from the pixel's previous one, sorted by
     pixel then sample, their values, and ``off``: whether each pixel's last value differs from the
     last background. The same values and order as filling the dense ``[pixel, sample]`` table and
-    comparing each column with the one before, without the table.
+    comparing each column with the one before, without the table. A pixel with ``lead[i]`` has a change
+    to ``held[i]`` before them, at column -1 (a change from before the window it has still to take).
     """
     n, k_max, m = held.size, background.size, row_of.size
     start = np.zeros(n + 1, np.int64)                # the entries by pixel, then sample (stable counting sort)
@@ -41,7 +42,7 @@ def own_changes(held, background, row_of, sample, flux):
             moves[b] = k
             b += 1
     moves[b] = k_max
-    capacity = n * (1 + n_background) + 2 * m
+    capacity = n * (2 + n_background) + 2 * m
     rows = np.empty(capacity, np.int64)
     columns = np.empty(capacity, np.int64)
     values = np.empty(capacity)
@@ -49,6 +50,9 @@ def own_changes(held, background, row_of, sample, flux):
     out = 0
     for i in range(n):
         previous = held[i]
+        if lead[i]:
+            rows[out], columns[out], values[out] = i, -1, previous
+            out += 1
         e, e_end = start[i], start[i + 1]
         value = previous
         k, b = 0, 0

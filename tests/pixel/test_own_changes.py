@@ -29,8 +29,16 @@ def test_own_changes_match_the_dense_table(seed):
     row_of = rng.integers(0, n, m)
     flux = rng.choice([0.0, 0.5, 1e-17, 3.0], size=m)
     held = rng.choice([1.0, 1.5, 2.5], size=n)
-    got, want = own_changes(held, background, row_of, sample, flux), dense_changes(held, background, row_of, sample, flux)
+    got = own_changes(held, background, row_of, sample, flux, np.zeros(held.size, np.bool_))
+    want = dense_changes(held, background, row_of, sample, flux)
     for a, b in zip(got, want):
+        np.testing.assert_array_equal(a, b)
+    # a change still to take first (column -1, to the held flux) for the pixels marked lead, the rest the same
+    lead = rng.random(n) < 0.5
+    row, column, value, off = want
+    at = np.searchsorted(row, np.flatnonzero(lead))
+    want = (np.insert(row, at, np.flatnonzero(lead)), np.insert(column, at, -1), np.insert(value, at, held[lead]), off)
+    for a, b in zip(own_changes(held, background, row_of, sample, flux, lead), want):
         np.testing.assert_array_equal(a, b)
 
 
