@@ -1,13 +1,16 @@
 """What the first ``evsda run`` after an install costs: Numba compiling the optics' and pixels' loops.
 
 Runs the main job (``examples/iss_pass.yaml``, or ``--graph``) with ``evsda run`` in fresh processes, each
-round twice: first with an empty Numba cache folder (``NUMBA_CACHE_DIR``, as after an install: every compiled
-loop is built and written), then again with the folder that run filled (every later run). It prints the median
-wall and CPU times of both, their difference (the first run's compile) and the load average around each run.
-The probe-result cache is off (``EVSDA_CACHE=off``), so both runs do the same work otherwise. The pixels' own
-share, loop by loop: ``benchmarks/pixel_compile.py``.
+round twice: first with an empty Numba cache folder of its own (``NUMBA_CACHE_DIR`` in a temporary folder, as
+after an install: every compiled loop is built and written), then again with the folder that run filled (every
+later run). It prints the median wall and CPU times of both (the CPU of the run's own child processes included:
+the pixels' loops compiled ahead, :mod:`evsda.graph.compile_ahead`), their difference (the first run's compile),
+the load average around each run and the store's digest (the compiles change no result). ``--against`` another
+checkout with its own ``.venv`` runs the same rounds there, alternated with this one's, each with its own empty
+cache folder. The probe-result cache is off (``EVSDA_CACHE=off``), so both runs do the same work otherwise. The
+compile of each function: ``benchmarks/optics_compile.py``; the pixels' own: ``benchmarks/pixel_compile.py``.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/first_run.py [--repeats 2]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/first_run.py [--repeats 2] [--against /work/h-audit]
 """
 
 from __future__ import annotations
@@ -20,10 +23,28 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
 
-from end_to_end import run_cli                             # noqa: E402
+from end_to_end import alternated, checkouts, run_cli                 # noqa: E402
+from test_examples_identical import store_digest                     # noqa: E402
 
 MAIN_JOB = Path(__file__).parents[1] / "examples" / "iss_pass.yaml"
+
+
+def rounds(graph: Path, duration: float, tmp: Path, checkout: Path | None, number: list[int]) -> dict:
+    """One empty-cache run and one filled-cache run of ``checkout`` (None: this one), in a new cache folder."""
+    number[0] += 1
+    os.environ["NUMBA_CACHE_DIR"] = str(tmp / f"numba-{number[0]}")     # empty: compile everything
+    python = None if checkout is None else checkout / ".venv" / "bin" / "python"
+    store = tmp / "run.zarr"
+    out = {}
+    for cache in ("empty", "filled"):
+        load = os.getloadavg()[0]
+        run = run_cli(duration, store, graph=graph, python=python)
+        run["load"] = (load, os.getloadavg()[0])
+        run["digest"] = store_digest(store)[:8]
+        out[cache] = run
+    return out
 
 
 def main() -> None:
@@ -31,25 +52,29 @@ def main() -> None:
     parser.add_argument("--graph", type=Path, default=MAIN_JOB, help="graph file (default: the main job)")
     parser.add_argument("--duration", type=float, default=4.0, help="simulated seconds per run [s]")
     parser.add_argument("--repeats", type=int, default=2, help="rounds of an empty-cache and a filled-cache run")
+    parser.add_argument("--against", type=Path, help="another checkout (with its own .venv) run alternately")
     args = parser.parse_args()
     os.environ["EVSDA_CACHE"] = "off"
-    runs: dict[str, list[dict]] = {"empty": [], "filled": []}
+    trees = checkouts(parser, args.against)
+
+    def show(k: int, name: str, result: dict, load: float) -> None:
+        for cache, run in result.items():
+            print(f"  {k + 1}. {name:16s} Numba cache {cache:6s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s"
+                  f"  load {run['load'][0]:.2f} -> {run['load'][1]:.2f}  digest {run['digest']}", flush=True)
+
+    number = [0]
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(args.repeats):
-            os.environ["NUMBA_CACHE_DIR"] = str(Path(tmp) / f"numba-{r}")       # empty: compile everything
-            for cache in ("empty", "filled"):
-                load = os.getloadavg()[0]
-                run = run_cli(args.duration, Path(tmp) / "run.zarr", graph=args.graph)
-                runs[cache].append(run)
-                print(f"  {r + 1}. Numba cache {cache:6s} wall {run['wall_s']:6.1f} s  CPU {run['cpu_s']:6.1f} s  "
-                      f"load {load:.2f} -> {os.getloadavg()[0]:.2f}", flush=True)
-    wall = {c: statistics.median(x["wall_s"] for x in v) for c, v in runs.items()}
-    cpu = {c: statistics.median(x["cpu_s"] for x in v) for c, v in runs.items()}
-    print(f"\n{args.graph.name}, {args.duration:g} s simulated, medians of {args.repeats}:")
-    for c in runs:
-        print(f"  Numba cache {c:6s} wall {wall[c]:6.1f} s  CPU {cpu[c]:6.1f} s")
-    print(f"  the first run's compile: {wall['empty'] - wall['filled']:.1f} s wall, "
-          f"{cpu['empty'] - cpu['filled']:.1f} s CPU")
+        runs, loads = alternated(trees, args.repeats,
+                                 lambda tree: rounds(args.graph, args.duration, Path(tmp), tree, number), show)
+    print(f"\n{args.graph.name}, {args.duration:g} s simulated, medians of {args.repeats} "
+          f"(load {min(loads):.1f}-{max(loads):.1f}):")
+    for name, results in runs.items():
+        wall = {c: statistics.median(r[c]["wall_s"] for r in results) for c in ("empty", "filled")}
+        cpu = {c: statistics.median(r[c]["cpu_s"] for r in results) for c in ("empty", "filled")}
+        digests = " ".join(sorted({r[c]["digest"] for r in results for c in r}))
+        print(f"  {name}: Numba cache empty wall {wall['empty']:5.1f} s CPU {cpu['empty']:5.1f} s; filled wall "
+              f"{wall['filled']:4.1f} s CPU {cpu['filled']:4.1f} s; the first run's compile "
+              f"{wall['empty'] - wall['filled']:.1f} s wall, {cpu['empty'] - cpu['filled']:.1f} s CPU; digest {digests}")
 
 
 if __name__ == "__main__":

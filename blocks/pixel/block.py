@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from evsda.blocks.ports import FocalPlane, Irradiance, TriggeredEvents
-from evsda.graph import Block, Footprint, InputError, Input, Output, RunInfo, Window
+from evsda.graph import Block, Footprint, InputError, Input, Output, RunInfo, Window, compile_ahead
 
-from . import jitter, reference
+from . import jitter, reference, warm_up
 from .eventdriven import EventDrivenPixels
 from .eventlog import EventLog
 from .model import PixelModel
@@ -66,6 +66,13 @@ class DvsPixel(Block):
         self._engine: EventDrivenPixels | None = None
         #: input path of the fast implementation: 'auto' (from the input), 'sparse' or 'dense' (tests, benchmarks)
         self.input_path = "auto"
+        self._ahead: compile_ahead.Ahead | None = None      # the compiled loops being built in a second process
+
+    def setup(self, run: RunInfo) -> None:
+        super().setup(run)
+        if self.params.implementation == "fast":    # with an empty Numba cache: compiled while the optics compile
+            self._ahead = compile_ahead.start("evsda.blocks.pixel.warm_up:run_small_scene", warm_up.MODULES,
+                                              self.params.model_dump(mode="json"))
 
     def set_state(self, state) -> None:
         super().set_state(state)
@@ -74,6 +81,9 @@ class DvsPixel(Block):
     # -- one window ----------------------------------------------------------------------------
     def step(self, window: Window, irradiance: Irradiance) -> dict:
         self.check_inputs({"irradiance": irradiance})
+        if self._ahead is not None:
+            self._ahead.wait()
+            self._ahead = None
         model = self._model_for(irradiance)
         fp = irradiance.focal_plane
         dt_ns = model.dt_ns
