@@ -7,10 +7,11 @@ later run). It prints the median wall and CPU times of both (the CPU of the run'
 the pixels' loops compiled ahead, :mod:`evsda.graph.compile_ahead`), their difference (the first run's compile),
 the load average around each run and the store's digest (the compiles change no result). ``--against`` another
 checkout with its own ``.venv`` runs the same rounds there, alternated with this one's, each with its own empty
-cache folder. The probe-result cache is off (``EVSDA_CACHE=off``), so both runs do the same work otherwise. The
+cache folder; ``--also-serial`` runs this checkout a second time with ``EVSDA_COMPILE_AHEAD=off`` (every loop
+compiled in the run's own process, one after another). The probe-result cache is off (``EVSDA_CACHE=off``), so both runs do the same work otherwise. The
 compile of each function: ``benchmarks/optics_compile.py``; the pixels' own: ``benchmarks/pixel_compile.py``.
 
-    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/first_run.py [--repeats 2] [--against /work/h-audit]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/first_run.py [--repeats 2] [--against /work/h-audit] [--also-serial]
 """
 
 from __future__ import annotations
@@ -31,11 +32,16 @@ from test_examples_identical import store_digest                     # noqa: E40
 MAIN_JOB = Path(__file__).parents[1] / "examples" / "iss_pass.yaml"
 
 
-def rounds(graph: Path, duration: float, tmp: Path, checkout: Path | None, number: list[int]) -> dict:
-    """One empty-cache run and one filled-cache run of ``checkout`` (None: this one), in a new cache folder."""
+SERIAL = "this, not ahead"       # this checkout with EVSDA_COMPILE_AHEAD=off
+
+
+def rounds(graph: Path, duration: float, tmp: Path, checkout: Path | str | None, number: list[int]) -> dict:
+    """One empty-cache run and one filled-cache run of ``checkout`` (None: this one; SERIAL: this one without
+    compiling ahead), in a new cache folder."""
     number[0] += 1
     os.environ["NUMBA_CACHE_DIR"] = str(tmp / f"numba-{number[0]}")     # empty: compile everything
-    python = None if checkout is None else checkout / ".venv" / "bin" / "python"
+    os.environ["EVSDA_COMPILE_AHEAD"] = "off" if checkout == SERIAL else "on"
+    python = None if checkout in (None, SERIAL) else checkout / ".venv" / "bin" / "python"
     store = tmp / "run.zarr"
     out = {}
     for cache in ("empty", "filled"):
@@ -53,9 +59,12 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=4.0, help="simulated seconds per run [s]")
     parser.add_argument("--repeats", type=int, default=2, help="rounds of an empty-cache and a filled-cache run")
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv) run alternately")
+    parser.add_argument("--also-serial", action="store_true", help="this checkout also with EVSDA_COMPILE_AHEAD=off")
     args = parser.parse_args()
     os.environ["EVSDA_CACHE"] = "off"
     trees = checkouts(parser, args.against)
+    if args.also_serial:
+        trees[SERIAL] = SERIAL
 
     def show(k: int, name: str, result: dict, load: float) -> None:
         for cache, run in result.items():
