@@ -35,6 +35,7 @@ class EventLog:
         order = np.argsort(step * np.int64(focal_plane.width_px * focal_plane.height_px) + pixel)
         step, pixel, polarity, cause = step[order], pixel[order], polarity[order], cause[order]
         width = focal_plane.width_px
+        row = pixel // width                         # the column as pixel - row width: NumPy's % is ~3x slower
         counts = tuple(int(c) for c in np.bincount(cause, minlength=4)[:4])
-        return TriggeredEvents(focal_plane, step * np.int64(dt_ns), (pixel % width).astype(np.uint16),
-                               (pixel // width).astype(np.uint16), polarity, cause, self.n_loss, counts)
+        return TriggeredEvents(focal_plane, step * np.int64(dt_ns), (pixel - row * width).astype(np.uint16),
+                               row.astype(np.uint16), polarity, cause, self.n_loss, counts)

@@ -94,7 +94,8 @@ def stamp_pixels(irradiance: Irradiance, samples: np.ndarray, live=None) -> Stam
         return StampPixels(empty, empty, np.zeros(0))
     key, summed = _summed_stamps(flux, np.asarray(irradiance.stamp_origin), np.asarray(samples, dtype=np.int64),
                                  which.astype(np.int64), stamp.astype(np.int64), height, width)
-    return StampPixels(key // (height * width), key % (height * width), summed)
+    sample = key // (height * width)                 # the remainder as key - sample h w: NumPy's % is ~3x slower
+    return StampPixels(sample, key - sample * (height * width), summed)
 
 
 @numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
