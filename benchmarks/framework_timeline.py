@@ -16,6 +16,8 @@ machine's (``/proc/stat``) every ``--sample-ms``. It prints:
   step off a core (waiting for the interpreter lock, or for helpers at the end of a parallel loop);
 * the optics' chain of windows: its steps' wall, and the gaps between one optics step and the next, with
   what the optics waited for;
+* ``blocked_s``: the time the step threads spent in steps neither on a core nor queued for one (waiting for the
+  interpreter lock, or for helpers at the end of a parallel loop), summed over the threads;
 * with ``--quiet``, one line a run: wall, CPU, cores, peak memory, the wall with one core or none busy, the
   optics' gaps, when the graph was loaded and the pixels' first step started, and the wall after the optics' last
   step (the tail, the finish and the exit).
@@ -255,6 +257,7 @@ def report(data: dict, cores: int, label: str) -> dict:
     for s in spans:
         by_thread[s[0]].append(s)
     print("  thread                 blocks (steps / items)                           on core  queued  in step off core")
+    blocked = 0.0
     for tid, (on, q) in sorted(last.items(), key=lambda kv: -kv[1][0]):
         own = by_thread.get(tid, [])
         steps = [s for s in own if s[1] == "step"]
@@ -268,6 +271,8 @@ def report(data: dict, cores: int, label: str) -> dict:
         in_steps = sum(s[5] - s[4] for s in steps)
         off = in_steps - sum(s[7] - s[6] for s in steps)
         name = data["names"].get(str(tid), "main" if tid == min(last) else "?")
+        if steps:
+            blocked += max(0.0, off - q / 1e9)
         if on / 1e9 >= 0.01:
             print(f"  {name[:22]:22s} {top[:48]:48s} {on / 1e9:7.2f} {q / 1e9:7.2f}  {off:7.2f}")
 
@@ -307,7 +312,7 @@ def report(data: dict, cores: int, label: str) -> dict:
           f"of them waiting for window k - 2 to end (the windows-ahead limit)")
     marks = {what: (a, b) for what, a, b in stretches(data)}
     return {"wall_s": wall, "cpu_s": cpu, "queued_s": queued, "cores": cpu / wall, "peak_mb": data["peak_mb"],
-            "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap,
+            "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap, "blocked_s": blocked,
             "loaded_s": marks["graph load (block imports)"][1] - data["start"],
             "pixels_start_s": marks["window 0 until the pixels start"][1] - data["start"],
             "after_optics_s": data["stop"] - marks["tail: after the optics' last step"][0]}
