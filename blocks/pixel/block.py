@@ -54,6 +54,7 @@ class DvsPixel(Block):
     inputs = {"irradiance": Input(Irradiance, "photon flux on every pixel: background plus stamps [photon s^-1 pixel^-1]")}
     outputs = {"events": Output(TriggeredEvents, "events as the pixels trigger them, with cause and N_loss")}
     state = ("pixels", "held_background", "sensor", "late", "jitter_key")
+    _ahead = None           # (set in __init__) a class default too: blocks pickled before it still step
 
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
