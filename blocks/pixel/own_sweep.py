@@ -115,7 +115,8 @@ def drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_in
 def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
               leak_hz, dt, large):
     """:func:`take_own`'s sweep (see the module), the change's drive computed from its flux as it is taken (own
-    changes: ``own_flux``; the background's, at and above ``n_own``: the ``FLUX`` of their rows, driven again)."""
+    changes: ``own_flux``; the background's, at and above ``n_own``: their rows' drive, or where a round's tile mixes
+    both kinds, the ``FLUX`` of their rows driven again: the same bits)."""
     n = pixels.size
     # the pixels with changes to sweep, most first: a counting sort by their number
     most = 0
@@ -168,12 +169,20 @@ def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_inp
         for r in range(swept[0]):
             while swept[m - 1] <= r:
                 m -= 1                                # the pixels with an r-th change to sweep: a prefix
+            own = False
             for s in range(m):                        # this round's change: its step, the next one's and its flux
                 ptr = js[I_PTR * TILE + s]
                 js[I_CHANGE * TILE + s] = change_step[ptr]
                 js[I_NEXT * TILE + s] = change_step[ptr + 1] if r + 1 < swept[s] else NEVER     # none: its last
-                fs[N_FLUX * TILE + s] = own_flux[ptr] if ptr < n_own else change_input[ptr, FLUX]
-            _drive(fs, m, drive_k)
+                if ptr < n_own:
+                    fs[N_FLUX * TILE + s] = own_flux[ptr]
+                    own = True
+                else:                                 # the background's: its row's drive (drive_rows: the same bits)
+                    fs[N_FLUX * TILE + s], fs[N_Y * TILE + s] = change_input[ptr, FLUX], change_input[ptr, Y]
+                    fs[N_LOG_A * TILE + s], fs[N_PARA * TILE + s] = change_input[ptr, LOG_A], change_input[ptr, PARA]
+                    fs[N_ACCEPT * TILE + s] = change_input[ptr, ACCEPT]
+            if own:                                   # a tile of background changes alone (a few rows, many pixels
+                _drive(fs, m, drive_k)                # due for a noise event) is not driven again
             n_fresh = _enter(fs, js, m, n_end, leak_hz, dt, large)
             if n_fresh:
                 _fresh(fs, js, m, leak_hz, dt, large)
