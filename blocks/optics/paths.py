@@ -433,7 +433,9 @@ class PathChooser:
         * a part of a group's analytic-path tables (:meth:`.AnalyticPath.table_parts`: a long-exposure table's
           two halves; the profile's Bessel functions leave the interpreter free, so they run while the renderer
           is made), else
-        * a bin's first pairs (which every verdict needs), else an analytic group, else
+        * a bin's first pairs (which every verdict needs; the first of every bin before the second of any, so that
+          two threads do not make the same grid's screen spectra and transfer functions side by side), else an
+          analytic group, else
         * the next pair of a bin none of whose pairs is being measured, else (rather than idle) the next pair of
           any open bin (dropped after its first frame if a pair before it decides: at most one a thread).
 
@@ -474,9 +476,10 @@ class PathChooser:
                 return ("renderer",)
             if parts:
                 return parts.pop(0)
-            for run in runs:
-                if run.verdict is None and run.taken < least:
-                    return "pair", run, run.take()
+            first = [run for run in runs if run.verdict is None and run.taken < least]
+            if first:                              # bin by bin (its grid's spectra, transfer functions: made once)
+                run = min(first, key=lambda run: run.taken)
+                return "pair", run, run.take()
             if groups:
                 return ("analytic", *groups.pop(0))
             for idle in (True, False):
