@@ -42,7 +42,7 @@ from .lock import StoreLock
 from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
-from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas, prompt_lock_handover
+from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
 from .worker import WorkerBlock, WorkerDied, threads_per_worker, workers_choice, workers_pay
 
 STORE = "(store)"           # the timing entry of the run store's writes
@@ -582,10 +582,10 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``workers`` (step the blocks worth it in worker processes of their own in a pipelined run: ``"auto"`` where
     that pays, True wherever, False never; default: ``EVSDA_WORKERS``, ``0`` (the default), ``auto`` or ``1``; see
     :mod:`evsda.graph.worker`).
-    BLAS libraries run one thread while it runs, threads share few malloc arenas, freed memory is kept for
-    reuse, and a thread waiting for the interpreter lock gets it within 1 ms (see :mod:`evsda.graph.threads`).
+    BLAS libraries run one thread while it runs, threads share few malloc arenas, and freed memory is kept for
+    reuse (see :mod:`evsda.graph.threads`).
     """
     limit_malloc_arenas()
     keep_freed_memory()
-    with limit_blas(), prompt_lock_handover():
+    with limit_blas():
         return Executor(graph, out, **options).execute()

@@ -1,6 +1,5 @@
 """One BLAS thread per process, for the command line and the Python API alike; few malloc arenas that keep
-what is freed (:func:`keep_freed_memory`); the interpreter lock handed over within 1 ms (:func:`prompt_lock_handover`);
-one pool of worker threads that the blocks' parallel loops share (:func:`parallel_map`).
+what is freed (:func:`keep_freed_memory`); one pool of worker threads that the blocks' parallel loops share (:func:`parallel_map`).
 
 The blocks' linear algebra is many small products: several BLAS threads per process spin
 and contend (up to 50x slower on a loaded machine) and take the cores that sweep workers
@@ -24,7 +23,6 @@ from __future__ import annotations
 
 import ctypes
 import os
-import sys
 import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
@@ -65,31 +63,6 @@ def blas_threads() -> int:
 def limit_blas():
     """A context manager holding every BLAS library loaded in this process to :func:`blas_threads`."""
     return threadpool_limits(limits=blas_threads(), user_api="blas")
-
-
-#: how long a thread running Python keeps the interpreter lock while another thread waits for it [s] (CPython's
-#: default: 5 ms)
-SWITCH_INTERVAL_S = 1e-3
-
-
-@contextmanager
-def prompt_lock_handover():
-    """Within this context, a thread waiting for the interpreter lock gets it after at most
-    :data:`SWITCH_INTERVAL_S` (``sys.setswitchinterval``; a shorter interval already set is kept).
-
-    CPython's lock (Pitrou's 2009 GIL, Python >= 3.2) is handed over only when a waiting thread has waited one
-    switch interval and asked for it. A pipelined step goes in and out of the lock many times a window (each
-    compiled ``nogil`` loop, each FFT); coming back while another step runs Python, it waits up to the interval
-    each time. Tracked pass (``framework_timeline.py --quiet``, 3 runs each alternated, load 6-7): the step threads'
-    time in steps neither on a core nor queued for one (``blocked_s``) 1.04-1.57 s at 5 ms, 0.14-0.74 s at 1 ms,
-    the same CPU.
-    """
-    previous = sys.getswitchinterval()
-    sys.setswitchinterval(min(previous, SWITCH_INTERVAL_S))
-    try:
-        yield
-    finally:
-        sys.setswitchinterval(previous)
 
 
 #: malloc arenas a run's threads share (glibc's ``M_ARENA_MAX``)

@@ -412,12 +412,12 @@ def _serve(conn: Connection) -> None:
 
 def main(argv: list[str]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)        # the caller stops this worker (see the module docstring)
-    from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas, prompt_lock_handover
+    from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
     limit_malloc_arenas()
     keep_freed_memory()
     conn = Connection(int(argv[0]))
     try:
-        with limit_blas(), prompt_lock_handover():
+        with limit_blas():
             _serve(conn)
     except (EOFError, OSError, KeyboardInterrupt):
         pass
