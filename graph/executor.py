@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 
 from . import __version__
 from . import store as store_module
@@ -68,6 +67,8 @@ def requested_outputs(graph: Graph) -> list[tuple[str, str]]:
     which the store records."""
     if graph.outputs:
         return list(graph.outputs)
+    import networkx as nx        # with the graph's check (graph.checks.new_digraph), not the command line
+
     sinks = _sinks(graph)
     upstream = set().union(*(nx.ancestors(graph.digraph, n) for n in sinks)) - set(sinks)
     streams = [(n, port) for n in nx.topological_sort(graph.digraph) if n in upstream
@@ -83,6 +84,8 @@ def _sinks(graph: Graph) -> list[str]:
 
 def upstream_hashes(graph: Graph, run: RunInfo) -> dict[str, str]:
     """For every block, a hash of its type, params, name, seed, time range and everything upstream."""
+    import networkx as nx
+
     hashes: dict[str, str] = {}
     for name in nx.topological_sort(graph.digraph):
         block = graph.nodes[name].block
@@ -180,6 +183,8 @@ class Executor:
 
     def _plan(self) -> list[str]:
         """Blocks to run or load, in topological order."""
+        import networkx as nx
+
         requested_blocks = {b for b, _ in self.requested}
         active = set(requested_blocks)
         for b in requested_blocks:

@@ -28,9 +28,8 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import networkx as nx
 from evsda import library
 from pydantic import ValidationError
 
@@ -42,6 +41,9 @@ from .limits import Limits
 from .params import describe_validation_error
 from .reading import GRAPH_KEYS, GraphFile, RunSection, parse_value, read_yaml
 from .wiring import Connection, Endpoint
+
+if TYPE_CHECKING:
+    import networkx as nx
 
 __all__ = ["GRAPH_KEYS", "BlockNode", "Graph", "GraphFile", "RunSection", "check_override", "graph_from_dict",
            "load_graph", "parse_value", "read_yaml"]
@@ -59,7 +61,7 @@ class Graph:
     outputs: list[Endpoint]                                # requested outputs
     exposed_inputs: dict[str, Endpoint] = field(default_factory=dict)
     exposed_outputs: dict[str, Endpoint] = field(default_factory=dict)
-    digraph: nx.DiGraph = field(default_factory=nx.DiGraph)
+    digraph: nx.DiGraph = field(default_factory=checks.new_digraph)
 
     @property
     def blocks(self) -> dict[str, Block]:

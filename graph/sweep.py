@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import networkx as nx
 import numpy as np
 
 from .errors import GraphError, Interrupted, Problem, StoreError, UserError, clip
@@ -306,13 +305,15 @@ def plan(graph_path: str, values: list[dict[str, Any]], out_dir: Path, overrides
 
 def _keys_reaching(graph: Graph, keys: list[str]) -> dict[str, list[str]]:
     """For each block, the swept keys its outputs depend on: its own, its ancestors', and every ``run.`` key."""
+    import networkx
+
     reached: dict[str, list[str]] = {}
     for key in keys:
         if key.startswith("run."):
             touched = set(graph.nodes)
         else:
             block = key.partition(".")[0]
-            touched = {block} | nx.descendants(graph.digraph, block) if block in graph.nodes else set(graph.nodes)
+            touched = {block} | networkx.descendants(graph.digraph, block) if block in graph.nodes else set(graph.nodes)
         for name in touched:
             reached.setdefault(name, []).append(key)
     return reached
@@ -341,9 +342,11 @@ def reuse_plan(graph_path: str, points: list[SweepPoint], overrides: list[str] =
     """
     graph = graph or load_graph(graph_path, list(overrides))
     requested = {block for block, _ in requested_outputs(graph)}
-    active = set(requested).union(*(nx.ancestors(graph.digraph, b) for b in requested))
+    import networkx
+
+    active = set(requested).union(*(networkx.ancestors(graph.digraph, b) for b in requested))
     reached = _keys_reaching(graph, list(points[0].values) if points else [])
-    shareable = [b for b in nx.topological_sort(graph.digraph) if b in active and b not in requested]
+    shareable = [b for b in networkx.topological_sort(graph.digraph) if b in active and b not in requested]
     providers, stores = _assign_providers(graph, points, shareable, active, reached)
     return providers, {q: sorted(blocks) for q, blocks in stores.items()}
 
