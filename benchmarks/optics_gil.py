@@ -12,11 +12,18 @@ Runs a graph (default: the tracked 10 s pass of benchmarks/end_to_end.yaml) in a
 * the rest: the interpreter and numpy between those calls. NumPy's own loops (the stamps' ``sin`` and ``cos``, the
   pocketfft transforms of the probes) release the lock too, so this is an upper bound of what holds it.
 
+``--functions`` adds that bound function by function: each of the optics' Python functions below (the block's
+sample-and-hold, render loop and held stamps, the imager's calls, the pupil path, the screens' walk and
+regenerations, the stamps, the probes whole) with its own time outside compiled calls that release the lock and
+outside the other functions listed (its calls counted), a ranking of the Python that holds the lock. ``the step's
+own`` is the step less all of them; the block's loop over the sources is counted with ``parallel_map`` (its
+shared loop, ~1 us an item).
+
 Each Python call of a compiled function goes through one timing wrapper (``Dispatcher.__call__``; ~0.3 us a call);
 calls from compiled code to compiled code are not seen. ``--against DIR`` runs another checkout's code (its own
 ``.venv``) the same way, alternated; the medians over ``--repeats`` runs are printed, with the load average.
 
-    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py [--repeats 3] [--against DIR]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py [--repeats 3] [--against DIR] [--functions]
 """
 
 from __future__ import annotations
@@ -50,6 +57,8 @@ def compile_for_args(self, *args, **kwargs):          # first calls: the cache's
         loading[0] += clock() - t
 dispatcher.Dispatcher._compile_for_args = compile_for_args
 
+released = [0.0]                                        # every compiled call without the lock, in the step
+
 def call(self, *args, **kwargs):
     if depth[0] == 0 or not self.targetoptions.get("nogil"):
         return base_call(self, *args, **kwargs)
@@ -57,8 +66,9 @@ def call(self, *args, **kwargs):
     try:
         return base_call(self, *args, **kwargs)
     finally:
-        spent["nogil " + self.py_func.__module__.rpartition(".")[2] + "." + self.py_func.__name__] += (
-            clock() - t - (loading[0] - load))
+        d = clock() - t - (loading[0] - load)
+        released[0] += d
+        spent["nogil " + self.py_func.__module__.rpartition(".")[2] + "." + self.py_func.__name__] += d
 dispatcher.Dispatcher.__call__ = call
 
 from evsda.graph.executor import run_graph
@@ -94,6 +104,50 @@ timed(block.PointSourceOptics, "step", "step", outer=True)
 for name in ("_probe", "probe_ahead"):                  # the probes made as choices need them, or a window ahead
     if hasattr(paths.PathChooser, name):
         timed(paths.PathChooser, name, "probes")
+if sys.argv[3] == "functions":                          # --functions: each function's own time holding the lock
+    from evsda.blocks.optics import imaging, layer_screen, pupil_path, render, render_interval
+    children = []                                       # held time of the listed calls inside the one running
+
+    def held(owner, attribute, label, always=False):
+        inner = owner.__dict__.get(attribute) if isinstance(owner, type) else None
+        static = isinstance(inner, staticmethod)
+        inner = getattr(owner, attribute)
+
+        @functools.wraps(inner)
+        def wrapper(*args, **kwargs):
+            if depth[0] == 0 and not always:
+                return inner(*args, **kwargs)
+            t, free, load = clock(), released[0], loading[0]
+            children.append(0.0)
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                inside_held = clock() - t - (released[0] - free) - (loading[0] - load)
+                own = inside_held - children.pop()
+                spent["own " + label] += own
+                spent["calls " + label] += 1
+                if children:
+                    children[-1] += inside_held
+        setattr(owner, attribute, staticmethod(wrapper) if static else wrapper)
+
+    O, I, P, S = block.PointSourceOptics, imaging.Imager, pupil_path.PupilPath, layer_screen.LayerScreen
+    for owner, attribute, label in (
+            (O, "_held_samples", "block: sample and hold, rates"),
+            (block, "parallel_map", "block: the render loop (every source)"), (O, "_render_held", "block: held stamps"),
+            (block, "truth_rows", "block: truth table"), (render_interval.RenderInterval, "multiples",
+                                                         "block: render intervals"),
+            (I, "placement", "imager: placement, lines of sight"), (I, "prepare", "imager: path choices"),
+            (I, "render", "imager: render"), (I, "release", "imager: release"),
+            (P, "render", "pupil path: render"), (P, "turbulent_phase", "pupil path: phase (layers' grids)"),
+            (layer_screen, "walk_layers", "screens: walk (plan, runs, packing)"),
+            (S, "regenerate", "screens: regenerate"), (S, "_fresh", "screens: fresh windows"),
+            (S, "_cut_from_fft", "screens: FFT windows"), (S, "_large_scales", "screens: large-scale modes"),
+            (render.PupilRenderer, "stamps", "stamps: tilt, sin, cos, calls"),
+            (paths.PathChooser, "probe_ahead", "probes (whole, less the above)"),
+            (paths.PathChooser, "_probe", "probes (whole, less the above)")):
+        if hasattr(owner, attribute):
+            held(owner, attribute, label)
+    held(O, "step", "the step's own", always=True)     # outside the step's timing: its compiled calls counted
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
 with tempfile.TemporaryDirectory() as tmp:
     run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
@@ -101,9 +155,11 @@ print(json.dumps(spent))
 """
 
 
-def one_run(graph: Path, duration: float, checkout: Path | None) -> dict:
-    """One fresh run's figures, the probe cache off; ``checkout``: another checkout's code (its ``.venv``)."""
-    return fresh(CHILD, {**ONE_THREAD, "EVSDA_CACHE": "off"}, (str(graph.resolve()), str(duration)), checkout)
+def one_run(graph: Path, duration: float, checkout: Path | None, functions: bool = False) -> dict:
+    """One fresh run's figures, the probe cache off; ``checkout``: another checkout's code (its ``.venv``);
+    ``functions``: with each listed function's own time holding the lock."""
+    return fresh(CHILD, {**ONE_THREAD, "EVSDA_CACHE": "off"},
+                 (str(graph.resolve()), str(duration), "functions" if functions else "-"), checkout)
 
 
 def main() -> None:
@@ -112,9 +168,12 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds [s]")
     parser.add_argument("--repeats", type=int, default=3, help="fresh runs of each tree (medians)")
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv), alternated")
+    parser.add_argument("--functions", action="store_true",
+                        help="split the rest by the optics' Python functions (their own time holding the lock)")
     args = parser.parse_args()
     trees = checkouts(parser, args.against)
-    runs, loads = alternated(trees, args.repeats, lambda checkout: one_run(args.graph, args.duration, checkout),
+    runs, loads = alternated(trees, args.repeats,
+                             lambda checkout: one_run(args.graph, args.duration, checkout, args.functions),
                              lambda k, name, r, load: print(f"  {name}: step {r['step']:.2f} s CPU", flush=True))
     print(f"\n{args.graph.name}, {args.duration:g} s simulated, the optics' step on one thread [CPU s]; medians of "
           f"{args.repeats} fresh runs, load {statistics.median(loads):.1f} ({min(loads):.1f}-{max(loads):.1f})")
@@ -141,6 +200,18 @@ def main() -> None:
         m = med[name]
         print(f"  {name}: outside the probes, {m['nogil'] / (m['step'] - m['probes']):.0%} of the step compiled "
               f"without the lock")
+    if args.functions:
+        own = sorted({k[4:] for rs in runs.values() for r in rs for k in r if k.startswith("own ")},
+                     key=lambda k: -statistics.median(r.get("own " + k, 0.0) for r in runs["this checkout"]))
+        print(f"\n  the optics' Python, each function's own time holding the lock [CPU s] (calls; us a call), "
+              f"largest first:")
+        for k in own:
+            cells = []
+            for name, rs in runs.items():
+                t = statistics.median(r.get("own " + k, 0.0) for r in rs)
+                n = statistics.median(r.get("calls " + k, 0) for r in rs)
+                cells.append(f"{t:6.3f} ({n:5.0f}; {1e6 * t / n if n else 0.0:6.1f})")
+            print(f"    {k:44s}" + "".join(f" {c:>26s}" for c in cells))
 
 
 if __name__ == "__main__":

@@ -321,6 +321,20 @@ class PointSourceOptics(Block):
         return distance
 
     @staticmethod
+    def _fresh_frames(times: np.ndarray, paths: list[str], every: np.ndarray, cadence_ns: int,
+                      record: dict | None) -> tuple[np.ndarray, bool]:
+        """Which frames of a stretch at render times ``times`` [ns] render (:meth:`_render_held`), and whether the
+        stretch continues the stamp ``record`` held from the render time before."""
+        continuing = record is not None and int(record["t_ns"]) == int(times[0]) - cadence_ns
+        before = record["path"] if continuing else None
+        fresh = (times // cadence_ns) % every == 0
+        if paths.count(paths[0]) == len(paths):         # one path throughout: a change only at the stretch's start
+            fresh[0] |= paths[0] != before
+        else:
+            fresh |= np.array([p != q for p, q in zip(paths, [before, *paths[:-1]])])
+        return fresh, continuing
+
+    @staticmethod
     def _render_held(imager: Imager, key: str, tr: dict, at: np.ndarray, seen: np.ndarray, paths: list[str],
                      every: np.ndarray, t_ns: np.ndarray, cadence_ns: int, record: dict | None):
         """One stretch in view of a source rendered every ``every``-th render time (:mod:`.render_interval`): render
@@ -329,13 +343,7 @@ class PointSourceOptics(Block):
         ``record``: the stamp held from the render time before (previous stretch or window), returned updated;
         ``tr``: the track's held samples and its placement at every render time (``placed``, :meth:`.Imager.placement`)."""
         times = t_ns[at]
-        continuing = record is not None and int(record["t_ns"]) == int(times[0]) - cadence_ns
-        before = record["path"] if continuing else None
-        fresh = (times // cadence_ns) % every == 0
-        if paths.count(paths[0]) == len(paths):         # one path throughout: a change only at the stretch's start
-            fresh[0] |= paths[0] != before
-        else:
-            fresh |= np.array([p != q for p, q in zip(paths, [before, *paths[:-1]])])
+        fresh, continuing = PointSourceOptics._fresh_frames(times, paths, every, cadence_ns, record)
         if fresh.all():                                 # every frame rendered: nothing held
             o, stamps, _ = imager.render(key, times * 1e-9, None, None, tr["zenith"][at], tr["range"][at], seen,
                                          paths=paths, placed=tuple(p[at] for p in tr["placed"]))
@@ -459,9 +467,51 @@ class PointSourceOptics(Block):
                 imager.seen(key, t_ns[at[-1]])
             return key, record
 
+        def render_together(group):
+            """Sources in view at the same render times ``idx`` (one stretch each) that render every one of them on
+            the pupil path: their screens walked and their stamps made in one call each (:meth:`.Imager.render_many`;
+            each source's stamps those of :func:`render`)."""
+            idx = group[0][3]
+            for _, key, *_ in group:
+                if not imager.keeps(key, t_ns[idx[0]]):
+                    imager.forget([key])
+            placed = tuple(np.stack([tr["placed"][i][idx] for _, _, tr, *_ in group]) for i in range(3))
+            stamps = imager.render_many([key for _, key, *_ in group], t_s[idx],
+                                        np.stack([tr["zenith"][idx] for _, _, tr, *_ in group]),
+                                        np.stack([tr["range"][idx] for _, _, tr, *_ in group]), placed)
+            done = []
+            for k, (s, key, tr, *_) in enumerate(group):
+                o = placed[0][k].astype(np.int32, copy=False)
+                origin[idx, s] = o
+                flux[idx, s] = stamps[k] * (tr["flux"][idx] * collected)[:, None, None]
+                imager.seen(key, t_ns[idx[-1]])
+                record = self.held_stamps.get(key) if every is None else {
+                    "path": "pupil_fft", "origin": o[-1].copy(), "stamp": stamps[k, -1].copy(),
+                    "t_ns": int(t_ns[idx[-1]])}
+                done.append((s, (key, record)))
+            return done
+
+        # sources in view at the same render times, one stretch each, rendering every one of them on the pupil path
+        # (the usual window: the satellite and the stars that can fire a pixel) go together, split among the threads
+        groups, alone = {}, []
+        for job in jobs:
+            s, key, tr, idx, mine, paths, every_j = job
+            if (idx[-1] - idx[0] == len(idx) - 1 and paths[0] == "pupil_fft" and paths.count(paths[0]) == len(paths)
+                    and imager.renders_together(paths[0])
+                    and (every_j is None or self._fresh_frames(t_ns[idx], paths, every_j, cadence_ns,
+                                                               self.held_stamps.get(key))[0].all())):
+                groups.setdefault(idx.tobytes(), []).append(job)
+            else:
+                alone.append(job)
+        threads = worker_threads()
+        units = [(render_together, group[k::threads]) for group in groups.values()
+                 for k in range(min(threads, len(group)))]
+        units += [(lambda job: [(job[0], render(job))], job) for job in alone]
         # sources are independent (own screens, own slots of the output): render them on every core, with the
         # process's shared helper threads
-        records = parallel_map(render, jobs, worker_threads())
+        records = [record for _, record in sorted(
+            (item for done in parallel_map(lambda unit: unit[0](unit[1]), units, threads) for item in done),
+            key=lambda item: item[0])]
         if self._intervals is not None and len(t_ns):
             # a held stamp carries into the next window only for a source in view at this window's last render time
             self.held_stamps = {key: record for key, record in records

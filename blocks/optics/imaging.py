@@ -408,6 +408,24 @@ class Imager:
                                                        offset[idx])
         return origin, stamps, paths
 
+    def renders_together(self, path: str) -> bool:
+        """Whether frames of ``path`` can render several sources in one call (:meth:`render_many`)."""
+        return path == "pupil_fft" and self.pupil.batches()
+
+    def render_many(self, sources: list[str], t_s: np.ndarray, zenith_rad: np.ndarray, range_m: np.ndarray,
+                    placed: tuple[np.ndarray, ...]) -> np.ndarray:
+        """:meth:`render`'s stamps (S, F, M, M) [1] of several sources at the same times ``t_s`` (F,) [s], every frame
+        on the ``pupil_fft`` path (:meth:`renders_together`): ``zenith_rad``, ``range_m`` (S, F), ``placed`` their
+        :meth:`placement` (S, F, ...). Each source's stamps are those of its own :meth:`render`, bit for bit (its own
+        screens, the same steps frame by frame), for one walk of all their screens and one stamps call."""
+        count, frames = np.shape(zenith_rad)
+        with self._count_lock:
+            self.frames_rendered["pupil_fft"] += count * frames
+        origin, offset, sight = placed
+        return self.pupil.render_many(sources, np.asarray(t_s, dtype=float), np.asarray(sight, dtype=float),
+                                      np.asarray(zenith_rad, dtype=float), np.asarray(range_m, dtype=float),
+                                      np.asarray(offset, dtype=float))
+
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:
         return {

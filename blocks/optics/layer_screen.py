@@ -328,18 +328,21 @@ def _packed(objects: tuple, arrays_of) -> tuple[tuple[np.ndarray, ...], np.ndarr
 
 
 def accumulate_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
-                      weight: np.ndarray, out_t: np.ndarray, fresh: bool = False) -> None:
+                      weight: np.ndarray, out_t: np.ndarray, fresh: bool = False,
+                      outputs: np.ndarray | None = None) -> None:
     """:meth:`LayerScreen.accumulate` of each screen ``l`` in turn on its grids ``rows[l]`` (F, ny), ``cols[l]`` (F, nx)
     [delta] with ``weight[l]`` (F,) into one ``out_t`` (F, nx, ny): the same sums in the same order, bit for bit, in
     two compiled calls for all (:func:`walk_layers`). With ``fresh``, ``out_t`` is written as if it held zeros (it
-    may be uninitialised: no zeroing pass over it)."""
+    may be uninitialised: no zeroing pass over it). With ``outputs`` (L,), several lines of sight at once: ``out_t``
+    is (S, F, nx, ny) and screen ``l`` adds to ``out_t[outputs[l]]`` (each output's sums, in the screens' order,
+    those of its screens walked alone)."""
     walk_layers(screens, np.ascontiguousarray(rows, dtype=float), np.ascontiguousarray(cols, dtype=float),
                 np.ascontiguousarray(epochs, dtype=np.int64), (np.ascontiguousarray(weight, dtype=float), out_t),
-                fresh)
+                fresh, outputs)
 
 
 def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
-                reads: tuple | None = None, fresh: bool = False) -> None:
+                reads: tuple | None = None, fresh: bool = False, outputs: np.ndarray | None = None) -> None:
     """:meth:`LayerScreen.walk` of each screen ``l`` on ``rows[l]``, ``cols[l]`` (contiguous (L, F, .)) in turn.
 
     :func:`.screen_kernels.plan_layers` plans every walk from integers (regenerations, extensions, canvases); the
@@ -348,9 +351,12 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     NumPy's: :func:`.normal_draws.same_as_numpy`), makes and reads every canvas (``reads = (weight (L, F), out_t)``),
     the large-scale modes added where frames read them (with ``fresh``, the first layer's reads written into
     ``out_t`` as if it held zeros). Each screen's draws, values and reads are those of its own walk: the screens
-    share only the calls.
+    share only the calls. ``outputs``: :func:`accumulate_layers`' (``out_t`` (S, F, nx, ny), each output's first
+    layer written with ``fresh``).
     """
     weight, out_t = reads if reads is not None else (np.zeros((len(screens), 0)), _NO_OUTPUT)
+    if outputs is None:                             # one output: out_t (F, nx, ny)
+        out_t, outputs = out_t[None], np.zeros(len(screens), np.int64)
     reading = weight.shape[1] > 0
     failed, sides, before, centre, op_epoch, op_at, frame_ops, edges, segments = plan_layers(
         rows, cols, epochs, np.array([s.n for s in screens], np.int64), MARGIN,
@@ -400,9 +406,21 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         layout.append([layer, n, e0, e1, as_is, layers_at[layer], layers_at[layer + 1], window_at, noise_at,
                        noise_at + count, operator, stencil, k, mode])
         window_at, noise_at = window_at + n * n, noise_at + count
+    # each output's first layer walked (the first layer of its runs, in order) writes its reads with fresh; an
+    # output none reads is zero then
+    assign = np.zeros(len(screens), np.bool_)
+    if fresh and reading:
+        first = {}
+        for row in layout:
+            first.setdefault(int(outputs[row[0]]), row[0])
+        assign[list(first.values())] = True
+        if len(first) < len(out_t):
+            for k in range(len(out_t)):
+                if k not in first:
+                    out_t[k] = 0.0
+    elif fresh and not layout:
+        out_t[...] = 0.0
     if not layout:
-        if fresh:
-            out_t[...] = 0.0
         return
     rows_of, layout = layout, np.array(layout, np.int64)
     (a, b, stencil_rows, stencil_back), operator_at = (
@@ -414,7 +432,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
     bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
                         *_ZIGGURAT, a, b, stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight,
-                        out_t, fresh and reading, low, amplitudes, frequencies, mode_at, STRIDE)
+                        out_t, outputs, assign, low, amplitudes, frequencies, mode_at, STRIDE)
     for layer, s in last.items():
         n, at = rows_of[s][1], rows_of[s][7]
         screens[layer].coefficients = windows[at:at + n * n].reshape(n, n)

@@ -37,9 +37,7 @@ class PupilPath:
         self.screens: dict[str, list[LayerScreen]] = {}
         self.modal_screens: dict[str, list[ModalScreen]] = {}
         self._modes: np.ndarray | None = None
-        #: the turbulent layers' indices and :func:`.layer_columns`, and the pupil's sample positions [m]: the same for
-        #: every source and window (made at the first render, once the geometry is fixed)
-        self._layers: tuple | None = None
+        self._layers: tuple | None = None          # :meth:`_layer_set`
 
     def _layer_screens(self, source: str) -> list[LayerScreen]:
         if source not in self.screens:
@@ -75,33 +73,54 @@ class PupilPath:
         shape = (frames, g.n_pupil, g.n_pupil)          # the phase transposed: (F, x, y), see LayerScreen.accumulate
         if not self.imager.atmosphere:
             return np.zeros(shape)
-        turbulent = np.isfinite(zenith_rad)
-        k2 = (2 * np.pi / self.imager.wavelength) ** 2
         epochs = self.imager.epochs_of(t_s)
         if self.screen_method == "zernike":
             return self._modal_phase(source, t_s, sight, zenith_rad, range_m, epochs)
+        if not self._layer_set()[0]:
+            return np.zeros(shape).transpose(0, 2, 1)
+        return self._phases([source], t_s, epochs, np.asarray(sight)[None], np.asarray(zenith_rad)[None],
+                            np.asarray(range_m)[None])[0]
+
+    def _layer_set(self) -> tuple:
+        """The turbulent layers' indices, altitudes (L,) [m], winds (L, 2) [m/s], ``Cn^2 dh`` (L,) [m^(1/3)], the pupil's
+        sample positions [m] and the screens' spacings (L,) [m]: the same for every source and window (made at the
+        first render, once the geometry is fixed)."""
         if self._layers is None:
+            g = self.imager.geometry
             chosen = [i for i, layer in enumerate(self.imager.atmosphere.layers) if layer.cn2_dh > 0]
             self._layers = (chosen, *(np.ascontiguousarray(c[:, 0]) for c in layer_columns(
                                 [self.imager.atmosphere.layers[i] for i in chosen])),
                             (np.arange(g.n_pupil) - g.n_pupil // 2) * g.delta_m,
-                            np.array([float(g.layer_delta_m[i]) for i in chosen]))      # the screens' spacings
-        chosen, altitude, wind, cn2, xp, spacing = self._layers
-        if not chosen:
-            return np.zeros(shape).transpose(0, 2, 1)
-        every = self._layer_screens(source)
-        screens = [every[i] for i in chosen]
-        # every layer's footprint grids [samples] (L, F, n) and weights r0^(-5/6) (L, F) in one compiled pass, the
-        # footprints as :meth:`.Imager.footprints_at` makes them (the screens are drawn for r0 = 1 m)
-        rows, cols = np.empty((2, len(screens), frames, g.n_pupil))
-        weight = np.empty((len(screens), frames))
-        layer_grids(altitude, wind, cn2, spacing,
-                    np.ascontiguousarray(t_s, dtype=float), np.ascontiguousarray(sight, dtype=float),
-                    np.cos(np.where(turbulent, zenith_rad, 0.0)), np.ascontiguousarray(range_m, dtype=float),
-                    turbulent, xp, k2, rows, cols, weight)
-        phase_t = np.empty(shape)                       # written by the first layer's reads: no zeroing pass
-        accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True)      # each layer in turn, one walk
-        return phase_t.transpose(0, 2, 1)
+                            np.array([float(g.layer_delta_m[i]) for i in chosen]))
+        return self._layers
+
+    def _phases(self, sources: list[str], t_s, epochs, sight, zenith_rad, range_m) -> np.ndarray:
+        """:meth:`turbulent_phase` of several sources at the same times ``t_s`` (F,) (``epochs``: their screen
+        epochs), ``sight`` (S, F, 2), ``zenith_rad`` and ``range_m`` (S, F): (S, F, n, n), transposed views; every
+        source's layers in one walk (:func:`.accumulate_layers` with an output a source), each phase the same
+        numbers as the source's alone."""
+        g = self.imager.geometry
+        chosen, altitude, wind, cn2, xp, spacing = self._layer_set()
+        count, frames, layers = len(sources), len(t_s), len(chosen)
+        k2 = (2 * np.pi / self.imager.wavelength) ** 2
+        t_s = np.ascontiguousarray(t_s, dtype=float)
+        screens = []
+        # every layer's footprint grids [samples] (S L, F, n) and weights r0^(-5/6) (S L, F), a source's in one
+        # compiled pass, the footprints as :meth:`.Imager.footprints_at` makes them (the screens are drawn for r0 = 1 m)
+        rows, cols = np.empty((2, count * layers, frames, g.n_pupil))
+        weight = np.empty((count * layers, frames))
+        for k, source in enumerate(sources):
+            every = self._layer_screens(source)
+            screens += [every[i] for i in chosen]
+            part, zenith = slice(k * layers, (k + 1) * layers), zenith_rad[k]
+            turbulent = np.isfinite(zenith)
+            layer_grids(altitude, wind, cn2, spacing, t_s, np.ascontiguousarray(sight[k], dtype=float),
+                        np.cos(np.where(turbulent, zenith, 0.0)), np.ascontiguousarray(range_m[k], dtype=float),
+                        turbulent, xp, k2, rows[part], cols[part], weight[part])
+        phase_t = np.empty((count, frames, g.n_pupil, g.n_pupil))   # written by each first layer's reads: no zeroing
+        accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True,     # each layer in turn, one walk
+                          outputs=np.repeat(np.arange(count, dtype=np.int64), layers))
+        return phase_t.transpose(0, 1, 3, 2)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:
         """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
@@ -124,6 +143,22 @@ class PupilPath:
         phase = self.turbulent_phase(source, t_s, sight, zenith_rad, range_m)
         return self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase, offset,
                                                  self.imager.defocus_curvature(range_m))
+
+    def batches(self) -> bool:
+        """Whether :meth:`render_many` can take sources together: FFT screens in a turbulent atmosphere."""
+        return self.screen_method == "fft" and bool(self.imager.atmosphere) and bool(self._layer_set()[0])
+
+    def render_many(self, sources: list[str], t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
+        """:meth:`render` of several sources at the same times ``t_s`` (F,) (``sight``, ``offset`` (S, F, 2),
+        ``zenith_rad``, ``range_m`` (S, F)): stamps (S, F, M, M), each source's those of its own call, in one walk of
+        every source's screens and one :meth:`.PupilRenderer.stamps` call (:meth:`batches` must hold)."""
+        count, frames = zenith_rad.shape
+        phase = self._phases(sources, t_s, self.imager.epochs_of(t_s), sight, zenith_rad, range_m)
+        g = self.imager.geometry
+        stamps = self.imager.pupil_renderer.stamps(
+            self.imager.pupil_amplitude, phase.reshape(count * frames, g.n_pupil, g.n_pupil),
+            offset.reshape(count * frames, 2), self.imager.defocus_curvature(range_m.reshape(-1)))
+        return stamps.reshape(count, frames, *stamps.shape[1:])
 
     # -- checkpoint -------------------------------------------------------------------------------
     def state(self) -> dict:

@@ -500,17 +500,19 @@ LAYOUT_COLUMNS = 14
 
 @jit
 def walk_segments(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
-                  stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, fresh, low,
+                  stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, layer_out, assign, low,
                   amplitudes, frequencies, mode_at, stride):
     """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
     order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
-    layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into ``out_t``,
-    from where its layer's previous segment stopped; its operator, noise and the modes (:data:`LAYOUT_COLUMNS`) are
+    layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into its output
+    ``out_t[layer_out[l]]`` (``out_t`` (outputs, F, nx, ny): one a line of sight), from where its layer's previous
+    segment stopped; its operator, noise and the modes (:data:`LAYOUT_COLUMNS`) are
     views into the packed arrays (the operators' ``A``, ``B`` and stencil from ``operator_at``'s first three columns,
     the modes' ``low``, ``amplitudes`` and ``frequencies`` from ``mode_at``'s). With ``draw``, each segment's noise is first drawn into ``noise`` from its
     screen's PCG64 state ``states[s]`` (:func:`.normal_draws._fill` with NumPy's ziggurat tables ``ki``, ``wi``,
-    ``fi``; the state left as the draws leave it), else ``noise`` holds it. With ``fresh``, the first layer's reads
-    are written into ``out_t`` (as if added to zeros: each layer reads every frame once) and the others added.
+    ``fi``; the state left as the draws leave it), else ``noise`` holds it. The reads of a layer with ``assign[l]``
+    (its output's first layer) are written into its output (as if added to zeros: each layer reads every frame once),
+    the others' added.
     Returns the first segment that read outside its canvas (-1: none)."""
     frame = np.zeros(rows.shape[0], np.int64)
     for s in range(layout.shape[0]):
@@ -529,8 +531,8 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
         stop = walk_canvases(window, origins[s], n, sides[op0:op1], before[op0:op1], edges[e0:e1], as_is,
                              noise[z0:z1], a[a0:a0 + m * n_st].reshape((m, n_st)), b[b0:b0 + m * m].reshape((m, m)),
                              stencil_rows[st0:st0 + n_st], stencil_back[st0:st0 + n_st], frame_ops[layer],
-                             frame[layer], rows[layer], cols[layer], weight[layer], out_t,
-                             fresh and layer == layout[0, 0],
+                             frame[layer], rows[layer], cols[layer], weight[layer], out_t[layer_out[layer]],
+                             assign[layer],
                              low[low0:low0 + 4 * k * stride].reshape((4, k, stride)),
                              frequencies[freq0:freq0 + 2 * k].reshape((2, k)),
                              amplitudes[amp0:amp0 + 2 * k].reshape((2, k)), stride)

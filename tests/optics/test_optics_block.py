@@ -234,6 +234,32 @@ def test_strong_turbulence_short_exposures_resolve_r0_and_average_to_the_seeing_
     assert half_light == pytest.approx(seeing, rel=0.2)
 
 
+def test_sources_rendered_together_get_the_stamps_each_gets_alone():
+    # Imager.render_many (a window's sources at the same render times on the pupil path: one walk of all their screens,
+    # one stamps call) against each source's own render in an imager of the same seed, bit for bit, over two windows
+    # (the screens carried on), a satellite at finite range (defocus) among stars
+    atmosphere = Atmosphere.hufnagel_valley(3)
+    imagers = [Imager(Telescope(0.2, 0.3), FOCAL_PLANE, WAVELENGTH, atmosphere, PointSourceOptics.Params(
+        psf_path="pupil_fft", focus="infinity"), seed=(5,)) for _ in range(2)]
+    rng = np.random.default_rng(3)
+    sources, frames = ["sat", "star a", "star b"], 20
+    for imager in imagers:
+        imager.ensure_geometry(0.6)
+    assert imagers[0].renders_together("pupil_fft") and not imagers[0].renders_together("long_exposure")
+    for window in range(2):
+        t = 0.001 * (np.arange(frames) + window * frames)
+        x = rng.uniform(100, 500, (len(sources), 1)) + 0.3 * np.arange(frames)
+        y = rng.uniform(100, 400, (len(sources), 1)) - 0.2 * np.arange(frames)
+        zenith = 0.6 + rng.uniform(0, 1e-3, (len(sources), frames))
+        range_m = np.array([[4e5], [np.inf], [np.inf]]) * np.ones(frames)
+        placed = imagers[0].placement(x, y, zenith)
+        together = imagers[0].render_many(sources, t, zenith, range_m, placed)
+        for k, source in enumerate(sources):
+            _, own, _ = imagers[1].render(source, t, x[k], y[k], zenith[k], range_m[k], paths=["pupil_fft"] * frames)
+            assert together[k].tobytes() == own.tobytes()
+    assert imagers[0].frames_rendered == imagers[1].frames_rendered
+
+
 def test_a_windows_placement_at_once_is_each_tracks_own_and_renders_the_same():
     # the block places every track in view at once (Imager.placement on render times x tracks, the ground frame's
     # lines of sight included, frames out of view NaN): each track's column is what its own frames give, and a

@@ -388,6 +388,41 @@ def test_layers_walked_together_read_what_each_walked_in_turn_reads():
         start = path[:, -1]
 
 
+def test_lines_of_sight_walked_together_read_what_each_walked_alone_reads():
+    # accumulate_layers with an output per line of sight (a window's sources in one walk: Imager.render_many) against
+    # each source's layers walked alone into its own output, bit for bit, fresh outputs (written, not added to,
+    # whatever they held) over two calls: layers of two sizes, one source jumping far (regenerated mid-walk)
+    def make(source):
+        return [LayerScreen(20, 0.025, (2, source, 0), L0=25.0), LayerScreen(38, 0.0101, (2, source, 1), L0=25.0),
+                LayerScreen(20, 0.03, (2, source, 2), L0=25.0)]
+    sources, frames, grid = 3, 40, np.linspace(0.0, 7.0, 16)
+    steps = np.array([[[0.3, 0.7], [0.5, 0.0], [0.0, 0.6]], [[-0.4, 0.2], [0.2, -0.5], [0.1, 0.1]],
+                      [[0.6, -0.3], [-0.2, -0.2], [0.4, 0.0]]])                            # (S, L, 2)
+    together = [screen for source in range(sources) for screen in make(source)]
+    alone = [make(source) for source in range(sources)]
+    start = np.zeros(steps.shape)
+    for call in range(2):
+        path = start[..., None, :] + steps[..., None, :] * np.arange(frames)[:, None]    # (S, L, F, 2)
+        if call == 1:
+            path[1, 0, frames // 2:] += 500.0                                              # jumps far: regenerates
+        rows, cols = path[..., :1] + grid, path[..., 1:] + grid                            # (S, L, F, n)
+        epochs = np.zeros(frames, np.int64)
+        weight = 1.0 + np.arange(sources * 3).reshape(sources, 3, 1) * np.ones(frames)
+        out_together = np.full((sources, frames, len(grid), len(grid)), np.nan)
+        accumulate_layers(together, rows.reshape(-1, frames, len(grid)), cols.reshape(-1, frames, len(grid)), epochs,
+                          weight.reshape(-1, frames), out_together, fresh=True,
+                          outputs=np.repeat(np.arange(sources, dtype=np.int64), 3))
+        for k in range(sources):
+            out_alone = np.full((frames, len(grid), len(grid)), np.nan)
+            accumulate_layers(alone[k], rows[k], cols[k], epochs, weight[k], out_alone, fresh=True)
+            assert out_together[k].tobytes() == out_alone.tobytes()
+            for a, b in zip(together[3 * k:3 * k + 3], alone[k]):
+                assert a.coefficients.tobytes() == b.coefficients.tobytes() and np.array_equal(a.origin, b.origin)
+                assert a.state()["rng"] == b.state()["rng"] and a.n_regenerations == b.n_regenerations
+        assert together[3].n_regenerations == (1 if call == 1 else 0) and np.all(np.isfinite(out_together))
+        start = path[..., -1, :]
+
+
 def _walk(screen, boxes, chunks):
     """Sample a sequence of footprints, cutting it into the given chunk sizes (as windows would)."""
     out, start = [], 0
