@@ -95,6 +95,7 @@ parts = {"optics": ("evsda.blocks.optics", [
             ("render", "PupilRenderer", "__init__", "  pupil renderer's set-up (Numba's first load; within the probes "
              "when made ahead)"),
             ("pupil_path", "PupilPath", "turbulent_phase", "  pupil path: phase screens"),
+            ("pupil_path", "PupilPath", "_phases", "  pupil path: phase screens"),    # sources walked together
             ("render", "PupilRenderer", "stamps", "  pupil path: stamps (FFT PSFs)"),
             ("analytic_path", "AnalyticPath", "render", "  analytic stamps (long exposure, airy)"),
             ("block", None, "truth_table", "  truth table"), ("block", None, "truth_rows", "  truth table")]),

@@ -107,6 +107,7 @@ for name in ("_probe", "probe_ahead"):                  # the probes made as cho
 if sys.argv[3] == "functions":                          # --functions: each function's own time holding the lock
     from evsda.blocks.optics import imaging, layer_screen, pupil_path, render, render_interval
     children = []                                       # held time of the listed calls inside the one running
+    active = set()                                      # the labels being timed (one thread: EVSDA_THREADS=1)
 
     def held(owner, attribute, label, always=False):
         inner = owner.__dict__.get(attribute) if isinstance(owner, type) else None
@@ -115,13 +116,15 @@ if sys.argv[3] == "functions":                          # --functions: each func
 
         @functools.wraps(inner)
         def wrapper(*args, **kwargs):
-            if depth[0] == 0 and not always:
+            if (depth[0] == 0 and not always) or label in active:    # a call within its own label: counted there
                 return inner(*args, **kwargs)
             t, free, load = clock(), released[0], loading[0]
             children.append(0.0)
+            active.add(label)
             try:
                 return inner(*args, **kwargs)
             finally:
+                active.discard(label)
                 inside_held = clock() - t - (released[0] - free) - (loading[0] - load)
                 own = inside_held - children.pop()
                 spent["own " + label] += own
@@ -137,8 +140,10 @@ if sys.argv[3] == "functions":                          # --functions: each func
             (block, "truth_rows", "block: truth table"), (render_interval.RenderInterval, "multiples",
                                                          "block: render intervals"),
             (I, "placement", "imager: placement, lines of sight"), (I, "prepare", "imager: path choices"),
-            (I, "render", "imager: render"), (I, "release", "imager: release"),
-            (P, "render", "pupil path: render"), (P, "turbulent_phase", "pupil path: phase (layers' grids)"),
+            (I, "render", "imager: render"), (I, "render_many", "imager: render"), (I, "release", "imager: release"),
+            (P, "render", "pupil path: render"), (P, "render_many", "pupil path: render"),
+            (P, "turbulent_phase", "pupil path: phase (layers' grids)"),
+            (P, "_phases", "pupil path: phase (layers' grids)"),
             (layer_screen, "walk_layers", "screens: walk (plan, runs, packing)"),
             (S, "regenerate", "screens: regenerate"), (S, "_fresh", "screens: fresh windows"),
             (S, "_cut_from_fft", "screens: FFT windows"), (S, "_large_scales", "screens: large-scale modes"),

@@ -2,8 +2,9 @@
 
 Runs a graph (default: the tracked 10 s pass of benchmarks/end_to_end.yaml) in a fresh process on one thread, one
 step at a time (``EVSDA_THREADS=1``, ``EVSDA_PIPELINE=0``, the probe cache off), with ``time.process_time`` around
-``PupilPath.turbulent_phase`` and, inside it, around the screens' compiled calls that release the lock
-(``screen_kernels``' ``walk_segments``, ``plan_layers`` and the footprint grids); the rest of the screens' time holds
+``PupilPath.turbulent_phase`` (and ``_phases``, which walks several sources together) and, inside them, around the
+screens' compiled calls that release the lock (``screen_kernels``' ``walk_segments``, ``plan_layers`` and the
+footprint grids); the rest of the screens' time holds
 it (Python, NumPy, regenerations). Prints the medians over ``--repeats`` runs, with the calls, PSFs (frames) and
 layer reads counted. ``--against OTHER`` runs another checkout (its own ``.venv``) alternately, side by side.
 
@@ -47,6 +48,8 @@ def timed(owner, name, outer):
     setattr(owner, name, wrapper)
 
 timed(pupil_path.PupilPath, "turbulent_phase", True)
+if hasattr(pupil_path.PupilPath, "_phases"):            # sources walked together (Imager.render_many) call it alone
+    timed(pupil_path.PupilPath, "_phases", True)
 for owner, name in ((layer_screen, "walk_segments"), (layer_screen, "plan_layers"), (pupil_path, "layer_grids"),
                     (pupil_path, "footprint_grids")):
     if hasattr(owner, name):
@@ -54,7 +57,8 @@ for owner, name in ((layer_screen, "walk_segments"), (layer_screen, "plan_layers
 accumulate = pupil_path.accumulate_layers
 def counted(screens, rows, *args, **kwargs):
     counts["calls"] += 1
-    counts["frames"] += rows.shape[1]
+    outputs = kwargs.get("outputs")                     # several lines of sight at once: their frames each
+    counts["frames"] += rows.shape[1] * (1 if outputs is None else int(outputs.max()) + 1)
     counts["layer reads"] += rows.shape[0] * rows.shape[1]
     return accumulate(screens, rows, *args, **kwargs)
 pupil_path.accumulate_layers = counted

@@ -82,9 +82,9 @@ class PupilPath:
                             np.asarray(range_m)[None])[0]
 
     def _layer_set(self) -> tuple:
-        """The turbulent layers' indices, altitudes (L,) [m], winds (L, 2) [m/s], ``Cn^2 dh`` (L,) [m^(1/3)], the pupil's
-        sample positions [m] and the screens' spacings (L,) [m]: the same for every source and window (made at the
-        first render, once the geometry is fixed)."""
+        """The turbulent layers' indices, altitudes (L,) [m], winds (L, 2) [m/s], ``Cn^2 dh`` (L,) [m^(1/3)], the
+        pupil's sample positions [m] and the screens' spacings (L,) [m]: the same for every source and window (made at
+        the first render, once the geometry is fixed)."""
         if self._layers is None:
             g = self.imager.geometry
             chosen = [i for i, layer in enumerate(self.imager.atmosphere.layers) if layer.cn2_dh > 0]
