@@ -100,10 +100,12 @@ class KnotGrid:
         """The function's values at knot indices ``k`` (any shape of integers)."""
         k = np.asarray(k, dtype=np.int64)
         wanted = np.unique(k)
-        missing = [int(i) for i in wanted if int(i) not in self._cache]
+        cache = self._cache       # one grid may serve blocks on several threads: read and fill this dict only
+        found = {int(i): cache.get(int(i)) for i in wanted}
+        missing = [i for i, row in found.items() if row is None]
         if missing:
-            if len(self._cache) + len(missing) > self._max_cached:
-                self._cache.clear()
+            if len(cache) + len(missing) > self._max_cached:
+                self._cache = cache = {}
             t = skyfield_time(self.epoch, np.array(missing, dtype=np.int64) * self.step_ns)
             try:
                 results = self._evaluate(t)
@@ -112,11 +114,11 @@ class KnotGrid:
                                  f"covers 1899-07-29 to 2053-10-09 UTC; the run asks for {t[0].utc_iso()} to "
                                  f"{t[-1].utc_iso()}. Move the run's start inside DE421's span") from None
             for j, index in enumerate(missing):
-                self._cache[index] = tuple(r[j] for r in results)
+                found[index] = cache[index] = tuple(r[j] for r in results)
         if wanted.size == 1:      # one knot interval (the usual window): its values repeated
-            row, position = self._cache[int(wanted[0])], np.zeros(k.shape, np.intp)
+            row, position = found[int(wanted[0])], np.zeros(k.shape, np.intp)
             return tuple(value[None][position] for value in row)
-        rows = [self._cache[int(i)] for i in wanted]
+        rows = [found[int(i)] for i in wanted]
         position = np.searchsorted(wanted, k)
         return tuple(np.stack([row[m] for row in rows])[position] for m in range(len(rows[0])))
 

@@ -20,13 +20,14 @@ on the left). Reference up directions:
 
 from __future__ import annotations
 
+import threading
 from datetime import datetime
 
 import numpy as np
 from skyfield.api import Star
 
 from evsda.blocks.ports import FocalPlane
-from evsda.blocks.ports.scene import AZEL, RADEC, RASTER, SCAN, SIDEREAL, SLEW, STARE, TRACK, Pointing
+from evsda.blocks.ports.scene import AZEL, RADEC, RASTER, SCAN, SIDEREAL, SLEW, STARE, TRACK, Observer, Pointing
 from evsda.graph import ParameterError
 
 from . import projection
@@ -75,7 +76,7 @@ class PointingModel:
     def __init__(self, pointing: Pointing, observer: ObserverModel, epoch: datetime, knot_step_ns: int):
         self.pointing = pointing
         self.observer = observer
-        self._recent = Recent()
+        self._recent = Recent(8)      # shared by the scene's blocks (shared_models), a window or two apart
         if pointing.mode == TRACK:
             if not (pointing.target_line1 and pointing.target_line2):
                 raise ParameterError("pointing: mode 'track' needs a target orbit (connect a tle_source to its "
@@ -236,6 +237,33 @@ def moving_law(pointing: Pointing):
         raise ParameterError(f"pointing: the slew passes {clearance:.2f} deg from {pole}, where the image's up "
                              f"direction is undefined; keep it {POLE_CLEARANCE_DEG:g} deg away (split it in two)")
     return slew
+
+
+_SHARED_MODELS: dict[tuple, tuple[ObserverModel, PointingModel]] = {}
+_SHARED_LOCK = threading.Lock()
+_SHARED_KEPT = 8
+
+
+def shared_models(observer: Observer, pointing: Pointing, epoch: datetime,
+                  knot_step_ns: int) -> tuple[ObserverModel, PointingModel]:
+    """The observer and pointing models for these inputs, one pair per process.
+
+    The scene's blocks that see through the same pointed sensor (the satellites, the stars,
+    the sky) sample its frame at the same times each window: with one pair of models they
+    compute it, and the observer's state and horizon axes, once, not once per block. The
+    models only cache what they compute (knot values, the last few samples' results, as
+    read-only arrays), so a block gets the same values whether or not another asked first.
+    """
+    key = (observer.fingerprint(), pointing.fingerprint(), epoch, int(knot_step_ns))
+    with _SHARED_LOCK:
+        models = _SHARED_MODELS.get(key)
+        if models is None:
+            observer_model = ObserverModel(observer, epoch, knot_step_ns)
+            models = (observer_model, PointingModel(pointing, observer_model, epoch, knot_step_ns))
+            while len(_SHARED_MODELS) >= _SHARED_KEPT:
+                del _SHARED_MODELS[next(iter(_SHARED_MODELS))]
+            _SHARED_MODELS[key] = models
+    return models
 
 
 def check_sampling(model: PointingModel, focal_plane: FocalPlane, cadence_ns: int, start_ns: int, stop_ns: int,

@@ -12,11 +12,10 @@ from evsda.blocks.ports.scene import Observer, Pointing
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, SceneError, Window
 
 from . import radiometry, spectra
-from .geometry import ObserverModel
 from .moon import MOON_MEAN_DISTANCE_M, MOON_RADIUS_M, MoonModel, MoonSamples, require_ephemeris
 from .moonlight import magnitude_of_nanolamberts, moonlight_nanolamberts
 from .passes import iso
-from .pointing import PointingModel
+from .pointing import PointingModel, shared_models
 from .twilight import MIN_SUN_DEPRESSION_DEG, twilight_surface_brightness
 
 ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
@@ -110,8 +109,7 @@ class SkyBackgroundBlock(Block):
         key = (window.epoch, observer.fingerprint(), pointing.fingerprint())
         if key != self._model_key:
             knot_ns = 10 * NS_PER_S
-            observer_model = ObserverModel(observer, window.epoch, knot_ns)
-            self._model = PointingModel(pointing, observer_model, window.epoch, knot_ns)
+            observer_model, self._model = shared_models(observer, pointing, window.epoch, knot_ns)
             self._moon = MoonModel(observer_model, window.epoch, knot_ns) if self._uses_moon else None
             self._model_key = key
             self._run_checked = False

@@ -18,8 +18,8 @@ from evsda.graph.params import DataFile
 from . import projection, radiometry, spectra
 from .catalog import StarCatalog, load_hipparcos
 from .ephemeris import timescale
-from .geometry import KnotGrid, ObserverModel, unit
-from .pointing import PointingModel, check_sampling
+from .geometry import KnotGrid, unit
+from .pointing import check_sampling, shared_models
 from .starcounts import draw_magnitudes, integrated_counts_per_deg2
 from .visibility import EARTH_RADIUS_M
 
@@ -95,8 +95,7 @@ class StarField(Block):
         if key == self._key:
             return
         knot_ns = round(self.params.knot_step_s * NS_PER_S)
-        self._observer = ObserverModel(observer, window.epoch, knot_ns)
-        self._pointing = PointingModel(pointing, self._observer, window.epoch, knot_ns)
+        self._observer, self._pointing = shared_models(observer, pointing, window.epoch, knot_ns)
         self._focal_plane = focal_plane
         start, stop = self.run_span_ns(window)
         check_sampling(self._pointing, focal_plane, self.cadence_ns, start, stop, self.label)

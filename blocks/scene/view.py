@@ -19,8 +19,8 @@ from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import Observer, Orbit, Pointing
 
 from . import projection, radiometry, spectra
-from .geometry import C_M_PER_S, NS_PER_S, ObserverModel, Track, apparent_position, satellite_track, sun_track, unit
-from .pointing import PointingModel, azel_from_enu
+from .geometry import C_M_PER_S, NS_PER_S, Track, apparent_position, satellite_track, sun_track, unit
+from .pointing import azel_from_enu, shared_models
 from .reflectors import FacetReflector
 from .visibility import EARTH_RADIUS_M, lit_fraction, segment_hits_sphere
 
@@ -79,8 +79,7 @@ class SharedGeometry:
     """What every satellite seen by one observer through one pointed sensor shares: observer, pointing, Sun."""
 
     def __init__(self, observer: Observer, pointing: Pointing, epoch: datetime, knot_step_ns: int):
-        self.observer_model = ObserverModel(observer, epoch, knot_step_ns)
-        self.pointing_model = PointingModel(pointing, self.observer_model, epoch, knot_step_ns)
+        self.observer_model, self.pointing_model = shared_models(observer, pointing, epoch, knot_step_ns)
         self.sun = sun_track(epoch, knot_step_ns)
 
 
