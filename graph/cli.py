@@ -379,10 +379,10 @@ _held = False        # collections held off by _hold_collections
 
 def _hold_collections() -> None:
     """No cyclic garbage collection while the command starts (its own process only): loading a graph imports its
-    blocks, ~100 000 long-lived objects (modules, classes, Numba's dispatchers) and almost no garbage, and each
-    collection of the oldest generation walks every object alive. On the tracked pass's graph the collector took
-    0.18 s of the load's 0.6 s of CPU (one walk of 0.12 s), and more in the first window, single-threaded, before
-    any step can run beside it. :func:`_collect_again` turns collections back on."""
+    blocks, ~190 000 long-lived objects on the tracked pass (modules, classes, Numba's dispatchers) and almost no
+    garbage, and each collection of the oldest generation walks every object alive. There the collector took 0.18 s
+    of the load's 0.6 s of CPU (one walk of 0.12 s), and more in the first window, single-threaded, before any step
+    can run beside it (docs/speed.md). :func:`_collect_again` turns collections back on."""
     global _held
     if gc.isenabled():
         gc.disable()
