@@ -129,6 +129,14 @@ class Track:
     def __init__(self, epoch: datetime, knot_step_ns: int, evaluate: Callable):
         self.grid = KnotGrid(epoch, knot_step_ns, evaluate)
         self._recent = Recent()
+        self._apparent: dict[int, tuple[object, Recent]] = {}     # id(observer) -> (observer, its recent places)
+
+    def apparent_places(self, observer) -> Recent:
+        """The last few apparent places of this body seen by ``observer`` (see :func:`apparent_position`)."""
+        kept = self._apparent.get(id(observer))
+        if kept is None:           # (kept here, the observer keeps its id)
+            kept = self._apparent.setdefault(id(observer), (observer, Recent()))
+        return kept[1]
 
     def state(self, t_ns) -> tuple[np.ndarray, np.ndarray]:
         """Position [m] and velocity [m/s] at ``t_ns`` (float ns after the epoch allowed; read-only arrays)."""
@@ -283,9 +291,15 @@ def apparent_position(target: Track, observer: ObserverModel, t_ns) -> np.ndarra
     iterations), and the Earth's barycentric motion during ``tau`` is included, so the
     result is the barycentric computation of Skyfield's ``observe()``; then aberration
     with the observer's barycentric velocity (Skyfield's ``apparent()`` without the
-    microarcsecond gravitational deflection of a target this close).
+    microarcsecond gravitational deflection of a target this close). The last few results
+    are kept per target and observer (read-only arrays): a tracked satellite's pointing and
+    its view ask for the same samples.
     """
     t_ns = np.atleast_1d(np.asarray(t_ns, dtype=np.float64))
+    return target.apparent_places(observer).get(t_ns, lambda t: _apparent_position(target, observer, t))
+
+
+def _apparent_position(target: Track, observer: ObserverModel, t_ns: np.ndarray) -> np.ndarray:
     r_obs, v_obs = observer.state(t_ns)
     _, v_earth = observer.earth.state(t_ns)
     tau_s = np.zeros(len(t_ns))
