@@ -20,6 +20,13 @@ from .telescope import Telescope
 from .truth import truth_rows
 
 
+#: sources walked and stamped in one call (:meth:`.Imager.render_many`): two keep a window's phases (2 x 1.3 MB at
+#: 1 kHz on the tracked pass's 40-sample pupil) near a core's 2 MB L2 cache until the stamps read them; all of a
+#: window's ~8 at once (~10 MB) made the walk ~8 % and the tilted phase ~55 % slower, which took back most of the
+#: ~0.25 s of Python saved; three at a time read no better than one (docs/speed.md, tenth session)
+TOGETHER = 2
+
+
 class PointSourceOptics(Block):
     """Photon flux on the detector from point sources seen through turbulence (paper Sec. 2.2, Eq. 3-11).
 
@@ -492,7 +499,7 @@ class PointSourceOptics(Block):
             return done
 
         # sources in view at the same render times, one stretch each, rendering every one of them on the pupil path
-        # (the usual window: the satellite and the stars that can fire a pixel) go together, split among the threads
+        # (the usual window: the satellite and the stars that can fire a pixel) go together, TOGETHER at a time
         groups, alone = {}, []
         for job in jobs:
             s, key, tr, idx, mine, paths, every_j = job
@@ -504,8 +511,8 @@ class PointSourceOptics(Block):
             else:
                 alone.append(job)
         threads = worker_threads()
-        units = [(render_together, group[k::threads]) for group in groups.values()
-                 for k in range(min(threads, len(group)))]
+        units = [(render_together, group[k:k + TOGETHER]) for group in groups.values()
+                 for k in range(0, len(group), TOGETHER)]
         units += [(lambda job: [(job[0], render(job))], job) for job in alone]
         # sources are independent (own screens, own slots of the output): render them on every core, with the
         # process's shared helper threads
