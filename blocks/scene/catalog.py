@@ -65,7 +65,7 @@ def load_hipparcos(path: str) -> StarCatalog:
     try:
         with opener(path, "rt", encoding="ascii", errors="replace") as f:
             for number, line in enumerate(f, start=1):
-                fields = line.split("|")
+                fields = line.split("|", 38)     # H0-H37 (the last field read) and the rest
                 if len(fields) < 14 or not fields[8].strip() or not fields[5].strip():
                     continue
                 rows.append((fields[1].strip(), *_numbers(fields, path, number), _colour(fields)))
