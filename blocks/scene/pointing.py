@@ -239,6 +239,24 @@ def moving_law(pointing: Pointing):
     return slew
 
 
+_FINGERPRINTS: dict[int, tuple[object, str]] = {}
+_FINGERPRINTS_KEPT = 32
+
+
+def fingerprint(value) -> str:
+    """``value.fingerprint()`` (a frozen port value), kept for the last few values by identity: the values a
+    source block hands on unchanged every window (the site, the camera's focal plane, a pointing law) are
+    hashed once, not once a window by every block that reads them."""
+    kept = _FINGERPRINTS.get(id(value))
+    if kept is not None and kept[0] is value:       # (kept here, the value keeps its id)
+        return kept[1]
+    digest = value.fingerprint()
+    if len(_FINGERPRINTS) >= _FINGERPRINTS_KEPT:
+        _FINGERPRINTS.clear()
+    _FINGERPRINTS[id(value)] = (value, digest)
+    return digest
+
+
 _SHARED_MODELS: dict[tuple, tuple[ObserverModel, PointingModel]] = {}
 _SHARED_LOCK = threading.Lock()
 _SHARED_KEPT = 8
@@ -254,7 +272,7 @@ def shared_models(observer: Observer, pointing: Pointing, epoch: datetime,
     models only cache what they compute (knot values, the last few samples' results, as
     read-only arrays), so a block gets the same values whether or not another asked first.
     """
-    key = (observer.fingerprint(), pointing.fingerprint(), epoch, int(knot_step_ns))
+    key = (fingerprint(observer), fingerprint(pointing), epoch, int(knot_step_ns))
     with _SHARED_LOCK:
         models = _SHARED_MODELS.get(key)
         if models is None:

@@ -17,7 +17,7 @@ from evsda.graph.params import DataFile, describe_validation_error
 
 from . import facets, radiometry, spectra
 from .passes import PassReport, find_passes, require_pass
-from .pointing import check_sampling
+from .pointing import check_sampling, fingerprint
 from .reflectors import FacetReflector, attitude_law
 from .view import Reflector, SatelliteView
 
@@ -166,7 +166,7 @@ class Satellite(Block):
     def view(self, window: Window, orbit: Orbit, observer: Observer, pointing: Pointing,
              focal_plane: FocalPlane) -> SatelliteView:
         """The :class:`SatelliteView` of these inputs (built once; a cache derived from the inputs)."""
-        key = (window.epoch, *(v.fingerprint() for v in (orbit, observer, pointing, focal_plane)))
+        key = (window.epoch, *(fingerprint(v) for v in (orbit, observer, pointing, focal_plane)))
         if key != self._view_key:
             p = self.params
             self._view = SatelliteView(orbit, observer, pointing, focal_plane, window.epoch,

@@ -15,7 +15,7 @@ from . import radiometry, spectra
 from .moon import MOON_MEAN_DISTANCE_M, MOON_RADIUS_M, MoonModel, MoonSamples, require_ephemeris
 from .moonlight import magnitude_of_nanolamberts, moonlight_nanolamberts
 from .passes import iso
-from .pointing import PointingModel, shared_models
+from .pointing import PointingModel, fingerprint, shared_models
 from .twilight import MIN_SUN_DEPRESSION_DEG, twilight_surface_brightness
 
 ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
@@ -106,7 +106,7 @@ class SkyBackgroundBlock(Block):
         return p.moonlight or p.twilight or p.moon_exclusion_deg > 0
 
     def _pointing_model(self, window: Window, observer: Observer, pointing: Pointing) -> PointingModel:
-        key = (window.epoch, observer.fingerprint(), pointing.fingerprint())
+        key = (window.epoch, fingerprint(observer), fingerprint(pointing))
         if key != self._model_key:
             knot_ns = 10 * NS_PER_S
             observer_model, self._model = shared_models(observer, pointing, window.epoch, knot_ns)

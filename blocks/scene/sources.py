@@ -124,13 +124,17 @@ class GroundSite(Block):
 
     outputs = {"observer": Output(Observer, "the ground site")}
 
+    _observer: Observer | None = None      # the same (frozen) value every window: its readers hash it once
+
     def step(self, window: Window) -> dict:
         p = self.params
-        return {"observer": Observer(name=p.name, kind=GROUND, latitude_deg=p.latitude_deg,
-                                     longitude_deg=p.longitude_deg, altitude_m=p.altitude_m,
-                                     min_elevation_deg=p.min_elevation_deg,
-                                     max_sun_elevation_deg=p.max_sun_elevation_deg,
-                                     extinction_mag_per_airmass=p.extinction_mag_per_airmass)}
+        if self._observer is None:
+            self._observer = Observer(name=p.name, kind=GROUND, latitude_deg=p.latitude_deg,
+                                      longitude_deg=p.longitude_deg, altitude_m=p.altitude_m,
+                                      min_elevation_deg=p.min_elevation_deg,
+                                      max_sun_elevation_deg=p.max_sun_elevation_deg,
+                                      extinction_mag_per_airmass=p.extinction_mag_per_airmass)
+        return {"observer": self._observer}
 
 
 class SpaceObserver(Block):
@@ -206,8 +210,12 @@ class Camera(Block):
         return FocalPlane(p.width_px, p.height_px, p.pixel_pitch_m, focal,
                           SpectralResponse("silicon", p.silicon_depth_m, p.filter))
 
+    _focal_plane: FocalPlane | None = None      # the same (frozen) value every window: its readers hash it once
+
     def step(self, window: Window) -> dict:
-        return {"focal_plane": self.focal_plane}
+        if self._focal_plane is None:
+            self._focal_plane = self.focal_plane
+        return {"focal_plane": self._focal_plane}
 
 
 class PointingLaw(Block):
@@ -293,6 +301,7 @@ class PointingLaw(Block):
 
     inputs = {"target": Input(Orbit, "orbit to rate-track (mode 'track' only)", required=False)}
     outputs = {"pointing": Output(Pointing, "the pointing law")}
+    _pointing_of: tuple[Orbit | None, Pointing] | None = None      # (target, its pointing) of the last window
 
     def pointing(self, target: Orbit | None = None) -> Pointing:
         """The :class:`Pointing` these parameters describe."""
@@ -338,4 +347,6 @@ class PointingLaw(Block):
         if self.params.mode == TRACK and target is None:
             raise ParameterError(f"{self.label}: mode 'track' needs a tle_source connected "
                                  f"to its 'target' input")
-        return {"pointing": self.pointing(target)}
+        if self._pointing_of is None or self._pointing_of[0] is not target:
+            self._pointing_of = (target, self.pointing(target))    # the same value while the target is
+        return {"pointing": self._pointing_of[1]}

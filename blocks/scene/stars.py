@@ -19,7 +19,7 @@ from . import projection, radiometry, spectra
 from .catalog import StarCatalog, load_hipparcos
 from .ephemeris import timescale
 from .geometry import KnotGrid, unit
-from .pointing import check_sampling, shared_models
+from .pointing import check_sampling, fingerprint, shared_models
 from .starcounts import draw_magnitudes, integrated_counts_per_deg2
 from .visibility import EARTH_RADIUS_M
 
@@ -91,7 +91,7 @@ class StarField(Block):
 
     # -- the stars of this run ------------------------------------------------------------------
     def _prepare(self, window: Window, observer: Observer, pointing: Pointing, focal_plane: FocalPlane):
-        key = (window.epoch, *(v.fingerprint() for v in (observer, pointing, focal_plane)))
+        key = (window.epoch, *(fingerprint(v) for v in (observer, pointing, focal_plane)))
         if key == self._key:
             return
         knot_ns = round(self.params.knot_step_s * NS_PER_S)
