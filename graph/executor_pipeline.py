@@ -14,10 +14,11 @@ Rules:
   none once every block has (1: the optics of ``k + 1`` beside the pixels of ``k``; the cheap blocks upstream of
   the optics, the sources, are then done with ``k + 2`` before the pixels end ``k``, off the optics' chain); no
   step runs more than ``1 +`` :data:`WINDOWS_AHEAD` windows beyond the oldest unrecorded window (each in flight
-  holds its values in memory); while the run's first window is not yet recorded, both limits are
-  :data:`SETUP_WINDOWS_AHEAD` windows further: the first steps carry the blocks' one-time set-ups (the pixels'
+  holds its values in memory); at the run's start both limits are :data:`SETUP_WINDOWS_AHEAD` windows further,
+  one window fewer for each window recorded: the first steps carry the blocks' one-time set-ups (the pixels'
   first step, which builds every pixel's state from its first input, takes ~7 optics windows' wall on the tracked
-  pass), and the optics' chain goes on beside them instead of waiting;
+  pass), and the optics' chain goes on beside it and while the pixels catch up (~0.65 optics windows' wall each)
+  instead of waiting;
 * the thread that finishes a step starts the steps this makes ready, itself running the same block's next step
   if ready, else the one furthest upstream (the next optics window, say, goes on at once on the thread that
   ended the previous one, or the pixels' step it waited for): no round trip through a scheduling thread, each of
@@ -49,9 +50,10 @@ from .threads import running_step
 
 #: windows a block runs ahead of the blocks it feeds (1: the optics of k + 1 beside the pixels of k)
 WINDOWS_AHEAD = 1
-#: windows a block runs further ahead while the run's first window is not yet recorded: the first steps carry the
-#: blocks' one-time set-ups (the pixels' state from their first input), during which the optics' chain goes on
-SETUP_WINDOWS_AHEAD = 4
+#: windows a block may run further ahead at the run's start, one fewer for each window recorded: the first steps
+#: carry the blocks' one-time set-ups (the pixels' state from their first input), during which, and while the
+#: pixels catch up, the optics' chain goes on
+SETUP_WINDOWS_AHEAD = 16
 
 Values = dict[tuple[str, str], Any]
 
@@ -159,9 +161,9 @@ class _State:
         fed = self.p.downstream[name]
         # a block's first step carries its one-time set-up (Numba's cache loads, its state from its first input),
         # several later steps' worth: the blocks feeding it go on one window further meanwhile, and
-        # SETUP_WINDOWS_AHEAD further while the run's first window is not yet recorded
+        # SETUP_WINDOWS_AHEAD further at the start, one fewer for each window recorded
         behind = max(max(self.done[d], self.start) for d in fed) if fed else min(self.done.values())
-        ahead = 1 + WINDOWS_AHEAD + (SETUP_WINDOWS_AHEAD if self.released == self.start else 0)
+        ahead = 1 + WINDOWS_AHEAD + max(0, SETUP_WINDOWS_AHEAD - (self.released - self.start))
         return min(behind + ahead, self.released + ahead, self.stop - 1)
 
     def launch(self, keep: str | None = None) -> tuple[str, int, dict] | None:
