@@ -24,7 +24,7 @@ from .element_sets import (Catalog, CatalogObject, apply_properties, epoch_jd, e
                            read_text)
 from .geometry import satrec_track
 from .passes import Pass, find_passes, iso
-from .pointing import check_sampling
+from .pointing import check_sampling, fingerprint
 from .screening import Screen, ScreenResult
 from .view import Reflector, SatelliteView, SharedGeometry
 
@@ -172,7 +172,7 @@ class SatelliteCatalog(Block):
 
     def prepare(self, window: Window, observer: Observer, pointing: Pointing, focal_plane: FocalPlane) -> None:
         """Screen the catalogue and find every crossing over the run (once per set of inputs)."""
-        key = (window.epoch, *(v.fingerprint() for v in (observer, pointing, focal_plane)))
+        key = (window.epoch, *(fingerprint(v) for v in (observer, pointing, focal_plane)))
         if key == self._key:
             return
         p = self.params
