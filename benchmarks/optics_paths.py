@@ -15,6 +15,11 @@
 3. A turbulent pupil-FFT PSF on a 256 x 256 grid (target < 5 ms).
 4. A 10 s LEO pass rendered at 1 kHz with frozen flow through the ``optics`` block
    (target < 10 s).
+
+``--tables [--repeats K]`` prints only the CPU of the tracked pass's three long-exposure tables (the r0 of its
+three zenith-angle bins, 2048 radii by 2048 frequencies) made as the block makes them, through one
+:class:`.HankelKernel` (the Bessel functions made once), against each made alone, alternated, medians, and
+whether they are the same numbers.
 """
 
 from __future__ import annotations
@@ -32,7 +37,7 @@ from evsda.blocks.optics.fft_screens import fft_phase_screens
 from evsda.blocks.optics.imaging import Imager
 from evsda.blocks.optics.paths import LOG, total_variation
 from evsda.blocks.optics.propagation import plane_spacings, point_source_field, propagate
-from evsda.blocks.optics.psf import long_exposure_profile, psf_fft
+from evsda.blocks.optics.psf import HankelKernel, long_exposure_profile, psf_fft
 from evsda.blocks.optics.render import PupilRenderer, RadialRenderer, StampSampler
 from evsda.blocks.optics.sampling import PropagationGrid, planes_for, violations
 from evsda.blocks.optics.telescope import Telescope
@@ -236,10 +241,44 @@ def leo_pass(duration_s: float, params: dict) -> None:
     print(f"    {path}")
 
 
+#: the tracked pass's three long-exposure tables as its block makes them: the r0 [m] of its zenith-angle bins'
+#: centres, the telescope, the band's wavelength [m] and the table's last radius [rad] (2048 radii, 2048 frequencies)
+PASS_TABLES_R0 = (0.06876026460792829, 0.07032212312778119, 0.07184851999291819)
+PASS_TABLES = dict(telescope=Telescope(0.2, 0.4, 0.85), wavelength=5.682696831531468e-07,
+                   last_radius=9.450482130558207e-05)
+
+
+def table_cpu(repeats: int) -> None:
+    """CPU [s] of the pass's three long-exposure tables, each alone against through one kernel (alternated)."""
+    telescope, wavelength = PASS_TABLES["telescope"], PASS_TABLES["wavelength"]
+    theta = np.linspace(0.0, PASS_TABLES["last_radius"], 2048)
+
+    def tables(kernel):
+        return [long_exposure_profile(telescope, wavelength, r0, 25.0, theta, 2048, kernel) for r0 in PASS_TABLES_R0]
+
+    spent = {"each alone": [], "one kernel": []}
+    for _ in range(repeats):
+        for name, kernel in (("each alone", lambda: None), ("one kernel", HankelKernel)):
+            t = time.process_time()
+            made = tables(kernel())
+            spent[name].append(time.process_time() - t)
+            if name == "each alone":
+                alone = made
+    same = all(np.array_equal(a.view(np.uint64), b.view(np.uint64)) for a, b in zip(alone, made))
+    print(f"the pass's 3 long-exposure tables (2048 x 2048), one thread, medians of {repeats}, "
+          f"load {os.getloadavg()[0]:.2f}: each alone {np.median(spent['each alone']):.3f} s CPU, through one "
+          f"kernel {np.median(spent['one kernel']):.3f} s; the same numbers: {same}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="smaller grids and fewer frames")
+    parser.add_argument("--tables", action="store_true", help="only the pass's long-exposure tables' CPU")
+    parser.add_argument("--repeats", type=int, default=5, help="with --tables: alternated rounds")
     args = parser.parse_args()
+    if args.tables:
+        table_cpu(args.repeats)
+        return
     # OpenBLAS threads spin against other jobs on a shared machine: compare OPENBLAS_NUM_THREADS=1
     print(f"{os.cpu_count()} CPUs; numpy {np.__version__}; "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}")

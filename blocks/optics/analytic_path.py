@@ -22,7 +22,7 @@ from evsda.blocks.threads import worker_threads
 from evsda.graph.threads import parallel_map
 
 from .paths import ZENITH_BIN_RAD, conditions_key, representative_conditions
-from .psf import long_exposure_profile
+from .psf import HankelKernel, long_exposure_profile
 from .render import RadialRenderer
 
 if TYPE_CHECKING:
@@ -121,6 +121,8 @@ class AnalyticPath:
     def __init__(self, imager: Imager, path: str):
         self.imager, self.path = imager, path
         self._renderers: dict[tuple[int, int] | None, RadialRenderer] = {}
+        # the long-exposure tables' Bessel functions, shared by every zenith-angle bin's table
+        self._kernel = HankelKernel()
 
     def _zenith_key(self, zenith_rad: float) -> tuple[int, int]:
         return conditions_key(zenith_rad, np.inf, self.imager.turbulent(zenith_rad))
@@ -157,7 +159,8 @@ class AnalyticPath:
         if not np.isfinite(r0):
             return [lambda: imager.telescope.airy(theta, imager.wavelength)]
         return [functools.partial(long_exposure_profile, imager.telescope, imager.wavelength, r0, imager.outer_scale_m,
-                                  half, PROFILE_FREQUENCIES) for half in np.split(theta, [theta.size // 2])]
+                                  half, PROFILE_FREQUENCIES, self._kernel)
+                for half in np.split(theta, [theta.size // 2])]
 
     def keep_table(self, zenith_rad: float, parts: list[np.ndarray]) -> RadialRenderer:
         """Keep the renderer of this zenith angle's table from its parts (:meth:`table_parts`' values, in order)."""
@@ -194,5 +197,6 @@ class AnalyticPath:
                              (s.pixel_scale_rad / s.oversample) ** 2)
 
     def forget(self) -> None:
-        """Drop the renderers (the sampling they were made with changed)."""
+        """Drop the renderers and the tables' Bessel functions (the sampling they were made with changed)."""
         self._renderers.clear()
+        self._kernel = HankelKernel()

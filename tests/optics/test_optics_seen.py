@@ -200,3 +200,24 @@ def test_long_exposure_table_in_halves_is_the_whole_table(monkeypatch):
     whole = long_exposure_profile(im.telescope, WAVELENGTH, r0, atmosphere.L0, theta, analytic_path.PROFILE_FREQUENCIES)
     np.testing.assert_array_equal(path.renderer(zenith).profile, whole)
     np.testing.assert_array_equal(np.concatenate([part() for part in parts[::-1]][::-1]), whole)
+
+
+def test_long_exposure_tables_share_their_bessel_functions():
+    """Every zenith-angle bin's long-exposure table of an AnalyticPath, the later ones from the Bessel functions the
+    first one made and kept (HankelKernel), equals long_exposure_profile computed afresh, bit for bit."""
+    from evsda.blocks.optics import analytic_path
+    from evsda.blocks.optics.psf import long_exposure_profile
+
+    atmosphere = Atmosphere.hufnagel_valley(2).scaled_to_r0(0.05)
+    im = imager(atmosphere)
+    path = im.path_named["long_exposure"]
+    for degrees in (30.3, 31.4, 45.6):
+        zenith = np.deg2rad(degrees)
+        im.ensure_geometry(zenith)
+        _, r0 = path.table_key(zenith)
+        theta = np.linspace(0.0, (im.sampler.size / 2 + 2) * np.sqrt(2) * im.pixel_scale,
+                            analytic_path.PROFILE_SAMPLES)
+        whole = long_exposure_profile(im.telescope, WAVELENGTH, r0, atmosphere.L0, theta,
+                                      analytic_path.PROFILE_FREQUENCIES)
+        np.testing.assert_array_equal(path.renderer(zenith).profile.view(np.uint64), whole.view(np.uint64))
+    assert len(path._kernel._blocks) == analytic_path.PROFILE_SAMPLES // 512
