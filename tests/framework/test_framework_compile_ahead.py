@@ -35,7 +35,7 @@ PARENT = textwrap.dedent("""
     value = ahead_kernels.twice(4)
     stats = ahead_kernels.twice.stats
     print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(stats.cache_hits.values()),
-                      "compiled": sum(stats.cache_misses.values())}))
+                      "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner}))
 """)
 
 
@@ -60,16 +60,67 @@ def kernels(tmp_path):
 
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
     first = parent(kernels)
-    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0}
+    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True}
     again = parent(kernels)
-    assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0}
+    assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None}   # nothing compiles
 
 
 @pytest.mark.parametrize("env", [{"EVSDA_THREADS": "1"}, {"EVSDA_COMPILE_AHEAD": "off"}])
 def test_one_thread_or_switched_off_compiles_here(kernels, env):
-    assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1}
+    assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True}
 
 
 @pytest.mark.parametrize("target", ["ahead_kernels:fail", "ahead_kernels:killed"])
 def test_a_child_that_fails_or_is_killed_costs_only_its_time(kernels, target):
-    assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1}
+    assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True}
+
+
+INLINED_KERNELS = textwrap.dedent("""
+    import numba
+
+    @numba.njit(inline="always")
+    def relax(a, y, j):
+        r = 1.0
+        for _ in range(j):
+            r *= a
+        return y + (1.0 - r) * (a - y) if j > 0 else y
+
+    @numba.njit(inline="always")
+    def step(x, a, y, j):
+        if x > y:
+            return relax(a, y, j) - relax(x, a, j + 1)
+        return relax(x, y, j)
+
+    @numba.njit
+    def sweep(xs, a, y, j):
+        total = 0.0
+        for i in range(xs.size):
+            xs[i] = step(xs[i], a, y, j)
+            total += xs[i]
+        return total
+""")
+
+INLINED = textwrap.dedent(r"""
+    import json, re, sys
+    import numpy as np
+    from evsda.graph import compile_ahead
+
+    def compiled():
+        kernels = {}
+        exec(sys.argv[1], kernels)              # new dispatchers: compiled again
+        xs = np.linspace(0.0, 2.0, 101)
+        total = kernels["sweep"](xs, 0.9, 0.7, 3)
+        code = kernels["sweep"].inspect_asm(kernels["sweep"].signatures[0])
+        return total, xs.tolist(), re.sub(r"_ZN\S+|\b\w*\$\d+\w*", "SYMBOL", code)     # numbered names aside
+
+    numbas = compiled()
+    edited = compile_ahead.quicker_inlining()
+    print(json.dumps({"edited": edited, "same": compiled() == numbas}))
+""")
+
+
+def test_numbas_inliner_edited_compiles_the_same_machine_code(tmp_path):
+    environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", INLINED, INLINED_KERNELS], env=environ, capture_output=True, text=True,
+                         check=True)
+    assert json.loads(out.stdout) == {"edited": True, "same": True}
