@@ -44,6 +44,9 @@ def pixel_inputs(duration_s: float) -> tuple[pixel_block.DvsPixel, list]:
 
     def keeping(self, window, irradiance):
         if kept["block"] is None:
+            if self._ahead is not None:      # compile_ahead's handle holds a lock, which cannot be copied
+                self._ahead.wait()
+                self._ahead = None
             kept["block"] = copy.deepcopy(self)
         kept["inputs"].append((window, irradiance))
         return step(self, window, irradiance)

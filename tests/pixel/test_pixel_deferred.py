@@ -116,9 +116,11 @@ def test_pixels_read_only_by_their_wake_step_are_those_the_bound_leaves_out(monk
 
 
 @pytest.mark.parametrize("large", [False, True])
-def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large):
+@pytest.mark.parametrize("shared_l", [False, True])
+def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large, shared_l):
     # take_quietly sweeps the pixels change by change (vectorised); its reference takes one pixel's changes after
-    # the other: the same state bit for bit, also for pixels already at or past a change's step (no relaxation)
+    # the other: the same state bit for bit, also for pixels already at or past a change's step (no relaxation),
+    # and where runs of pixels share their L (the sweep relaxes L once a run: shared_l, with +0.0 and -0.0 apart)
     from evsda.blocks.pixel.deferred import take_quietly, take_quietly_reference
     from evsda.blocks.pixel.pixel_loop import COUNT, L_, LOG_A, M_, NOISE_SCALE, PARA, REAL, STEP, TH_ON, Y
 
@@ -126,6 +128,8 @@ def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large):
     n, k = 3000, 40
     real = rng.normal(size=(n, len(REAL)))
     real[:, L_], real[:, M_], real[:, Y] = rng.normal(-2, 3, n), rng.normal(-2, 3, n), rng.normal(-2, 3, n)
+    if shared_l:
+        real[:, L_] = rng.choice([0.0, -0.0, -2.5, 1.0], n, p=[0.3, 0.3, 0.3, 0.1])
     real[:, LOG_A] = -10.0 ** rng.uniform(-9, 1, n)
     real[:, PARA], real[:, TH_ON], real[:, NOISE_SCALE] = rng.uniform(0, 5, n), rng.uniform(0.05, 0.5, n), 1.0
     count = rng.integers(0, 100, size=(n, len(COUNT)))
