@@ -42,7 +42,8 @@ PARENT = textwrap.dedent("""
 def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
     """Run PARENT in a fresh interpreter with the kernels' module on its path and its own Numba cache folder; what
     it printed, and that it printed nothing else."""
-    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_COMPILE_AHEAD"}
+    environ = {name: value for name, value in os.environ.items()
+               if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING")}
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
@@ -100,10 +101,17 @@ INLINED_KERNELS = textwrap.dedent("""
         return total
 """)
 
-INLINED = textwrap.dedent(r"""
+ASSEMBLY = textwrap.dedent(r"""
     import json, re, sys
-    import numpy as np
     from evsda.graph import compile_ahead
+
+    def numbered_names_aside(code):          # the symbols' numbered names, and the lengths of strings holding them
+        code = re.sub(r"_ZN\S+|\b\w*\$\d+\w*", "SYMBOL", code)
+        return "\n".join(line for line in code.splitlines() if "missing Environment" not in line)
+""")
+
+INLINED = ASSEMBLY + textwrap.dedent(r"""
+    import numpy as np
 
     def compiled():
         kernels = {}
@@ -111,7 +119,7 @@ INLINED = textwrap.dedent(r"""
         xs = np.linspace(0.0, 2.0, 101)
         total = kernels["sweep"](xs, 0.9, 0.7, 3)
         code = kernels["sweep"].inspect_asm(kernels["sweep"].signatures[0])
-        return total, xs.tolist(), re.sub(r"_ZN\S+|\b\w*\$\d+\w*", "SYMBOL", code)     # numbered names aside
+        return total, xs.tolist(), numbered_names_aside(code)
 
     numbas = compiled()
     edited = compile_ahead.quicker_inlining()
@@ -119,8 +127,31 @@ INLINED = textwrap.dedent(r"""
 """)
 
 
-def test_numbas_inliner_edited_compiles_the_same_machine_code(tmp_path):
+PIXEL_FUNCTION = ASSEMBLY + textwrap.dedent(r"""
+    import numba
+    from numba import types
+    from evsda.blocks.pixel import drive_kernel
+
+    def compiled():
+        kernel = numba.jit(**drive_kernel.drive_rows.targetoptions)(drive_kernel.drive_rows.py_func)    # uncached
+        signature = (types.float64[::1], types.float64[::1], types.float64[:, ::1])
+        kernel.compile(signature)
+        return numbered_names_aside(kernel.inspect_asm(signature))
+
+    numbas = compiled()
+    edited = compile_ahead.quicker_inlining()
+    print(json.dumps({"edited": edited, "same": compiled() == numbas}))
+""")
+
+
+@pytest.mark.parametrize("script", [INLINED, PIXEL_FUNCTION], ids=["nested inlined functions", "drive_rows"])
+def test_numbas_inliner_edited_compiles_the_same_machine_code(tmp_path, script):
     environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
-    out = subprocess.run([sys.executable, "-c", INLINED, INLINED_KERNELS], env=environ, capture_output=True, text=True,
+    environ.pop("EVSDA_QUICKER_INLINING", None)
+    out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS], env=environ, capture_output=True, text=True,
                          check=True)
     assert json.loads(out.stdout) == {"edited": True, "same": True}
+
+
+def test_numbas_inliner_left_as_it_is_when_switched_off(kernels):
+    assert parent(kernels, EVSDA_QUICKER_INLINING="off")["inliner"] is False
