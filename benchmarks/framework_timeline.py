@@ -22,6 +22,11 @@ machine's (``/proc/stat``) every ``--sample-ms``. It prints:
   optics' gaps, when the graph was loaded and the pixels' first step started, and the wall after the optics' last
   step (the tail, the finish and the exit).
 
+``--pin CPUS`` runs the child on those cores only (``0``: one core) while it still plans for every core of the
+machine (``EVSDA_THREADS``, unless set): its threads then take turns on the pinned cores, so the CPU time of two
+variants compares their scheduling (the interpreter lock's hand-overs, context switches, threads sharing a core)
+apart from how much slower each thread runs on this host when two of them run at once.
+
 ``--trace out.json`` writes the spans and the cores-busy counter in Chrome's trace format (open it in
 https://ui.perfetto.dev). ``--against OTHER`` runs another checkout's ``evsda`` (its own ``.venv``) too,
 alternated. Run it with the probe cache off, as the benchmarks do:
@@ -157,16 +162,18 @@ def _machine_busy() -> float:
     return (sum(values[:8]) - values[3] - values[4]) * CLOCK_TICK_S      # all but idle and iowait
 
 
-def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s: float, env: dict) -> dict:
-    """One timed run (``env``: more environment): the child's spans and the samples [(t, {tid: (on core,
-    queued)}, machine busy)]."""
+def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s: float, env: dict,
+               pin: set[int] | None = None) -> dict:
+    """One timed run (``env``: more environment; ``pin``: the cores it may run on, default any): the child's spans
+    and the samples [(t, {tid: (on core, queued)}, machine busy)]."""
     with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as f:
         spans_path = Path(f.name)
     env = {**os.environ, **env}
     start = time.monotonic()
     child = subprocess.Popen([str(python), "-c", CHILD, str(spans_path), "run", str(graph), "-o", str(store),
                               "--overwrite", "--no-progress", "--quiet", "--set", f"run.duration_s={duration}"],
-                             env=env, stderr=(errors := tempfile.TemporaryFile("w+")))
+                             env=env, stderr=(errors := tempfile.TemporaryFile("w+")),
+                             preexec_fn=None if pin is None else lambda: os.sched_setaffinity(0, pin))
     samples, last = [], {}
     while True:
         pid, status, usage = os.wait4(child.pid, os.WNOHANG)
@@ -342,10 +349,15 @@ def main() -> None:
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv), run alternately")
     parser.add_argument("--variant", action="append", default=[], metavar="LABEL:VAR=VALUE[,VAR=VALUE]",
                         help="this checkout with more environment, run alternately (repeat for more)")
+    parser.add_argument("--pin", metavar="CPUS", help="run on these cores only, e.g. 0 or 0,1, planning for every "
+                                                      "core (EVSDA_THREADS = the machine's cores unless set)")
     parser.add_argument("--quiet", action="store_true", help="print only one line a run and the medians")
     parser.add_argument("--trace", type=Path, help="write the last run's spans here (Chrome trace format)")
     args = parser.parse_args()
     pipeline = {"EVSDA_PIPELINE": "0" if args.serial else "1"}
+    pin = None if args.pin is None else {int(cpu) for cpu in args.pin.split(",")}
+    if pin is not None:
+        pipeline["EVSDA_THREADS"] = os.environ.get("EVSDA_THREADS") or str(len(os.sched_getaffinity(0)))
     runs = {"this": (Path(sys.executable), pipeline)}
     for text in args.variant:
         label, _, settings = text.partition(":")
@@ -354,13 +366,15 @@ def main() -> None:
         runs[str(args.against)] = (args.against / ".venv" / "bin" / "python", pipeline)
     print(f"{args.graph.name}, {args.duration:g} s simulated, {'serial' if args.serial else 'pipelined'}; "
           f"EVSDA_CACHE={os.environ.get('EVSDA_CACHE', 'unset')}, "
-          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; load {os.getloadavg()[0]:.2f}")
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; load {os.getloadavg()[0]:.2f}"
+          + ("" if pin is None else f"; pinned to cores {sorted(pin)}, EVSDA_THREADS={pipeline['EVSDA_THREADS']}"))
     headline = defaultdict(list)
     with tempfile.TemporaryDirectory() as tmp:
         for repeat in range(args.repeats):
             for label, (python, env) in runs.items():
                 load = os.getloadavg()[0]
-                data = sample_run(python, args.graph, args.duration, Path(tmp) / "run.zarr", args.sample_ms / 1e3, env)
+                data = sample_run(python, args.graph, args.duration, Path(tmp) / "run.zarr", args.sample_ms / 1e3, env,
+                                   pin)
                 title = f"{label} run {repeat + 1}, load {load:.2f}-{os.getloadavg()[0]:.2f}"
                 if args.quiet:
                     with open(os.devnull, "w") as sink:
