@@ -29,6 +29,8 @@ import threading
 import numba
 import numpy as np
 import scipy.fft as sfft
+from llvmlite import ir
+from numba.extending import intrinsic
 
 from . import column_fft
 
@@ -216,15 +218,18 @@ class PupilRenderer:
         for block in _chunks(len(phase), PHASE_FRAMES):
             cosine, sine, image = self._per_frame(block.stop - block.start)
             # numpy's cos and sin of the tilted phase (rounded to single precision) on contiguous buffers, the
-            # block's frames at once, transposed (x, y) for the compiled row transforms; then chunk by chunk the
+            # block's frames at once, transposed (x, y) for the compiled row transforms (in one compiled pass with
+            # numpy's float32 sin and cos where they agree, :func:`tilted_sincos_transposed`); then chunk by chunk the
             # field: made as the row transforms read it, or into the FFT buffer with the padding's zeros in one pass
-            if self._rows:
-                tilted_phase_transposed(phase_t[block], curvature[block], self.r2, ky[block], kx[block], self.x,
-                                        cosine)
-            else:
-                tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
-            np.sin(cosine, out=sine)
-            np.cos(cosine, out=cosine)
+            if not (self._rows and _sincos_agree() and tilted_sincos_transposed(
+                    phase_t[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine, sine)):
+                if self._rows:
+                    tilted_phase_transposed(phase_t[block], curvature[block], self.r2, ky[block], kx[block], self.x,
+                                            cosine)
+                else:
+                    tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
+                np.sin(cosine, out=sine)
+                np.cos(cosine, out=cosine)
             if self._rows and self._frames:
                 given = amplitude_t if len(amplitude_t) == 1 else amplitude_t[block]
                 _stamp_frames(given, cosine, sine, self.b, self.b_t, (self.delta**2 / self.wavelength) ** 2,
@@ -358,6 +363,101 @@ def tilted_phase_transposed(phase_t, curvature, r2, ky, kx, x, out):
             source, radius2, target = phase_t[f, j], r2[j], out[f, j]
             for i in range(rows):
                 target[i] = ((source[i] + c * radius2[i]) + along_y * x[i]) + along_x
+
+
+@intrinsic
+def _fused_multiply_add(typingctx, a, b, c):
+    """``a b + c`` rounded once (LLVM's ``llvm.fma``) in ``a``'s floating-point type."""
+    def codegen(context, builder, signature, args):
+        real = context.get_value_type(signature.return_type)
+        fma = builder.module.declare_intrinsic("llvm.fma", [real], ir.FunctionType(real, [real] * 3))
+        return builder.call(fma, args)
+    return a(a, a, a), codegen
+
+
+# numpy's float32 sine and cosine (numpy 2.x ``loops_trigonometric.dispatch.cpp``, ``simd_sincos_f32``, where the
+# CPU has fused multiply-adds): Cody-Waite's reduction by pi/2 in three parts, polynomials on [-pi/4, pi/4] (T.
+# Myklebust's), both in single precision with every multiply-add fused (the quadrant's too, as numpy's build fuses it)
+_TWO_OVER_PI = np.float32(float.fromhex("0x1.45f306p-1"))
+_ROUNDING = np.float32(float.fromhex("0x1.8p23"))
+_PI_OVER_2 = tuple(np.float32(float.fromhex(h)) for h in ("-0x1.921fb0p+00", "-0x1.5110b4p-22", "-0x1.846988p-48"))
+_COSINE = tuple(np.float32(float.fromhex(h))
+                for h in ("0x1.98e616p-16", "-0x1.6c06dcp-10", "0x1.55553cp-05", "-0x1.000000p-01", "0x1.0p0"))
+_SINE = tuple(np.float32(float.fromhex(h)) for h in ("0x1.7d3bbcp-19", "-0x1.a06bbap-13", "0x1.11119ap-07",
+                                                     "-0x1.555556p-03"))
+#: the largest |x| [rad] whose cosine numpy reduces so (its sine's bound is larger); beyond it libm's
+SINCOS_LIMIT = np.float32(71476.0625)
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _sincos(x):
+    """``(sin x, cos x)`` of a float32 ``|x| <= SINCOS_LIMIT`` [rad]: numpy's float32 ``sin`` and ``cos``, bit for
+    bit where :func:`_sincos_agree`."""
+    fma, zero = _fused_multiply_add, np.float32(0.0)
+    quadrant = fma(x, _TWO_OVER_PI, _ROUNDING) - _ROUNDING
+    r = fma(quadrant, _PI_OVER_2[0], x)
+    r = fma(quadrant, _PI_OVER_2[1], r)
+    r = fma(quadrant, _PI_OVER_2[2], r)
+    r2 = r * r
+    c = fma(_COSINE[0], r2, _COSINE[1])
+    c = fma(c, r2, _COSINE[2])
+    c = fma(c, r2, _COSINE[3])
+    c = fma(c, r2, _COSINE[4])
+    s = fma(_SINE[0], r2, _SINE[1])
+    s = fma(s, r2, _SINE[2])
+    s = fma(s, r2, _SINE[3])
+    s = fma(s, r2, zero)
+    s = fma(s, r, r)
+    q = np.int32(quadrant)
+    sine = s if q & 1 == 0 else c
+    cosine = c if q & 1 == 0 else s
+    return (zero - sine if q & 2 else sine), (zero - cosine if (q + 1) & 2 else cosine)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def tilted_sincos_transposed(phase_t, curvature, r2, ky, kx, x, cosine, sine):
+    """:func:`tilted_phase_transposed` and numpy's float32 ``cos`` and ``sin`` of it, frame by frame: ``cosine``,
+    ``sine`` (F, n, n) float32, C-contiguous, transposed as ``phase_t``. False (outputs unspecified) where a tilted
+    phase's magnitude exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's."""
+    frames, cols, rows = phase_t.shape
+    within = True
+    for f in range(frames):
+        # the frame's phases into ``cosine``, then their sines and cosines: loops in vector lanes over a frame in
+        # cache (one loop that mixed the double-precision sums with the single-precision sine ran slower than numpy's)
+        c, along_y = curvature[f], ky[f]
+        for j in range(cols):
+            along_x = kx[f] * x[j]
+            source, radius2, target = phase_t[f, j], r2[j], cosine[f, j]
+            for i in range(rows):
+                target[i] = ((source[i] + c * radius2[i]) + along_y * x[i]) + along_x
+        flat_c, flat_s = cosine[f].reshape(-1), sine[f].reshape(-1)
+        for i in range(flat_c.size):
+            value = flat_c[i]
+            within &= abs(value) <= SINCOS_LIMIT
+            flat_s[i], flat_c[i] = _sincos(value)
+    return within
+
+
+@cache
+def _sincos_agree() -> bool:
+    """Whether :func:`tilted_sincos_transposed` gives numpy's float32 ``sin`` and ``cos`` bits (checked once a process
+    on 400 000 phases, untilted: every scale of phase to the limit, and the neighbours of the quadrants' boundaries,
+    where a rounding of the quadrant shows)."""
+    rng = np.random.default_rng(11)
+    spread = (rng.uniform(-1.0, 1.0, (6, 50_000)) * np.array([[1e-3], [1.0], [10.0], [100.0], [1e3], [7e4]])).ravel()
+    boundaries = (np.arange(-400, 400) + 0.5) * (np.pi / 2)
+    near = (boundaries.astype(np.float32).view(np.int32)[:, None] + np.arange(-62, 63, dtype=np.int32)).view(np.float32)
+    values = np.concatenate([spread.astype(np.float32), near.ravel(), np.float32([0.0, 1e-45, -1e-45])])
+    n = 40
+    phase = np.zeros((-(-values.size // (n * n)), n, n))
+    phase.reshape(-1)[:values.size] = values
+    zero, x = np.zeros(len(phase)), np.zeros(n)
+    cosine, sine = np.empty(phase.shape, np.float32), np.empty(phase.shape, np.float32)
+    if not tilted_sincos_transposed(phase, zero, np.zeros((n, n)), zero, zero, x, cosine, sine):
+        return False
+    rounded = phase.astype(np.float32)
+    return bool(np.array_equal(sine.view(np.uint32), np.sin(rounded).view(np.uint32))
+                and np.array_equal(cosine.view(np.uint32), np.cos(rounded).view(np.uint32)))
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

@@ -415,3 +415,39 @@ def test_pupil_fft_falls_back_to_scipy_without_a_usable_private_binding(monkeypa
         np.testing.assert_array_equal(values, expected)
     finally:
         render._pocketfft_binding.cache_clear()
+
+
+def test_tilted_sine_and_cosine_are_numpys(monkeypatch):
+    # the stamps' one-pass tilted phase with its float32 sine and cosine (render.tilted_sincos_transposed) gives
+    # numpy's bits where the process's check says so (on 1.8 million phases here, every quadrant boundary's
+    # neighbours among them), says False beyond its range or at NaN, and the stamps are the same either way
+    from evsda.blocks.optics import render
+
+    rng = np.random.default_rng(8)
+    frames, n = 37, 40
+    phase_t = np.concatenate([rng.uniform(-1.0, 1.0, (frames, n, n)) * scale for scale in (0.1, 3.0, 100.0, 7e4)])
+    boundaries = ((np.arange(-1000, 1000) + 0.5) * (np.pi / 2)).astype(np.float32).view(np.int32)
+    near = (boundaries[:, None] + np.arange(-400, 400, dtype=np.int32)).view(np.float32).astype(float)
+    phase_t = np.concatenate([phase_t, near.reshape(-1, n, n)])
+    zero, x, r2 = np.zeros(len(phase_t)), np.zeros(n), np.zeros((n, n))
+    cosine, sine = np.empty(phase_t.shape, np.float32), np.empty(phase_t.shape, np.float32)
+    assert render.tilted_sincos_transposed(phase_t, zero, r2, zero, zero, x, cosine, sine)
+    if render._sincos_agree():
+        rounded = phase_t.astype(np.float32)
+        np.testing.assert_array_equal(sine.view(np.uint32), np.sin(rounded).view(np.uint32))
+        np.testing.assert_array_equal(cosine.view(np.uint32), np.cos(rounded).view(np.uint32))
+    for outside in (np.nan, 8e4):
+        given = phase_t[:2].copy()
+        given[1, 3, 5] = outside
+        assert not render.tilted_sincos_transposed(given, zero[:2], r2, zero[:2], zero[:2], x, cosine[:2], sine[:2])
+    telescope = Telescope(0.2, 0.4)
+    renderer = render.PupilRenderer(render.StampSampler(7, 12.15e-6, 9), n, 0.2 / 38, 568.3e-9,
+                                    telescope.collecting_area_m2)
+    amplitude = telescope.pupil(n, 0.2 / 38)
+    phase = 4.0 * rng.standard_normal((render.PHASE_FRAMES + 5, n, n))
+    phase[-1, 7, 9] = 9e4                                           # its block takes numpy's sine and cosine
+    offsets = rng.uniform(-0.5, 0.5, (len(phase), 2))
+    curvature = rng.uniform(0, 1e5, len(phase))
+    fused = renderer.stamps(amplitude, phase, offsets, curvature)
+    monkeypatch.setattr(render, "_sincos_agree", lambda: False)
+    np.testing.assert_array_equal(renderer.stamps(amplitude, phase, offsets, curvature), fused)
