@@ -419,6 +419,7 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         stop = ptr + stop_after
         t_change = change_step[ptr] if ptr < end else NEVER
         j_known, known, relaxed = NO_STEP, 0.0, 0.0          # what its schedule's bound took (none: from the state)
+        quiet = SOON                    # quiet_until of the present state where the lazy schedule took it
         if cmp_next < 0:                # a kept bound: the search, where the crossing could come first (the state
             # is still the one the bound was taken at: kept_schedule); elsewhere none comes before what does
             if -2 - cmp_next <= min(t_change - 1, n_end - 1, shot_next, _settle_step(ready, owed)):
@@ -488,18 +489,22 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
             last = min(t_change - 1, n_end - 1, shot_next, _settle_step(ready, owed))
             if lazy and t_change >= NEVER and last == n_end - 1:      # nothing else before the window's end
                 cmp_next, j_known = LATER, NO_STEP                    # kept_schedule at the turn's end, or now:
-                if not quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, -np.inf, np.inf,
-                                   0.0, leak_dt, dt) >= n_end:
+                quiet = quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, -np.inf, np.inf,
+                                    0.0, leak_dt, dt)
+                if not quiet >= n_end:
                     cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
                                                    noise_scale, NEVER, leak_dt, dt, large)[0]
             else:
                 cmp_next, j_known, known, relaxed = _schedule_before(step, ready, y, memorised, filtered, log_a,
                                                                      para, th_on, th_off, noise_scale, t_change,
                                                                      last, leak_dt, dt, large)
+                quiet = SOON
             if ptr == stop:
                 break
         if cmp_next == LATER:           # the stored schedule is the search's or a bound of it (kept_schedule)
-            if lazy and t_change >= NEVER:
+            if lazy and t_change >= NEVER and quiet != SOON:      # kept_schedule's bound, taken above (same state)
+                cmp_next = -2 - quiet
+            elif lazy and t_change >= NEVER:
                 cmp_next = kept_schedule(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
                                          leak_dt, dt, large)
             else:
