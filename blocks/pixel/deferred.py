@@ -300,12 +300,18 @@ def _sweep(filtered, memorised, c_leak, c_para, th_on, noise_scale, retention, y
         bits = _float_to_bits(filtered[i])
         if not (known and bits == last):
             known, last = True, bits
-            relaxed = relaxed_by(retention, filtered[i], 0.0, 0.0, 0.0, y, log_a, para, 0.0, 0.0, j, leak_hz, dt,
-                                 large)[0]
+            relaxed = _relaxed_l(retention, filtered[i], y, log_a, para, j, leak_hz, dt, large)
         filtered[i] = relaxed
     for i in range(filtered.size):
         memorised[i], c_leak[i], c_para[i] = drifted(memorised[i], c_leak[i], c_para[i], para, th_on[i],
                                                      noise_scale[i], j, leak_hz, dt)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _relaxed_l(retention, filtered, y, log_a, para, j, leak_hz, dt, large):
+    """The filter's ``L`` of :func:`.pixel_loop.relaxed_by` (not inlined: :func:`_sweep` calls it seldom, and its
+    ``exp`` and ``log`` inlined in a loop that does not vectorise took ~1 s more of the first compile)."""
+    return relaxed_by(retention, filtered, 0.0, 0.0, 0.0, y, log_a, para, 0.0, 0.0, j, leak_hz, dt, large)[0]
 
 
 class SharedChanges:
