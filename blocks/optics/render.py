@@ -355,14 +355,19 @@ def tilted_phase_transposed(phase_t, curvature, r2, ky, kx, x, out):
     """:func:`tilted_phase` on and into transposed arrays: ``out[f, j, i]`` is element ``(i, j)`` from the
     contiguous ``phase_t[f, j, i]`` (``r2`` read as ``r2[j, i]``: it is symmetric), so that every read and write runs
     along memory (vector lanes; 2.6x faster than reading the transposed view)."""
-    frames, cols, rows = phase_t.shape
-    for f in range(frames):
-        c, along_y = curvature[f], ky[f]
-        for j in range(cols):
-            along_x = kx[f] * x[j]
-            source, radius2, target = phase_t[f, j], r2[j], out[f, j]
-            for i in range(rows):
-                target[i] = ((source[i] + c * radius2[i]) + along_y * x[i]) + along_x
+    for f in range(phase_t.shape[0]):
+        _tilted_frame_transposed(phase_t[f], curvature[f], r2, ky[f], kx[f], x, out[f])
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _tilted_frame_transposed(phase_t, curvature, r2, ky, kx, x, out):
+    """One frame (n, n) of :func:`tilted_phase_transposed`, ``curvature``, ``ky`` and ``kx`` its scalars."""
+    cols, rows = phase_t.shape
+    for j in range(cols):
+        along_x = kx * x[j]
+        source, radius2, target = phase_t[j], r2[j], out[j]
+        for i in range(rows):
+            target[i] = ((source[i] + curvature * radius2[i]) + ky * x[i]) + along_x
 
 
 @intrinsic
@@ -419,17 +424,11 @@ def tilted_sincos_transposed(phase_t, curvature, r2, ky, kx, x, cosine, sine):
     """:func:`tilted_phase_transposed` and numpy's float32 ``cos`` and ``sin`` of it, frame by frame: ``cosine``,
     ``sine`` (F, n, n) float32, C-contiguous, transposed as ``phase_t``. False (outputs unspecified) where a tilted
     phase's magnitude exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's."""
-    frames, cols, rows = phase_t.shape
     within = True
-    for f in range(frames):
+    for f in range(phase_t.shape[0]):
         # the frame's phases into ``cosine``, then their sines and cosines: loops in vector lanes over a frame in
         # cache (one loop that mixed the double-precision sums with the single-precision sine ran slower than numpy's)
-        c, along_y = curvature[f], ky[f]
-        for j in range(cols):
-            along_x = kx[f] * x[j]
-            source, radius2, target = phase_t[f, j], r2[j], cosine[f, j]
-            for i in range(rows):
-                target[i] = ((source[i] + c * radius2[i]) + along_y * x[i]) + along_x
+        _tilted_frame_transposed(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine[f])
         flat_c, flat_s = cosine[f].reshape(-1), sine[f].reshape(-1)
         for i in range(flat_c.size):
             value = flat_c[i]
