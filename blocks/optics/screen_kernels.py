@@ -315,13 +315,20 @@ def read_spans(rows, cols, top, left, height, width, first, stop):
 
 
 @jit
+def _mode_row_weights(a, b, cos_y, sin_y, k, r):
+    """:func:`add_modes`' ``u = a cos y + b sin y`` and ``v = b cos y - a sin y`` of mode ``k`` in row ``r``."""
+    return a[k] * cos_y[k, r] + b[k] * sin_y[k, r], b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
+
+
+@jit
 def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
     """``out[r, c] = source[r, c] + sum_k a[k] cos(y_r + x_c) + b[k] sin(y_r + x_c)`` for ``first[r] <= c < stop[r]``
     (``out`` may be ``source``), from the cosines and sines of the modes' phases along y (K, H) and x (K, W)
     [:mod:`.large_scales`].
 
     With ``u = a cos y + b sin y`` and ``v = b cos y - a sin y`` each term is ``u cos x + v sin x``. No
-    reassociation: every value is the same sum in the same order (k ascending) wherever it lies in ``out``.
+    reassociation: every value is the same sum in the same order (k ascending) wherever it lies in ``out``; four
+    modes are added in one pass over a row (the row's sums loaded and stored once per four terms, not per term).
     """
     height = source.shape[0]
     modes = a.shape[0]
@@ -334,7 +341,19 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
         m = c1 - c0
         total = acc[:m]
         total[:] = 0.0
-        for k in range(modes):
+        for k in range(0, modes - modes % 4, 4):
+            u0, v0 = _mode_row_weights(a, b, cos_y, sin_y, k, r)
+            u1, v1 = _mode_row_weights(a, b, cos_y, sin_y, k + 1, r)
+            u2, v2 = _mode_row_weights(a, b, cos_y, sin_y, k + 2, r)
+            u3, v3 = _mode_row_weights(a, b, cos_y, sin_y, k + 3, r)
+            x0, s0, x1, s1 = cos_x[k, c0:c1], sin_x[k, c0:c1], cos_x[k + 1, c0:c1], sin_x[k + 1, c0:c1]
+            x2, s2, x3, s3 = cos_x[k + 2, c0:c1], sin_x[k + 2, c0:c1], cos_x[k + 3, c0:c1], sin_x[k + 3, c0:c1]
+            for c in range(m):
+                t = total[c] + (u0 * x0[c] + v0 * s0[c])
+                t = t + (u1 * x1[c] + v1 * s1[c])
+                t = t + (u2 * x2[c] + v2 * s2[c])
+                total[c] = t + (u3 * x3[c] + v3 * s3[c])
+        for k in range(modes - modes % 4, modes):
             u = a[k] * cos_y[k, r] + b[k] * sin_y[k, r]
             v = b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
             cx, sx = cos_x[k, c0:c1], sin_x[k, c0:c1]

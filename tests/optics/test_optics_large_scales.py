@@ -71,3 +71,29 @@ def test_walked_screens_keep_the_large_scales():
     expected = structure_function(lags * DELTA, 1.0, L0)
     error = per.std(axis=0, ddof=1) / np.sqrt(seeds)
     assert np.all(np.abs(per.mean(axis=0) - expected) < 3 * error), (per.mean(axis=0) / expected, error / expected)
+
+
+@pytest.mark.parametrize("modes", [20, 22])
+def test_add_modes_sums_each_value_mode_by_mode(modes):
+    # add_modes adds four modes in one pass over a row (and the rest one by one): each value is still the sum of the
+    # terms u cos x + v sin x in mode order from 0.0, then added to the coefficient, bit for bit
+    from evsda.blocks.optics.screen_kernels import add_modes
+    rng = np.random.default_rng(modes)
+    height, width = 5, 13
+    source = rng.standard_normal((height, width))
+    cos_y, sin_y = rng.standard_normal((2, modes, height))
+    cos_x, sin_x = rng.standard_normal((2, modes, width))
+    a, b = rng.standard_normal((2, modes))
+    first, stop = np.array([0, 3, 5, 7, 2]), np.array([13, 11, 5, 13, 9])
+    out = np.full((height, width), np.nan)
+    add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop)
+    expected = np.full((height, width), np.nan)
+    for r in range(height):
+        for c in range(first[r], stop[r]):
+            total = 0.0
+            for k in range(modes):
+                u = float(a[k] * cos_y[k, r] + b[k] * sin_y[k, r])
+                v = float(b[k] * cos_y[k, r] - a[k] * sin_y[k, r])
+                total += u * float(cos_x[k, c]) + v * float(sin_x[k, c])
+            expected[r, c] = float(source[r, c]) + total
+    np.testing.assert_array_equal(out, expected)
