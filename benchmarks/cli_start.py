@@ -10,12 +10,23 @@ Prints, for each ``evsda`` executable given (default: the one beside this Python
 medians of ``--repeats`` runs, the executables alternated run by run so that a changing load falls on
 all of them alike, and the load average beside them. The test suite starts ~100 such processes.
 
+``--parts GRAPH`` instead splits the one-core start of ``evsda run GRAPH`` before its first step (CPU seconds of
+each part in a fresh process of this checkout, the libraries imported one after the other in the order a run
+needs them, medians of ``--repeats``): NumPy, pydantic, the rest of the command line, networkx, Numba,
+SciPy, Skyfield, loading the graph (our block modules, the YAML, the checks), Numba's target set-up (what the
+first call of a compiled function does before it loads from the cache) and Zarr (the store, after the first
+window). Each part twice: as the checkouts run (editable installs with ``PYTHONDONTWRITEBYTECODE=1``: our modules
+compiled from source at every start) and with compiled bytecode (``PYTHONPYCACHEPREFIX``, filled by one unmeasured
+run first: what an installed package starts with).
+
     python benchmarks/cli_start.py [--repeats 5] [EVSDA ...]
+    python benchmarks/cli_start.py --parts benchmarks/end_to_end.yaml [--repeats 5]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import statistics
@@ -47,12 +58,72 @@ def checkout_of(evsda: str) -> Path:
     return Path(out.stdout.strip()).parents[1]
 
 
+#: the parts of a run's start, timed one after the other in a fresh process (``{graph}``: the graph file)
+PARTS = {
+    "numpy": "import numpy",
+    "pydantic": "import pydantic, pydantic_core",
+    "the rest of the command line": "import evsda.graph.cli",
+    "networkx": "import networkx",
+    "numba, llvmlite": "import numba",
+    "scipy.special (with SciPy's array-API set-up)": "import scipy.special",
+    "scipy.constants, fft, linalg": "import scipy.constants, scipy.fft, scipy.linalg",
+    "skyfield": "import skyfield.api",
+    "loading the graph (our block modules, YAML, checks)":
+        "from evsda.graph.graphfile import load_graph\nload_graph({graph!r}, ['run.duration_s=1'])",
+    "Numba's target set-up (the first compiled call)":
+        "from numba.core.registry import cpu_target\ncpu_target.target_context.refresh()\n"
+        "cpu_target.typing_context.refresh()",
+    "zarr (the store, after the first window)": "import zarr",
+}
+
+PARTS_CHILD = """
+import json, time
+spent = {{}}
+for label, statement in {parts!r}.items():
+    start = time.process_time()
+    exec(statement, {{}})
+    spent[label] = time.process_time() - start
+print(json.dumps(spent))
+"""
+
+
+def start_parts(graph: Path, repeats: int) -> None:
+    """Print the CPU seconds of each part of a run's start (:data:`PARTS`), without and with compiled bytecode."""
+    parts = {label: statement.format(graph=str(graph.resolve())) for label, statement in PARTS.items()}
+    child = [sys.executable, "-c", PARTS_CHILD.format(parts=parts)]
+    with tempfile.TemporaryDirectory() as prefix:
+        environments = {"from source": dict(os.environ, PYTHONDONTWRITEBYTECODE="1"),
+                        "compiled": {**{k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"},
+                                     "PYTHONPYCACHEPREFIX": prefix}}
+        subprocess.run(child, check=True, capture_output=True, env=environments["compiled"])  # fills the prefix
+        runs = {name: [] for name in environments}
+        loads = [os.getloadavg()[0]]
+        for _ in range(repeats):
+            for name, env in environments.items():
+                out = subprocess.run(child, check=True, capture_output=True, text=True,
+                                     env=dict(env, OPENBLAS_NUM_THREADS="1"))
+                runs[name].append(json.loads(out.stdout))
+            loads.append(os.getloadavg()[0])
+    print(f"CPU seconds of a run's start, one part after the other in a fresh process, medians of {repeats} "
+          f"(alternated); load average {min(loads):.1f}-{max(loads):.1f}")
+    print(f"  {'part':52s} {'from source':>11s} {'compiled':>9s}")
+    medians = {name: {label: statistics.median(r[label] for r in runs[name]) for label in parts} for name in runs}
+    for label in parts:
+        print(f"  {label:52s} {medians['from source'][label]:11.3f} {medians['compiled'][label]:9.3f}")
+    print(f"  {'all':52s} {sum(medians['from source'].values()):11.3f} {sum(medians['compiled'].values()):9.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("evsda", nargs="*", default=[str(Path(sys.executable).with_name("evsda"))],
                         help="evsda executables to compare (default: the one beside this Python)")
     parser.add_argument("--repeats", type=int, default=5, help="runs of each command per executable (default 5)")
+    parser.add_argument("--parts", type=Path, metavar="GRAPH",
+                        help="split the start of a run of GRAPH instead (this checkout; see the module's docstring)")
     args = parser.parse_args()
+    if args.parts is not None:
+        start_parts(args.parts, args.repeats)
+        return
 
     with tempfile.TemporaryDirectory() as tmp:
         graph = Path(tmp) / "site.yaml"
