@@ -476,7 +476,9 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
         if a1 > sides.shape[0]:
             capacity = max(2 * sides.shape[0], a1)
             sides, op_epochs = _grow(sides, capacity), _grow(op_epochs, capacity)
-            centres, befores = _grow(centres, capacity), _grow(befores, capacity)
+            # the (T, 2) arrays grown through their flat views: _grow's 1-D int64 and float64 specialisations only
+            centres = _grow(centres.reshape(-1), 2 * capacity).reshape((capacity, 2))
+            befores = _grow(befores.reshape(-1), 2 * capacity).reshape((capacity, 2))
         for i in range(a1 - a0):
             sides[a0 + i], op_epochs[a0 + i] = side[i], op_epoch[i]
             centres[a0 + i, 0], centres[a0 + i, 1] = centre[i, 0], centre[i, 1]
@@ -484,7 +486,8 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
         if e + starts.shape[0] + renewals.shape[0] > edges.shape[0]:
             edges = _grow(edges, 2 * (e + starts.shape[0] + renewals.shape[0]))
         if g + renewals.shape[0] + 1 > segments.shape[0]:
-            segments = _grow(segments, 2 * (g + renewals.shape[0] + 1))
+            grown = 2 * (g + renewals.shape[0] + 1)
+            segments = _grow(segments.reshape(-1), grown * SEGMENT_COLUMNS).reshape((grown, SEGMENT_COLUMNS))
         # the window as it is, then its canvases up to the first regeneration; then from each regeneration's fresh
         # window to the next (LayerScreen.walk's runs)
         last = renewals[0] if renewals.shape[0] else starts.shape[0] - 1
