@@ -354,8 +354,7 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
                 t = t + (u2 * x2[c] + v2 * s2[c])
                 total[c] = t + (u3 * x3[c] + v3 * s3[c])
         for k in range(modes - modes % 4, modes):
-            u = a[k] * cos_y[k, r] + b[k] * sin_y[k, r]
-            v = b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
+            u, v = _mode_row_weights(a, b, cos_y, sin_y, k, r)
             cx, sx = cos_x[k, c0:c1], sin_x[k, c0:c1]
             for c in range(m):
                 total[c] += u * cx[c] + v * sx[c]
