@@ -12,6 +12,8 @@ FFT screens at r0 = 7 cm; frames render 100 at a time, as a source's window at 1
   here (compiled with pocketfft's bits: ``column_fft``, from the field written transposed), in double precision
   (complex128), without the pruning (every row of the padded grid: ``fft2``) and through numpy's own FFT (single
   precision since numpy 2);
+* the pupil path again with the renderer's one-frame buffers 16 bytes off a cache line (numpy aligns to 16 bytes; the
+  renderer's own start on one, ``render.aligned_empty``);
 * ``stamps()`` whole in double precision (the tests' reference renderer, ``dtype=np.complex128``);
 * a matrix Fourier transform (Soummer et al. 2007, Opt. Express 15, 15935) onto the same 80 x 80
   samples, the fewest that give an exact pixel integral (the intensity's 2n - 1 Fourier lags per
@@ -53,10 +55,11 @@ from pathlib import Path
 
 import numpy as np
 import scipy.fft as sfft
+from numba.core import config as numba_config
 
 from evsda.blocks.optics import column_fft
 from evsda.blocks.optics.fft_screens import fft_phase_screens
-from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler, _fft
+from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler, _fft, aligned_empty
 from evsda.blocks.optics.telescope import Telescope
 
 N_PUPIL, DELTA_M, WAVELENGTH_M, PIXEL_RAD, STAMP = 40, 0.2 / 38, 568.3e-9, 12.15e-6, 7
@@ -71,17 +74,33 @@ def per_psf_us(work, frames: int) -> float:
 
 def render_module(checkout: Path):
     """``blocks/optics/render.py`` of another checkout, imported on its own in a package of that checkout's
-    ``blocks/optics`` (so that its relative imports read that checkout's modules; Numba caches kept apart)."""
+    ``blocks/optics`` (so that its relative imports read that checkout's modules). Its compiled functions cache in a
+    folder of this benchmark's own: in the checkout's ``__pycache__`` they would name this package, which that
+    checkout's own runs cannot import (Numba reads ``NUMBA_CACHE_DIR`` once, at its import: set here as its config)."""
     path = (checkout / "blocks" / "optics" / "render.py").resolve()
-    os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(os.environ.get("TMPDIR", "/tmp")) / "pupil_stamps_numba"))
     package = types.ModuleType("optics_" + hashlib.md5(str(path).encode()).hexdigest()[:8])
     package.__path__ = [str(path.parent)]
     sys.modules[package.__name__] = package
     spec = importlib.util.spec_from_file_location(package.__name__ + ".render", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
+    own_cache = numba_config.CACHE_DIR
+    numba_config.CACHE_DIR = str(Path(os.environ.get("TMPDIR", "/tmp")) / "pupil_stamps_numba")
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        numba_config.CACHE_DIR = own_cache
     return module
+
+
+def numpy_aligned(renderer: PupilRenderer) -> PupilRenderer:
+    """``renderer`` with its one-frame buffers (:meth:`.PupilRenderer._frame_buffers`, this thread's) moved 16 bytes
+    off a cache line, where numpy's own allocations may start: the renderer before its buffers were aligned."""
+    def moved(buffer):
+        raw = aligned_empty(buffer.nbytes + 64, np.uint8)
+        return raw[16:16 + buffer.nbytes].view(buffer.dtype).reshape(buffer.shape)
+    renderer._local.one_frame = tuple(moved(buffer) for buffer in renderer._frame_buffers())
+    return renderer
 
 
 def pupil_path_render(renderer, amplitude, phase_t, offsets, curvature, r2):
@@ -164,7 +183,7 @@ def main() -> None:
         grid[:, n:] = 0
         _fft(grid, 1)
 
-    scratch = np.empty((4, size * size), np.float32)
+    scratch = aligned_empty((4, size * size), np.float32)
 
     field_t = np.ascontiguousarray(field.transpose(0, 2, 1))
     real_t, imag_t, ones = (np.ascontiguousarray(field_t.real), np.ascontiguousarray(field_t.imag),
@@ -198,11 +217,15 @@ def main() -> None:
     chunked = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
                             telescope.collecting_area_m2)
     chunked._frames = False
+    misaligned = numpy_aligned(PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
+                                             telescope.collecting_area_m2))
     cases = {"stamps() whole": (lambda: renderer.stamps(amplitude, phase, offsets), FRAMES),
              "  the same chunk by chunk (numpy's products)": (lambda: chunked.stamps(amplitude, phase, offsets),
                                                               FRAMES),
              "pupil path from the screens' sum": (lambda: pupil_path_render(renderer, amplitude, phase_t, offsets,
                                                                              curvature, renderer.r2), FRAMES),
+             "  the same, its buffers 16 bytes off a cache line": (
+                 lambda: pupil_path_render(misaligned, amplitude, phase_t, offsets, curvature, renderer.r2), FRAMES),
              "stamps() whole, double precision": (lambda: double.stamps(amplitude, phase, offsets), FRAMES),
              "padded FFTs alone": (fft, chunk),
              binding_row: (binding, chunk),

@@ -451,3 +451,20 @@ def test_tilted_sine_and_cosine_are_numpys(monkeypatch):
     fused = renderer.stamps(amplitude, phase, offsets, curvature)
     monkeypatch.setattr(render, "_sincos_agree", lambda: False)
     np.testing.assert_array_equal(renderer.stamps(amplitude, phase, offsets, curvature), fused)
+
+
+def test_renderer_buffers_start_on_a_cache_line():
+    # the compiled passes read and write the renderer's buffers in vector lanes: each starts on a 64-byte boundary
+    # (numpy gives 16), whatever its shape and type, and holds what numpy's would
+    from evsda.blocks.optics import render
+
+    for shape, dtype in (((4, 6400), np.float32), (6400, np.float32), ((7, 7), float), ((3, 80, 80), np.complex64)):
+        for _ in range(5):
+            array = render.aligned_empty(shape, dtype)
+            assert array.ctypes.data % render.ALIGNMENT == 0
+            assert array.shape == np.empty(shape).shape and array.dtype == dtype and array.flags.c_contiguous
+    assert not render.aligned_zeros((3, 80, 80), np.complex64).any()
+    renderer = PupilRenderer(StampSampler(7, 12.15e-6, 9), 40, 0.2 / 38, 568.3e-9, 0.03)
+    for buffer in (*renderer._frame_buffers(), *renderer._per_frame(3), *renderer._workspace(2),
+                   renderer._local.scratch):
+        assert buffer.ctypes.data % render.ALIGNMENT == 0
