@@ -116,12 +116,13 @@ class PupilRenderer:
         self.dtype = dtype
         self._local = threading.local()
         # where the pupil fills the first half of an 80-point single-precision FFT exactly (the tracked pass's 40
-        # samples), each frame goes from its field to its stamp in one compiled call a block (:func:`_stamp_frames`:
-        # :mod:`.column_fft`'s passes, then ``B PSF B^T`` through Numba's ``np.dot``; no interpreter between the
-        # steps, no interpreter lock held) where that gives pocketfft's and numpy's bits (:meth:`_frames_agree`)
+        # samples), each frame goes from its phase to its stamp in one compiled call (:func:`_stamp_frames`: the
+        # tilted phase's sine and cosine, :mod:`.column_fft`'s passes, then ``B PSF B^T`` through Numba's ``np.dot``;
+        # no interpreter between the steps, no interpreter lock held) where that gives numpy's and pocketfft's bits
+        # (:func:`_sincos_agree`, :meth:`_frames_agree`)
         fits = size == column_fft.LENGTH and dtype == np.complex64
         self._frames = self._columns = self._rows = False
-        self._frames = fits and 2 * n_pupil == size and self._frames_agree()
+        self._frames = fits and 2 * n_pupil == size and _sincos_agree() and self._frames_agree()
         # elsewhere (and for fields given whole, :meth:`stamps_from_field`) chunk by chunk: the compiled transforms
         # along y where they reproduce pocketfft's bits, the pupil's rows within the first half (the same passes as
         # the frames' where those agree), and along x where the pupil fills it
@@ -151,40 +152,48 @@ class PupilRenderer:
         return tuple(b[:frames] for b in buffers)
 
     def _frame_buffers(self) -> tuple[np.ndarray, ...]:
-        """This thread's buffers for :func:`_stamp_frames`, one frame: the rows' spectra (6400,) float32, the PSF
-        (L, L), ``PSF B^T`` (L, M), the stamp (M, M) in the renderer's precision and the passes' scratch (4, L^2)."""
+        """This thread's buffers for :func:`_stamp_frames`, one frame: the tilted phase's cosine and sine (n, n)
+        float32, the rows' spectra (6400,) float32, the PSF (L, L), ``PSF B^T`` (L, M), the stamp (M, M) in the
+        renderer's precision and the passes' scratch (4, L^2)."""
         buffers = getattr(self._local, "one_frame", None)
         if buffers is None:
-            size, m, real = self.padded, self.sampler.size, self.b.dtype
-            buffers = self._local.one_frame = (aligned_empty(size * size, np.float32),
+            n, size, m, real = self.n, self.padded, self.sampler.size, self.b.dtype
+            buffers = self._local.one_frame = (aligned_empty((n, n), np.float32), aligned_empty((n, n), np.float32),
+                                               aligned_empty(size * size, np.float32),
                                                aligned_empty((size, size), real), aligned_empty((size, m), real),
                                                aligned_empty((m, m), real), aligned_empty((4, size * size), np.float32))
         return buffers
 
     def _frames_agree(self) -> bool:
-        """Whether :func:`_stamp_frames` gives, on random fields and offsets (once a renderer), the bits of scipy's
-        pocketfft transforms (padded rows, then columns), numpy's float32 ``|.|^2`` and ``matmul`` products and the
-        float64 scale: the chunked path's steps through scipy (tested equal to its compiled steps). Its products are
+        """Whether :func:`_stamp_frames` gives, on random phases, defocus and offsets (once a renderer), the bits of the
+        chunked path's steps through numpy and scipy: the tilted phase (numpy's broadcast sums, transposed) rounded
+        to float32, numpy's ``sin`` and ``cos``, scipy's pocketfft transforms (padded
+        rows, then columns), numpy's float32 ``|.|^2`` and ``matmul`` products and the float64 scale. Its products are
         BLAS's ``sgemm`` as Numba calls it (scipy's BLAS), which must give numpy's (its own BLAS) sums."""
         rng = np.random.default_rng(3)
         frames, n, size = 5, self.n, self.padded
-        amplitude = rng.uniform(0.0, 1.0, (1, n, n)).astype(np.float32)
-        cosine, sine = rng.uniform(-1.0, 1.0, (2, frames, n, n)).astype(np.float32)
+        amplitude_t = rng.uniform(0.0, 1.0, (1, n, n)).astype(np.float32)
+        phase_t = rng.uniform(-30.0, 30.0, (frames, n, n))
+        curvature, ky, kx = rng.uniform(-1e5, 1e5, (3, frames))
+        x, column = self.x[None, None, :], (slice(None), None, None)
+        tilted = ((((phase_t + curvature[column] * self.r2[None]) + ky[column] * x) + kx[column] * x.transpose(0, 2, 1))
+                  .astype(np.float32))
+        field_t = (np.cos(tilted) + 1j * np.sin(tilted)).astype(np.complex64) * amplitude_t
         grid = np.zeros((frames, size, size), np.complex64)
-        grid[:, :n, :n] = (cosine + 1j * sine).astype(np.complex64) * amplitude
+        grid[:, :n, :n] = field_t.transpose(0, 2, 1)
         _fft(grid[:, :n], 2)
         _fft(grid, 1)
         image = np.matmul(self.b, np.matmul(grid.real**2 + grid.imag**2, self.b_t))
         expected = np.empty((frames, self.sampler.size, self.sampler.size))
         self._scale(image, expected)
-        transposed = [np.ascontiguousarray(a.transpose(0, 2, 1)) for a in (amplitude, cosine, sine)]
         out = np.empty_like(expected)
         try:
-            _stamp_frames(*transposed, self.b, self.b_t, (self.delta**2 / self.wavelength) ** 2, float(self.area), out,
-                          *self._frame_buffers(), *column_fft.TWIDDLES)
+            within = _stamp_frames(phase_t, curvature, self.r2, ky, kx, self.x, amplitude_t, self.b, self.b_t,
+                                   (self.delta**2 / self.wavelength) ** 2, float(self.area), out,
+                                   *self._frame_buffers(), *column_fft.TWIDDLES)
         except Exception:                 # noqa: BLE001 -- no BLAS for Numba's np.dot: the chunked path then
             return False
-        return bool(np.array_equal(expected.view(np.uint64), out.view(np.uint64)))
+        return within and bool(np.array_equal(expected.view(np.uint64), out.view(np.uint64)))
 
     def tilt(self, offset_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Separable pupil factors ``exp(i k theta . r)`` (F, n) along y and x moving the image by ``offset_px``."""
@@ -215,6 +224,12 @@ class PupilRenderer:
             phase_t = np.ascontiguousarray(phase.transpose(0, 2, 1))
             amplitude_t = np.ascontiguousarray(amplitude.T[None] if amplitude.ndim == 2
                                                else amplitude.transpose(0, 2, 1))
+            # every frame from its phase to its stamp in one compiled call, unless a tilted phase is beyond the
+            # compiled sine's range (or NaN): then block by block below
+            if self._frames and _stamp_frames(phase_t, curvature, self.r2, ky, kx, self.x, amplitude_t, self.b,
+                                              self.b_t, (self.delta**2 / self.wavelength) ** 2, float(self.area), out,
+                                              *self._frame_buffers(), *column_fft.TWIDDLES):
+                return out
         for block in _chunks(len(phase), PHASE_FRAMES):
             cosine, sine, image = self._per_frame(block.stop - block.start)
             # numpy's cos and sin of the tilted phase (rounded to single precision) on contiguous buffers, the
@@ -230,11 +245,6 @@ class PupilRenderer:
                     tilted_phase(phase[block], curvature[block], self.r2, ky[block], kx[block], self.x, cosine)
                 np.sin(cosine, out=sine)
                 np.cos(cosine, out=cosine)
-            if self._rows and self._frames:
-                given = amplitude_t if len(amplitude_t) == 1 else amplitude_t[block]
-                _stamp_frames(given, cosine, sine, self.b, self.b_t, (self.delta**2 / self.wavelength) ** 2,
-                              float(self.area), out[block], *self._frame_buffers(), *column_fft.TWIDDLES)
-                continue
             for sl in _chunks(len(image), STAMP_CHUNK):
                 grid, *rest = self._workspace(sl.stop - sl.start)
                 if self._rows:
@@ -448,14 +458,24 @@ def tilted_sincos_transposed(phase_t, curvature, r2, ky, kx, x, cosine, sine):
     phase's magnitude exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's."""
     within = True
     for f in range(phase_t.shape[0]):
-        # the frame's phases into ``cosine``, then their sines and cosines: loops in vector lanes over a frame in
-        # cache (one loop that mixed the double-precision sums with the single-precision sine ran slower than numpy's)
-        _tilted_frame_transposed(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine[f])
-        flat_c, flat_s = cosine[f].reshape(-1), sine[f].reshape(-1)
-        for i in range(flat_c.size):
-            value = flat_c[i]
-            within &= abs(value) <= SINCOS_LIMIT
-            flat_s[i], flat_c[i] = _sincos(value)
+        within &= _tilted_sincos_frame(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine[f], sine[f])
+    return within
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _tilted_sincos_frame(phase_t, curvature, r2, ky, kx, x, cosine, sine):
+    """One frame (n, n) of :func:`tilted_sincos_transposed`, ``curvature``, ``ky`` and ``kx`` its scalars: whether
+    every phase was within ``SINCOS_LIMIT``. Compiled once for both of its callers (not inlined: the sine's
+    polynomials compiled twice cost ~0.6 s of a first run)."""
+    # the frame's phases into ``cosine``, then their sines and cosines: loops in vector lanes over a frame in cache
+    # (one loop that mixed the double-precision sums with the single-precision sine ran slower than numpy's)
+    _tilted_frame_transposed(phase_t, curvature, r2, ky, kx, x, cosine)
+    flat_c, flat_s = cosine.reshape(-1), sine.reshape(-1)
+    within = True
+    for i in range(flat_c.size):
+        value = flat_c[i]
+        within &= abs(value) <= SINCOS_LIMIT
+        flat_s[i], flat_c[i] = _sincos(value)
     return within
 
 
@@ -482,26 +502,31 @@ def _sincos_agree() -> bool:
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _stamp_frames(amplitude_t, cosine_t, sine_t, b, b_t, factor, area, out, grid, psf, half, image, scratch, twr,
-                  twi):
-    """:meth:`PupilRenderer.stamps`' steps after the cosine and sine, frame by frame in one call: the field's padded
-    FFTs and ``|.|^2`` (:func:`.column_fft.field_powers`), ``B PSF B^T`` (two ``sgemm`` as numpy's ``matmul`` makes
-    them per frame) and :meth:`PupilRenderer._scale` (``float64(image) factor / area``). ``amplitude_t`` (1 or F, n,
-    n), ``cosine_t``, ``sine_t`` (F, n, n): transposed (x, y), float32; ``out`` (F, M, M) float64; the rest this
-    thread's buffers (:meth:`PupilRenderer._frame_buffers`) and the twiddles."""
-    frames, n = cosine_t.shape[0], cosine_t.shape[1]
+def _stamp_frames(phase_t, curvature, r2, ky, kx, x, amplitude_t, b, b_t, factor, area, out, cosine, sine, grid, psf,
+                  half, image, scratch, twr, twi):
+    """:meth:`PupilRenderer.stamps` frame by frame in one call: the tilted phase's float32 sine and cosine
+    (:func:`tilted_sincos_transposed`'s), the field's padded FFTs and ``|.|^2`` (:func:`.column_fft.field_powers`),
+    ``B PSF B^T`` (two ``sgemm`` as numpy's ``matmul`` makes them per frame) and :meth:`PupilRenderer._scale`
+    (``float64(image) factor / area``), each frame's steps on its own in this thread's buffers (the frame stays in
+    cache). ``phase_t`` (F, n, n) float64, ``amplitude_t`` (1 or F, n, n) float32: transposed (x, y); ``curvature``,
+    ``ky``, ``kx`` (F,) as :func:`tilted_phase`'s; ``out`` (F, M, M) float64; the rest this thread's buffers
+    (:meth:`PupilRenderer._frame_buffers`) and the twiddles. False (``out`` unspecified) at the first frame whose
+    tilted phase exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's sine and cosine."""
+    frames, n = phase_t.shape[0], phase_t.shape[1]
     m = image.shape[0]
-    flat_psf = psf.reshape(-1)
+    flat_psf, flat_cosine, flat_sine = psf.reshape(-1), cosine.reshape(-1), sine.reshape(-1)
     for f in range(frames):
+        if not _tilted_sincos_frame(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine, sine):
+            return False
         a = amplitude_t[f if amplitude_t.shape[0] > 1 else 0]
-        column_fft.field_powers(a.reshape(n * n), cosine_t[f].reshape(n * n), sine_t[f].reshape(n * n), grid,
-                                flat_psf, scratch, twr, twi)
+        column_fft.field_powers(a.reshape(n * n), flat_cosine, flat_sine, grid, flat_psf, scratch, twr, twi)
         np.dot(psf, b_t, half)
         np.dot(b, half, image)
         target = out[f]
         for i in range(m):
             for j in range(m):
                 target[i, j] = np.float64(image[i, j]) * factor / area
+    return True
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

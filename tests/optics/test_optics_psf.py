@@ -420,7 +420,8 @@ def test_pupil_fft_falls_back_to_scipy_without_a_usable_private_binding(monkeypa
 def test_tilted_sine_and_cosine_are_numpys(monkeypatch):
     # the stamps' one-pass tilted phase with its float32 sine and cosine (render.tilted_sincos_transposed) gives
     # numpy's bits where the process's check says so (on 1.8 million phases here, every quadrant boundary's
-    # neighbours among them), says False beyond its range or at NaN, and the stamps are the same either way
+    # neighbours among them), says False beyond its range or at NaN, and the stamps are the same either way: frame by
+    # frame from the phase in one call, block by block, and with numpy's sine and cosine
     from evsda.blocks.optics import render
 
     rng = np.random.default_rng(8)
@@ -449,6 +450,18 @@ def test_tilted_sine_and_cosine_are_numpys(monkeypatch):
     offsets = rng.uniform(-0.5, 0.5, (len(phase), 2))
     curvature = rng.uniform(0, 1e5, len(phase))
     fused = renderer.stamps(amplitude, phase, offsets, curvature)
+    # every frame from its phase to its stamp in one compiled call (render._stamp_frames) against block by block
+    # (the compiled sine and cosine, then chunk by chunk), with one amplitude and with one a frame
+    chunked = render.PupilRenderer(render.StampSampler(7, 12.15e-6, 9), n, 0.2 / 38, 568.3e-9,
+                                   telescope.collecting_area_m2)
+    assert renderer._frames == render._sincos_agree()
+    chunked._frames = False
+    inside = slice(3, len(phase) - 1)
+    amplitudes = amplitude[None] * rng.uniform(0.5, 1.0, (len(phase), 1, 1))
+    for given in (amplitude, amplitudes[inside]):
+        np.testing.assert_array_equal(renderer.stamps(given, phase[inside], offsets[inside], curvature[inside]),
+                                      chunked.stamps(given, phase[inside], offsets[inside], curvature[inside]))
+    np.testing.assert_array_equal(chunked.stamps(amplitude, phase, offsets, curvature), fused)
     monkeypatch.setattr(render, "_sincos_agree", lambda: False)
     np.testing.assert_array_equal(renderer.stamps(amplitude, phase, offsets, curvature), fused)
 
