@@ -107,7 +107,8 @@ def cells(L0: float, L1: float) -> Cells:
 
 
 class LargeScales:
-    """The Fourier modes of one screen's large scales: frequencies per sample and coefficient amplitudes."""
+    """The Fourier modes of one screen's large scales: frequencies per sample and coefficient amplitudes, drawn from
+    ``rng`` (a NumPy generator, or :class:`.normal_draws.SeededDraws`: its ``random`` and ``standard_normal``)."""
 
     def __init__(self, rng: np.random.Generator, delta: float, L0: float, L1: float):
         c = cells(L0, L1)

@@ -48,7 +48,8 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
-from .normal_draws import _TABLES, _UNSCALED, same_as_numpy, standard_normal
+from .normal_draws import (_TABLES, _UNSCALED, SeededDraws, _fill, entropy_words, same_as_numpy, seeded_state,
+                           standard_normal)
 from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
                              sample_grids_transposed, walk_segments)
 
@@ -74,6 +75,16 @@ def _generator(seed: tuple[int, ...], epoch: int, word: int) -> np.random.Genera
     """The random generator of a screen's draws addressed by its ``seed``, ``epoch`` and ``word`` (the regeneration
     count within the epoch, or :data:`.large_scales.SEED_WORD` for its large-scale modes)."""
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence([*seed, epoch & 0xFFFFFFFF, word])))
+
+
+def _seeded_entropy(seed_words: np.ndarray | None, epoch: int, word: int) -> np.ndarray | None:
+    """:func:`_generator`'s entropy as SeedSequence's 32-bit words (:func:`.normal_draws.entropy_words`), from the
+    seed's (``seed_words``), where the compiled draws are NumPy's (:func:`.normal_draws.same_as_numpy`) and the seed
+    has words; None otherwise (NumPy's generator draws)."""
+    if seed_words is None or not same_as_numpy():
+        return None
+    tail = entropy_words((epoch & 0xFFFFFFFF, word))
+    return np.concatenate((seed_words, tail))
 
 
 _WORD = 2**64 - 1
@@ -137,6 +148,7 @@ class LayerScreen:
         # the screen's generator between walks: PCG64's words (its draws are made in the compiled walk) and the
         # state's other fields, (has_uint32, uinteger), which normal draws leave as they are
         self._words, self._spare = _words(_FIRST_STATE), (0, 0)
+        self._seed_words = entropy_words(self.seed)       # SeedSequence's words of the seed (None: negative)
         # with keep_twin, the other (imaginary) half of the last FFT draw, for twin(): (samples, origin, epoch, count)
         self.keep_twin, self._twin = bool(keep_twin), None
 
@@ -147,9 +159,20 @@ class LayerScreen:
             self.n_regenerations += 1
         else:
             self.epoch, self.n_regenerations = int(epoch), 0
-        rng = _generator(self.seed, self.epoch, self.n_regenerations)
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
-        self.coefficients = self._fresh(rng) if self.n <= SELF_START_SAMPLES else self._cut_from_fft(rng)
+        entropy = _seeded_entropy(self._seed_words, self.epoch, self.n_regenerations)
+        if entropy is not None and self.n <= SELF_START_SAMPLES:
+            # seeded and drawn compiled: NumPy's generator's numbers and state (:func:`_generator`)
+            words = np.empty(4, np.uint64)
+            seeded_state(entropy, words)
+            noise = np.empty(self.n * (self.n + BURN_IN * self.n))
+            _fill(words, noise, _UNSCALED, False, *_ZIGGURAT)
+            self.coefficients = self._fresh(noise)
+            self._words, self._spare = words, (0, 0)    # a fresh PCG64 holds no spare 32-bit word
+            return
+        rng = _generator(self.seed, self.epoch, self.n_regenerations)
+        self.coefficients = (self._fresh(standard_normal(rng, self.n * (self.n + BURN_IN * self.n)))
+                             if self.n <= SELF_START_SAMPLES else self._cut_from_fft(rng))
         self._set_generator(rng)
 
     def _set_generator(self, rng: np.random.Generator) -> None:
@@ -184,20 +207,24 @@ class LayerScreen:
             return None
         twin = LayerScreen(self.n, self.delta, seed, L0=self.L0, update=self.update)
         twin.epoch, twin.n_regenerations, twin.origin = epoch, count, origin.copy()
-        twin._set_generator(_generator(twin.seed, epoch, count))
+        entropy = _seeded_entropy(twin._seed_words, epoch, count)
+        if entropy is None:
+            twin._set_generator(_generator(twin.seed, epoch, count))
+        else:
+            seeded_state(entropy, twin._words)                  # a fresh PCG64's state, spare (0, 0)
         twin.coefficients = coefficients
         return twin
 
-    def _fresh(self, rng: np.random.Generator) -> np.ndarray:
-        """B-spline coefficients of a window made by conditional draws from a few exact columns (``rng``'s)."""
+    def _fresh(self, noise: np.ndarray) -> np.ndarray:
+        """B-spline coefficients of a window made by conditional draws from a few exact columns, from ``n (n +
+        BURN_IN n)`` standard normal draws (``noise``: the exact columns' first, then each conditional column's n, in
+        order; one draw of the screen's generator)."""
         n = self.n
         width = n + BURN_IN * n
         canvas = np.empty((n, width))
         # the first columns exactly, then one conditional column at a time, each on the stencil the columns
         # made so far allow (the operators change where the stencil gains a column: 4, 8, 16, ...); the window
         # keeps the last n
-        # (one draw for all: the exact columns' normals first, then each conditional column's n, in order)
-        noise = standard_normal(rng, n * width)
         canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L1)
                                     @ noise[:FULL_COLUMNS * n]).reshape(FULL_COLUMNS, n).T
         for made, tops, lefts, sides in _fresh_stages(n, width):
@@ -239,8 +266,9 @@ class LayerScreen:
         """The present epoch's large-scale modes (:mod:`.large_scales`), drawn from their own generator seeded by
         ``(seed, epoch)``."""
         if self._large is None or self._large[0] != self.epoch:
-            self._large = (self.epoch, LargeScales(_generator(self.seed, self.epoch, SEED_WORD), self.delta, self.L0,
-                                                   self.L1))
+            entropy = _seeded_entropy(self._seed_words, self.epoch, SEED_WORD)
+            draws = _generator(self.seed, self.epoch, SEED_WORD) if entropy is None else SeededDraws(entropy)
+            self._large = (self.epoch, LargeScales(draws, self.delta, self.L0, self.L1))
         return self._large[1]
 
     def _with_large_scales(self, coefficients: np.ndarray, top: int, left: int, rows: np.ndarray,

@@ -49,3 +49,39 @@ def test_fft_screens_unchanged_by_the_compiled_draws(monkeypatch):
     monkeypatch.setattr(normal_draws, "_compiled_here", lambda rng: False)
     b = fft_phase_screens(np.random.default_rng(11), 64, 0.01, 0.1, 20.0)
     assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+def entropies():
+    """Seed sequences' entropies of 1-9 ints: small, 32-bit, 64-bit and wider, zeros (the pool's padding, more words
+    than the pool: mixed in after it)."""
+    rng = np.random.default_rng(2)
+    cases = [[0], [5], [0, 0, 0, 0, 0], [2**32], [2**64 - 1, 3], [2**100 + 7, 1, 2**32 - 1], [1, 2, 3, 4, 5, 6, 7, 8, 9]]
+    for bits in (16, 32, 63):
+        for size in (1, 3, 4, 5, 8):
+            cases.append([int(v) for v in rng.integers(0, 2**bits, size)])
+    return cases
+
+
+@pytest.mark.parametrize("entropy", entropies())
+def test_seeded_state_is_numpys_seed_sequence_and_pcg64(entropy):
+    state = np.empty(4, np.uint64)
+    normal_draws.seeded_state(normal_draws.entropy_words(entropy), state)
+    expected = np.random.PCG64(np.random.SeedSequence(entropy)).state["state"]
+    assert (int(state[0]) << 64 | int(state[1]), int(state[2]) << 64 | int(state[3])) == (expected["state"],
+                                                                                         expected["inc"])
+
+
+def test_seeded_draws_are_a_seeded_generators():
+    entropy = [3, 2**40 + 1, 0, 7, 0xFFFFFFFF]
+    numpy_rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(entropy)))
+    ours = normal_draws.SeededDraws(normal_draws.entropy_words(entropy))
+    for _ in range(2):                                     # interleaved, as the large-scale modes draw
+        assert np.array_equal(ours.random((5, 4, 2)), numpy_rng.random((5, 4, 2)))
+        assert np.array_equal(ours.standard_normal((2, 20)), numpy_rng.standard_normal((2, 20)))
+    assert int(ours.state[0]) << 64 | int(ours.state[1]) == numpy_rng.bit_generator.state["state"]["state"]
+
+
+def test_entropy_words_refuse_negative_ints_as_numpy_does():
+    assert normal_draws.entropy_words([1, -1]) is None
+    with pytest.raises(ValueError):
+        np.random.SeedSequence([1, -1])

@@ -306,9 +306,22 @@ def test_walks_draw_numpys_normals_inside_the_compiled_walk(monkeypatch):
         return out, [(s.coefficients.tobytes(), s.state()["rng"]) for s in screens]
 
     compiled = walk()
-    monkeypatch.setattr(layer_screen, "same_as_numpy", lambda: False)
+    monkeypatch.setattr(layer_screen, "same_as_numpy", lambda: False)     # also NumPy's seeding (regenerations, modes)
     numpys = walk()
     assert compiled[0].tobytes() == numpys[0].tobytes() and compiled[1] == numpys[1]
+
+
+def test_a_twins_generator_is_seeded_as_numpy_seeds_it(monkeypatch):
+    from evsda.blocks.optics import layer_screen
+
+    def twin():
+        screen = LayerScreen(SELF_START_SAMPLES + 8, 0.02, (4, 1), L0=20.0, keep_twin=True)
+        screen.regenerate(np.array([0.0, 0.0]), 3)
+        return screen.twin((6,)).state()["rng"]
+
+    compiled = twin()
+    monkeypatch.setattr(layer_screen, "same_as_numpy", lambda: False)
+    assert compiled == twin()
 
 
 def test_a_fresh_walk_writes_what_adding_to_zeros_gives():
