@@ -358,23 +358,33 @@ class PointSourceOptics(Block):
             return origin, stamps, {"path": paths[-1], "origin": origin[-1].copy(), "stamp": stamps[-1].copy(),
                                     "t_ns": int(times[-1])}
         rendered = np.flatnonzero(fresh)                # (a stretch that does not continue starts with a new path)
-        # each frame's stamp: the last rendered at or before it, counted from the stamp held from before the stretch
-        which = np.cumsum(fresh)
-        origins, stamps = [record["origin"][None]] if continuing else [], [record["stamp"][None]] if continuing else []
+        origin = stamps = None
         if rendered.size:
             r = at[rendered]
-            picked = rendered.tolist()
-            o, s, _ = imager.render(
+            origin, stamps, _ = imager.render(
                 key, times[rendered] * 1e-9, None, None, tr["zenith"][r], tr["range"][r], seen[rendered],
-                paths=[paths[i] for i in picked], placed=tuple(p[r] for p in tr["placed"]))
-            origins.append(o.astype(np.int32, copy=False))
-            stamps.append(s)
-            record = {"path": paths[picked[-1]]}
+                paths=[paths[i] for i in rendered.tolist()], placed=tuple(p[r] for p in tr["placed"]))
+            origin = origin.astype(np.int32, copy=False)
+        return PointSourceOptics._held(times, fresh, continuing, record, paths, origin, stamps)
+
+    @staticmethod
+    def _held(times: np.ndarray, fresh: np.ndarray, continuing: bool, record: dict | None, paths: list[str],
+              origin: np.ndarray | None, stamps: np.ndarray | None):
+        """Every frame's placement and stamp of a stretch at render times ``times`` [ns] whose frames ``fresh`` were
+        rendered (their ``origin`` and ``stamps``, None where none was) and the rest held: each frame's the last
+        rendered at or before it, counted from the stamp ``record`` held from the render time before where the stretch
+        is ``continuing``; with the record updated (:meth:`_render_held`)."""
+        which = np.cumsum(fresh)
+        origins, held = ([record["origin"][None]], [record["stamp"][None]]) if continuing else ([], [])
+        if stamps is not None:
+            origins.append(origin)
+            held.append(stamps)
+            record = {"path": paths[int(np.flatnonzero(fresh)[-1])]}
         if not continuing:
             which -= 1
-        origin, stamps = np.concatenate(origins)[which], np.concatenate(stamps)[which]
-        record = {**record, "origin": origin[-1].copy(), "stamp": stamps[-1].copy(), "t_ns": int(times[-1])}
-        return origin, stamps, record
+        origin, stamps = np.concatenate(origins)[which], np.concatenate(held)[which]
+        return origin, stamps, {**record, "origin": origin[-1].copy(), "stamp": stamps[-1].copy(),
+                                "t_ns": int(times[-1])}
 
     def step(self, window: Window, sources: list[PointSources] | PointSources,
              background: SkyBackground | None = None) -> dict:
@@ -475,41 +485,56 @@ class PointSourceOptics(Block):
             return key, record
 
         def render_together(group):
-            """Sources in view at the same render times ``idx`` (one stretch each) that render every one of them on
-            the pupil path: their screens walked and their stamps made in one call each (:meth:`.Imager.render_many`;
-            each source's stamps those of :func:`render`)."""
-            idx = group[0][3]
-            for _, key, *_ in group:
+            """Sources in view at the same render times ``idx`` (one stretch each) on the pupil path that render the
+            same of them (every one, or the same ``fresh`` frames with the rest held, :meth:`_held`): their screens
+            walked and their stamps made in one call each (:meth:`.Imager.render_many`; each source's stamps those of
+            :func:`render`). ``group``: each source's job, ``fresh`` (None: every frame) and whether its stretch
+            continues the stamp held from before."""
+            (_, _, _, idx, *_), fresh, _ = group[0]
+            at = idx if fresh is None else idx[fresh]
+            for (_, key, *_), _, _ in group:
                 if not imager.keeps(key, t_ns[idx[0]]):
                     imager.forget([key])
-            placed = tuple(np.stack([tr["placed"][i][idx] for _, _, tr, *_ in group]) for i in range(3))
-            stamps = imager.render_many([key for _, key, *_ in group], t_s[idx],
-                                        np.stack([tr["zenith"][idx] for _, _, tr, *_ in group]),
-                                        np.stack([tr["range"][idx] for _, _, tr, *_ in group]), placed)
+            placed = tuple(np.stack([tr["placed"][i][at] for (_, _, tr, *_), _, _ in group]) for i in range(3))
+            stamps = imager.render_many([key for (_, key, *_), _, _ in group], t_s[at],
+                                        np.stack([tr["zenith"][at] for (_, _, tr, *_), _, _ in group]),
+                                        np.stack([tr["range"][at] for (_, _, tr, *_), _, _ in group]), placed)
             done = []
-            for k, (s, key, tr, *_) in enumerate(group):
+            for k, ((s, key, tr, _, _, paths, _), _, continuing) in enumerate(group):
                 o = placed[0][k].astype(np.int32, copy=False)
+                if fresh is None:
+                    own = stamps[k]
+                    record = self.held_stamps.get(key) if every is None else {
+                        "path": "pupil_fft", "origin": o[-1].copy(), "stamp": stamps[k, -1].copy(),
+                        "t_ns": int(t_ns[idx[-1]])}
+                else:
+                    o, own, record = self._held(t_ns[idx], fresh, continuing, self.held_stamps.get(key), paths, o,
+                                                stamps[k])
                 origin[idx, s] = o
-                flux[idx, s] = stamps[k] * (tr["flux"][idx] * collected)[:, None, None]
+                flux[idx, s] = own * (tr["flux"][idx] * collected)[:, None, None]
                 imager.seen(key, t_ns[idx[-1]])
-                record = self.held_stamps.get(key) if every is None else {
-                    "path": "pupil_fft", "origin": o[-1].copy(), "stamp": stamps[k, -1].copy(),
-                    "t_ns": int(t_ns[idx[-1]])}
                 done.append((s, (key, record)))
             return done
 
-        # sources in view at the same render times, one stretch each, rendering every one of them on the pupil path
-        # (the usual window: the satellite and the stars that can fire a pixel) go together, TOGETHER at a time
+        # sources in view at the same render times, one stretch each, rendering the same of them on the pupil path
+        # (the usual window: the satellite and the stars that can fire a pixel, every frame or, held, the same ones)
+        # go together, TOGETHER at a time
         groups, alone = {}, []
         for job in jobs:
             s, key, tr, idx, mine, paths, every_j = job
-            if (idx[-1] - idx[0] == len(idx) - 1 and paths[0] == "pupil_fft" and paths.count(paths[0]) == len(paths)
-                    and imager.renders_together(paths[0])
-                    and (every_j is None or self._fresh_frames(t_ns[idx], paths, every_j, cadence_ns,
-                                                               self.held_stamps.get(key))[0].all())):
-                groups.setdefault(idx.tobytes(), []).append(job)
-            else:
+            if not (idx[-1] - idx[0] == len(idx) - 1 and paths[0] == "pupil_fft"
+                    and paths.count(paths[0]) == len(paths) and imager.renders_together(paths[0])):
                 alone.append(job)
+                continue
+            fresh, continuing = (None, False) if every_j is None else self._fresh_frames(
+                t_ns[idx], paths, every_j, cadence_ns, self.held_stamps.get(key))
+            if fresh is not None and fresh.all():
+                fresh = None
+            if fresh is not None and not fresh.any():              # every frame held: nothing to render
+                alone.append(job)
+                continue
+            groups.setdefault((idx.tobytes(), None if fresh is None else fresh.tobytes()), []).append(
+                (job, fresh, continuing))
         threads = worker_threads()
         units = [(render_together, group[k:k + TOGETHER]) for group in groups.values()
                  for k in range(0, len(group), TOGETHER)]

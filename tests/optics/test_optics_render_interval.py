@@ -146,3 +146,29 @@ def test_held_stamps_do_not_depend_on_windows_or_resume(params):
     resumed.set_state(state)
     tail = resumed.step(windows[1], sources=sources(windows[1], 0.002))["irradiance"].stamp_flux
     np.testing.assert_array_equal(tail, whole[13:])
+
+
+def test_held_stamps_rendered_together_are_those_rendered_alone(params, monkeypatch):
+    # the satellite tracked slowly and the star, both held over the same 8 render times: rendered together (one walk
+    # of both sources' screens and one stamps call for their fresh frames, PointSourceOptics.step's groups) against
+    # each alone (Imager.renders_together off), over windows that start and end mid-hold, bit for bit
+    from evsda.blocks.optics.imaging import Imager
+
+    windows = [Window.from_seconds(0.0, 0.013, index=0), Window.from_seconds(0.013, 0.035, index=1)]
+    calls = []
+    render_many = Imager.render_many
+    monkeypatch.setattr(Imager, "render_many", lambda self, sources, t_s, *rest: calls.append(
+        (len(sources), len(t_s))) or render_many(self, sources, t_s, *rest))
+    block, together, origin = run(params, windows, turn_rad_s=0.002)
+    assert calls == [(2, 2), (2, 3)]                       # render times 0, 8 | 16, 24, 32 of 13 and 22
+    monkeypatch.setattr(Imager, "renders_together", lambda self, path: False)
+    alone_block, alone, alone_origin = run(params, windows, turn_rad_s=0.002)
+    assert calls == [(2, 2), (2, 3)]
+    np.testing.assert_array_equal(together, alone)
+    np.testing.assert_array_equal(origin, alone_origin)
+    assert block._imager.frames_rendered == alone_block._imager.frames_rendered
+    assert block.held_stamps.keys() == alone_block.held_stamps.keys()
+    for key, record in block.held_stamps.items():
+        assert record["path"] == alone_block.held_stamps[key]["path"]
+        assert record["t_ns"] == alone_block.held_stamps[key]["t_ns"]
+        np.testing.assert_array_equal(record["stamp"], alone_block.held_stamps[key]["stamp"])
