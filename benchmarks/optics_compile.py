@@ -16,6 +16,9 @@ the medians of:
 * the store's events digest (the same in every run: the compiles change no result).
 
 ``--list`` prints each function's signatures, to find duplicates from literal or differing argument types.
+``--code`` also prints a digest of the machine code the cold run cached (each cached object disassembled with
+``objdump``, Numba's numbered symbol names aside): the same digest, the same instructions (e.g. with and without
+``EVSDA_QUICKER_TYPING=off``).
 The pixels' own cold start on a small scene: ``benchmarks/pixel_compile.py``.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_compile.py [--repeats 1] [--top 25] [--list]
@@ -24,7 +27,10 @@ The pixels' own cold start on a small scene: ``benchmarks/pixel_compile.py``.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import pickle
+import re
 import os
 import statistics
 import subprocess
@@ -86,6 +92,21 @@ def child(graph: Path, duration: float, cache_dir: str, store: Path) -> dict:
     return json.loads(lines[-1].split(" ", 1)[1])
 
 
+def machine_code(cache_dir: str) -> dict[str, str]:
+    """Each cached object's file name -> a digest of its disassembled instructions and relocations, Numba's numbered
+    symbol names (and a temporary file's name) aside."""
+    digests = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for path in sorted(Path(cache_dir).rglob("*.nbc")):
+            obj = Path(tmp) / "code.o"
+            obj.write_bytes(pickle.loads(path.read_bytes())[0][2][0])     # the library's ELF object
+            code = subprocess.run(["objdump", "-d", "-r", "--no-show-raw-insn", str(obj)], capture_output=True,
+                                  text=True, check=True).stdout
+            code = re.sub(r"_ZN\S+|\b\w*\$\d+\w*", "SYMBOL", code.split(str(obj), 1)[-1])
+            digests[path.name] = hashlib.sha256(code.encode()).hexdigest()[:16]
+    return digests
+
+
 def package(name: str) -> str:
     """The block package a compiled function lives in (optics, pixel) or "other"."""
     head = name.split(".", 1)[0]
@@ -99,13 +120,16 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="cold (and warm) runs, alternated")
     parser.add_argument("--top", type=int, default=25, help="compiled functions listed")
     parser.add_argument("--list", action="store_true", help="print every function's compiled signatures")
+    parser.add_argument("--code", action="store_true", help="print a digest of the cold run's cached machine code")
     args = parser.parse_args()
-    cold, warm = [], []
+    cold, warm, codes = [], [], []
     load = [os.getloadavg()[0]]
     for _ in range(args.repeats):
         with tempfile.TemporaryDirectory() as tmp:
             cache, store = str(Path(tmp) / "numba"), Path(tmp) / "run.zarr"
             cold.append(child(args.graph, args.duration, cache, store))
+            if args.code:
+                codes.append(machine_code(cache))
             warm.append(child(args.graph, args.duration, cache, store))
             load.append(os.getloadavg()[0])
     median = statistics.median
@@ -151,6 +175,9 @@ def main() -> None:
             for s in cold[0]["signatures"].get(n, []):
                 print(f"    {n}{s}")
     print(f"  digest {' '.join(sorted({r['digest'] for r in cold + warm}))}")
+    for code in codes:
+        whole = hashlib.sha256(json.dumps(code, sort_keys=True).encode()).hexdigest()[:16]
+        print(f"  machine code {whole} ({len(code)} cached objects)")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,8 @@ warm-up. A child that fails costs nothing but its time: the block then compiles 
 
 Wherever the loops are compiled (the child, or this process when no child starts), :func:`quicker_inlining`
 first takes out a copying cost of Numba's inliner (``inline="always"``, which the pixels' vectorised loops use):
-the same compiled code, in less time (``EVSDA_QUICKER_INLINING=off``: Numba's own).
+the same compiled code, in less time (``EVSDA_QUICKER_INLINING=off``: Numba's own), and :func:`quicker_typing`
+two costs of its typing that decide nothing (``EVSDA_QUICKER_TYPING=off``: Numba's own).
 """
 
 from __future__ import annotations
@@ -90,6 +91,7 @@ def start(target: str, modules: tuple[str, ...], *args) -> Ahead:
         if _cached(modules):
             return Ahead(None)
         quicker_inlining()                       # this process compiles too (all of them, without a child)
+        quicker_typing()
         if not _wanted():
             return Ahead(None)
         env = dict(os.environ, EVSDA_COMPILE_AHEAD="off", EVSDA_THREADS="1", OPENBLAS_NUM_THREADS="1")
@@ -213,3 +215,98 @@ def _edit_inliner() -> bool:
     with global_compiler_lock:
         inline_closurecall.InlineWorker.inline_ir = edited
     return True
+
+
+# -- Numba's typing, without its idle work -------------------------------------------------------------------
+
+#: the Numba versions whose typing :func:`quicker_typing` was checked on (the same machine code); others keep theirs
+_TYPING_CHECKED = ("0.68.1",)
+
+_typing: bool | None = None            # None: not tried; True: Numba's typing edited; False: left as it is
+
+
+def quicker_typing() -> bool:
+    """Take two costs out of Numba's typing that decide nothing; whether they are now out (False: this Numba is not
+    the one checked, and it is left as it is).
+
+    * The compiler flags (``numba.core.targetconfig.TargetConfig``) are part of the key of every overload's cache of
+      implementations (``typing.templates._OverloadFunctionTemplate._get_impl``): each call site typed hashes them and
+      compares them with the keys found, and both read each of the 22 options through its property into a dict
+      (``values``; ~300 000 times in the main job's first run, ~1.5 s of CPU). The dict is now read straight from the
+      set values and a per-class tuple of the defaults; the hash, ``hash(tuple(sorted(values())))``, sorts the dict's
+      keys, the option names, so it is the same for every instance of a class and is computed once per class; and a
+      flags object equals itself without reading its values. Same dicts, same hashes, same equalities: the same
+      overloads are found.
+    * Each failed match of a call against a typing template formats its error message (kept, in case no template
+      matches), and with ``colorama`` installed Numba highlights it, re-initialising ``colorama`` (which wraps
+      ``sys.stdout`` and ``sys.stderr`` again) per message part (~60 000 in that run, ~0.5 s). The messages are now
+      left plain, as ``NUMBA_DISABLE_ERROR_MESSAGE_HIGHLIGHTING`` makes them (Numba's default colour scheme
+      only makes them bold).
+
+    Only on the Numba versions checked; it stays so for the process. ``EVSDA_QUICKER_TYPING=off`` leaves Numba as it is.
+    """
+    global _typing
+    if _typing is None:
+        _typing = False
+        try:
+            _typing = _edit_typing()
+        except Exception as error:                 # noqa: BLE001 -- Numba's own typing stays
+            log.info("Numba's typing left as it is (%s)", error)
+    return _typing
+
+
+def _edit_typing() -> bool:
+    import numba
+    from numba.core import errors, targetconfig
+    from numba.core.compiler_lock import global_compiler_lock
+
+    if numba.__version__ not in _TYPING_CHECKED or _switched_off("EVSDA_QUICKER_TYPING"):
+        return False
+    global _TargetConfig
+    _TargetConfig = config = targetconfig.TargetConfig
+    with global_compiler_lock:
+        config.values, config.__hash__, config.__eq__ = _flag_values, _flags_hash, _flags_equal
+        errors._termcolor_inst = _plain_messages(errors._DummyColorScheme)()       # what errors.termcolor() returns
+    return True
+
+
+_TargetConfig: type | None = None                  # numba.core.targetconfig.TargetConfig, once edited
+
+
+_option_defaults: dict[type, tuple] = {}           # TargetConfig subclass -> ((option name, default), ...)
+_options_hash: dict[type, int] = {}                # TargetConfig subclass -> the hash of each of its instances
+
+
+def _flag_values(self) -> dict:
+    """``TargetConfig.values``: each option's value, the default where unset, in the options' order."""
+    defaults = _option_defaults.get(type(self))
+    if defaults is None:
+        defaults = _option_defaults[type(self)] = tuple((name, option.default) for name, option in self.options.items())
+    get = self._values.get
+    return {name: get(name, default) for name, default in defaults}
+
+
+def _flags_hash(self) -> int:
+    """``TargetConfig.__hash__``: Numba's ``hash(tuple(sorted(self.values())))``, the sorted option names' hash."""
+    value = _options_hash.get(type(self))
+    if value is None:
+        value = _options_hash[type(self)] = hash(tuple(sorted(self.values())))
+    return value
+
+
+def _flags_equal(self, other):
+    """``TargetConfig.__eq__``: equal values (itself at once)."""
+    if self is other:
+        return True
+    if isinstance(other, _TargetConfig):
+        return self.values() == other.values()
+    return NotImplemented
+
+
+def _plain_messages(scheme: type) -> type:
+    """A colour scheme of Numba's error messages that leaves them as they are."""
+    def plain(self, msg):
+        return msg
+
+    return type("PlainMessages", (scheme,), {name: plain for name in
+                                              ("code", "errmsg", "filename", "indicate", "highlight", "reset")})

@@ -35,7 +35,8 @@ PARENT = textwrap.dedent("""
     value = ahead_kernels.twice(4)
     stats = ahead_kernels.twice.stats
     print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(stats.cache_hits.values()),
-                      "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner}))
+                      "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner,
+                      "typing": compile_ahead._typing}))
 """)
 
 
@@ -43,7 +44,7 @@ def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
     """Run PARENT in a fresh interpreter with the kernels' module on its path and its own Numba cache folder; what
     it printed, and that it printed nothing else."""
     environ = {name: value for name, value in os.environ.items()
-               if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING")}
+               if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING")}
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
@@ -61,19 +62,22 @@ def kernels(tmp_path):
 
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
     first = parent(kernels)
-    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True}
+    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True, "typing": True}
     again = parent(kernels)
-    assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None}   # nothing compiles
+    assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None,
+                     "typing": None}                                                     # nothing compiles
 
 
 @pytest.mark.parametrize("env", [{"EVSDA_THREADS": "1"}, {"EVSDA_COMPILE_AHEAD": "off"}])
 def test_one_thread_or_switched_off_compiles_here(kernels, env):
-    assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True}
+    assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
+                                      "typing": True}
 
 
 @pytest.mark.parametrize("target", ["ahead_kernels:fail", "ahead_kernels:killed"])
 def test_a_child_that_fails_or_is_killed_costs_only_its_time(kernels, target):
-    assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True}
+    assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
+                                       "typing": True}
 
 
 INLINED_KERNELS = textwrap.dedent("""
@@ -122,7 +126,7 @@ INLINED = ASSEMBLY + textwrap.dedent(r"""
         return total, xs.tolist(), numbered_names_aside(code)
 
     numbas = compiled()
-    edited = compile_ahead.quicker_inlining()
+    edited = getattr(compile_ahead, sys.argv[2])()
     print(json.dumps({"edited": edited, "same": compiled() == numbas}))
 """)
 
@@ -139,19 +143,56 @@ PIXEL_FUNCTION = ASSEMBLY + textwrap.dedent(r"""
         return numbered_names_aside(kernel.inspect_asm(signature))
 
     numbas = compiled()
-    edited = compile_ahead.quicker_inlining()
+    edited = getattr(compile_ahead, sys.argv[2])()
     print(json.dumps({"edited": edited, "same": compiled() == numbas}))
 """)
 
 
+@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing"])
 @pytest.mark.parametrize("script", [INLINED, PIXEL_FUNCTION], ids=["nested inlined functions", "drive_rows"])
-def test_numbas_inliner_edited_compiles_the_same_machine_code(tmp_path, script):
+def test_numbas_inliner_or_typing_edited_compiles_the_same_machine_code(tmp_path, script, edit):
     environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     environ.pop("EVSDA_QUICKER_INLINING", None)
-    out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS], env=environ, capture_output=True, text=True,
-                         check=True)
+    environ.pop("EVSDA_QUICKER_TYPING", None)
+    out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS, edit], env=environ, capture_output=True,
+                         text=True, check=True)
     assert json.loads(out.stdout) == {"edited": True, "same": True}
 
 
 def test_numbas_inliner_left_as_it_is_when_switched_off(kernels):
     assert parent(kernels, EVSDA_QUICKER_INLINING="off")["inliner"] is False
+
+
+FLAGS = textwrap.dedent(r"""
+    import json, sys
+    from numba.core import errors
+    from numba.core.compiler import Flags
+    from evsda.graph import compile_ahead
+
+    def flags():
+        plain, nrt, copied, wrapped = Flags(), Flags(), None, Flags()
+        nrt.nrt = True
+        copied = Flags(nrt)
+        wrapped.nrt, wrapped.no_cpython_wrapper = True, True
+        return [plain, nrt, copied, wrapped]
+
+    def seen(all_flags):          # each one's values (in order) and hash, and which equal which
+        return ([[list(f.values().items()), hash(f)] for f in all_flags]
+                + [[a == b for b in all_flags] + [a == 3] for a in all_flags])
+
+    all_flags = flags()
+    numbas = seen(all_flags)
+    edited = compile_ahead.quicker_typing()
+    print(json.dumps({"edited": edited, "same": seen(all_flags) == numbas == seen(flags()),
+                      "message": errors.termcolor().errmsg("no match")}))
+""")
+
+
+def test_numbas_typing_edited_reads_the_same_flags_and_plain_messages():
+    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_QUICKER_TYPING"}
+    out = subprocess.run([sys.executable, "-c", FLAGS], env=environ, capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout) == {"edited": True, "same": True, "message": "no match"}
+
+
+def test_numbas_typing_left_as_it_is_when_switched_off(kernels):
+    assert parent(kernels, EVSDA_QUICKER_TYPING="off")["typing"] is False
