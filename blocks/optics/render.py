@@ -481,9 +481,11 @@ def _tilted_sincos_frame(phase_t, curvature, r2, ky, kx, x, cosine, sine):
 
 @cache
 def _sincos_agree() -> bool:
-    """Whether :func:`tilted_sincos_transposed` gives numpy's float32 ``sin`` and ``cos`` bits (checked once a process
-    on 400 000 phases, untilted: every scale of phase to the limit, and the neighbours of the quadrants' boundaries,
-    where a rounding of the quadrant shows)."""
+    """Whether :func:`_tilted_sincos_frame` (so :func:`tilted_sincos_transposed` and :func:`_stamp_frames`) gives
+    numpy's float32 ``sin`` and ``cos`` bits (checked once a process on 400 000 phases, untilted: every scale of phase
+    to the limit, and the neighbours of the quadrants' boundaries, where a rounding of the quadrant shows). Frame by
+    frame, with the one-frame buffers' types :func:`_stamp_frames` gives it: one compiled specialisation, and
+    :func:`tilted_sincos_transposed` compiled only where a block needs it."""
     rng = np.random.default_rng(11)
     spread = (rng.uniform(-1.0, 1.0, (6, 50_000)) * np.array([[1e-3], [1.0], [10.0], [100.0], [1e3], [7e4]])).ravel()
     boundaries = (np.arange(-400, 400) + 0.5) * (np.pi / 2)
@@ -492,13 +494,15 @@ def _sincos_agree() -> bool:
     n = 40
     phase = np.zeros((-(-values.size // (n * n)), n, n))
     phase.reshape(-1)[:values.size] = values
-    zero, x = np.zeros(len(phase)), np.zeros(n)
-    cosine, sine = np.empty(phase.shape, np.float32), np.empty(phase.shape, np.float32)
-    if not tilted_sincos_transposed(phase, zero, np.zeros((n, n)), zero, zero, x, cosine, sine):
-        return False
+    r2, x = np.zeros((n, n)), np.zeros(n)
+    cosine, sine = aligned_empty((n, n), np.float32), aligned_empty((n, n), np.float32)
     rounded = phase.astype(np.float32)
-    return bool(np.array_equal(sine.view(np.uint32), np.sin(rounded).view(np.uint32))
-                and np.array_equal(cosine.view(np.uint32), np.cos(rounded).view(np.uint32)))
+    for frame, expected in zip(phase, rounded):
+        if not (_tilted_sincos_frame(frame, 0.0, r2, 0.0, 0.0, x, cosine, sine)
+                and np.array_equal(sine.view(np.uint32), np.sin(expected).view(np.uint32))
+                and np.array_equal(cosine.view(np.uint32), np.cos(expected).view(np.uint32))):
+            return False
+    return True
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
