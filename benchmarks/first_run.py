@@ -10,15 +10,21 @@ checkout with its own ``.venv`` runs the same rounds there, alternated with this
 cache folder; ``--also-serial`` runs this checkout a second time with ``EVSDA_COMPILE_AHEAD=off`` (every loop
 compiled in the run's own process, one after another). The probe-result cache is off (``EVSDA_CACHE=off``), so both runs do the same work otherwise. The
 compile of each function: ``benchmarks/optics_compile.py``; the pixels' own: ``benchmarks/pixel_compile.py``.
+``--timeline`` instead runs this checkout once with an empty cache and prints where the first run's time goes: the
+run's own compiles (each outermost one, from Numba's ``numba:compile`` events), the child compiling ahead (from its
+start to its end), the pixel block's wait for it, and the run's end: which of the two processes is the critical path.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/first_run.py [--repeats 2] [--against /work/h-audit] [--also-serial]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/first_run.py --timeline
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -33,6 +39,51 @@ MAIN_JOB = Path(__file__).parents[1] / "examples" / "iss_pass.yaml"
 
 
 SERIAL = "this, not ahead"       # this checkout with EVSDA_COMPILE_AHEAD=off
+
+TIMELINE = r"""
+import json, sys, threading, time
+begun = time.perf_counter()
+def now():
+    return round(time.perf_counter() - begun, 2)
+from numba.core import event
+from evsda.graph import compile_ahead
+marks = {"compiles": [], "child": None, "wait": None}
+depth = threading.local()
+
+class Outermost(event.Listener):          # the run's own compiles, each outermost one (nested ones are inside it)
+    def on_start(self, ev):
+        depth.n = getattr(depth, "n", 0) + 1
+        if depth.n == 1:
+            f = ev.data["dispatcher"].py_func
+            marks["compiles"].append([f.__module__.rsplit(".", 1)[-1] + "." + f.__qualname__, now(), None])
+    def on_end(self, ev):
+        depth.n -= 1
+        if depth.n == 0:
+            marks["compiles"][-1][2] = now()
+
+event.register("numba:compile", Outermost())
+start, wait = compile_ahead.Ahead.__init__, compile_ahead.Ahead.wait
+
+def started(self, process):
+    start(self, process)
+    if process is not None:
+        marks["child"] = [now(), None]
+        threading.Thread(target=lambda: (process.wait(), marks["child"].__setitem__(1, now())), daemon=True).start()
+
+def waited(self):
+    if self.process is None:
+        return wait(self)
+    waiting = now()
+    wait(self)
+    marks["wait"] = [waiting, now()]
+
+compile_ahead.Ahead.__init__, compile_ahead.Ahead.wait = started, waited
+from evsda.graph.cli import main
+status = main(["run", sys.argv[1], "-o", sys.argv[2], "--overwrite", "--no-progress",
+               "--set", f"run.duration_s={sys.argv[3]}"])
+marks["end"] = now()
+print("evsda-timeline " + json.dumps(marks))
+"""
 
 
 def rounds(graph: Path, duration: float, tmp: Path, checkout: Path | str | None, number: list[int]) -> dict:
@@ -53,6 +104,31 @@ def rounds(graph: Path, duration: float, tmp: Path, checkout: Path | str | None,
     return out
 
 
+def timeline(graph: Path, duration: float) -> None:
+    """One run of this checkout with an empty Numba cache: its compiles, the child's span, the wait, the end."""
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "numba"), EVSDA_CACHE="off")
+        load = os.getloadavg()[0]
+        out = subprocess.run([sys.executable, "-c", TIMELINE, str(graph), str(Path(tmp) / "run.zarr"),
+                              str(duration)], env=env, capture_output=True, text=True)
+    lines = [x for x in out.stdout.splitlines() if x.startswith("evsda-timeline ")]
+    if out.returncode or not lines:
+        raise RuntimeError(f"evsda run failed ({out.returncode}):\n{(out.stdout + out.stderr)[-3000:]}")
+    marks = json.loads(lines[-1].split(" ", 1)[1])
+    compiles, child, wait = marks["compiles"], marks["child"], marks["wait"]
+    print(f"{graph.name}, {duration:g} s simulated, empty Numba cache, load {load:.2f} -> {os.getloadavg()[0]:.2f} "
+          f"(seconds from the run's start):")
+    if compiles:
+        print(f"  the run's own compiles: {compiles[0][1]:.1f} -> {compiles[-1][2]:.1f} s "
+              f"({sum(b - a for _, a, b in compiles):.1f} s in {len(compiles)} outermost compiles)")
+    print(f"  the child compiling ahead: {child[0]:.1f} -> {child[1]:.1f} s" if child else "  no child")
+    if wait:
+        print(f"  the pixel block waited for it: {wait[0]:.1f} -> {wait[1]:.1f} s")
+    print(f"  the run's end: {marks['end']:.1f} s")
+    for name, a, b in compiles:
+        print(f"    {name:48s} {a:6.1f} {b:6.1f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--graph", type=Path, default=MAIN_JOB, help="graph file (default: the main job)")
@@ -60,7 +136,11 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2, help="rounds of an empty-cache and a filled-cache run")
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv) run alternately")
     parser.add_argument("--also-serial", action="store_true", help="this checkout also with EVSDA_COMPILE_AHEAD=off")
+    parser.add_argument("--timeline", action="store_true", help="one empty-cache run: where its time goes")
     args = parser.parse_args()
+    if args.timeline:
+        timeline(args.graph, args.duration)
+        return
     os.environ["EVSDA_CACHE"] = "off"
     trees = checkouts(parser, args.against)
     if args.also_serial:
