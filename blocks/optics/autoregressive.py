@@ -93,14 +93,23 @@ def spline_coefficient_covariance(extent: int, delta: float, L0: float) -> np.nd
     h = np.sqrt(3.0) * z1 ** np.abs(k)
     g = np.convolve(h, h)                                      # symmetric, 4 K + 1 taps
     reach = extent + 2 * _INVERSE_HALF_WIDTH
-    m = np.arange(-reach, reach + 1)
-    samples = von_karman_covariance(np.hypot(m[:, None], m[None, :]) * delta, 1.0, L0)
+    m = np.abs(np.arange(-reach, reach + 1))
+    samples = _covariance_quadrant(reach, delta, L0)[m[:, None], m[None, :]]
     # the valid part of the separable convolution, only the non-negative offsets kept
     rows = sliding_window_view(samples[reach - 2 * _INVERSE_HALF_WIDTH:], g.size, axis=0) @ g
     both = sliding_window_view(rows, g.size, axis=1) @ g
     table = np.ascontiguousarray(both[:extent + 1, reach - 2 * _INVERSE_HALF_WIDTH:][:, :extent + 1])
     table.setflags(write=False)
     return table
+
+
+def _covariance_quadrant(reach: int, delta: float, L0: float) -> np.ndarray:
+    """von Karman's covariance [rad^2, r0 = 1 m] at the grid offsets ``(dy, dx)`` [samples], ``0 <= dy, dx <= reach``:
+    the grid's other quadrants are its mirror images (``hypot`` takes magnitudes), a quarter of the Bessel functions'
+    evaluations. Each value is an element-by-element function of the same double ``hypot(dy, dx) delta`` wherever it
+    lies (tests/optics/test_optics_screens.py compares the whole grid's)."""
+    d = np.arange(reach + 1)
+    return von_karman_covariance(np.hypot(d[:, None], d[None, :]) * delta, 1.0, L0)
 
 
 def stencil_width(width: int) -> int:

@@ -117,6 +117,18 @@ def test_spline_coefficient_covariance_gives_von_karman_on_the_grid():
     np.testing.assert_allclose(table, table.T, rtol=1e-12)
 
 
+@pytest.mark.parametrize("reach, delta, L0", [(105, 0.025, 10.0), (141, 0.0101, 9.709), (33, 0.01, 1.5)])
+def test_covariance_quadrant_mirrored_is_the_whole_grids_bit_for_bit(reach, delta, L0):
+    # the coefficients' covariance samples von Karman's on one quadrant of offsets and mirrors it: the whole grid's
+    # values, each computed where it lies (the arrays' shapes and positions differ)
+    from evsda.blocks.optics.autoregressive import _covariance_quadrant
+
+    m = np.arange(-reach, reach + 1)
+    whole = von_karman_covariance(np.hypot(m[:, None], m[None, :]) * delta, 1.0, L0)
+    mirrored = _covariance_quadrant(reach, delta, L0)[np.abs(m)[:, None], np.abs(m)[None, :]]
+    assert whole.tobytes() == mirrored.tobytes()
+
+
 def test_extension_reproduces_von_karman_statistics_across_the_seam():
     # Assemat et al. 2006: coefficient columns drawn conditionally on an exact (Cholesky) coefficient screen; the
     # spline's values across the seam between old and new columns have von Karman's structure function
