@@ -17,7 +17,8 @@ warm-up. A child that fails costs nothing but its time: the block then compiles 
 Wherever the loops are compiled (the child, or this process when no child starts), :func:`quicker_inlining`
 first takes out a copying cost of Numba's inliner (``inline="always"``, which the pixels' vectorised loops use):
 the same compiled code, in less time (``EVSDA_QUICKER_INLINING=off``: Numba's own), and :func:`quicker_typing`
-two costs of its typing that decide nothing (``EVSDA_QUICKER_TYPING=off``: Numba's own).
+two costs of its typing that decide nothing (``EVSDA_QUICKER_TYPING=off``: Numba's own), and
+:func:`quicker_llvm_calls` Numba's events around each call into LLVM (``EVSDA_QUICKER_LLVM_CALLS=off``: Numba's own).
 """
 
 from __future__ import annotations
@@ -92,6 +93,7 @@ def start(target: str, modules: tuple[str, ...], *args) -> Ahead:
             return Ahead(None)
         quicker_inlining()                       # this process compiles too (all of them, without a child)
         quicker_typing()
+        quicker_llvm_calls()
         if not _wanted():
             return Ahead(None)
         env = dict(os.environ, EVSDA_COMPILE_AHEAD="off", EVSDA_THREADS="1", OPENBLAS_NUM_THREADS="1")
@@ -310,3 +312,48 @@ def _plain_messages(scheme: type) -> type:
 
     return type("PlainMessages", (scheme,), {name: plain for name in
                                               ("code", "errmsg", "filename", "indicate", "highlight", "reset")})
+
+
+# -- LLVM's calls without Numba's events ---------------------------------------------------------------------
+
+#: the Numba versions whose LLVM lock events :func:`quicker_llvm_calls` was checked on; others keep theirs
+_LLVM_CALLS_CHECKED = ("0.68.1",)
+
+_llvm_calls: bool | None = None        # None: not tried; True: Numba's lock events taken off; False: left as they are
+
+
+def quicker_llvm_calls() -> bool:
+    """Take Numba's events off the lock of LLVM's C API; whether they are now off (False: this Numba is not the one
+    checked, or its callbacks are not found, and it is left as it is).
+
+    Each call into LLVM's C API (``llvmlite.binding.ffi``) takes llvmlite's lock, and Numba registers callbacks on
+    it (``numba.core.base._initialize_llvm_lock_event``) that broadcast a ``numba:llvm_lock`` start and end event to
+    each listener, only to add the time the lock was held to a compile's metadata (``timers``, which no part of
+    evsda reads). Compiling the main job makes ~120 000 such calls, each ~3x dearer with the two events (~12 against
+    ~4 µs at load 5). The callbacks are taken off: the calls, and the code they build, are the same; a compile's
+    metadata has no ``llvm_lock`` time and listeners to that event hear none. It stays so for the process.
+    ``EVSDA_QUICKER_LLVM_CALLS=off`` leaves Numba's callbacks on.
+    """
+    global _llvm_calls
+    if _llvm_calls is None:
+        _llvm_calls = False
+        try:
+            _llvm_calls = _take_off_lock_events()
+        except Exception as error:                 # noqa: BLE001 -- Numba's callbacks stay
+            log.info("Numba's LLVM lock events left as they are (%s)", error)
+    return _llvm_calls
+
+
+def _take_off_lock_events() -> bool:
+    import numba
+    from llvmlite.binding import ffi
+    from numba.core import base
+
+    if numba.__version__ not in _LLVM_CALLS_CHECKED or _switched_off("EVSDA_QUICKER_LLVM_CALLS"):
+        return False
+    numbas = [(enter, leave) for enter, leave in ffi.lib._lock._cblist
+              if enter.__qualname__.startswith(base._initialize_llvm_lock_event.__qualname__ + ".")]
+    if len(numbas) != 1:
+        return False
+    ffi.unregister_lock_callback(*numbas[0])
+    return True

@@ -36,7 +36,7 @@ PARENT = textwrap.dedent("""
     stats = ahead_kernels.twice.stats
     print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(stats.cache_hits.values()),
                       "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner,
-                      "typing": compile_ahead._typing}))
+                      "typing": compile_ahead._typing, "llvm": compile_ahead._llvm_calls}))
 """)
 
 
@@ -44,7 +44,8 @@ def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
     """Run PARENT in a fresh interpreter with the kernels' module on its path and its own Numba cache folder; what
     it printed, and that it printed nothing else."""
     environ = {name: value for name, value in os.environ.items()
-               if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING")}
+               if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING",
+                               "EVSDA_QUICKER_LLVM_CALLS")}
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
@@ -62,22 +63,23 @@ def kernels(tmp_path):
 
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
     first = parent(kernels)
-    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True, "typing": True}
+    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True, "typing": True,
+                     "llvm": True}
     again = parent(kernels)
     assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None,
-                     "typing": None}                                                     # nothing compiles
+                     "typing": None, "llvm": None}                                       # nothing compiles
 
 
 @pytest.mark.parametrize("env", [{"EVSDA_THREADS": "1"}, {"EVSDA_COMPILE_AHEAD": "off"}])
 def test_one_thread_or_switched_off_compiles_here(kernels, env):
     assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                      "typing": True}
+                                      "typing": True, "llvm": True}
 
 
 @pytest.mark.parametrize("target", ["ahead_kernels:fail", "ahead_kernels:killed"])
 def test_a_child_that_fails_or_is_killed_costs_only_its_time(kernels, target):
     assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                       "typing": True}
+                                       "typing": True, "llvm": True}
 
 
 INLINED_KERNELS = textwrap.dedent("""
@@ -148,12 +150,13 @@ PIXEL_FUNCTION = ASSEMBLY + textwrap.dedent(r"""
 """)
 
 
-@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing"])
+@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing", "quicker_llvm_calls"])
 @pytest.mark.parametrize("script", [INLINED, PIXEL_FUNCTION], ids=["nested inlined functions", "drive_rows"])
-def test_numbas_inliner_or_typing_edited_compiles_the_same_machine_code(tmp_path, script, edit):
+def test_numbas_inliner_typing_or_llvm_calls_edited_compile_the_same_machine_code(tmp_path, script, edit):
     environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     environ.pop("EVSDA_QUICKER_INLINING", None)
     environ.pop("EVSDA_QUICKER_TYPING", None)
+    environ.pop("EVSDA_QUICKER_LLVM_CALLS", None)
     out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS, edit], env=environ, capture_output=True,
                          text=True, check=True)
     assert json.loads(out.stdout) == {"edited": True, "same": True}
@@ -196,3 +199,31 @@ def test_numbas_typing_edited_reads_the_same_flags_and_plain_messages():
 
 def test_numbas_typing_left_as_it_is_when_switched_off(kernels):
     assert parent(kernels, EVSDA_QUICKER_TYPING="off")["typing"] is False
+
+
+LOCK_EVENTS = textwrap.dedent(r"""
+    import json
+    import numba
+    from numba.core import event
+    from evsda.graph import compile_ahead
+
+    def lock_events():             # the numba:llvm_lock events a compile broadcasts
+        heard = event.RecordingListener()
+        with event.install_listener("numba:llvm_lock", heard):
+            numba.njit(lambda x: x + 1)(2)
+        return len(heard.buffer)
+
+    numbas = lock_events()
+    edited = compile_ahead.quicker_llvm_calls()
+    print(json.dumps({"edited": edited, "numbas": numbas > 0, "after": lock_events()}))
+""")
+
+
+def test_numbas_llvm_lock_events_taken_off():
+    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_QUICKER_LLVM_CALLS"}
+    out = subprocess.run([sys.executable, "-c", LOCK_EVENTS], env=environ, capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout) == {"edited": True, "numbas": True, "after": 0}
+
+
+def test_numbas_llvm_lock_events_left_on_when_switched_off(kernels):
+    assert parent(kernels, EVSDA_QUICKER_LLVM_CALLS="off")["llvm"] is False
