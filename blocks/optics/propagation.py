@@ -133,7 +133,8 @@ def plane_spacings(delta1: float, deltan: float, z: Sequence[float]) -> np.ndarr
 def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: float, z: Sequence[float],
               screens: Mapping[int, np.ndarray] | None = None, source_curvature: float = np.inf,
               collimate: float = np.inf, absorber: bool = True, workers: int = -1,
-              start: tuple[int, np.ndarray] | None = None, stop: int | None = None) -> np.ndarray:
+              start: tuple[int, np.ndarray] | None = None, stop: int | None = None,
+              window: int | None = None) -> np.ndarray:
     """Multi-plane angular-spectrum propagation, paper Eq. 4 (Schmidt 2010 Listing 9.1).
 
     ``source`` is sampled every ``delta1`` [m]; ``z`` [m] are the positions of the planes
@@ -150,6 +151,10 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
     ``stop = k`` (``k >= 1``) returns the field on plane ``k`` before its screen and absorber, in the FFT's order
     (``ifftshift``'s); ``start = (k, u)`` goes on from such a field ``u`` made with the same arguments (``source``
     is then read only for its size): the same numbers as the whole (:func:`propagate_point_source`).
+
+    ``window = w`` returns only the observation plane's centred ``w x w`` (rows and columns ``n // 2 - w // 2`` on):
+    the same numbers as that part of the whole, for less (:func:`_observed_window`; without a screen on the
+    observation plane).
     """
     n = source.shape[0]
     z = np.asarray(z, dtype=float)
@@ -186,6 +191,10 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
             # Q2 of Eq. 4 on the frequencies of plane i
             u = sfft.fft2(u, workers=workers, overwrite_x=True)
             u *= h
+            if window is not None and i + 1 == len(steps) and stop is None and i + 1 not in screens:
+                return _observed_window(u, window, delta[i + 1] / delta[i], sg,
+                                        _observation_coefficient(delta1, deltan, wavelength, total, collimate),
+                                        deltan, workers)
             u = sfft.ifft2(u, workers=workers, overwrite_x=True)
             if not divide:
                 u /= delta[i + 1] / delta[i]
@@ -202,15 +211,54 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
             u *= sg
     # observation plane: Q3 of Eq. 4 merged with the collimation
     xn = index * deltan
-    coefficient = -(delta1 - deltan) / (wavelength * total * deltan) - _inverse(collimate) / wavelength
-    return _times(chirp(coefficient, xn, xn), sfft.fftshift(u))
+    coefficient = _observation_coefficient(delta1, deltan, wavelength, total, collimate)
+    field = _times(chirp(coefficient, xn, xn), sfft.fftshift(u))
+    if window is None:
+        return field
+    corner = n // 2 - window // 2
+    return field[corner:corner + window, corner:corner + window]
+
+
+def _inverse_size(size: int) -> float:
+    """``1 / size`` as pocketfft's ``norm_fct`` makes its scale: in long double, then rounded to double."""
+    return float(np.longdouble(1) / np.longdouble(size))
+
+
+def _observation_coefficient(delta1: float, deltan: float, wavelength: float, total: float,
+                             collimate: float) -> float:
+    """Q3 of Eq. 4 merged with the collimation: the observation plane's chirp coefficient [m^-2] (:func:`chirp`)."""
+    return -(delta1 - deltan) / (wavelength * total * deltan) - _inverse(collimate) / wavelength
+
+
+def _observed_window(spectrum: np.ndarray, window: int, ratio: float, absorber: np.ndarray | None,
+                     coefficient: float, deltan: float, workers: int) -> np.ndarray:
+    """The last step of :func:`propagate` from its ``spectrum`` (the last transform times its Q2, FFT order; it is
+    overwritten) to the observation plane's centred ``window x window`` [rows, columns ``n // 2 - window // 2`` on],
+    with the same numbers as the whole field's: ``ifft2`` is pocketfft's inverse transform of the columns, their
+    values then times ``1 / n^2`` (:func:`_inverse_size`), then the rows' transform, each line alone (test), so only
+    the window's rows take the second pass; the division by the spacings' ratio, the absorber
+    (NumPy's products, which :func:`_step` matches: :func:`fused_steps_agree`) and Q3 of Eq. 4 (``coefficient``,
+    :func:`_observation_coefficient`) are element by element, on the window only."""
+    n = spectrum.shape[0]
+    corner = n // 2 - window // 2
+    lines = (np.arange(corner, corner + window) - n // 2) % n          # the window's rows and columns, FFT order
+    columns = sfft.ifft(spectrum, axis=0, norm="forward", workers=workers, overwrite_x=True)   # unscaled
+    rows = columns[lines]
+    rows.view(np.float64)[...] *= _inverse_size(n * n)                # pocketfft's scale: both parts, times 1 / n^2
+    u = sfft.ifft(rows, axis=1, norm="forward", workers=workers, overwrite_x=True)[:, lines]
+    u /= ratio
+    if absorber is not None:
+        u *= absorber[np.ix_(lines, lines)]
+    xw = (np.arange(corner, corner + window) - n // 2) * deltan
+    return _times(chirp(coefficient, xw, xw), u)
 
 
 def propagate_point_source(n: int, delta1: float, deltan: float, wavelength: float, distance: float,
                            roi_diameter: float, z: Sequence[float], screens: Mapping[int, np.ndarray],
-                           collimate: float = np.inf, workers: int = -1) -> np.ndarray:
+                           collimate: float = np.inf, workers: int = -1, window: int | None = None) -> np.ndarray:
     """:func:`propagate` of :func:`point_source_field` (``curvature=False``, merged as ``source_curvature=-distance``)
-    through ``screens``, with the absorber: the same numbers, with the steps before the first screen made once.
+    through ``screens``, with the absorber: the same numbers, with the steps before the first screen made once
+    (``window``: only the centred ``window x window``, as :func:`propagate`).
 
     Those steps, the source plane and the vacuum up to the first screened plane, read nothing but the grid and
     the source (every frame of a path probe's bin shares them: ~5 ms of a 256-point grid's ~22): they are kept
@@ -221,10 +269,10 @@ def propagate_point_source(n: int, delta1: float, deltan: float, wavelength: flo
     arguments = (n, float(delta1), float(deltan), float(wavelength), float(distance), float(roi_diameter), z)
     if first < 1 or not keep:
         return propagate(_point_source(*arguments[:6]), wavelength, delta1, deltan, z, screens,
-                         source_curvature=-distance, collimate=collimate, workers=workers)
+                         source_curvature=-distance, collimate=collimate, workers=workers, window=window)
     head = _vacuum_head(*arguments, first, workers)
     return propagate(head, wavelength, delta1, deltan, z, screens, source_curvature=-distance, collimate=collimate,
-                     workers=workers, start=(first, head))
+                     workers=workers, start=(first, head), window=window)
 
 
 def _point_source(n: int, delta1: float, deltan: float, wavelength: float, distance: float,

@@ -80,12 +80,12 @@ class ReferencePath:
                              int(self.imager.epochs_of(np.array([t_s]))[0]))
                 weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
                 screens[plane] = weight * screen.sample(rows, cols)[0]
-        # the FFTs on the calling thread: sources, and the path probes' frames, are rendered on every core
-        field = propagate_point_source(grid.n, grid.delta1_m, grid.deltan_m, self.imager.wavelength, distance,
+        # the FFTs on the calling thread: sources, and the path probes' frames, are rendered on every core; only the
+        # pupil's centred n_pupil x n_pupil of the observation plane is made
+        pupil = propagate_point_source(grid.n, grid.delta1_m, grid.deltan_m, self.imager.wavelength, distance,
                                        geometry.roi_m, grid.planes_m, screens,
-                                       collimate=distance if self.imager.focus == "source" else np.inf, workers=1)
-        start = grid.n // 2 - g.n_pupil // 2
-        pupil = field[start:start + g.n_pupil, start:start + g.n_pupil]
+                                       collimate=distance if self.imager.focus == "source" else np.inf, workers=1,
+                                       window=g.n_pupil)
         # divide by the vacuum field on axis, erf(2 pi)^2 / (i lambda Z) (propagation.point_source_vacuum_field)
         pupil = pupil * (1j * self.imager.wavelength * distance / erf(2 * np.pi) ** 2)
         return pupil * self.imager.pupil_amplitude if aperture else pupil

@@ -264,3 +264,34 @@ def test_compiled_phasors_are_numpys_and_in_the_ffts_order(n):
     assert np.array_equal(_phasor(phase), expected)
     assert np.array_equal(_phasor(phase, shifted=True), sfft.ifftshift(expected))
     assert np.allclose(np.abs(_phasor(phase)), 1.0, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("n", [128, 126, 135])
+@pytest.mark.parametrize("fused", [True, False])
+def test_an_observed_window_is_that_part_of_the_whole_field(n, fused, monkeypatch):
+    # propagate(window=w) makes the last step's second inverse transform, division, absorber and chirp on the centred
+    # w x w only (propagation._observed_window): bit for bit that part of the whole field, with or without the kept
+    # vacuum steps and the collimation, for odd and even sizes (pocketfft's 1 / n^2 scale, not a power of 2 here)
+    from evsda.blocks.optics import propagation
+    if not fused:
+        monkeypatch.setattr(propagation, "fused_steps_agree", lambda: False)
+    distance, roi = 4e5, 0.4
+    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
+    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
+    spacing = plane_spacings(delta1, deltan, planes)
+    rng = np.random.default_rng(n)
+    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] * 20 for i in (1, 3)}
+    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+    for collimate in (np.inf, distance):
+        whole = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                          collimate=collimate, workers=1)
+        for window in (40, 41, 1, n):
+            corner = n // 2 - window // 2
+            part = whole[corner:corner + window, corner:corner + window]
+            for made in (propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                                   collimate=collimate, workers=1, window=window),
+                         propagation.propagate_point_source(n, delta1, deltan, LAMBDA, distance, roi, planes,
+                                                            screens, collimate=collimate, workers=1,
+                                                            window=window)):
+                assert made.shape == (window, window)
+                assert np.array_equal(made.view(np.uint64), part.view(np.uint64))
