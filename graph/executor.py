@@ -38,6 +38,7 @@ from .executor_pipeline import Pipeline, pipeline_enabled
 from .files import os_reason
 from .graphfile import Graph
 from .lock import StoreLock
+from .numba_loads import lazy_registries
 from .ports import EVENT_STREAM, METRICS, TRUTH, PortValue
 from .progress import progress_bar
 from .store import RunStore, check_replaceable, is_run_store
@@ -592,5 +593,6 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     """
     limit_malloc_arenas()
     keep_freed_memory()
+    lazy_registries()
     with limit_blas():
         return Executor(graph, out, **options).execute()

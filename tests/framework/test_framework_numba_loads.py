@@ -1,0 +1,70 @@
+"""Numba's cached loads without the compiler's registries (evsda.graph.numba_loads): the same results, less set-up."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+MODULE = textwrap.dedent("""
+    import numpy as np
+    import numba
+
+    @numba.njit(cache=True)
+    def allocates(n):                      # NRT: a new array
+        return np.arange(n) * 0.5
+
+    @numba.njit(cache=True)
+    def hashes(s, k):                      # the interpreter's hash secret (numba.cpython.hashing's symbols)
+        return hash(s) ^ hash((k, 2.5))
+
+    @numba.njit(cache=True)
+    def raises(x):
+        if x < 0:
+            raise ValueError("negative")
+        return x
+""")
+
+SCRIPT = textwrap.dedent("""
+    import json, sys
+    from evsda.graph import numba_loads
+    lazy = numba_loads.lazy_registries()
+    import loads_kernels as k
+    values = [k.allocates(5).tolist(), k.hashes("abc", 7)]
+    try:
+        k.raises(-1.0)
+    except ValueError as error:
+        values.append(str(error))
+    refreshed = "numba.np.arraymath" in sys.modules          # imported by the registries' refresh
+    import numba
+    import numpy as np
+
+    @numba.njit
+    def fresh(x):                          # a compile after lazy loads: the compiler refreshes itself
+        return np.sum(np.sqrt(x))
+
+    values.append(fresh(np.arange(4.0)))
+    loaded = sum(sum(f.stats.cache_hits.values()) for f in (k.allocates, k.hashes, k.raises))
+    print(json.dumps({"lazy": lazy, "values": values, "refreshed": refreshed, "loaded": loaded}))
+""")
+
+
+def run(tmp_path, **env) -> dict:
+    """SCRIPT in a fresh interpreter (with PYTHONHASHSEED fixed, so that hashes compare across processes)."""
+    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_LAZY_REGISTRIES"}
+    environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONHASHSEED="11",
+                   PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]), **env)
+    out = subprocess.run([sys.executable, "-c", SCRIPT], env=environ, capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.splitlines()[-1])
+
+
+def test_cached_loads_skip_the_registries_and_give_the_same_results(tmp_path):
+    (tmp_path / "loads_kernels.py").write_text(MODULE)
+    compiled = run(tmp_path)                                # an empty cache: compiled (and refreshed) here
+    loaded = run(tmp_path)                                  # then loaded from the cache without a refresh
+    numbas = run(tmp_path, EVSDA_LAZY_REGISTRIES="off")     # loaded as Numba does
+    assert compiled["loaded"] == 0 and loaded["loaded"] == numbas["loaded"] == 3
+    assert compiled["values"] == loaded["values"] == numbas["values"]
+    assert compiled["values"][0] == [0.0, 0.5, 1.0, 1.5, 2.0] and compiled["values"][2] == "negative"
+    assert loaded["lazy"] and not numbas["lazy"]
+    assert not loaded["refreshed"] and numbas["refreshed"]
