@@ -758,8 +758,9 @@ class PathChooser:
                         needed: Callable[[], bool] = lambda: True,
                         rendered: Callable[[], bool] = lambda: True) -> list[float] | None:
         """The distances [1] of frame pair ``pair`` of the reference probe of pupil-error bin ``key`` (its screens
-        named by the bin and the pair: the same numbers on any thread, in any order); None, without its second
-        frame, where ``needed()`` says after the first that the pair is no longer needed.
+        named by the bin and the pair: the same numbers on any thread, in any order); None, with what is left of it
+        unmade, where ``needed()`` says that the pair is no longer needed: after its first frame, before each layer's
+        screen and each propagation (:meth:`.ReferencePath.field`) and before the stamps.
 
         Both frames' fields are made first, without the pupil renderer; then ``rendered()`` (which returns once
         the renderer is made: False if that failed, and the pair is dropped), then their stamps."""
@@ -767,7 +768,7 @@ class PathChooser:
         offset = np.zeros((1, 2))
         names = (f"__probe {key} {2 * pair}", f"__probe {key} {2 * pair + 1}")
         made = []
-        frames = imager.reference.probe_pair(names, zenith_rad, range_m)
+        frames = imager.reference.probe_pair(names, zenith_rad, range_m, needed)
         try:
             for frame in frames:
                 made.append(frame)
@@ -775,7 +776,7 @@ class PathChooser:
                     return None
         finally:
             frames.close()
-        if not rendered():
+        if len(made) < 2 or not needed() or not rendered():
             return None
         out = []
         for before, phase in made:

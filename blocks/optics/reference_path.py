@@ -4,7 +4,7 @@ through every layer's screen to the aperture (:mod:`.propagation`, grids from :m
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -53,14 +53,16 @@ class ReferencePath:
         return geometry, grid, index
 
     def field(self, source: str, t_s: float, sight: np.ndarray, zenith_rad: float, range_m: float,
-              slack: float = 1.3, keep_twin: bool = False, aperture: bool = True) -> np.ndarray:
+              slack: float = 1.3, keep_twin: bool = False, aperture: bool = True,
+              needed: Callable[[], bool] | None = None) -> np.ndarray | None:
         """Pupil field (n, n) of paper Eq. 3-4 for one instant, normalised to the vacuum amplitude (``sight`` (2,):
         where the line of sight crosses the layers, :meth:`.Imager.sight`).
 
         New screens are ``slack`` times the grid wide and keep their twins with ``keep_twin`` (:meth:`_screens`).
         Without ``aperture``, the field that reaches the aperture (times ``imager.pupil_amplitude`` it is the
         field, the same numbers): made without the pupil renderer (the path probes make it on one thread while
-        another makes the renderer)."""
+        another makes the renderer). ``needed`` is asked before each layer's screen and before the propagation: once
+        it says False, the field is left unmade and None returned (a path probe's pair that a verdict dropped)."""
         g = self.imager.geometry
         geometry, grid, index = self.grid(zenith_rad, range_m)
         distance = geometry.distance_m
@@ -70,6 +72,8 @@ class ReferencePath:
             per_layer = self._screens(source, grid, index, slack, keep_twin)
             k2 = (2 * np.pi / self.imager.wavelength) ** 2
             for i, plane in index.items():
+                if needed is not None and not needed():
+                    return None
                 layer, screen = self.imager.atmosphere.layers[i], per_layer[i]
                 centre, _ = self.imager.footprints(layer, np.array([t_s]), np.reshape(sight, (1, 2)),
                                                    np.array([zenith_rad]), np.array([np.inf]))
@@ -80,6 +84,8 @@ class ReferencePath:
                              int(self.imager.epochs_of(np.array([t_s]))[0]))
                 weight = np.sqrt(0.423 * k2 / np.cos(zenith_rad) * layer.cn2_dh)
                 screens[plane] = weight * screen.sample(rows, cols)[0]
+        if needed is not None and not needed():
+            return None
         # the FFTs on the calling thread: sources, and the path probes' frames, are rendered on every core; only the
         # pupil's centred n_pupil x n_pupil of the observation plane is made
         pupil = propagate_point_source(grid.n, grid.delta1_m, grid.deltan_m, self.imager.wavelength, distance,
@@ -135,25 +141,31 @@ class ReferencePath:
                                          update="extend" if np.isfinite(L0) else "regenerate", keep_twin=keep_twin)
         return screens
 
-    def probe_pair(self, names: tuple[str, str], zenith_rad: float,
-                   range_m: float) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    def probe_pair(self, names: tuple[str, str], zenith_rad: float, range_m: float,
+                   needed: Callable[[], bool] | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         """Pupil field before the aperture (:meth:`field` without ``aperture``) and pupil-path phase
         (:meth:`pupil_phase`) of two independent frames of the path chooser's probe, at ``t = 0`` on the
         boresight, on screens just wide enough (``slack`` 1) named ``names``, dropped after use. The second
         frame's screens are the imaginary halves of the first's FFT draws (:meth:`.LayerScreen.twin`; screens cut
         from FFT screens, wider than :data:`.layer_screen.SELF_START_SAMPLES`; narrower ones are drawn for each
         frame): two frames for one frame's draws and transforms. The frames come one at a time: a probe that
-        needs no second frame closes the iterator after the first."""
+        needs no second frame closes the iterator after the first; one whose ``needed`` says False while a frame is
+        made (:meth:`field`) ends without that frame."""
         sight = np.zeros(2)
         first, second = names
         try:
-            yield (self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True, aperture=False),
-                   self.pupil_phase(first, 0.0, sight, zenith_rad, range_m))
+            field = self.field(first, 0.0, sight, zenith_rad, range_m, slack=1.0, keep_twin=True, aperture=False,
+                               needed=needed)
+            if field is None:
+                return
+            yield field, self.pupil_phase(first, 0.0, sight, zenith_rad, range_m)
             twins = {i: screen.twin((*self.imager.source_seed(second, 1), i))
                      for i, screen in self.screens.pop(first, {}).items()}
             self.screens[second] = {i: twin for i, twin in twins.items() if twin is not None}
-            yield (self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0, aperture=False),
-                   self.pupil_phase(second, 0.0, sight, zenith_rad, range_m))
+            field = self.field(second, 0.0, sight, zenith_rad, range_m, slack=1.0, aperture=False, needed=needed)
+            if field is None:
+                return
+            yield field, self.pupil_phase(second, 0.0, sight, zenith_rad, range_m)
         finally:
             self.screens.pop(first, None)
             self.screens.pop(second, None)

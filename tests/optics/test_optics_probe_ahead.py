@@ -87,3 +87,31 @@ def test_a_pair_no_longer_needed_stops_after_its_first_frame_and_keeps_no_screen
     assert len(calls) == 1 and not reference.screens                 # one frame made, its screens dropped
     distances = chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0)
     assert len(calls) == 3 and len(distances) == 2 and not reference.screens
+
+
+def test_a_pair_dropped_while_a_frame_is_made_leaves_the_rest_unmade(monkeypatch):
+    # needed() turning False within a frame (before a layer's screen, or before the propagation) ends the pair there:
+    # no propagation after it, no stamps, no screens kept; the pair made afterwards has the distances of one never
+    # interrupted. A pair asks before each layer and the propagation of each frame, after its first frame and
+    # before its stamps: 2 layers + 4 times
+    from evsda.blocks.optics import reference_path
+    imager = make_imager()
+    chooser, reference = imager.chooser, imager.reference
+    expected = chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0)
+    layers = len(reference.grid(ZENITH_RAD, RANGE_M)[2])
+    assert layers
+    propagated = []
+    propagate = reference_path.propagate_point_source
+    monkeypatch.setattr(reference_path, "propagate_point_source",
+                        lambda *args, **kwargs: propagated.append(1) or propagate(*args, **kwargs))
+    for asks in range(2 * layers + 4):
+        asked = []
+        propagated.clear()
+
+        def needed():
+            asked.append(1)
+            return len(asked) <= asks
+        assert chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0, needed) is None
+        assert len(asked) == asks + 1 and not reference.screens
+        assert len(propagated) == (asks >= layers + 1) + (asks >= 2 * layers + 3)
+    assert chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0, lambda: True) == expected
