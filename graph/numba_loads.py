@@ -22,6 +22,7 @@ from __future__ import annotations
 import inspect
 import logging
 import os
+import sys
 
 log = logging.getLogger(__name__)
 
@@ -45,15 +46,18 @@ _lazy: bool | None = None           # None: not tried; True: loads refresh nothi
 
 
 def lazy_registries() -> bool:
-    """Make Numba's cached loads skip the compiler's registries (see the module docstring); whether they now do."""
+    """Make Numba's cached loads skip the compiler's registries (see the module docstring); whether they now do.
+
+    Nothing is done (nor imported) while Numba is not imported: a process whose blocks do not use it does not
+    import it here."""
     global _lazy
-    if _lazy is None:
+    if _lazy is None and "numba" in sys.modules:
         _lazy = False
         try:
             _lazy = _edit_load()
         except Exception as error:                 # noqa: BLE001 -- Numba's own load stays
             log.info("Numba's cached loads left as they are (%s)", error)
-    return _lazy
+    return bool(_lazy)
 
 
 def _edit_load() -> bool:

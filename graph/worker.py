@@ -43,6 +43,7 @@ from typing import Any
 
 from .block import Block
 from .errors import UserError
+from .numba_loads import lazy_registries
 from .threads import usable_cores
 
 log = logging.getLogger("evsda.worker")
@@ -362,6 +363,7 @@ def _serve(conn: Connection) -> None:
         for part in qualname.split("."):
             cls = getattr(cls, part)
         block = cls(pickle.loads(conn.recv_bytes()), name=name, seed=seed)
+        lazy_registries()                               # the block's modules are imported (Numba, if it uses it)
     except Exception as exc:                            # noqa: BLE001 -- reported; the caller runs the block
         conn.send(("start_failed", f"{type(exc).__name__}: {exc}"))
         return

@@ -27,9 +27,9 @@ MODULE = textwrap.dedent("""
 
 SCRIPT = textwrap.dedent("""
     import json, sys
+    import loads_kernels as k              # imports Numba, which lazy_registries waits for
     from evsda.graph import numba_loads
     lazy = numba_loads.lazy_registries()
-    import loads_kernels as k
     values = [k.allocates(5).tolist(), k.hashes("abc", 7)]
     try:
         k.raises(-1.0)
