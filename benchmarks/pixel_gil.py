@@ -10,8 +10,12 @@ GIL, with its largest items. The events' digest is printed to compare versions.
 ``--inputs FILE`` keeps the captured inputs in FILE (pickled; read back if it exists), so that versions
 of the pixel code are stepped over the same inputs without running the pass again; ``--no-profile``
 prints the block's CPU per window (``EVSDA_THREADS=1``: the process's, one thread) without cProfile.
+``--against DIR`` steps a copy of another checkout's ``blocks/pixel`` (DIR, e.g. the session's start) beside
+this one in the same process, window by window, alternating which goes first, checks that their events are
+the same, and prints both blocks' CPU per window and their ratio (the host's drift cancels).
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2] [--inputs F] [--no-profile]
+        [--against DIR]
 """
 
 from __future__ import annotations
@@ -20,12 +24,17 @@ import argparse
 import cProfile
 import copy
 import hashlib
+import io
 import os
 import pickle
 import pstats
+import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 from evsda.blocks.pixel import block as pixel_block
 from evsda.graph.executor import run_graph
@@ -60,11 +69,49 @@ def pixel_inputs(duration_s: float) -> tuple[pixel_block.DvsPixel, list]:
     return kept["block"], kept["inputs"]
 
 
+class _Against(pickle.Unpickler):
+    """Unpickles the block as an instance of the copied package ``pixel_against`` (another checkout's code)."""
+
+    def find_class(self, module, name):
+        if module.startswith("evsda.blocks.pixel."):
+            module = "pixel_against." + module[len("evsda.blocks.pixel."):]
+        return super().find_class(module, name)
+
+
+def side_by_side(pickled: bytes, inputs: list, against: Path) -> None:
+    """Steps this checkout's block and ``against``'s (``blocks/pixel`` copied) alternately window by window over
+    the same inputs (windows after the first), checks their events are the same, prints the CPU per window."""
+    root = Path(tempfile.mkdtemp(prefix="pixel_against_"))
+    shutil.copytree(against / "blocks" / "pixel", root / "pixel_against", ignore=shutil.ignore_patterns("__pycache__"))
+    sys.path.insert(0, str(root))
+    blocks = {"this": pickle.loads(pickled), "against": _Against(io.BytesIO(pickled)).load()}
+    window, irradiance = inputs[0]
+    for block in blocks.values():
+        block.step(window, irradiance=irradiance)                # start-up and compiled loops' load, not timed
+    cpu: dict = {"this": [], "against": []}
+    for i, (window, irradiance) in enumerate(inputs[1:]):
+        events = {}
+        for name in ("this", "against") if i % 2 else ("against", "this"):
+            start = time.process_time()
+            events[name] = blocks[name].step(window, irradiance=irradiance)["events"]
+            cpu[name].append(time.process_time() - start)
+        for field in ("t_ns", "x", "y", "p", "cause"):
+            if not np.array_equal(getattr(events["this"], field), getattr(events["against"], field)):
+                raise SystemExit(f"window {i + 1}: the events' {field} differ from {against}'s")
+    this, other = np.array(cpu["this"]), np.array(cpu["against"])
+    print(f"pixel block, {this.size} windows after the first, alternated in one process (load "
+          f"{os.getloadavg()[0]:.1f}), the same events: {against} {np.median(other) * 1e3:.2f} ms -> this "
+          f"{np.median(this) * 1e3:.2f} ms CPU a window (medians); sums {other.sum():.3f} -> {this.sum():.3f} s, "
+          f"ratio of sums {this.sum() / other.sum():.3f}, median of the windows' ratios {np.median(this / other):.3f}")
+    shutil.rmtree(root, ignore_errors=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=2.0, help="simulated seconds of the pass [s]")
     parser.add_argument("--inputs", type=Path, help="pickle of the captured inputs: written if absent, else read")
     parser.add_argument("--no-profile", action="store_true", help="CPU per window only, without cProfile")
+    parser.add_argument("--against", type=Path, help="another checkout whose blocks/pixel steps beside this one")
     args = parser.parse_args()
     if args.inputs is not None and args.inputs.exists():
         with open(args.inputs, "rb") as f:
@@ -74,6 +121,9 @@ def main() -> None:
         if args.inputs is not None:
             with open(args.inputs, "wb") as f:
                 pickle.dump((block, inputs), f, protocol=5)
+    if args.against is not None:
+        side_by_side(pickle.dumps(block, protocol=5), inputs, args.against)
+        return
     digest = hashlib.sha256()
     window, irradiance = inputs[0]
     block.step(window, irradiance=irradiance)                    # start-up and compiled loops' load, not timed

@@ -19,7 +19,8 @@ is no crossing and nothing is solved. This is the
 recursion the dense reference steps through, so the two agree to floating-point rounding.
 
 The functions are compiled (Numba) scalar functions, called per pixel by the event-driven
-loop (:mod:`.pixel_loop`); :func:`first_crossing` applies the search to arrays.
+loop (:mod:`.pixel_loop`); :func:`first_crossing` applies the search to arrays, and
+:func:`batch_crossings` takes many searches together in vectorised loops (the same bits).
 """
 
 from __future__ import annotations
@@ -34,7 +35,9 @@ from .fastmath import exp_, log_
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
 J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
 NO_STEP = np.int64(-1)                     # no step: a^j known for none (:func:`_g`)
+UNSETTLED = np.int64(-2)                   # no step settled: left to the scalar search (:func:`batch_crossings`)
 _NEWTON_STEPS = 12
+_SETTLED = 0.25                            # Newton's step below which its iterate is settled [steps]
 _ROUNDING = 1e-12                          # relative widening of the range of g against its rounding [1]
 _UP, _DOWN = np.bool_(True), np.bool_(False)    # _root's direction typed bool, not a literal: one compile serves both
 
@@ -112,6 +115,23 @@ def _reached(j, c, d, e, log_a, delta, level, upward, large):
     return g >= level if upward else g <= level
 
 
+@inline
+def _newton_step(x, lo_f, hi_f, c, d, e, log_a, delta, level, large):
+    """One step of :func:`_root`'s Newton iteration on the continuous ``g`` from ``x``, kept in ``[lo_f, hi_f]``:
+    ``(next x, step)`` (a step that is not finite counts as 0)."""
+    decay = power(log_a, x)
+    dx = ((level - (c + relaxation(d, e, x * log_a, decay, large) + delta * x))
+          / (relaxation_slope(d, e, log_a, x * log_a, decay, large) + delta))
+    dx = dx if math.isfinite(dx) else 0.0
+    return min(max(x + dx, lo_f), hi_f), dx
+
+
+@inline
+def _candidate(x, lo, hi):
+    """The integer step :func:`_root` checks after Newton's iteration ended at ``x``, in ``(lo, hi]``."""
+    return min(max(np.int64(math.ceil(x - 1e-6)), lo + 1), hi)
+
+
 @jit
 def _root(lo, hi, c, d, e, log_a, delta, level, upward, x0, large):
     """Smallest ``j`` in ``(lo, hi]`` with ``g(j) >= level`` (``upward``) or ``<= level``.
@@ -124,15 +144,10 @@ def _root(lo, hi, c, d, e, log_a, delta, level, upward, x0, large):
     lo_f, hi_f = float(lo), float(hi)
     x = min(max(x0, lo_f), hi_f) if math.isfinite(x0) else lo_f
     for _ in range(_NEWTON_STEPS):
-        decay = power(log_a, x)
-        dx = ((level - (c + relaxation(d, e, x * log_a, decay, large) + delta * x))
-              / (relaxation_slope(d, e, log_a, x * log_a, decay, large) + delta))
-        if not math.isfinite(dx):
-            dx = 0.0
-        x = min(max(x + dx, lo_f), hi_f)
-        if abs(dx) < 0.25:
+        x, dx = _newton_step(x, lo_f, hi_f, c, d, e, log_a, delta, level, large)
+        if abs(dx) < _SETTLED:
             break
-    j = min(max(np.int64(math.ceil(x - 1e-6)), lo + 1), hi)
+    j = _candidate(x, lo, hi)
     if _reached(j, c, d, e, log_a, delta, level, upward, large) and (
             j - 1 <= lo or not _reached(j - 1, c, d, e, log_a, delta, level, upward, large)):
         return j
@@ -221,7 +236,14 @@ def band_bound(j_max, c, d, log_a, delta, theta_on, theta_off, large):
 
 @jit
 def _g(j, c, d, e, log_a, delta, j_known, known, large):
-    """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits).
+    """:func:`comparator_input` at ``j``, taking ``a^j`` from ``known = a^j_known`` when ``j = j_known`` (same bits);
+    compiled once for its callers (:func:`comparator_at`)."""
+    return comparator_at(j, c, d, e, log_a, delta, j_known, known, large)
+
+
+@inline
+def comparator_at(j, c, d, e, log_a, delta, j_known, known, large):
+    """:func:`_g`'s arithmetic, inlined (loops over pixels vectorise).
 
     Where the filter has settled (``a^j`` flushed to 0, :func:`power`) the large-signal relaxation is
     ``-ln(1 - 0 + e 0) = -ln 1 = -0`` exactly; it is taken as such, without the logarithm (the searches
@@ -310,6 +332,106 @@ def search_crossing(j0, c, d, log_a, delta, theta_on, theta_off, horizon, j_know
         if _g(hi, c, d, e, log_a, delta, j_known, known, large) >= theta_on:
             return _root(j_min, hi, c, d, e, log_a, delta, theta_on, _UP, float(hi), large), 1
     return NEVER, 0
+
+
+@inline
+def batched(j0, d, log_a, delta):
+    """Whether :func:`batch_crossings` takes a search: :func:`search_crossing` with the relaxation still moving
+    (``D != 0``), drift, ``0 < a < 1`` and ``j0`` below the look-ahead limit."""
+    return ((d < 0.0) | (d > 0.0)) & (delta > 0.0) & (log_a < 0.0) & (log_a > -np.inf) & (j0 < J_LIMIT)
+
+
+@jit
+def batch_crossings(j0, c, d, log_a, delta, theta_on, theta_off, known, large, out):
+    """``out[k]``: :func:`search_crossing`'s ``j`` for ``(j0[k], c[k], .., horizon J_LIMIT, j_known J_LIMIT,
+    known[k] = a^J_LIMIT)`` where :func:`batched` holds, many searches at a time, or ``UNSETTLED`` where Newton's
+    candidate is not the crossing (:func:`_root` bisects then: the caller searches that one alone).
+
+    The same arithmetic in the same order as :func:`search_crossing` and :func:`_root` (:func:`comparator_at`,
+    :func:`_newton_step`, :func:`_candidate`): the brackets and Newton's starts (the C library's ``expm1`` and
+    ``log``) one search at a time, then ``g`` at every step the scalar search might test, Newton's iteration
+    and the check of its candidate in loops over the searches that the compiler vectorises (:mod:`.fastmath`'s
+    functions give the same bits there), the scalar search's branches taken as selections (tested against it)."""
+    n = j0.size
+    lo, hi, after, j_min = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    start, level, e, x = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    upward, active, rooted = np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n, np.bool_)
+    steps, g = np.empty(4 * n, np.int64), np.empty(4 * n)
+    for k in range(n):                # brackets and Newton's starts, as search_crossing takes them
+        e[k] = large_weight(d[k]) if large else 0.0
+        lo[k] = j0[k]
+        upward[k] = d[k] < 0.0
+        if upward[k]:                 # rising: ON on (j0, hi]
+            hi[k] = max(min(_ceil_steps((theta_on[k] - c[k] - d[k]) / delta[k]) + 1, J_LIMIT), j0[k] + 1)
+            ratio = decay_reaching(theta_on[k] - c[k], d[k], large)
+            start[k] = math.log(ratio) / log_a[k] if (ratio > 0.0) & (ratio < 1.0) else (theta_on[k] - c[k]) / delta[k]
+            level[k] = theta_on[k]
+            j_min[k], after[k] = J_LIMIT, J_LIMIT
+        else:                         # falling: OFF on (j0, j_min (+1)], else ON on (j_min, after]
+            if large:
+                j_star = math.log(delta[k] / (log_a[k] - delta[k]) / math.expm1(-d[k])) / log_a[k]
+            else:
+                j_star = math.log(delta[k] / (-d[k] * log_a[k])) / log_a[k]
+            j_min[k] = J_LIMIT if not math.isfinite(j_star) else np.int64(min(max(math.floor(j_star), 0.0),
+                                                                                 float(J_LIMIT)))
+            j_min[k] = min(max(j_min[k], j0[k]), J_LIMIT)
+            hi[k] = max(min(j_min[k], J_LIMIT), j0[k] + 1)
+            ratio = decay_reaching(-theta_off[k] - c[k], d[k], large)
+            start[k] = math.log(ratio) / log_a[k] if ratio > 0.0 else np.nan
+            level[k] = -theta_off[k]
+            after[k] = max(min(_ceil_steps((theta_on[k] - c[k]) / delta[k]) + 1, J_LIMIT), j_min[k] + 1)
+        for slot, step in enumerate((j0[k], hi[k], hi[k] + 1, after[k])):
+            steps[slot * n + k] = step
+    _comparators(steps, c, d, e, log_a, delta, J_LIMIT, known, large, g)       # g at j0, the brackets' ends
+    for k in range(n):                # search_crossing's choice: an answer, or the root to settle in (lo, hi]
+        g0, g_hi, g_next, g_after = g[k], g[n + k], g[2 * n + k], g[3 * n + k]
+        if (g0 >= theta_on[k]) | (g0 <= -theta_off[k]):
+            out[k], active[k] = j0[k], False
+        elif upward[k]:
+            out[k], active[k] = NEVER, g_hi >= theta_on[k]
+        elif not g_hi > level[k] or (hi[k] + 1 <= J_LIMIT and g_next <= level[k]):
+            hi[k] += 0 if not g_hi > level[k] else 1
+            out[k], active[k] = NEVER, True
+        elif j_min[k] < J_LIMIT and g_after >= theta_on[k]:
+            lo[k], hi[k], level[k], upward[k], start[k] = j_min[k], after[k], theta_on[k], True, float(after[k])
+            out[k], active[k] = NEVER, True
+        else:
+            out[k], active[k] = NEVER, False
+        lo_f, hi_f = float(lo[k]), float(hi[k])
+        x[k] = min(max(start[k], lo_f), hi_f) if math.isfinite(start[k]) else lo_f
+        rooted[k] = active[k]
+    for _ in range(_NEWTON_STEPS):    # _root's iteration, each search until its step settles
+        moving = 0
+        for k in range(n):
+            moved, dx = _newton_step(x[k], float(lo[k]), float(hi[k]), c[k], d[k], e[k], log_a[k], delta[k],
+                                     level[k], large)
+            x[k] = moved if active[k] else x[k]
+            active[k] = active[k] & (abs(dx) >= _SETTLED)
+            moving += 1 if active[k] else 0
+        if moving == 0:
+            break
+    for k in range(n):                # _root's candidate and the step before it
+        steps[k] = _candidate(x[k], lo[k], hi[k])
+        steps[n + k] = steps[k] - 1
+    _comparators(steps[:2 * n], c, d, e, log_a, delta, NO_STEP, known, large, g)
+    for k in range(n):                # _root's check of its candidate
+        j, g_j, g_before = steps[k], g[k], g[n + k]
+        at = (g_j >= level[k]) if upward[k] else (g_j <= level[k])
+        before = (g_before >= level[k]) if upward[k] else (g_before <= level[k])
+        root = j if at & ((j - 1 <= lo[k]) | (not before)) else UNSETTLED
+        out[k] = root if rooted[k] else out[k]
+
+
+@jit
+def _comparators(steps, c, d, e, log_a, delta, j_known, known, large, out):
+    """``out[s * n + k]``: :func:`comparator_at` at ``steps[s * n + k]`` of the search ``k`` (``a^j_known =
+    known[k]``; ``n`` searches), in loops the compiler vectorises (one compiled copy of ``g`` for
+    :func:`batch_crossings`)."""
+    n = c.size
+    for slot in range(steps.size // n):
+        for k in range(n):
+            out[slot * n + k] = comparator_at(steps[slot * n + k], c[k], d[k], e[k], log_a[k], delta[k], j_known,
+                                              known[k], large)
 
 
 @jit

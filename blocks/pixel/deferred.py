@@ -199,7 +199,7 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
         take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
                      large)
     sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
-              leak_hz, dt, large)                              # own_sweep.take_own: the sweep, then the rows left
+              leak_hz, dt, large)           # own_sweep.take_own: the sweep (searches a tile at a time), the rows left
     drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
     return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
                       change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,

@@ -24,7 +24,7 @@ order as the event-driven loop:
   time, as :func:`.pixel_loop._schedule_before` does), and a crossing before the next change ends the
   pixel's sweep; after the pixel's last change, with nothing due before the window's end, the schedule
   the loop makes there instead (``LATER`` where :func:`.pixel_loop.quiet_until` shows no crossing in the
-  window, else the search).
+  window, else the search: at the tile's end, the searches together, :func:`.crossing.batch_crossings`).
 
 The event-driven loop then takes each pixel from the change the sweep stopped at (after its last: only
 its events and the schedule it keeps), in the state the sweep left, with the rows of the changes left
@@ -39,7 +39,8 @@ import numba
 import numpy as np
 
 from .comparator import TOLERANCE
-from .crossing import J_LIMIT, NEVER, NO_STEP, band_holds, power, relaxed_at, search_crossing
+from .crossing import (J_LIMIT, NEVER, NO_STEP, UNSETTLED, band_bound, band_holds, batch_crossings, batched, power,
+                       relaxed_at, search_crossing)
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_log, drive_rest, drive_rows
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LATER, LOG_A, M_, NOISE_SCALE, OWED,
                          PARA, READY, SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _fetch_row, _settle_step, advanced, drifted,
@@ -57,6 +58,8 @@ _STATE = ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_P
           (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON), (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE))
 _CHANGED = 9
 _SEARCH, _KEPT = 1, 2        # I_SEARCH: the bound failed; after the pixel's last change (run_pixels' lazy schedule)
+(K_C, K_D, K_LOG_A, K_DELTA, K_ON, K_OFF, K_KNOWN, K_FLOAT) = range(8)      # _kept's searches, [field * TILE + k]
+(K_J0, K_LANE, K_OUT, K_INT) = range(4)
 # a first run compiles each compiled function called from another again into the caller's code: the sweep and
 # drive_left are inlined into deferred.take_and_run (Numba's IR, not compiled on their own there), and so are the
 # small steps _enter and _search into the sweep; the vectorised loops stay functions (inlined, the sweep compiles
@@ -140,6 +143,7 @@ def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_inp
     fs = np.zeros(N_FLOAT * TILE)
     js = np.zeros(N_INT * TILE, np.int64)
     swept = np.empty(TILE, np.int64)                           # each pixel's number of changes to sweep
+    kept_f, kept_j = np.empty(K_FLOAT * TILE), np.empty(K_INT * TILE, np.int64)     # _kept's searches
     leak_dt = leak_hz * dt
     total = 0
     for t0 in range(0, order.size, TILE):
@@ -187,7 +191,8 @@ def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_inp
             if n_fresh:
                 _fresh(fs, js, m, leak_hz, dt, large)
             if _bound(fs, js, m, n_end, leak_dt, dt, large):
-                _search(fs, js, m, n_end, leak_dt, dt, large)
+                _search(fs, js, m, leak_dt, dt, large)
+        _kept(fs, js, size, n_end, leak_dt, dt, large, kept_f, kept_j)
         for s in range(size):                         # back to the state tables, where changes were taken
             i = order[t0 + s]
             taken = js[I_PTR * TILE + s] - change_lo[i]
@@ -314,12 +319,11 @@ def _bound(fs, js, m, n_end, leak_dt, dt, large):
 
 
 @inline
-def _search(fs, js, m, n_end, leak_dt, dt, large):
-    """The crossing up to the next change of the pixels marked ``I_SEARCH`` (:func:`.pixel_loop._schedule_before`
-    where its bound failed), or after their last change (``_KEPT``) the schedule :func:`.pixel_loop.run_pixels`
-    makes there."""
+def _search(fs, js, m, leak_dt, dt, large):
+    """The crossing up to the next change of the pixels marked ``_SEARCH`` (:func:`.pixel_loop._schedule_before`
+    where its bound failed); those marked ``_KEPT`` wait for the tile's end (:func:`_kept`)."""
     for s in range(m):
-        if js[I_SEARCH * TILE + s] != 0:
+        if js[I_SEARCH * TILE + s] == _SEARCH:
             step, ready, t_next, j_max = js[I_STEP * TILE + s], js[I_READY * TILE + s], js[I_NEXT * TILE + s], \
                 js[I_J_KNOWN * TILE + s]
             y, memorised, filtered = fs[F_Y * TILE + s], fs[F_M * TILE + s], fs[F_L * TILE + s]
@@ -327,13 +331,7 @@ def _search(fs, js, m, n_end, leak_dt, dt, large):
                 fs[F_TH_ON * TILE + s], fs[F_TH_OFF * TILE + s], fs[F_SCALE * TILE + s]
             j0 = max(ready - step, np.int64(1))
             horizon = min(t_next - 1 - step, J_LIMIT)
-            if js[I_SEARCH * TILE + s] == _KEPT:      # run_pixels' schedule after its last change (lazy)
-                cmp_next = LATER
-                if not quiet_until(filtered, y, memorised, th_on, th_off, scale, para, step, -np.inf, np.inf, 0.0,
-                                   leak_dt, dt) >= n_end:
-                    cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
-                                                   scale, NEVER, leak_dt, dt, large)[0]
-            elif max(horizon, j0) != j_max:
+            if max(horizon, j0) != j_max:
                 cmp_next, j_known, known, relaxed = next_crossing_known(step, ready, y, memorised, filtered, log_a,
                                                                         para, th_on, th_off, scale, t_next, leak_dt,
                                                                         dt, large)
@@ -344,3 +342,55 @@ def _search(fs, js, m, n_end, leak_dt, dt, large):
                                        th_off - TOLERANCE, horizon, j_max, fs[F_KNOWN * TILE + s], large)
                 cmp_next = NEVER if j >= NEVER else step + j
             js[I_CMP * TILE + s] = cmp_next
+
+
+@inline
+def _kept(fs, js, size, n_end, leak_dt, dt, large, kept_f, kept_j):
+    """After the tile's rounds, the schedule :func:`.pixel_loop.run_pixels` makes after the last change of the
+    pixels marked ``_KEPT`` (the round's state is theirs: later rounds leave them): ``LATER`` where
+    :func:`.pixel_loop.quiet_until` shows the window quiet, else :func:`.pixel_loop.next_crossing_known`'s crossing
+    (no horizon), the searches :func:`.crossing.batched` takes all at once (:func:`.crossing.batch_crossings`:
+    on the pass nearly every one, most an event in the window), the others and those it leaves one at a time."""
+    n = 0
+    for s in range(size):
+        if js[I_SEARCH * TILE + s] == _KEPT:
+            step, ready = js[I_STEP * TILE + s], js[I_READY * TILE + s]
+            y, memorised, filtered = fs[F_Y * TILE + s], fs[F_M * TILE + s], fs[F_L * TILE + s]
+            log_a, para, th_on, th_off, scale = fs[F_LOG_A * TILE + s], fs[F_PARA * TILE + s], \
+                fs[F_TH_ON * TILE + s], fs[F_TH_OFF * TILE + s], fs[F_SCALE * TILE + s]
+            cmp_next = LATER
+            if not quiet_until(filtered, y, memorised, th_on, th_off, scale, para, step, -np.inf, np.inf, 0.0,
+                               leak_dt, dt) >= n_end:
+                # next_crossing_known without a horizon: first_crossing_known's bound, then search_crossing
+                drift = (leak_dt * scale + para * dt) * th_on
+                j0 = max(ready - step, np.int64(1))
+                c, d, on, off = y - memorised, filtered - y, th_on - TOLERANCE, th_off - TOLERANCE
+                holds, known, _ = band_bound(max(J_LIMIT, j0), c, d, log_a, drift, on, off, large)
+                if holds:
+                    cmp_next = NEVER
+                elif batched(j0, d, log_a, drift):
+                    for field, value in ((K_C, c), (K_D, d), (K_LOG_A, log_a), (K_DELTA, drift), (K_ON, on),
+                                         (K_OFF, off), (K_KNOWN, known)):
+                        kept_f[field * TILE + n] = value
+                    kept_j[K_J0 * TILE + n], kept_j[K_LANE * TILE + n] = j0, s
+                    n += 1
+                    continue
+                else:
+                    cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
+                                                   scale, NEVER, leak_dt, dt, large)[0]
+            js[I_CMP * TILE + s] = cmp_next
+    if n == 0:
+        return
+    batch_crossings(kept_j[K_J0 * TILE:K_J0 * TILE + n], kept_f[K_C * TILE:K_C * TILE + n],
+                    kept_f[K_D * TILE:K_D * TILE + n], kept_f[K_LOG_A * TILE:K_LOG_A * TILE + n],
+                    kept_f[K_DELTA * TILE:K_DELTA * TILE + n], kept_f[K_ON * TILE:K_ON * TILE + n],
+                    kept_f[K_OFF * TILE:K_OFF * TILE + n], kept_f[K_KNOWN * TILE:K_KNOWN * TILE + n], large,
+                    kept_j[K_OUT * TILE:K_OUT * TILE + n])
+    for k in range(n):
+        s, j = kept_j[K_LANE * TILE + k], kept_j[K_OUT * TILE + k]
+        step = js[I_STEP * TILE + s]
+        if j == UNSETTLED:                    # Newton's candidate not the crossing: search_crossing bisects
+            j = search_crossing(kept_j[K_J0 * TILE + k], kept_f[K_C * TILE + k], kept_f[K_D * TILE + k],
+                                kept_f[K_LOG_A * TILE + k], kept_f[K_DELTA * TILE + k], kept_f[K_ON * TILE + k],
+                                kept_f[K_OFF * TILE + k], J_LIMIT, J_LIMIT, kept_f[K_KNOWN * TILE + k], large)[0]
+        js[I_CMP * TILE + s] = NEVER if j >= NEVER else step + j

@@ -104,3 +104,35 @@ def test_swept_changes_make_the_events_of_the_loop_alone(monkeypatch, window_s, 
     assert lost == lost_swept
     for key in state:
         np.testing.assert_array_equal(state[key], state_swept[key])
+
+
+@pytest.mark.parametrize("large", [False, True])
+def test_batch_crossings_are_the_scalar_searches(large):
+    """crossing.batch_crossings, the sweep's searches after a pixel's last change taken many at a time, gives
+    search_crossing's step for every search it settles (the others are left to it), over rising and falling
+    filters, drifts and starts drawn on both sides of the thresholds: crossings at j0, soon, seconds ahead, ON
+    after an OFF-ward minimum, or never."""
+    from evsda.blocks.pixel.crossing import (J_LIMIT, NEVER, UNSETTLED, band_bound, batch_crossings, batched,
+                                             search_crossing)
+
+    rng = np.random.default_rng(7)
+    n = 40000
+    log_a = np.log1p(-10 ** rng.uniform(-7, -0.3, n))
+    d = 10 ** rng.uniform(-6, 0.7, n) * rng.choice([-1.0, 1.0], n)
+    on, off = rng.uniform(0.05, 0.6, n), rng.uniform(0.05, 0.6, n)
+    c = rng.uniform(-1.2, 1.2, n) * np.where(d < 0, on, off) - d * rng.uniform(-0.2, 1.2, n)
+    delta = 10 ** rng.uniform(-18, -1, n)
+    j0 = np.where(rng.random(n) < 0.5, 1, rng.integers(1, 10**6, n)).astype(np.int64)
+    known = np.array([band_bound(J_LIMIT, c[k], d[k], log_a[k], delta[k], on[k], off[k], large)[1] for k in range(n)])
+    assert all(batched(j0[k], d[k], log_a[k], delta[k]) for k in range(n))
+    out = np.empty(n, np.int64)
+    batch_crossings(j0, c, d, log_a, delta, on, off, known, large, out)
+    expected = np.array([search_crossing(j0[k], c[k], d[k], log_a[k], delta[k], on[k], off[k], J_LIMIT, J_LIMIT,
+                                         known[k], large)[0] for k in range(n)])
+    settled = out != UNSETTLED
+    assert settled.mean() > 0.99
+    np.testing.assert_array_equal(out[settled], expected[settled])
+    soon = (expected != j0) & (expected < NEVER)
+    for side in (d < 0, d > 0):      # crossings at many steps on both sides, and some never
+        assert len(set(expected[soon & side])) > 1000
+    assert (expected == NEVER).any()
