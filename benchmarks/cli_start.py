@@ -13,9 +13,9 @@ all of them alike, and the load average beside them. The test suite starts ~100 
 ``--parts GRAPH`` instead splits the one-core start of ``evsda run GRAPH`` before its first step (CPU seconds of
 each part in a fresh process of this checkout, the libraries imported one after the other in the order a run
 needs them, medians of ``--repeats``): NumPy, pydantic, the rest of the command line, networkx, Numba,
-SciPy, Skyfield, loading the graph (our block modules, the YAML, the checks), Numba's target set-up (what the
-first call of a compiled function does before it loads from the cache) and Zarr (the store, after the first
-window). Each part twice: as the checkouts run (editable installs with ``PYTHONDONTWRITEBYTECODE=1``: our modules
+SciPy, Skyfield, loading the graph (our block modules, the YAML, the checks), the first call of a compiled function
+(Numba's set-up and one load from its cache, as ``run_graph`` loads: :mod:`evsda.graph.numba_loads`,
+``EVSDA_LAZY_REGISTRIES=off`` for Numba's own) and Zarr (the store, after the first window). Each part twice: as the checkouts run (editable installs with ``PYTHONDONTWRITEBYTECODE=1``: our modules
 compiled from source at every start) and with compiled bytecode (``PYTHONPYCACHEPREFIX``, filled by one unmeasured
 run first: what an installed package starts with).
 
@@ -70,9 +70,10 @@ PARTS = {
     "skyfield": "import skyfield.api",
     "loading the graph (our block modules, YAML, checks)":
         "from evsda.graph.graphfile import load_graph\nload_graph({graph!r}, ['run.duration_s=1'])",
-    "Numba's target set-up (the first compiled call)":
-        "from numba.core.registry import cpu_target\ncpu_target.target_context.refresh()\n"
-        "cpu_target.typing_context.refresh()",
+    "the first compiled call (Numba's set-up, a cached load)":
+        "import numpy as np\nfrom evsda.graph.numba_loads import lazy_registries\n"
+        "from evsda.blocks.pixel.drive_kernel import drive_rows\nlazy_registries()\n"
+        "drive_rows(np.ones(1), np.zeros(64), np.zeros((1, 64)))",        # sizes beyond its indices
     "zarr (the store, after the first window)": "import zarr",
 }
 
