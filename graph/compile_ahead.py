@@ -32,6 +32,7 @@ import os
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 
 from .threads import usable_cores
 
@@ -122,6 +123,15 @@ def _switched_off(variable: str) -> bool:
     return os.environ.get(variable, "").strip().lower() in ("off", "0", "no", "false")
 
 
+def _attempted(edit: Callable[[], bool], unedited: str) -> bool:
+    """What ``edit`` of Numba returns, or False (logged with ``unedited``) where it fails: Numba then stays as it is."""
+    try:
+        return edit()
+    except Exception as error:                     # noqa: BLE001 -- Numba's own code stays
+        log.info("%s (%s)", unedited, error)
+        return False
+
+
 def _cached(modules: tuple[str, ...]) -> bool:
     """Whether any cached compiled function of ``modules`` has a signature in the cache for its current source
     (also True when that cannot be read: then no child starts)."""
@@ -187,11 +197,7 @@ def quicker_inlining() -> bool:
     """
     global _inliner
     if _inliner is None:
-        _inliner = False
-        try:
-            _inliner = _edit_inliner()
-        except Exception as error:                 # noqa: BLE001 -- Numba's own inliner stays
-            log.info("Numba's inliner left as it is (%s)", error)
+        _inliner = _attempted(_edit_inliner, "Numba's inliner left as it is")
     return _inliner
 
 
@@ -249,11 +255,7 @@ def quicker_typing() -> bool:
     """
     global _typing
     if _typing is None:
-        _typing = False
-        try:
-            _typing = _edit_typing()
-        except Exception as error:                 # noqa: BLE001 -- Numba's own typing stays
-            log.info("Numba's typing left as it is (%s)", error)
+        _typing = _attempted(_edit_typing, "Numba's typing left as it is")
     return _typing
 
 
@@ -336,11 +338,7 @@ def quicker_llvm_calls() -> bool:
     """
     global _llvm_calls
     if _llvm_calls is None:
-        _llvm_calls = False
-        try:
-            _llvm_calls = _take_off_lock_events()
-        except Exception as error:                 # noqa: BLE001 -- Numba's callbacks stay
-            log.info("Numba's LLVM lock events left as they are (%s)", error)
+        _llvm_calls = _attempted(_take_off_lock_events, "Numba's LLVM lock events left as they are")
     return _llvm_calls
 
 
