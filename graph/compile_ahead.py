@@ -111,7 +111,7 @@ def start(target: str, modules: tuple[str, ...], *args) -> Ahead:
 
 
 def _wanted() -> bool:
-    if _switched_off("EVSDA_COMPILE_AHEAD"):
+    if switched_off("EVSDA_COMPILE_AHEAD"):
         return False
     try:
         return usable_cores() > 1
@@ -119,11 +119,12 @@ def _wanted() -> bool:
         return False
 
 
-def _switched_off(variable: str) -> bool:
+def switched_off(variable: str) -> bool:
+    """Whether the environment variable ``variable`` says off (``off``, ``0``, ``no``, ``false``)."""
     return os.environ.get(variable, "").strip().lower() in ("off", "0", "no", "false")
 
 
-def _attempted(edit: Callable[[], bool], unedited: str) -> bool:
+def attempted_edit(edit: Callable[[], bool], unedited: str) -> bool:
     """What ``edit`` of Numba returns, or False (logged with ``unedited``) where it fails: Numba then stays as it is."""
     try:
         return edit()
@@ -197,7 +198,7 @@ def quicker_inlining() -> bool:
     """
     global _inliner
     if _inliner is None:
-        _inliner = _attempted(_edit_inliner, "Numba's inliner left as it is")
+        _inliner = attempted_edit(_edit_inliner, "Numba's inliner left as it is")
     return _inliner
 
 
@@ -206,7 +207,7 @@ def _edit_inliner() -> bool:
     from numba.core import inline_closurecall
     from numba.core.compiler_lock import global_compiler_lock
 
-    if numba.__version__ not in _INLINER_CHECKED or _switched_off("EVSDA_QUICKER_INLINING"):
+    if numba.__version__ not in _INLINER_CHECKED or switched_off("EVSDA_QUICKER_INLINING"):
         return False
     method = inline_closurecall.InlineWorker.inline_ir
     source = inspect.getsource(method)
@@ -255,7 +256,7 @@ def quicker_typing() -> bool:
     """
     global _typing
     if _typing is None:
-        _typing = _attempted(_edit_typing, "Numba's typing left as it is")
+        _typing = attempted_edit(_edit_typing, "Numba's typing left as it is")
     return _typing
 
 
@@ -264,7 +265,7 @@ def _edit_typing() -> bool:
     from numba.core import errors, targetconfig
     from numba.core.compiler_lock import global_compiler_lock
 
-    if numba.__version__ not in _TYPING_CHECKED or _switched_off("EVSDA_QUICKER_TYPING"):
+    if numba.__version__ not in _TYPING_CHECKED or switched_off("EVSDA_QUICKER_TYPING"):
         return False
     global _TargetConfig
     _TargetConfig = config = targetconfig.TargetConfig
@@ -338,7 +339,7 @@ def quicker_llvm_calls() -> bool:
     """
     global _llvm_calls
     if _llvm_calls is None:
-        _llvm_calls = _attempted(_take_off_lock_events, "Numba's LLVM lock events left as they are")
+        _llvm_calls = attempted_edit(_take_off_lock_events, "Numba's LLVM lock events left as they are")
     return _llvm_calls
 
 
@@ -347,7 +348,7 @@ def _take_off_lock_events() -> bool:
     from llvmlite.binding import ffi
     from numba.core import base
 
-    if numba.__version__ not in _LLVM_CALLS_CHECKED or _switched_off("EVSDA_QUICKER_LLVM_CALLS"):
+    if numba.__version__ not in _LLVM_CALLS_CHECKED or switched_off("EVSDA_QUICKER_LLVM_CALLS"):
         return False
     numbas = [(enter, leave) for enter, leave in ffi.lib._lock._cblist
               if enter.__qualname__.startswith(base._initialize_llvm_lock_event.__qualname__ + ".")]

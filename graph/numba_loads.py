@@ -20,11 +20,9 @@ leaves Numba as it is.
 from __future__ import annotations
 
 import inspect
-import logging
-import os
 import sys
 
-log = logging.getLogger(__name__)
+from .compile_ahead import attempted_edit, switched_off
 
 #: the Numba versions whose ``Cache.load_overload`` and ``refresh`` were checked
 _CHECKED = ("0.68.1",)
@@ -52,11 +50,7 @@ def lazy_registries() -> bool:
     import it here."""
     global _lazy
     if _lazy is None and "numba" in sys.modules:
-        _lazy = False
-        try:
-            _lazy = _edit_load()
-        except Exception as error:                 # noqa: BLE001 -- Numba's own load stays
-            log.info("Numba's cached loads left as they are (%s)", error)
+        _lazy = attempted_edit(_edit_load, "Numba's cached loads left as they are")
     return bool(_lazy)
 
 
@@ -65,8 +59,7 @@ def _edit_load() -> bool:
     from numba.core import caching
     from numba.core.cpu import CPUContext
 
-    if numba.__version__ not in _CHECKED or os.environ.get("EVSDA_LAZY_REGISTRIES", "").strip().lower() in (
-            "off", "0", "no", "false"):
+    if numba.__version__ not in _CHECKED or switched_off("EVSDA_LAZY_REGISTRIES"):
         return False
     numbas = caching.Cache.load_overload
     if inspect.getsource(numbas) != _NUMBAS_LOAD:

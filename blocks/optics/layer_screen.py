@@ -48,8 +48,7 @@ import numpy as np
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
 from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
-from .normal_draws import (_TABLES, _UNSCALED, SeededDraws, _fill, entropy_words, same_as_numpy, seeded_state,
-                           standard_normal)
+from .normal_draws import _TABLES, _UNSCALED, SeededDraws, entropy_words, same_as_numpy, standard_normal
 from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
                              sample_grids_transposed, walk_segments)
 
@@ -161,18 +160,16 @@ class LayerScreen:
             self.epoch, self.n_regenerations = int(epoch), 0
         self.origin = np.floor(np.asarray(centre, dtype=float)).astype(np.int64) - self.n // 2
         entropy = _seeded_entropy(self._seed_words, self.epoch, self.n_regenerations)
+        draws = self.n * (self.n + BURN_IN * self.n)
         if entropy is not None and self.n <= SELF_START_SAMPLES:
             # seeded and drawn compiled: NumPy's generator's numbers and state (:func:`_generator`)
-            words = np.empty(4, np.uint64)
-            seeded_state(entropy, words)
-            noise = np.empty(self.n * (self.n + BURN_IN * self.n))
-            _fill(words, noise, _UNSCALED, False, *_ZIGGURAT)
-            self.coefficients = self._fresh(noise)
-            self._words, self._spare = words, (0, 0)    # a fresh PCG64 holds no spare 32-bit word
+            seeded = SeededDraws(entropy)
+            self.coefficients = self._fresh(seeded.standard_normal(draws))
+            self._words, self._spare = seeded.state, (0, 0)     # a fresh PCG64 holds no spare 32-bit word
             return
         rng = _generator(self.seed, self.epoch, self.n_regenerations)
-        self.coefficients = (self._fresh(standard_normal(rng, self.n * (self.n + BURN_IN * self.n)))
-                             if self.n <= SELF_START_SAMPLES else self._cut_from_fft(rng))
+        self.coefficients = (self._fresh(standard_normal(rng, draws)) if self.n <= SELF_START_SAMPLES
+                             else self._cut_from_fft(rng))
         self._set_generator(rng)
 
     def _set_generator(self, rng: np.random.Generator) -> None:
@@ -211,7 +208,7 @@ class LayerScreen:
         if entropy is None:
             twin._set_generator(_generator(twin.seed, epoch, count))
         else:
-            seeded_state(entropy, twin._words)                  # a fresh PCG64's state, spare (0, 0)
+            twin._words = SeededDraws(entropy).state            # a fresh PCG64's state, spare (0, 0)
         twin.coefficients = coefficients
         return twin
 
