@@ -5,9 +5,9 @@ conditions), then times, on one thread with the cache of probe results across ru
 :meth:`.PathChooser.pupil_estimate` afresh for each pupil-error bin the run met (the Fresnel reference propagations, 4-24 per bin), alternating the
 probes' frame pairs made from both halves of each complex FFT draw (``both``: as ``auto`` does,
 :meth:`.LayerScreen.twin`) and the second frame of each pair drawn on its own (``one``: every frame
-its own draw, the probes' cost before). Prints the medians of ``--repeats`` rounds and each bin's
-estimate, frames and verdict. ``--all-frames`` makes every bin take all 24 frames (a tolerance no
-estimate can clear: the same count both ways, the cost per frame). ``--against DIR`` alternates this tree's
+its own draw, the probes' cost before). Prints the medians of ``--repeats`` rounds (and the least: on a shared
+host the load only adds time) and each bin's estimate, frames and verdict. ``--all-frames`` makes every bin take all
+24 frames (a tolerance no estimate can clear: the same count both ways, the cost per frame). ``--against DIR`` alternates this tree's
 probes (pairs, as ``auto`` makes them) with those through another checkout's path chooser and reference path (its
 ``blocks/optics/paths.py`` and ``reference_path.py`` with its ``propagation.py``, ``layer_screen.py`` and
 ``fft_screens.py``), and prints how far the estimates of the two are apart. Every round starts cold, as a run's
@@ -295,11 +295,11 @@ def main() -> None:
     for name in ways:
         found = ", ".join(f"{e.error:.3g} +- {e.standard_error:.2g} on {e.frames} ({'in' if e.within else 'out'})"
                           for e in estimates[name])
-        print(f"  {name}: {statistics.median(times[name]):6.2f} s CPU (median of {args.repeats}; "
-              f"{', '.join(f'{t:.2f}' for t in times[name])}); bins {bins}: {found}")
+        print(f"  {name}: {statistics.median(times[name]):6.2f} s CPU (median of {args.repeats}, least "
+              f"{min(times[name]):.2f}; {', '.join(f'{t:.2f}' for t in times[name])}); bins {bins}: {found}")
     first, second = ways
-    print(f"  ratio {second} / {first}: {statistics.median(times[second]) / statistics.median(times[first]):.2f}; "
-          f"load {statistics.median(loads):.1f}")
+    print(f"  ratio {second} / {first}: {statistics.median(times[second]) / statistics.median(times[first]):.2f} "
+          f"(medians), {min(times[second]) / min(times[first]):.2f} (least); load {statistics.median(loads):.1f}")
     if args.against:
         pairs = list(zip(*estimates.values()))
         apart = max(abs(a.error - b.error) for a, b in pairs)
