@@ -18,14 +18,21 @@ machine's (``/proc/stat``) every ``--sample-ms``. It prints:
   what the optics waited for;
 * ``blocked_s``: the time the step threads spent in steps neither on a core nor queued for one (waiting for the
   interpreter lock, or for helpers at the end of a parallel loop), summed over the threads;
-* with ``--quiet``, one line a run: wall, CPU, cores, peak memory, the wall with one core or none busy, the
-  optics' gaps, when the graph was loaded and the pixels' first step started, and the wall after the optics' last
-  step (the tail, the finish and the exit).
+* with ``--quiet``, one line a run: wall, CPU, cores, peak memory, each block's CPU (the optics', the pixels', the
+  other blocks' together: steps and their loops' items on other threads; and the CPU outside the steps: the
+  imports, the store, the pipeline's threads), ``kslices`` (thousands of times the run's threads were put on a
+  core: how often their work was interleaved), the wall with one core or none busy, the optics' gaps, when the
+  graph was loaded and the pixels' first step started, and the wall after the optics' last step (the tail, the
+  finish and the exit).
 
 ``--pin CPUS`` runs the child on those cores only (``0``: one core) while it still plans for every core of the
 machine (``EVSDA_THREADS``, unless set): its threads then take turns on the pinned cores, so the CPU time of two
 variants compares their scheduling (the interpreter lock's hand-overs, context switches, threads sharing a core)
 apart from how much slower each thread runs on this host when two of them run at once.
+
+``TIMELINE_SWITCH_INTERVAL_S`` in a variant's environment sets the child's ``sys.setswitchinterval`` (CPython's
+default 0.005 s: how long a thread that wants the interpreter lock waits before the holder is asked to hand it
+over), e.g. ``--variant si20:TIMELINE_SWITCH_INTERVAL_S=0.02``.
 
 ``--trace out.json`` writes the spans and the cores-busy counter in Chrome's trace format (open it in
 https://ui.perfetto.dev). ``--against OTHER`` runs another checkout's ``evsda`` (its own ``.venv``) too,
@@ -51,8 +58,10 @@ GRAPH = Path(__file__).with_name("end_to_end.yaml")
 
 #: the child: ``evsda`` (its CLI's ``main``) with spans noted on every thread; argv[1] is where the spans go
 CHILD = r'''
-import json, sys, threading, time
+import json, os, sys, threading, time
 T0 = time.monotonic()
+if os.environ.get("TIMELINE_SWITCH_INTERVAL_S"):           # a variant: the interpreter lock's hand-over interval
+    sys.setswitchinterval(float(os.environ["TIMELINE_SWITCH_INTERVAL_S"]))
 import evsda.graph.cli as cli
 from evsda.graph import executor as ex, threads as th
 T_IMPORTED = time.monotonic()
@@ -138,8 +147,8 @@ sys.exit(status)
 CLOCK_TICK_S = 1 / os.sysconf("SC_CLK_TCK")
 
 
-def _schedstat(pid: int) -> dict[int, tuple[int, int]]:
-    """Each thread of ``pid``: (time on a core, time queued for one) [ns]."""
+def _schedstat(pid: int) -> dict[int, tuple[int, int, int]]:
+    """Each thread of ``pid``: (time on a core [ns], time queued for one [ns], times it was put on a core)."""
     out = {}
     try:
         tids = os.listdir(f"/proc/{pid}/task")
@@ -148,8 +157,8 @@ def _schedstat(pid: int) -> dict[int, tuple[int, int]]:
     for tid in tids:
         try:
             with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
-                on_core, queued, _ = f.read().split()
-            out[int(tid)] = (int(on_core), int(queued))
+                on_core, queued, slices = f.read().split()
+            out[int(tid)] = (int(on_core), int(queued), int(slices))
         except (OSError, ValueError):
             pass
     return out
@@ -201,7 +210,7 @@ def busy_series(data: dict, cores: int) -> list[tuple[float, float, float, float
         dt = t1 - t0
         if dt <= 0:
             continue
-        ours = sum(b[tid][0] - a.get(tid, (0, 0))[0] for tid in b) / 1e9 / dt
+        ours = sum(b[tid][0] - a.get(tid, (0, 0, 0))[0] for tid in b) / 1e9 / dt
         others = max(0.0, (m1 - m0) / dt - ours)
         out.append((t0, t1, min(ours, cores), min(others, cores)))
     return out
@@ -243,8 +252,9 @@ def report(data: dict, cores: int, label: str) -> dict:
     series = busy_series(data, cores)
     wall = data["stop"] - data["start"]
     last = data["samples"][-1][1]
-    cpu = sum(on for on, _ in last.values()) / 1e9
-    queued = sum(q for _, q in last.values()) / 1e9
+    cpu = sum(on for on, _, _ in last.values()) / 1e9
+    queued = sum(q for _, q, _ in last.values()) / 1e9
+    slices = sum(n for _, _, n in last.values())
     print(f"\n== {label}: wall {wall:.2f} s, the run's threads on a core {cpu:.2f} s ({cpu / wall:.2f} cores on "
           f"average of {cores}), queued for a core {queued:.2f} s, peak {data['peak_mb']:.0f} MB")
     print("  stretch                                   from     to   wall  our cores  others' cores")
@@ -265,7 +275,7 @@ def report(data: dict, cores: int, label: str) -> dict:
         by_thread[s[0]].append(s)
     print("  thread                 blocks (steps / items)                           on core  queued  in step off core")
     blocked = 0.0
-    for tid, (on, q) in sorted(last.items(), key=lambda kv: -kv[1][0]):
+    for tid, (on, q, _) in sorted(last.items(), key=lambda kv: -kv[1][0]):
         own = by_thread.get(tid, [])
         steps = [s for s in own if s[1] == "step"]
         items = [s for s in own if s[1] == "item"]
@@ -318,11 +328,32 @@ def report(data: dict, cores: int, label: str) -> dict:
           f"steps {total_gap:.2f} s (median {statistics.median(gaps) * 1e3 if gaps else 0:.1f} ms), {limit:.2f} s "
           f"of them waiting for window k - 2 to end (the windows-ahead limit)")
     marks = {what: (a, b) for what, a, b in stretches(data)}
+    by_block = block_cpu(spans)
+    optics_cpu = sum(c for name, c in by_block.items() if name.endswith("optics"))
+    pixel_cpu = sum(c for name, c in by_block.items() if name.endswith("pixel"))
     return {"wall_s": wall, "cpu_s": cpu, "queued_s": queued, "cores": cpu / wall, "peak_mb": data["peak_mb"],
+            "optics_cpu_s": optics_cpu, "pixel_cpu_s": pixel_cpu,
+            "other_blocks_cpu_s": sum(by_block.values()) - optics_cpu - pixel_cpu,
+            "outside_steps_cpu_s": cpu - sum(by_block.values()), "kslices": slices / 1e3,
             "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap, "blocked_s": blocked,
             "loaded_s": marks["graph load (block imports)"][1] - data["start"],
             "pixels_start_s": marks["window 0 until the pixels start"][1] - data["start"],
             "after_optics_s": data["stop"] - marks["tail: after the optics' last step"][0]}
+
+
+def block_cpu(spans: list) -> dict[str, float]:
+    """Each block's CPU over the run [s]: its steps, and the items of its parallel loops run by other threads (an
+    item on the step's own thread is inside the step)."""
+    cpu = defaultdict(float)
+    step_thread = {}
+    for s in spans:
+        if s[1] == "step":
+            cpu[s[2]] += s[7] - s[6]
+            step_thread[(s[2], s[3])] = s[0]
+    for s in spans:
+        if s[1] == "item" and s[2] and step_thread.get((s[2], s[3])) != s[0]:
+            cpu[s[2]] += s[7] - s[6]
+    return dict(cpu)
 
 
 def write_trace(data: dict, path: Path, cores: int) -> None:

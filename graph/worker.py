@@ -38,13 +38,15 @@ import threading
 import time
 import traceback
 import warnings
-from multiprocessing.connection import Connection
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .block import Block
 from .errors import UserError
 from .numba_loads import lazy_registries
 from .threads import usable_cores
+
+if TYPE_CHECKING:
+    from multiprocessing.connection import Connection
 
 log = logging.getLogger("evsda.worker")
 
@@ -201,6 +203,8 @@ class WorkerBlock:
         header = (list(sys.path), cls.__module__, cls.__qualname__, block.name, block.seed,
                   logging.getLogger().getEffectiveLevel(), levels, threads, os.getpid())
         params = pickle.dumps(block.params, protocol=pickle.HIGHEST_PROTOCOL)   # unpicklable parameters fail here
+        from multiprocessing.connection import Connection     # here: a run without a worker does without it
+
         ours, theirs = socket.socketpair()
         try:
             self.process = subprocess.Popen([sys.executable, "-m", "evsda.graph.worker", str(theirs.fileno())],
@@ -414,6 +418,8 @@ def _serve(conn: Connection) -> None:
 
 def main(argv: list[str]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)        # the caller stops this worker (see the module docstring)
+    from multiprocessing.connection import Connection
+
     from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
     limit_malloc_arenas()
     keep_freed_memory()

@@ -97,6 +97,14 @@ def test_run_is_reproducible_and_blocks_are_independent(plugin, tmp_path):
     assert not np.array_equal(ea["x"], ed["x"])
 
 
+def test_a_progress_bar_changes_nothing_recorded(plugin, tmp_path):
+    """With a bar (tqdm) or without (a stand-in that shows nothing, tqdm not imported for it), the same events."""
+    shown = run_graph(load_graph(chain(tmp_path)), tmp_path / "shown.zarr", progress=True)
+    hidden = run_graph(load_graph(chain(tmp_path)), tmp_path / "hidden.zarr", progress=False)
+    for key, values in events_of(shown).items():
+        assert np.array_equal(values, events_of(hidden)[key])
+
+
 def test_a_loaded_graph_runs_afresh_each_time(plugin, tmp_path):
     # the encoder keeps a running sum and draws pixels from its generator: a second run of the same loaded
     # graph must start from nothing, as a fresh process does, not from the first run's end
