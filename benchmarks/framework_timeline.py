@@ -21,7 +21,8 @@ machine's (``/proc/stat``) every ``--sample-ms``. It prints:
 * with ``--quiet``, one line a run: wall, CPU, cores, peak memory, each block's CPU (the optics', the pixels', the
   other blocks' together: steps and their loops' items on other threads; and the CPU outside the steps: the
   imports, the store, the pipeline's threads), ``kslices`` (thousands of times the run's threads were put on a
-  core: how often their work was interleaved), the wall with one core or none busy, the optics' gaps, when the
+  core: how often their work was interleaved), ``kmigrations`` (thousands of times they were moved to another core,
+  read every tenth sample), the wall with one core or none busy, the optics' gaps, when the
   graph was loaded and the pixels' first step started, and the wall after the optics' last step (the tail, the
   finish and the exit).
 
@@ -164,6 +165,26 @@ def _schedstat(pid: int) -> dict[int, tuple[int, int, int]]:
     return out
 
 
+def _migrations(pid: int) -> dict[int, int]:
+    """Each thread of ``pid``: the times the scheduler moved it to another core (``se.nr_migrations`` of
+    ``/proc/PID/task/TID/sched``; empty where the kernel does not show it)."""
+    out = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/sched") as f:
+                for line in f:
+                    if line.startswith("se.nr_migrations"):
+                        out[int(tid)] = int(line.split(":")[1])
+                        break
+        except (OSError, ValueError):
+            pass
+    return out
+
+
 def _machine_busy() -> float:
     """The machine's busy time, every core, since boot [s] (``/proc/stat``)."""
     with open("/proc/stat") as f:
@@ -183,12 +204,14 @@ def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s
                               "--overwrite", "--no-progress", "--quiet", "--set", f"run.duration_s={duration}"],
                              env=env, stderr=(errors := tempfile.TemporaryFile("w+")),
                              preexec_fn=None if pin is None else lambda: os.sched_setaffinity(0, pin))
-    samples, last = [], {}
+    samples, last, moved = [], {}, {}
     while True:
         pid, status, usage = os.wait4(child.pid, os.WNOHANG)
         if pid:
             break
         last.update(_schedstat(child.pid))                  # a thread that ended keeps its last reading
+        if len(samples) % 10 == 0:
+            moved.update(_migrations(child.pid))
         samples.append((time.monotonic(), dict(last), _machine_busy()))
         time.sleep(sample_s)
     end = time.monotonic()
@@ -199,7 +222,8 @@ def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s
         raise RuntimeError(f"evsda run failed ({child.returncode}): {errors.read()[-3000:]}")
     data = json.loads(spans_path.read_text())
     spans_path.unlink()
-    data.update(start=start, stop=end, samples=samples, peak_mb=usage.ru_maxrss / 1024)
+    data.update(start=start, stop=end, samples=samples, peak_mb=usage.ru_maxrss / 1024,
+                migrations=sum(moved.values()))
     return data
 
 
@@ -335,6 +359,7 @@ def report(data: dict, cores: int, label: str) -> dict:
             "optics_cpu_s": optics_cpu, "pixel_cpu_s": pixel_cpu,
             "other_blocks_cpu_s": sum(by_block.values()) - optics_cpu - pixel_cpu,
             "outside_steps_cpu_s": cpu - sum(by_block.values()), "kslices": slices / 1e3,
+            "kmigrations": data["migrations"] / 1e3,
             "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap, "blocked_s": blocked,
             "loaded_s": marks["graph load (block imports)"][1] - data["start"],
             "pixels_start_s": marks["window 0 until the pixels start"][1] - data["start"],
