@@ -384,8 +384,7 @@ def _kept(fs, js, size, n_end, leak_dt, dt, large, kept_f, kept_j):
     batch_crossings(kept_j[K_J0 * TILE:K_J0 * TILE + n], kept_f[K_C * TILE:K_C * TILE + n],
                     kept_f[K_D * TILE:K_D * TILE + n], kept_f[K_LOG_A * TILE:K_LOG_A * TILE + n],
                     kept_f[K_DELTA * TILE:K_DELTA * TILE + n], kept_f[K_ON * TILE:K_ON * TILE + n],
-                    kept_f[K_OFF * TILE:K_OFF * TILE + n], kept_f[K_KNOWN * TILE:K_KNOWN * TILE + n], large,
-                    kept_j[K_OUT * TILE:K_OUT * TILE + n])
+                    kept_f[K_OFF * TILE:K_OFF * TILE + n], large, kept_j[K_OUT * TILE:K_OUT * TILE + n])
     for k in range(n):
         s, j = kept_j[K_LANE * TILE + k], kept_j[K_OUT * TILE + k]
         step = js[I_STEP * TILE + s]

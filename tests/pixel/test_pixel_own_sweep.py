@@ -109,9 +109,10 @@ def test_swept_changes_make_the_events_of_the_loop_alone(monkeypatch, window_s, 
 @pytest.mark.parametrize("large", [False, True])
 def test_batch_crossings_are_the_scalar_searches(large):
     """crossing.batch_crossings, the sweep's searches after a pixel's last change taken many at a time, gives
-    search_crossing's step for every search it settles (the others are left to it), over rising and falling
-    filters, drifts and starts drawn on both sides of the thresholds: crossings at j0, soon, seconds ahead, ON
-    after an OFF-ward minimum, or never."""
+    search_crossing's step for every search it settles (the others are left to it), over falling filters (the
+    searches it takes: crossed.batched), drifts and starts drawn on both sides of the thresholds: crossings at j0,
+    soon, seconds ahead, ON after an OFF-ward minimum, or never; it leaves OFF crossings after j0 (rising filters,
+    which it does not take, are drawn too, and not taken)."""
     from evsda.blocks.pixel.crossing import (J_LIMIT, NEVER, UNSETTLED, band_bound, batch_crossings, batched,
                                              search_crossing)
 
@@ -124,15 +125,43 @@ def test_batch_crossings_are_the_scalar_searches(large):
     delta = 10 ** rng.uniform(-18, -1, n)
     j0 = np.where(rng.random(n) < 0.5, 1, rng.integers(1, 10**6, n)).astype(np.int64)
     known = np.array([band_bound(J_LIMIT, c[k], d[k], log_a[k], delta[k], on[k], off[k], large)[1] for k in range(n)])
-    assert all(batched(j0[k], d[k], log_a[k], delta[k]) for k in range(n))
-    out = np.empty(n, np.int64)
-    batch_crossings(j0, c, d, log_a, delta, on, off, known, large, out)
-    expected = np.array([search_crossing(j0[k], c[k], d[k], log_a[k], delta[k], on[k], off[k], J_LIMIT, J_LIMIT,
-                                         known[k], large)[0] for k in range(n)])
+    taken = np.array([batched(j0[k], d[k], log_a[k], delta[k]) for k in range(n)])
+    np.testing.assert_array_equal(taken, d > 0)
+    j0, c, d, log_a, delta, on, off, known = (v[taken] for v in (j0, c, d, log_a, delta, on, off, known))
+    out = np.empty(j0.size, np.int64)
+    batch_crossings(j0, c, d, log_a, delta, on, off, large, out)
+    searched = [search_crossing(j0[k], c[k], d[k], log_a[k], delta[k], on[k], off[k], J_LIMIT, J_LIMIT, known[k],
+                                large) for k in range(j0.size)]
+    expected, polarity = np.array([j for j, _ in searched]), np.array([p for _, p in searched])
+    off_later = (polarity < 0) & (expected != j0)
     settled = out != UNSETTLED
-    assert settled.mean() > 0.99
+    assert not (settled & off_later).any()
+    assert settled[~off_later].mean() > 0.99
     np.testing.assert_array_equal(out[settled], expected[settled])
-    soon = (expected != j0) & (expected < NEVER)
-    for side in (d < 0, d > 0):      # crossings at many steps on both sides, and some never
-        assert len(set(expected[soon & side])) > 1000
-    assert (expected == NEVER).any()
+    on_later = settled & (polarity > 0) & (expected != j0) & (expected < NEVER)
+    assert len(set(expected[on_later])) > 5000      # ON after the minimum at many steps, at j0, and never
+    assert (settled & (expected == j0)).sum() > 5000 and (settled & (expected == NEVER)).any()
+
+
+@pytest.mark.parametrize("large", [False, True])
+def test_comparator_slopes_at_whole_steps_are_g(large):
+    """crossing._comparator_slopes, batch_crossings' one compiled g, gives crossing._g's bits at whole steps (which
+    batch_crossings tests there), also where the filter has settled (a^j flushed to 0, _g's shortcut) and at
+    J_LIMIT with a^J_LIMIT known (the searches' bound)."""
+    from evsda.blocks.pixel.crossing import J_LIMIT, NO_STEP, _comparator_slopes, _g, large_weight, power
+
+    rng = np.random.default_rng(11)
+    n = 20000
+    log_a = np.log1p(-10 ** rng.uniform(-7, -0.3, n))
+    d = 10 ** rng.uniform(-6, 0.7, n) * rng.choice([-1.0, 1.0], n)
+    c, delta = rng.uniform(-1.0, 1.0, n), 10 ** rng.uniform(-18, -1, n)
+    steps = np.concatenate([rng.integers(1, 10**7, n), np.full(n, J_LIMIT)])
+    e = np.array([large_weight(v) for v in d]) if large else np.zeros(n)
+    g, slope = np.empty(2 * n), np.empty(2 * n)
+    _comparator_slopes(steps.astype(float), c, d, e, log_a, delta, large, g, slope)
+    expected = [_g(steps[i], c[i % n], d[i % n], e[i % n], log_a[i % n], delta[i % n], NO_STEP, 0.0, large)
+                for i in range(n)]
+    expected += [_g(J_LIMIT, c[k], d[k], e[k], log_a[k], delta[k], J_LIMIT, power(log_a[k], J_LIMIT), large)
+                 for k in range(n)]
+    assert (steps[:n] * log_a <= -707.0).mean() > 0.1             # settled filters among them
+    np.testing.assert_array_equal(g.view(np.int64), np.array(expected).view(np.int64))
