@@ -23,14 +23,31 @@ Each Python call of a compiled function goes through one timing wrapper (``Dispa
 calls from compiled code to compiled code are not seen. ``--against DIR`` runs another checkout's code (its own
 ``.venv``) the same way, alternated; the medians over ``--repeats`` runs are printed, with the load average.
 
+``--replay --against DIR`` instead steps this checkout's optics block and DIR's ``blocks/optics`` (imported here as a
+package of its own; its compiled functions cache in a folder of this benchmark's, never in DIR) side by side in this
+process over the run's captured inputs, window by window, alternating which goes first, and checks that their
+irradiance and truth are the same bytes; it prints each one's CPU per window (after the first; the probes left out)
+and the part of it outside compiled ``nogil`` calls (the same upper bound of the lock held). Separate runs of a
+fresh process each drift by 10-20 % on this host, even on code both trees share; in one process the drift cancels.
+``--inputs FILE`` keeps the captured block and inputs (pickled; read back if it exists).
+
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py [--repeats 3] [--against DIR] [--functions]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py --replay --against DIR [--inputs F] [--repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import hashlib
+import importlib
+import os
+import pickle
 import statistics
 import sys
+import tempfile
+import time
+import types
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -167,6 +184,125 @@ def one_run(graph: Path, duration: float, checkout: Path | None, functions: bool
                  (str(graph.resolve()), str(duration), "functions" if functions else "-"), checkout)
 
 
+#: the replay's setting: one thread, one step at a time, no probe cache
+REPLAY_ENV = {**ONE_THREAD, "EVSDA_CACHE": "off"}
+
+
+def captured(graph: Path, duration: float):
+    """A copy of the optics block before its first step and its (window, sources, background) of every window of a
+    run of ``graph``."""
+    from evsda.blocks.optics import block
+    from evsda.graph.executor import run_graph
+    from evsda.graph.graphfile import load_graph
+    kept: dict = {"block": None, "inputs": []}
+    step = block.PointSourceOptics.step
+
+    def keeping(self, window, sources, background=None):
+        if kept["block"] is None:
+            kept["block"] = copy.deepcopy(self)
+        kept["inputs"].append((window, sources, background))
+        return step(self, window, sources, background)
+
+    block.PointSourceOptics.step = keeping
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            run_graph(load_graph(graph, [f"run.duration_s={duration}"]), tmp + "/run.zarr", overwrite=True,
+                      progress=False, checkpoint_every_s=1e9)
+    finally:
+        block.PointSourceOptics.step = step
+    return kept["block"], kept["inputs"]
+
+
+def optics_package(checkout: Path) -> types.ModuleType:
+    """``blocks/optics`` of another checkout as a package of its own (its relative imports read that checkout's
+    modules), every module imported at once (none later, by a call), its compiled functions cached in a folder of this
+    benchmark's: in that checkout's ``__pycache__`` they would name this package, which its own runs cannot import.
+    Numba reads its cache folder from its config when a module is compiled, so the folder stays set for the rest of
+    this process (this checkout's modules are all imported by then)."""
+    from numba.core import config as numba_config
+    folder = (checkout / "blocks" / "optics").resolve()
+    package = types.ModuleType("optics_" + hashlib.md5(str(folder).encode()).hexdigest()[:8])
+    package.__path__ = [str(folder)]
+    sys.modules[package.__name__] = package
+    numba_config.CACHE_DIR = str(Path(tempfile.gettempdir()) / "optics_gil_numba")
+    for module in sorted(folder.glob("*.py")):
+        if module.stem not in ("__init__", "plots", "commands"):
+            importlib.import_module(f"{package.__name__}.{module.stem}")
+    return package
+
+
+def replay(pickled: bytes, inputs: list, against: Path, repeats: int) -> None:
+    """:func:`captured`'s block stepped side by side with ``against``'s over its inputs (the module docstring)."""
+    from numba.core import dispatcher
+    from evsda.blocks.optics import block, paths
+
+    other = optics_package(against)
+    clock, probing, released = time.thread_time, [0.0], [0.0]
+    base_call = dispatcher.Dispatcher.__call__
+
+    def call(self, *args, **kwargs):
+        if not self.targetoptions.get("nogil"):
+            return base_call(self, *args, **kwargs)
+        t = clock()
+        try:
+            return base_call(self, *args, **kwargs)
+        finally:
+            released[0] += clock() - t
+    dispatcher.Dispatcher.__call__ = call
+    for chooser in (paths.PathChooser, other.paths.PathChooser):
+        for name in ("_probe", "probe_ahead"):
+            if hasattr(chooser, name):
+                inner = getattr(chooser, name)
+
+                def timed(*args, _inner=inner, **kwargs):
+                    t = clock()
+                    try:
+                        return _inner(*args, **kwargs)
+                    finally:
+                        probing[0] += clock() - t
+                setattr(chooser, name, timed)
+    names, classes = ("this checkout", str(against)), (block.PointSourceOptics, other.block.PointSourceOptics)
+    cpu, held = {name: [] for name in names}, {name: [] for name in names}
+    for k in range(repeats):
+        blocks = {}
+        for name, cls in zip(names, classes):
+            blocks[name] = pickle.loads(pickled)
+            blocks[name].__class__ = cls
+            blocks[name]._atmosphere, blocks[name]._atmosphere_ready = None, False     # each builds its own
+        spent, outside = dict.fromkeys(names, 0.0), dict.fromkeys(names, 0.0)
+        before = os.getloadavg()[0]
+        for i, (window, sources, background) in enumerate(inputs):
+            outputs = {}
+            for name in (names if (i + k) % 2 == 0 else names[::-1]):
+                t, probes, free = clock(), probing[0], released[0]
+                outputs[name] = blocks[name].step(window, sources, background)
+                step = clock() - t - (probing[0] - probes)
+                if i:                                   # the first window: set-up, compiled code's load, probes
+                    spent[name] += step
+                    outside[name] += step - (released[0] - free)
+            a, b = (outputs[name] for name in names)
+            for x, y in zip(*((o["irradiance"].t_ns, o["irradiance"].background, o["irradiance"].stamp_origin,
+                               o["irradiance"].stamp_flux) for o in (a, b))):
+                if x.dtype != y.dtype or x.shape != y.shape or x.tobytes() != y.tobytes():
+                    raise SystemExit(f"window {i}: the irradiance differs")
+            if pickle.dumps(a["truth"]) != pickle.dumps(b["truth"]):
+                raise SystemExit(f"window {i}: the truth differs")
+        windows = len(inputs) - 1
+        for name in names:
+            cpu[name].append(1e3 * spent[name] / windows)
+            held[name].append(1e3 * outside[name] / windows)
+        print(f"  round {k + 1}: " + "; ".join(f"{name}: {cpu[name][-1]:.2f} ms, {held[name][-1]:.2f} outside "
+                                             f"nogil calls" for name in names)
+              + f" (load {(before + os.getloadavg()[0]) / 2:.1f}; outputs identical)", flush=True)
+    print(f"\nthe optics' step a window over {windows} windows (after the first; probes left out), one thread, one "
+          f"process [CPU ms]; medians of {repeats} rounds, every window's irradiance and truth identical")
+    for label, figures in (("the step", cpu), ("  outside compiled nogil calls (upper bound of the lock held)", held)):
+        mine, theirs = (statistics.median(figures[name]) for name in names)
+        ratios = [a / b for a, b in zip(figures[names[0]], figures[names[1]])]
+        print(f"  {label:62s} {mine:8.2f} {theirs:8.2f}   ratio {statistics.median(ratios):.3f} "
+              f"({min(ratios):.3f}-{max(ratios):.3f})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
@@ -175,7 +311,27 @@ def main() -> None:
     parser.add_argument("--against", type=Path, help="another checkout (with its own .venv), alternated")
     parser.add_argument("--functions", action="store_true",
                         help="split the rest by the optics' Python functions (their own time holding the lock)")
+    parser.add_argument("--replay", action="store_true",
+                        help="with --against: both trees' optics blocks stepped side by side in this process over "
+                             "the run's captured inputs, their outputs checked identical")
+    parser.add_argument("--inputs", type=Path, help="with --replay: pickle of the captured block and inputs, written "
+                                                    "if absent, else read")
     args = parser.parse_args()
+    if args.replay:
+        if args.against is None:
+            parser.error("--replay needs --against")
+        os.environ.update(REPLAY_ENV)
+        if args.inputs is not None and args.inputs.exists():
+            with open(args.inputs, "rb") as f:
+                pickled, inputs = pickle.load(f)
+        else:
+            optics, inputs = captured(args.graph, args.duration)
+            pickled = pickle.dumps(optics, protocol=5)
+            if args.inputs is not None:
+                with open(args.inputs, "wb") as f:
+                    pickle.dump((pickled, inputs), f, protocol=5)
+        replay(pickled, inputs, args.against, args.repeats)
+        return
     trees = checkouts(parser, args.against)
     runs, loads = alternated(trees, args.repeats,
                              lambda checkout: one_run(args.graph, args.duration, checkout, args.functions),

@@ -20,11 +20,12 @@ from .telescope import Telescope
 from .truth import truth_rows
 
 
-#: sources walked and stamped in one call (:meth:`.Imager.render_many`): two keep a window's phases (2 x 1.3 MB at
-#: 1 kHz on the tracked pass's 40-sample pupil) near a core's 2 MB L2 cache until the stamps read them; all of a
-#: window's ~8 at once (~10 MB) made the walk ~8 % and the tilted phase ~55 % slower, which took back most of the
-#: ~0.25 s of Python saved; three at a time read no better than one (docs/speed.md, tenth session)
-TOGETHER = 2
+#: sources walked and stamped in one call (:meth:`.Imager.render_many`): four. Since each frame goes from its phase to
+#: its stamp in one compiled call (no 1.6 MB blocks of sines), four against two hold the interpreter lock ~0.7 ms a
+#: window less (~7 %) on the tracked pass for the same CPU (+-0.5 %), and eight ~0.4 ms less again for twice the
+#: phases' memory (1.3 MB a source at 1 kHz on its 40-sample pupil; docs/speed.md, thirteenth session). Before
+#: that, a window's ~8 at once made the walk ~8 % and the tilted phase ~55 % slower (tenth session)
+TOGETHER = 4
 
 
 class PointSourceOptics(Block):
@@ -144,6 +145,8 @@ class PointSourceOptics(Block):
         self._intervals: RenderInterval | None = None
         self._atmosphere: Atmosphere | None = None
         self._atmosphere_ready = False
+        #: :meth:`_named`'s sources and what it made of them
+        self._names: tuple | None = None
 
     # -- configuration --------------------------------------------------------------------------
     @property
@@ -234,8 +237,28 @@ class PointSourceOptics(Block):
                                  f"wavelength ({first.wavelength_m} m vs {other.wavelength_m} m)")
         return first.focal_plane, float(first.wavelength_m)
 
-    def _held_samples(self, key: str, src: PointSources, t_ns: np.ndarray) -> dict[str, np.ndarray]:
-        """Sample-and-hold the input at the render times, carrying the last sample across windows."""
+    def _named(self, sources: list[PointSources]) -> tuple[list[str], np.ndarray, np.ndarray]:
+        """Every source's key (``input:source_id``) and, for the truth table, their ids (str) and kinds (int8): made
+        again only when the inputs' sources change (a star field lists every star of the run, window after window)."""
+        listed = [(np.asarray(src.source_id), np.asarray(src.kind)) for src in sources]
+        # ids and kinds given as numbers or fixed-width strings are known by their bytes (not objects: an address)
+        signature = tuple((a.dtype.str, a.shape, a.tobytes()) for pair in listed for a in pair) \
+            if all(a.dtype.kind in "biuSU" for pair in listed for a in pair) else None
+        if signature is None or self._names is None or self._names[0] != signature:
+            ids = [f"{i}:{source_id}" for i, (source_ids, _) in enumerate(listed) for source_id in source_ids]
+            kinds = [int(kind) for _, source_kinds in listed for kind in source_kinds]
+            self._names = (signature, ids, np.asarray([key.partition(":")[2] for key in ids], dtype=str),
+                           np.asarray(kinds, dtype=np.int8))
+        return self._names[1:]
+
+    def _held_samples(self, key: str, src: PointSources, t_ns: np.ndarray) -> tuple[np.ndarray, dict, np.ndarray]:
+        """Sample-and-hold the input at the render times ``t_ns``, carrying the last sample across windows: the
+        input's sources on the detector (finite ``x`` and ``y``) at one of these render times (their indices, in
+        order), their held samples there by quantity (render times, those sources), and the boresight's azimuth,
+        zenith angle and field rotation [rad] at the render times (render times, 3; the input's, the same for all
+        its sources; None without sources). The others, off the detector throughout (a star field lists every star
+        of the run: ~20 of 180 in view at a time on the tracked pass), are left out; every source's last sample is
+        kept for the next window."""
         n_src, n_t = src.n_sources, len(src.t_ns)
         held = self.held.get(key)
         fields = {"x": src.x_px, "y": src.y_px, "flux": src.photon_flux, "range": src.range_m,
@@ -247,51 +270,71 @@ class PointSourceOptics(Block):
                                           ("rotation", src.field_rotation_rad))},
                   "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (n_t, n_src))}
         fields = {name: np.asarray(values, dtype=float).reshape(n_t, n_src) for name, values in fields.items()}
-        fields["rate"], fields["sky_rate"] = self._rates(fields, held, n_src, self._sky_distance(src.focal_plane))
+        live, rates = self._rates(fields, held, n_src, self._sky_distance(src.focal_plane))
         index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
         before = index < 0
         # where a render time comes before the window's first input sample: the held sample (when it fits)
-        carried = {name: np.asarray(held[name], dtype=float) for name in fields
+        carried = {name: np.asarray(held[name], dtype=float) for name in (*fields, "rate", "sky_rate")
                    if held is not None and name in held and np.asarray(held[name]).shape == (n_src,)} \
             if before.any() else {}
-        out, index = {}, np.clip(index, 0, None)
-        for name, values in fields.items():
-            sampled = values[index] if n_t else np.full((len(t_ns), n_src), np.nan)
+        index = np.clip(index, 0, None)
+        # the usual input: sampled at the render times, its samples the held ones
+        same = n_t == len(t_ns) and np.array_equal(src.t_ns, t_ns)
+
+        def sampled(name: str, values, columns) -> np.ndarray:
+            """Quantity ``name``'s held samples of the sources ``columns`` (render times, sources), from their input
+            samples ``values()`` (input samples, sources; called only where the input has samples)."""
+            if same:
+                return values()
+            out = values()[index] if n_t else np.full((len(t_ns), n_src), np.nan)[:, columns]
             if name in carried:
-                sampled[before] = carried[name]
-            out[name] = sampled
+                out[before] = carried[name][columns]
+            return out
+
+        x, y = (sampled(name, lambda: fields[name], slice(None)) for name in ("x", "y"))
+        keep = np.flatnonzero((np.isfinite(x) & np.isfinite(y)).any(axis=0))
+        out = {"x": x[:, keep], "y": y[:, keep]}
+        out.update({name: sampled(name, lambda: values[:, keep], keep) for name, values in fields.items()
+                    if name not in out})
+        at = np.searchsorted(live, keep)            # every source on the detector at a render time has its rates
+        for name, rate in zip(("rate", "sky_rate"), rates):
+            out[name] = sampled(name, lambda: rate[:, at], keep)
+        boresight = None if not n_src else np.concatenate(
+            [sampled(name, lambda: fields[name][:, :1], slice(0, 1)) for name in ("azimuth", "zenith", "rotation")],
+            axis=1)
         if n_t:
-            self.held[key] = {name: values[-1].copy() for name, values in fields.items()}
-        return out
+            last = {name: values[-1].copy() for name, values in fields.items()}
+            for name, rate in zip(("rate", "sky_rate"), rates):
+                last[name] = np.full(n_src, np.nan)
+                last[name][live] = rate[-1]
+            self.held[key] = last
+        return keep, out, boresight
 
     @staticmethod
-    def _rates(fields: dict, held: dict | None, n_src: int, sky_distance) -> tuple[np.ndarray, np.ndarray]:
-        """The apparent rate and the line of sight's rate [pixel/s] at each input sample (n_t, sources): the distance
-        [pixel] from the sample before (the held one at a window's start) over the time between them, on the
-        detector (:meth:`_apparent_distance`) and in the ground frame (``sky_distance``, :meth:`_sky_distance`);
+    def _rates(fields: dict, held: dict | None, n_src: int, sky_distance) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """The apparent rate and the line of sight's rate [pixel/s] at each input sample of the sources on the
+        detector at one of these samples or the held one before (their indices; (n_t, those sources) each): the
+        distance [pixel] from the sample before (the held one at a window's start) over the time between them, on
+        the detector (:meth:`_apparent_distance`) and in the ground frame (``sky_distance``, :meth:`_sky_distance`);
         a track's first sample takes the slowest rate of the input's other sources, NaN (still) where none has one
         (the run's first sample): a rate to the next sample would depend on whether the window holds it.
-        Computed for the tracks on the detector at one of these samples only (a star field lists every star of the
-        run, ~20 of 180 in view in the tracked pass); NaN for the others, as their positions give."""
+        The others' rates are NaN, as their positions give (a star field lists every star of the run, ~20 of 180
+        in view in the tracked pass)."""
         n_t = len(fields["t"])
-        rates = (np.full((n_t, n_src), np.nan), np.full((n_t, n_src), np.nan))
-        if not n_t or not n_src:
-            return rates
         names = ("x", "y", "t", "zenith", "azimuth", "rotation")
-        both = {}
-        for n in names:
-            before = np.asarray(held[n], dtype=float)[None] if held is not None and n in held \
-                and np.asarray(held[n]).shape == (n_src,) else np.full((1, n_src), np.nan)
-            both[n] = np.concatenate([before, fields[n]])
-        live = np.flatnonzero(np.isfinite(both["x"]).any(axis=0))
+        before = {n: np.asarray(held[n], dtype=float) if held is not None and n in held
+                  and np.asarray(held[n]).shape == (n_src,) else np.full(n_src, np.nan) for n in names}
+        live = np.flatnonzero(np.isfinite(before["x"]) | np.isfinite(fields["x"]).any(axis=0)) \
+            if n_t and n_src else np.zeros(0, np.int64)
         if not live.size:
-            return rates
-        both = {n: v[:, live] for n, v in both.items()}
+            return live, (np.full((n_t, 0), np.nan), np.full((n_t, 0), np.nan))
+        both = {n: np.concatenate([before[n][live][None], fields[n][:, live]]) for n in names}
         x = both["x"]
+        rates = []
         with np.errstate(invalid="ignore", divide="ignore"):
             seconds = np.diff(both["t"], axis=0) * 1e-9
             apparent = PointSourceOptics._apparent_distance(both)
-            for out, distance in zip(rates, (apparent, sky_distance(both, apparent))):
+            for distance in (apparent, sky_distance(both, apparent)):
                 rate = distance / seconds
                 # a track's first sample: the slowest rate of the input's other sources then (a star field moves
                 # as one)
@@ -299,8 +342,8 @@ class PointSourceOptics(Block):
                 if first.any():
                     slowest = np.where(np.isnan(rate), np.inf, rate).min(axis=1, initial=np.inf)
                     rate = np.where(first, np.where(np.isfinite(slowest), slowest, np.nan)[:, None], rate)
-                out[:, live] = rate
-        return rates
+                rates.append(rate)
+        return live, tuple(rates)
 
     @staticmethod
     def _apparent_distance(both: dict) -> np.ndarray:
@@ -398,24 +441,31 @@ class PointSourceOptics(Block):
         t_s = t_ns * 1e-9
         collected = self.telescope.collecting_area_m2 * self.params.throughput      # [m^2]
 
-        ids, kinds, held = [], [], []
+        ids, names, kinds = self._named(sources)
+        held, source_of, boresights, count = [], [], [], 0
         for i, src in enumerate(sources):
-            held.append(self._held_samples(str(i), src, t_ns))
-            ids += [f"{i}:{source_id}" for source_id in np.asarray(src.source_id)]
-            kinds += [int(kind) for kind in np.asarray(src.kind)]
-        # every track's held samples side by side, (render times, tracks) per quantity
+            keep, samples, boresight = self._held_samples(str(i), src, t_ns)
+            source_of.append(count + keep)
+            count += src.n_sources
+            held.append(samples)
+            if boresight is not None:
+                boresights.append(boresight)
+        # the held samples of every track on the detector at one of the render times side by side, (render times,
+        # tracks) per quantity, and each track's source (its index in ids)
         columns = {name: np.concatenate([samples[name] for samples in held], axis=1) for name in held[0]}
+        source_of = np.concatenate(source_of)
 
         sky = np.zeros(len(t_ns))
         if background is not None and len(background.t_ns):
             k = np.clip(np.searchsorted(np.asarray(background.t_ns), t_ns, side="right") - 1, 0, None)
             sky = np.asarray(background.photon_flux_per_pixel, dtype=float)[k] * collected
 
-        zenith_first = float(columns["zenith"][0, 0]) if columns["zenith"].size else np.nan
+        # the first source's zenith angle at the first render time, and the screens' frame: the boresight at the
+        # run's first render time that has it (Imager.sight), the first source's that has it then
+        zenith_first = float(boresights[0][0, 1]) if boresights and len(t_ns) else np.nan
         geometry = imager.ensure_geometry(zenith_first)
-        # the screens' frame: the boresight at the run's first render time that has it (Imager.sight)
-        if imager.frame is None and columns["zenith"].size:
-            boresight = np.stack([columns[n] for n in ("azimuth", "zenith", "rotation")], axis=-1)  # (T, tracks, 3)
+        if imager.frame is None and boresights and len(t_ns):
+            boresight = np.stack(boresights, axis=1)                               # (T, inputs, 3)
             known = np.isfinite(boresight).all(axis=-1)
             if known.any():
                 k, j = np.argwhere(known)[0]
@@ -447,7 +497,7 @@ class PointSourceOptics(Block):
         ends = np.cumsum(in_view.sum(axis=1)).tolist()
         jobs = []
         for column, j in enumerate(tracks):                                       # tracks in order
-            key, tr = ids[j], {name: values[:, j] for name, values in columns.items()}
+            key, tr = ids[source_of[j]], {name: values[:, j] for name, values in columns.items()}
             tr["placed"] = tuple(p[:, column] for p in placed)
             first, stop = ends[column - 1] if column else 0, ends[column]
             idx = frame_of[first:stop]
@@ -458,6 +508,8 @@ class PointSourceOptics(Block):
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)
+        # each frame's energy fractions [1] as the sources render, times the frame's collected flux [photon/s] once all
+        # are in (below)
         flux = np.zeros((len(t_ns), len(jobs), size, size))
 
         def render(job):
@@ -480,7 +532,7 @@ class PointSourceOptics(Block):
                     o, stamps, record = self._render_held(imager, key, tr, at, seen[part], stretch_paths,
                                                           every[part], t_ns, cadence_ns, record)
                 origin[at, s] = o
-                flux[at, s] = stamps * (tr["flux"][at] * collected)[:, None, None]
+                flux[at, s] = stamps
                 imager.seen(key, t_ns[at[-1]])
             return key, record
 
@@ -492,6 +544,7 @@ class PointSourceOptics(Block):
             continues the stamp held from before."""
             (_, _, _, idx, *_), fresh, _ = group[0]
             at = idx if fresh is None else idx[fresh]
+            span = slice(idx[0], idx[-1] + 1)           # one stretch: idx
             for (_, key, *_), _, _ in group:
                 if not imager.keeps(key, t_ns[idx[0]]):
                     imager.forget([key])
@@ -510,8 +563,8 @@ class PointSourceOptics(Block):
                 else:
                     o, own, record = self._held(t_ns[idx], fresh, continuing, self.held_stamps.get(key), paths, o,
                                                 stamps[k])
-                origin[idx, s] = o
-                flux[idx, s] = own * (tr["flux"][idx] * collected)[:, None, None]
+                origin[span, s] = o
+                flux[span, s] = own
                 imager.seen(key, t_ns[idx[-1]])
                 done.append((s, (key, record)))
             return done
@@ -544,6 +597,7 @@ class PointSourceOptics(Block):
         records = [record for _, record in sorted(
             (item for done in parallel_map(lambda unit: unit[0](unit[1]), units, threads) for item in done),
             key=lambda item: item[0])]
+        flux *= np.where(in_view.T, columns["flux"][:, tracks] * collected, 0.0)[:, :, None, None]
         if self._intervals is not None and len(t_ns):
             # a held stamp carries into the next window only for a source in view at this window's last render time
             self.held_stamps = {key: record for key, record in records
@@ -554,5 +608,5 @@ class PointSourceOptics(Block):
         # cannot change it
         if len(t_ns):
             imager.release(t_ns[-1])
-        truth = truth_rows(focal_plane, t_ns, [key.partition(":")[2] for key in ids], kinds, columns)
+        truth = truth_rows(focal_plane, t_ns, names.copy(), kinds.copy(), columns, source_of)
         return {"irradiance": Irradiance(focal_plane, wavelength, t_ns, sky, origin, flux), "truth": truth}

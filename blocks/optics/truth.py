@@ -24,14 +24,16 @@ def truth_table(focal_plane: FocalPlane, t_ns: np.ndarray, ids: list[str], kinds
 
 
 def truth_rows(focal_plane: FocalPlane, t_ns: np.ndarray, ids: list[str], kinds: list[int],
-               columns: dict[str, np.ndarray]) -> Truth:
-    """:func:`truth_table` from every source's held samples side by side: ``columns[name]`` (n_t, sources)."""
+               columns: dict[str, np.ndarray], sources: np.ndarray | None = None) -> Truth:
+    """:func:`truth_table` from the sources' held samples side by side: ``columns[name]`` (n_t, tracks), track ``j``
+    the source ``sources[j]`` (increasing; None: every source, track ``j`` source ``j``)."""
     t_ns = np.asarray(t_ns, np.int64)
     on_detector = np.isfinite(columns["x"]) & np.isfinite(columns["y"])
-    time_index, source = np.nonzero(on_detector)         # row-major: sorted by time, then source
+    time_index, track = np.nonzero(on_detector)          # row-major: sorted by time, then source
+    source = track if sources is None else np.asarray(sources)[track]
 
     def column(name: str) -> np.ndarray:
-        return np.asarray(columns[name])[time_index, source].astype(np.float32)
+        return np.asarray(columns[name])[time_index, track].astype(np.float32)
 
     return Truth(focal_plane, np.asarray(ids, dtype=str), np.asarray(kinds, dtype=np.int8), t_ns[time_index],
                  source.astype(np.int32), column("x"), column("y"), column("magnitude"), column("flux"),

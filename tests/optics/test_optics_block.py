@@ -132,6 +132,58 @@ def test_a_source_at_the_edge_of_the_field_puts_only_its_inside_part_on_the_sens
     assert 0.2 * stamp.sum() < inside < 0.3 * stamp.sum()   # about a quarter
 
 
+def test_sources_off_the_detector_throughout_a_window_change_nothing():
+    # the block leaves out a window's sources off the detector at every render time (a star field lists every star of
+    # the run): with two such stars in a second input, one of which comes onto the detector in the third window (its
+    # rate from its held sample), the stamps and the truth are those of the same run without them (the truth's
+    # source index aside), over windows carrying each source's held sample
+    def stars(window, dropped=False):
+        t_ns = window.sample_times_ns(CADENCE_NS)
+        n = len(t_ns)
+        x = np.c_[np.full(n, 500.0), np.full(n, np.nan), np.where(t_ns >= 10_000_000, 80.0 + 1e3 * t_ns * 1e-9, np.nan)]
+        y = np.c_[np.full(n, 50.0), np.full(n, np.nan), np.full(n, 300.0)]
+        keep = [0, 2] if dropped else [0, 1, 2]
+        return PointSources(FOCAL_PLANE, WAVELENGTH, t_ns, np.array(["HIP 2", "HIP 3", "HIP 4"])[keep],
+                            np.ones(3, np.int8)[keep], x[:, keep], y[:, keep], np.full((n, 3), 4e3)[:, keep],
+                            np.full((n, 3), 9.0)[:, keep], np.full((n, 3), np.inf)[:, keep],
+                            np.full(n, np.deg2rad(30.0)))
+
+    windows = windows_of(0.005, 0.015)
+    outputs = {}
+    for dropped in (False, True):
+        block = PointSourceOptics(aperture_m=0.3, psf_path="pupil_fft", seed=3)
+        block.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+        outputs[dropped] = [block.step(w, sources=[track(w), stars(w, dropped)]) for w in windows]
+    for every, some in zip(outputs[False], outputs[True]):
+        a, b = every["irradiance"], some["irradiance"]
+        assert a.stamp_origin.tobytes() == b.stamp_origin.tobytes() and a.stamp_flux.tobytes() == b.stamp_flux.tobytes()
+        ta, tb = every["truth"], some["truth"]
+        assert list(ta.source_id[ta.source_index]) == list(tb.source_id[tb.source_index])
+        for name in ("t_ns", "x_px", "y_px", "magnitude", "photon_flux", "range_m"):
+            assert getattr(ta, name).tobytes() == getattr(tb, name).tobytes()
+    assert outputs[False][-1]["irradiance"].n_stamps == 4                  # the star that came onto the detector
+
+
+def test_an_input_sampled_at_the_render_times_is_held_as_it_is():
+    # such an input's samples are the held ones without a search (the usual input): the same numbers as an input
+    # with one sample more, after the render times, which is searched; a star off the detector throughout left out
+    w = Window.from_seconds(0, 0.01)
+    t_ns = w.sample_times_ns(CADENCE_NS)
+    held = []
+    for longer in (False, True):
+        block = PointSourceOptics(aperture_m=0.3, seed=1)
+        block.setup(RunInfo())
+        sources = track(Window.from_seconds(0, 0.011) if longer else w, star_xy=(np.nan, 400.0))
+        held.append(block._held_samples("0", sources, t_ns))
+    (kept, samples, boresight), (kept_longer, samples_longer, boresight_longer) = held
+    np.testing.assert_array_equal(kept, [0])
+    np.testing.assert_array_equal(kept_longer, kept)
+    np.testing.assert_array_equal(boresight_longer, boresight)
+    assert samples.keys() == samples_longer.keys()
+    for name in samples:
+        assert samples[name].tobytes() == samples_longer[name].tobytes(), name
+
+
 def test_sky_background_is_uniform_and_scaled_by_the_collecting_area():
     block = PointSourceOptics(aperture_m=0.5, obscuration=0.4, throughput=0.7, atmosphere="none", seed=1)
     w = Window.from_seconds(0, 0.004)

@@ -99,7 +99,8 @@ def test_path_choice_reads_the_line_of_sight_rate_not_the_streak(params):
     window = windows_of(0.02, 0.02)[0]
     block = PointSourceOptics(**params)
     block.setup(RunInfo(duration_ns=window.stop_ns))
-    held = block._held_samples("0", tracked(window), window.sample_times_ns(CADENCE_NS))
+    kept, held, _ = block._held_samples("0", tracked(window), window.sample_times_ns(CADENCE_NS))
+    np.testing.assert_array_equal(kept, [0, 1])                            # both on the detector
     turn_px_s = TURN_RAD_S / FOCAL_PLANE.pixel_scale_rad                   # 3000 pixel/s
     satellite, star = 0, 1
     later = slice(1, None)                                                 # the run's first sample: still (NaN)
@@ -108,5 +109,5 @@ def test_path_choice_reads_the_line_of_sight_rate_not_the_streak(params):
     np.testing.assert_allclose(held["rate"][later, star], turn_px_s, rtol=1e-3)  # gnomonic tan over 80 pixels
     assert np.abs(held["sky_rate"][later, star]).max() < 1e-3
     # read as a stare, the line of sight turns with the apparent rate
-    staring = block._held_samples("1", tracked(window, mount=False), window.sample_times_ns(CADENCE_NS))
+    _, staring, _ = block._held_samples("1", tracked(window, mount=False), window.sample_times_ns(CADENCE_NS))
     np.testing.assert_array_equal(staring["sky_rate"], staring["rate"])
