@@ -36,7 +36,8 @@ PARENT = textwrap.dedent("""
     stats = ahead_kernels.twice.stats
     print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(stats.cache_hits.values()),
                       "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner,
-                      "typing": compile_ahead._typing, "llvm": compile_ahead._llvm_calls}))
+                      "typing": compile_ahead._typing, "llvm": compile_ahead._llvm_calls,
+                      "walks": compile_ahead._ir_walks}))
 """)
 
 
@@ -45,7 +46,7 @@ def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
     it printed, and that it printed nothing else."""
     environ = {name: value for name, value in os.environ.items()
                if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING",
-                               "EVSDA_QUICKER_LLVM_CALLS")}
+                               "EVSDA_QUICKER_LLVM_CALLS", "EVSDA_QUICKER_IR_WALKS")}
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
@@ -64,22 +65,22 @@ def kernels(tmp_path):
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
     first = parent(kernels)
     assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True, "typing": True,
-                     "llvm": True}
+                     "llvm": True, "walks": True}
     again = parent(kernels)
     assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None,
-                     "typing": None, "llvm": None}                                       # nothing compiles
+                     "typing": None, "llvm": None, "walks": None}                                       # nothing compiles
 
 
 @pytest.mark.parametrize("env", [{"EVSDA_THREADS": "1"}, {"EVSDA_COMPILE_AHEAD": "off"}])
 def test_one_thread_or_switched_off_compiles_here(kernels, env):
     assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                      "typing": True, "llvm": True}
+                                      "typing": True, "llvm": True, "walks": True}
 
 
 @pytest.mark.parametrize("target", ["ahead_kernels:fail", "ahead_kernels:killed"])
 def test_a_child_that_fails_or_is_killed_costs_only_its_time(kernels, target):
     assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                       "typing": True, "llvm": True}
+                                       "typing": True, "llvm": True, "walks": True}
 
 
 INLINED_KERNELS = textwrap.dedent("""
@@ -150,13 +151,14 @@ PIXEL_FUNCTION = ASSEMBLY + textwrap.dedent(r"""
 """)
 
 
-@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing", "quicker_llvm_calls"])
+@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing", "quicker_llvm_calls", "quicker_ir_walks"])
 @pytest.mark.parametrize("script", [INLINED, PIXEL_FUNCTION], ids=["nested inlined functions", "drive_rows"])
 def test_numbas_inliner_typing_or_llvm_calls_edited_compile_the_same_machine_code(tmp_path, script, edit):
     environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     environ.pop("EVSDA_QUICKER_INLINING", None)
     environ.pop("EVSDA_QUICKER_TYPING", None)
     environ.pop("EVSDA_QUICKER_LLVM_CALLS", None)
+    environ.pop("EVSDA_QUICKER_IR_WALKS", None)
     out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS, edit], env=environ, capture_output=True,
                          text=True, check=True)
     assert json.loads(out.stdout) == {"edited": True, "same": True}
@@ -173,11 +175,12 @@ FLAGS = textwrap.dedent(r"""
     from evsda.graph import compile_ahead
 
     def flags():
-        plain, nrt, copied, wrapped = Flags(), Flags(), None, Flags()
+        plain, nrt, copied, wrapped, explicit = Flags(), Flags(), None, Flags(), Flags()
         nrt.nrt = True
         copied = Flags(nrt)
         wrapped.nrt, wrapped.no_cpython_wrapper = True, True
-        return [plain, nrt, copied, wrapped]
+        explicit.nrt = False                  # set to its default: equal to plain, with other options set
+        return [plain, nrt, copied, wrapped, explicit]
 
     def seen(all_flags):          # each one's values (in order) and hash, and which equal which
         return ([[list(f.values().items()), hash(f)] for f in all_flags]
@@ -227,3 +230,38 @@ def test_numbas_llvm_lock_events_taken_off():
 
 def test_numbas_llvm_lock_events_left_on_when_switched_off(kernels):
     assert parent(kernels, EVSDA_QUICKER_LLVM_CALLS="off")["llvm"] is False
+
+
+IR_VARIABLES = textwrap.dedent(r"""
+    import json
+    import numpy as np
+    from numba.core import compiler
+    from evsda.blocks.pixel import crossing, own_sweep
+    from evsda.graph import compile_ahead
+
+    def variables():              # each statement's variables, in order, of two pixel functions' IR (and of the
+        found = []                # statements' own parts: expressions, lists, dicts)
+        for function in (own_sweep.sweep_own.py_func, crossing.batch_crossings.py_func):
+            for block in compiler.run_frontend(function).blocks.values():
+                for statement in block.body:
+                    found.append([v.name for v in statement.list_vars()])
+                    value = getattr(statement, "value", None)
+                    if hasattr(value, "list_vars"):
+                        found.append([v.name for v in value.list_vars()])
+        return found
+
+    numbas = variables()
+    edited = compile_ahead.quicker_ir_walks()
+    print(json.dumps({"edited": edited, "same": variables() == numbas, "statements": len(numbas)}))
+""")
+
+
+def test_numbas_ir_walk_edited_lists_the_same_variables():
+    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_QUICKER_IR_WALKS"}
+    out = json.loads(subprocess.run([sys.executable, "-c", IR_VARIABLES], env=environ, capture_output=True, text=True,
+                                    check=True).stdout)
+    assert out["edited"] and out["same"] and out["statements"] > 100
+
+
+def test_numbas_ir_walk_left_as_it_is_when_switched_off(kernels):
+    assert parent(kernels, EVSDA_QUICKER_IR_WALKS="off")["walks"] is False
