@@ -21,9 +21,9 @@ from .truth import truth_rows
 
 
 #: sources walked and stamped in one call (:meth:`.Imager.render_many`): four. Since each frame goes from its phase to
-#: its stamp in one compiled call (no 1.6 MB blocks of sines), four against two hold the interpreter lock ~0.7 ms a
-#: window less (~7 %) on the tracked pass for the same CPU (+-0.5 %), and eight ~0.4 ms less again for twice the
-#: phases' memory (1.3 MB a source at 1 kHz on its 40-sample pupil; docs/speed.md, thirteenth session). Before
+#: its stamp in one compiled call (no 1.6 MB blocks of sines), four against two hold the interpreter lock ~7 % less
+#: in the step on the tracked pass for the same CPU (1.003x); eight against four ~2 % less for 2 % more CPU (the
+#: phases, 1.3 MB a source at 1 kHz on its 40-sample pupil, out of cache; docs/speed.md, thirteenth session). Before
 #: that, a window's ~8 at once made the walk ~8 % and the tilted phase ~55 % slower (tenth session)
 TOGETHER = 4
 
