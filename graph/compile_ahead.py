@@ -20,7 +20,8 @@ the same compiled code, in less time (``EVSDA_QUICKER_INLINING=off``: Numba's ow
 two costs of its typing that decide nothing (``EVSDA_QUICKER_TYPING=off``: Numba's own), and
 :func:`quicker_llvm_calls` Numba's events around each call into LLVM (``EVSDA_QUICKER_LLVM_CALLS=off``: Numba's own),
 and :func:`quicker_ir_walks` a call per leaf of Numba's walk for an IR statement's variables
-(``EVSDA_QUICKER_IR_WALKS=off``: Numba's own).
+(``EVSDA_QUICKER_IR_WALKS=off``: Numba's own), and :func:`inlinees_once` builds an inlined function's IR once per
+compile context rather than at each of its call sites (``EVSDA_INLINEES_ONCE=off``: Numba's own).
 """
 
 from __future__ import annotations
@@ -98,6 +99,7 @@ def start(target: str, modules: tuple[str, ...], *args) -> Ahead:
         quicker_typing()
         quicker_llvm_calls()
         quicker_ir_walks()
+        inlinees_once()
         if not _wanted():
             return Ahead(None)
         env = dict(os.environ, EVSDA_COMPILE_AHEAD="off", EVSDA_THREADS="1", OPENBLAS_NUM_THREADS="1")
@@ -448,3 +450,84 @@ def _edit_ir_walks() -> bool:
     with global_compiler_lock:
         ir.Inst._rec_list_vars = _rec_list_vars
     return True
+
+
+# -- an inlined function's IR built once ---------------------------------------------------------------------
+
+#: the Numba versions whose ``InlineWorker.inline_function`` :func:`inlinees_once` was checked on; others keep theirs
+_INLINEES_CHECKED = ("0.68.1",)
+
+#: the lines of ``InlineWorker.inline_function`` and ``run_untyped_passes`` that the edit relies on
+_NUMBAS_INLINE_FUNCTION = "        callee_ir = self.run_untyped_passes(function)\n"
+_NUMBAS_UNTYPED_FLAGS = "        state.flags.enable_ssa = enable_ssa\n"
+
+_inlinees: bool | None = None          # None: not tried; True: Numba's inlining edited; False: left as it is
+_untyped: dict = {}                    # inlined function -> [(its compile context, its IR after the untyped passes)]
+
+
+def inlinees_once() -> bool:
+    """Make Numba build an inlined function's IR once per compile context, not again at each call site inlined;
+    whether it now does (False: this Numba's inlining is not the one checked, and it is left as it is).
+
+    Each call of an ``inline="always"`` function is inlined by ``InlineWorker.inline_function``, which first runs the
+    untyped half of the compiler over the callee (``run_untyped_passes``: its bytecode, IR, rewrites, its own
+    inlined callees) and then inlines a copy of that IR (``inline_ir``, which copies it before any change). The
+    pixels' warm-up compile inlines 121 times, 31 functions (``exp_`` 19 times, ``log_`` 13, ...). The edit keeps
+    each function's IR with the context it was built in (the typing context, the target context's and the pipeline's
+    classes, the caller's flags but ``release_gil`` and its local types, compared by value) and inlines a copy of it
+    wherever the same function is inlined in the same context; the caller's flags are set as Numba's ``run_untyped_passes`` sets them (no SSA). Only on the
+    Numba versions checked and where Numba's lines are found as they are; it stays so for the process.
+    ``EVSDA_INLINEES_ONCE=off`` leaves Numba's inlining as it is.
+    """
+    global _inlinees
+    if _inlinees is None:
+        _inlinees = attempted_edit(_edit_inlinees, "Numba's inlining left as it is")
+    return _inlinees
+
+
+def _edit_inlinees() -> bool:
+    import numba
+    from numba.core import inline_closurecall
+    from numba.core.compiler_lock import global_compiler_lock
+
+    if numba.__version__ not in _INLINEES_CHECKED or switched_off("EVSDA_INLINEES_ONCE"):
+        return False
+    worker = inline_closurecall.InlineWorker
+    if (inspect.getsource(worker.inline_function).count(_NUMBAS_INLINE_FUNCTION) != 1
+            or inspect.getsource(worker.run_untyped_passes).count(_NUMBAS_UNTYPED_FLAGS) != 1):
+        return False
+    numbas = worker.inline_function
+
+    def inline_function(self, caller_ir, block, i, function, arg_typs=None):
+        callee_ir = _untyped_ir(self, function)
+        return self.inline_ir(caller_ir, block, i, callee_ir, function.__code__.co_freevars, arg_typs=arg_typs)
+
+    inline_function.__doc__ = numbas.__doc__
+    inline_function.__qualname__ = numbas.__qualname__
+    with global_compiler_lock:
+        worker.inline_function = inline_function
+    return True
+
+
+def _untyped_ir(worker, function):
+    """``function``'s IR after the untyped passes in ``worker``'s context: built once per context (``inline_ir``
+    copies it before it changes anything)."""
+    worker.flags.enable_ssa = False                  # as run_untyped_passes sets the caller's flags
+    context = (worker.typingctx, type(worker.targetctx), type(worker.pipeline), _untyped_flags(worker.flags),
+               dict(worker.locals))
+    built = _untyped.setdefault(function, [])
+    for known, callee_ir in built:
+        if known == context:
+            return callee_ir
+    callee_ir = worker.run_untyped_passes(function)
+    built.append((context, callee_ir))
+    return callee_ir
+
+
+def _untyped_flags(flags) -> dict:
+    """The compiler flags the untyped passes may read: all but ``release_gil`` (read only when the wrapper that
+    calls the compiled function from Python is made, and in object mode). The target context a compile uses is made
+    from its base and these flags (``compiler._make_subtarget``): the same flags, the same context."""
+    values = flags.values()
+    del values["release_gil"]
+    return values

@@ -37,7 +37,7 @@ PARENT = textwrap.dedent("""
     print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(stats.cache_hits.values()),
                       "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner,
                       "typing": compile_ahead._typing, "llvm": compile_ahead._llvm_calls,
-                      "walks": compile_ahead._ir_walks}))
+                      "walks": compile_ahead._ir_walks, "inlinees": compile_ahead._inlinees}))
 """)
 
 
@@ -46,7 +46,7 @@ def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
     it printed, and that it printed nothing else."""
     environ = {name: value for name, value in os.environ.items()
                if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING",
-                               "EVSDA_QUICKER_LLVM_CALLS", "EVSDA_QUICKER_IR_WALKS")}
+                               "EVSDA_QUICKER_LLVM_CALLS", "EVSDA_QUICKER_IR_WALKS", "EVSDA_INLINEES_ONCE")}
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
@@ -65,22 +65,22 @@ def kernels(tmp_path):
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
     first = parent(kernels)
     assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True, "typing": True,
-                     "llvm": True, "walks": True}
+                     "llvm": True, "walks": True, "inlinees": True}
     again = parent(kernels)
     assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None,
-                     "typing": None, "llvm": None, "walks": None}                                       # nothing compiles
+                     "typing": None, "llvm": None, "walks": None, "inlinees": None}                                       # nothing compiles
 
 
 @pytest.mark.parametrize("env", [{"EVSDA_THREADS": "1"}, {"EVSDA_COMPILE_AHEAD": "off"}])
 def test_one_thread_or_switched_off_compiles_here(kernels, env):
     assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                      "typing": True, "llvm": True, "walks": True}
+                                      "typing": True, "llvm": True, "walks": True, "inlinees": True}
 
 
 @pytest.mark.parametrize("target", ["ahead_kernels:fail", "ahead_kernels:killed"])
 def test_a_child_that_fails_or_is_killed_costs_only_its_time(kernels, target):
     assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                       "typing": True, "llvm": True, "walks": True}
+                                       "typing": True, "llvm": True, "walks": True, "inlinees": True}
 
 
 INLINED_KERNELS = textwrap.dedent("""
@@ -151,7 +151,8 @@ PIXEL_FUNCTION = ASSEMBLY + textwrap.dedent(r"""
 """)
 
 
-@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing", "quicker_llvm_calls", "quicker_ir_walks"])
+@pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing", "quicker_llvm_calls", "quicker_ir_walks",
+                                  "inlinees_once"])
 @pytest.mark.parametrize("script", [INLINED, PIXEL_FUNCTION], ids=["nested inlined functions", "drive_rows"])
 def test_numbas_inliner_typing_or_llvm_calls_edited_compile_the_same_machine_code(tmp_path, script, edit):
     environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
@@ -159,6 +160,7 @@ def test_numbas_inliner_typing_or_llvm_calls_edited_compile_the_same_machine_cod
     environ.pop("EVSDA_QUICKER_TYPING", None)
     environ.pop("EVSDA_QUICKER_LLVM_CALLS", None)
     environ.pop("EVSDA_QUICKER_IR_WALKS", None)
+    environ.pop("EVSDA_INLINEES_ONCE", None)
     out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS, edit], env=environ, capture_output=True,
                          text=True, check=True)
     assert json.loads(out.stdout) == {"edited": True, "same": True}
@@ -265,3 +267,29 @@ def test_numbas_ir_walk_edited_lists_the_same_variables():
 
 def test_numbas_ir_walk_left_as_it_is_when_switched_off(kernels):
     assert parent(kernels, EVSDA_QUICKER_IR_WALKS="off")["walks"] is False
+
+
+INLINEES = textwrap.dedent(r"""
+    import json, sys
+    import numpy as np
+    from evsda.graph import compile_ahead
+
+    edited = compile_ahead.inlinees_once()
+    kernels = {}
+    exec(sys.argv[1], kernels)
+    kernels["sweep"](np.linspace(0.0, 2.0, 11), 0.9, 0.7, 3)
+    built = {f.__name__: len(contexts) for f, contexts in compile_ahead._untyped.items()}
+    print(json.dumps({"edited": edited, "built": built}))
+""")
+
+
+def test_an_inlined_functions_ir_is_built_once_per_context():
+    """``relax`` is inlined three times in ``step``: its IR is built once, and ``step``'s once."""
+    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_INLINEES_ONCE"}
+    out = subprocess.run([sys.executable, "-c", INLINEES, INLINED_KERNELS], env=environ, capture_output=True,
+                         text=True, check=True)
+    assert json.loads(out.stdout) == {"edited": True, "built": {"relax": 1, "step": 1}}
+
+
+def test_numbas_inlining_left_as_it_is_when_switched_off(kernels):
+    assert parent(kernels, EVSDA_INLINEES_ONCE="off")["inlinees"] is False
