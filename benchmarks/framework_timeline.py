@@ -148,8 +148,9 @@ sys.exit(status)
 CLOCK_TICK_S = 1 / os.sysconf("SC_CLK_TCK")
 
 
-def _schedstat(pid: int) -> dict[int, tuple[int, int, int]]:
-    """Each thread of ``pid``: (time on a core [ns], time queued for one [ns], times it was put on a core)."""
+def _per_thread(pid: int, read) -> dict[int, object]:
+    """``read(tid)`` of each thread of ``pid`` that it reads (threads that end meanwhile, or files the kernel does
+    not show, left out)."""
     out = {}
     try:
         tids = os.listdir(f"/proc/{pid}/task")
@@ -157,32 +158,33 @@ def _schedstat(pid: int) -> dict[int, tuple[int, int, int]]:
         return out
     for tid in tids:
         try:
-            with open(f"/proc/{pid}/task/{tid}/schedstat") as f:
-                on_core, queued, slices = f.read().split()
-            out[int(tid)] = (int(on_core), int(queued), int(slices))
+            value = read(f"/proc/{pid}/task/{tid}")
         except (OSError, ValueError):
-            pass
+            continue
+        if value is not None:
+            out[int(tid)] = value
     return out
+
+
+def _schedstat(pid: int) -> dict[int, tuple[int, int, int]]:
+    """Each thread of ``pid``: (time on a core [ns], time queued for one [ns], times it was put on a core)."""
+    def read(task: str) -> tuple[int, int, int]:
+        with open(f"{task}/schedstat") as f:
+            on_core, queued, slices = f.read().split()
+        return int(on_core), int(queued), int(slices)
+    return _per_thread(pid, read)
 
 
 def _migrations(pid: int) -> dict[int, int]:
     """Each thread of ``pid``: the times the scheduler moved it to another core (``se.nr_migrations`` of
     ``/proc/PID/task/TID/sched``; empty where the kernel does not show it)."""
-    out = {}
-    try:
-        tids = os.listdir(f"/proc/{pid}/task")
-    except OSError:
-        return out
-    for tid in tids:
-        try:
-            with open(f"/proc/{pid}/task/{tid}/sched") as f:
-                for line in f:
-                    if line.startswith("se.nr_migrations"):
-                        out[int(tid)] = int(line.split(":")[1])
-                        break
-        except (OSError, ValueError):
-            pass
-    return out
+    def read(task: str) -> int | None:
+        with open(f"{task}/sched") as f:
+            for line in f:
+                if line.startswith("se.nr_migrations"):
+                    return int(line.split(":")[1])
+        return None
+    return _per_thread(pid, read)
 
 
 def _machine_busy() -> float:
