@@ -41,6 +41,7 @@ layer of a line of sight so, in one plan and one walk for all (the same values, 
 
 from __future__ import annotations
 
+import threading
 from functools import lru_cache
 
 import numpy as np
@@ -66,7 +67,7 @@ _NO_OUTPUT = np.zeros((0, 1, 1))
 _EMPTY = np.zeros(0)
 _NO_OPERATOR = ((_EMPTY, _EMPTY, np.zeros(0, np.int64), np.zeros(0, np.int64)), np.zeros((0, 4), np.int64))
 _NO_MODES = ((_EMPTY, _EMPTY, _EMPTY), np.zeros((0, 3), np.int64))
-#: most sets of operators and of large-scale modes kept packed for :func:`walk_layers` (a few per source)
+#: most sets of operators kept packed for :func:`walk_layers` (a few per source)
 PACKED_SETS = 512
 
 
@@ -352,6 +353,59 @@ def _packed(objects: tuple, arrays_of) -> tuple[tuple[np.ndarray, ...], np.ndarr
     return entry[1], entry[2]
 
 
+class ModesPool:
+    """Every walked screen's large-scale modes' tables (:class:`.large_scales.LargeScales`' ``low``, ``amplitudes`` and
+    ``frequencies``), each packed once into growing flat arrays when first walked: a walk passes their rows, not a
+    concatenation of its own (held sources are walked together in changing sets, so the sets of modes seldom
+    repeat). Kept by the modes' identities, with the modes (an identity is not reused while its entry lives); started
+    afresh, between walks, past ``limit`` values of ``low``."""
+
+    def __init__(self, limit: int = 1 << 21):
+        self.limit = int(limit)
+        self.clear()
+
+    def clear(self) -> None:
+        self.tables = (np.empty(1 << 12), np.empty(1 << 8), np.empty(1 << 8))    # low, amplitudes, frequencies
+        self.used = [0, 0, 0]
+        self._rows: dict[int, tuple[LargeScales, list[int]]] = {}
+
+    def make_room(self) -> None:
+        """Start afresh if past the limit (call between walks: rows handed out before stay valid until then)."""
+        if self.used[0] > self.limit:
+            self.clear()
+
+    def row(self, modes: LargeScales) -> list[int]:
+        """Where ``modes``' ``low``, ``amplitudes`` and ``frequencies`` start in :attr:`tables` (packed when first
+        asked)."""
+        entry = self._rows.get(id(modes))
+        if entry is None:
+            at = []
+            grown = list(self.tables)
+            for kind, part in enumerate((modes.low, modes.amplitudes, modes.frequencies)):
+                start, stop = self.used[kind], self.used[kind] + part.size
+                if stop > grown[kind].size:
+                    bigger = np.empty(max(2 * grown[kind].size, stop))
+                    bigger[:start] = grown[kind][:start]
+                    grown[kind] = bigger
+                grown[kind][start:stop] = part.ravel()
+                at.append(start)
+                self.used[kind] = stop
+            self.tables = tuple(grown)
+            entry = self._rows[id(modes)] = (modes, at)
+        return entry[1]
+
+
+_threads = threading.local()
+
+
+def _modes_pool() -> ModesPool:
+    """This thread's :class:`ModesPool` (one a thread: a pool changes between a walk's rows and its compiled call)."""
+    pool = getattr(_threads, "modes", None)
+    if pool is None:
+        pool = _threads.modes = ModesPool()
+    return pool
+
+
 def accumulate_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
                       weight: np.ndarray, out_t: np.ndarray, fresh: bool = False,
                       outputs: np.ndarray | None = None) -> None:
@@ -395,6 +449,8 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     # each run of canvases (segment): the regeneration before it, its window, generator, operator and modes, in order
     layout, windows, origins, states, operators, modes, last = [], [], [], [], [], [], {}
     compiled = same_as_numpy()
+    pool = _modes_pool()
+    pool.make_room()
     noises = []                 # NumPy's draws, where the compiled ones are not NumPy's
     window_at = noise_at = 0
     edges_at, layers_at = edges.tolist(), op_at.tolist()
@@ -423,7 +479,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
             large = screen._large_scales()
             k = len(large.a)
             mode = len(modes) if k else -1
-            modes.append(large)
+            modes.append(pool.row(large))
         last[layer] = len(layout)
         windows.append(screen.coefficients.ravel())
         origins.append(screen.origin)
@@ -451,8 +507,8 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     (a, b, stencil_rows, stencil_back), operator_at = (
         _packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows, o.stencil_cols)) if operators
         else _NO_OPERATOR)
-    (low, amplitudes, frequencies), mode_at = (_packed(tuple(modes), lambda m: (m.low, m.amplitudes, m.frequencies))
-                                               if modes else _NO_MODES)
+    (low, amplitudes, frequencies), mode_at = ((pool.tables, np.array(modes, np.int64)) if modes
+                                               else _NO_MODES)
     windows, origins, states = np.concatenate(windows), np.array(origins, np.int64), np.array(states, np.uint64)
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
     bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,

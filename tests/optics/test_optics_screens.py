@@ -448,6 +448,40 @@ def test_lines_of_sight_walked_together_read_what_each_walked_alone_reads():
         start = path[..., -1, :]
 
 
+def test_modes_pool_holds_each_screens_tables_as_packing_per_walk_does(monkeypatch):
+    # the walks' ModesPool (each screen's large-scale modes packed once, rows handed out) against _packed (the
+    # reference: a walk's modes concatenated afresh), bit for bit, across the pool's growth; then walks with a pool
+    # started afresh at every walk against the default one, over three calls
+    from evsda.blocks.optics import layer_screen
+    screens = [LayerScreen(20, 0.025, (4, i), L0=25.0) for i in range(6)] + [LayerScreen(38, 0.0101, (4, 9), L0=25.0)]
+    for screen in screens:
+        screen.epoch = 0
+    modes = [screen._large_scales() for screen in screens]
+    pool = layer_screen.ModesPool()
+    rows = [pool.row(m) for m in modes[3:] + modes]                # some twice, in another order: packed once
+    (low, amplitudes, frequencies), at = layer_screen._packed(tuple(modes),
+                                                              lambda m: (m.low, m.amplitudes, m.frequencies))
+    assert pool.tables[0].size > 1 << 12 and rows[:4] == rows[-4:]                       # grown; the same rows
+    for m, row, packed in zip(modes, rows[4:], at):
+        for kind, (table, reference, size) in enumerate(zip(pool.tables, (low, amplitudes, frequencies),
+                                                            (m.low.size, m.amplitudes.size, m.frequencies.size))):
+            assert table[row[kind]:row[kind] + size].tobytes() == reference[packed[kind]:packed[kind] + size].tobytes()
+
+    def walked(limit):
+        monkeypatch.setattr(layer_screen._threads, "modes", layer_screen.ModesPool(limit), raising=False)
+        walkers, out = [LayerScreen(20, 0.025, (5, i), L0=25.0) for i in range(3)], []
+        for call in range(3):
+            path = 0.4 * call * 40 + np.array([0.4, 0.3]) * np.arange(40)[:, None]
+            rows, cols = path[:, :1] + np.linspace(0.0, 7.0, 16), path[:, 1:] + np.linspace(0.0, 7.0, 16)
+            phase = np.zeros((40, 16, 16))
+            accumulate_layers(walkers, np.stack([rows + 5 * i for i in range(3)]), np.stack([cols] * 3),
+                              np.zeros(40, np.int64), np.ones((3, 40)), phase)
+            out.append(phase)
+        return np.array(out)
+
+    assert walked(-1).tobytes() == walked(1 << 21).tobytes()
+
+
 def _walk(screen, boxes, chunks):
     """Sample a sequence of footprints, cutting it into the given chunk sizes (as windows would)."""
     out, start = [], 0
