@@ -375,7 +375,7 @@ class ModesPool:
             self.clear()
 
     def row(self, modes: LargeScales) -> list[int]:
-        """Where ``modes``' ``low``, ``amplitudes`` and ``frequencies`` start in :attr:`tables` (packed when first
+        """Where ``modes``' ``low``, ``amplitudes`` and ``frequencies`` start in ``tables`` (packed when first
         asked)."""
         entry = self._rows.get(id(modes))
         if entry is None:
