@@ -266,6 +266,19 @@ def test_compiled_phasors_are_numpys_and_in_the_ffts_order(n):
     assert np.allclose(np.abs(_phasor(phase)), 1.0, rtol=0, atol=1e-15)
 
 
+def _screened_path(n: int, screened: tuple[int, ...]):
+    """A 400 km path of five planes on an ``n``-point grid, strong screens (seeded by ``n``) at the planes
+    ``screened``: ``(distance, roi, planes, delta1, deltan, screens, source)`` for :func:`propagate`."""
+    distance, roi = 4e5, 0.4
+    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
+    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
+    spacing = plane_spacings(delta1, deltan, planes)
+    rng = np.random.default_rng(n)
+    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] * 20 for i in screened}
+    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+    return distance, roi, planes, delta1, deltan, screens, source
+
+
 @pytest.mark.parametrize("n", [128, 126, 135])
 @pytest.mark.parametrize("fused", [True, False])
 def test_an_observed_window_is_that_part_of_the_whole_field(n, fused, monkeypatch):
@@ -275,13 +288,7 @@ def test_an_observed_window_is_that_part_of_the_whole_field(n, fused, monkeypatc
     from evsda.blocks.optics import propagation
     if not fused:
         monkeypatch.setattr(propagation, "fused_steps_agree", lambda: False)
-    distance, roi = 4e5, 0.4
-    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
-    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
-    spacing = plane_spacings(delta1, deltan, planes)
-    rng = np.random.default_rng(n)
-    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] * 20 for i in (1, 3)}
-    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+    distance, roi, planes, delta1, deltan, screens, source = _screened_path(n, (1, 3))
     for collimate in (np.inf, distance):
         whole = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
                           collimate=collimate, workers=1)
@@ -303,13 +310,7 @@ def test_fields_in_padded_rows_are_those_in_contiguous_rows(n, monkeypatch):
     # apart made the columns' transforms slow): bit for bit the field of contiguous rows and NumPy's steps (the
     # reference), whole, windowed, from a kept start and to a stop
     from evsda.blocks.optics import propagation
-    distance, roi = 4e5, 0.4
-    planes = [1e5, 2e5, 3e5, 3.5e5, distance]
-    delta1, deltan = LAMBDA * distance / roi / 8, 2e-3
-    spacing = plane_spacings(delta1, deltan, planes)
-    rng = np.random.default_rng(n)
-    screens = {i: fft_phase_screens(rng, n, spacing[i], 0.05)[0] * 20 for i in (2, 4)}
-    source = point_source_field(n, delta1, LAMBDA, distance, roi, curvature=False)
+    distance, _, planes, delta1, deltan, screens, source = _screened_path(n, (2, 4))
 
     def fields():
         head = propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance, stop=2)
