@@ -59,7 +59,8 @@ def load_pixel_params(path: Path, label: str) -> DvsPixelParams:
 
     from evsda.blocks.pixel.params import DvsPixelParams
     try:
-        document = yaml.safe_load(Path(path).read_text())
+        # libyaml's parser where PyYAML has it (the same document, ~15x faster: ~5 ms of window 0's first step)
+        document = yaml.load(Path(path).read_text(), Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except (OSError, yaml.YAMLError) as exc:
         raise ParameterError(f"{label} parameter 'detector': cannot read {path}: {exc}") from None
     blocks = (document or {}).get("blocks") or {}

@@ -60,12 +60,7 @@ def long_exposure_profile(telescope: Telescope, wavelength: float, r0: float, L0
     ``r0 = inf`` gives the diffraction-limited (Airy) profile through the same transform. ``kernel``: where the
     transform's Bessel functions are kept between tables of the same radii and frequencies (the same numbers).
     """
-    cutoff = telescope.diameter_m / wavelength
-    f = (np.arange(n_frequencies) + 0.5) * cutoff / n_frequencies
-    transfer = telescope.otf(f, wavelength)
-    if np.isfinite(r0):
-        transfer = transfer * atmospheric_mtf(f, wavelength, r0, L0)
-    df = cutoff / n_frequencies
+    f, transfer, df = long_exposure_transfer(telescope, wavelength, r0, L0, n_frequencies)
     theta = np.asarray(theta, dtype=float)
     out = np.empty(theta.shape)
     flat = theta.ravel()
@@ -98,17 +93,36 @@ class HankelKernel:
         return self._blocks[key]
 
 
-def long_exposure_encircled_energy(telescope: Telescope, wavelength: float, r0: float, L0: float,
-                                   theta: np.ndarray, n_frequencies: int = 8192) -> np.ndarray:
-    """Fraction [1] of the long-exposure PSF's power within radius ``theta`` [rad]:
-    ``EE(theta) = 2 pi theta int OTF(f) J1(2 pi f theta) df`` (the Hankel pair of :func:`long_exposure_profile`)."""
+def long_exposure_transfer(telescope: Telescope, wavelength: float, r0: float, L0: float,
+                           n_frequencies: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The long-exposure OTF ``OTF_telescope(f) exp(-D_phi(lambda f) / 2)`` [1] (Fried 1966, JOSA 56, 1372; the
+    telescope's alone for ``r0 = inf``) at the centres ``f`` [cycles rad^-1] of ``n_frequencies`` equal cells from 0
+    to ``D / lambda``: ``(f, OTF(f), the cells' width)``."""
     cutoff = telescope.diameter_m / wavelength
     f = (np.arange(n_frequencies) + 0.5) * cutoff / n_frequencies
     transfer = telescope.otf(f, wavelength)
     if np.isfinite(r0):
         transfer = transfer * atmospheric_mtf(f, wavelength, r0, L0)
+    return f, transfer, cutoff / n_frequencies
+
+
+#: frequencies of :func:`long_exposure_encircled_energy`'s sum [1]
+ENCIRCLED_FREQUENCIES = 8192
+
+
+def long_exposure_encircled_energy(telescope: Telescope, wavelength: float, r0: float, L0: float,
+                                   theta: np.ndarray, n_frequencies: int = ENCIRCLED_FREQUENCIES) -> np.ndarray:
+    """Fraction [1] of the long-exposure PSF's power within radius ``theta`` [rad]:
+    ``EE(theta) = 2 pi theta int OTF(f) J1(2 pi f theta) df`` (the Hankel pair of :func:`long_exposure_profile`)."""
+    return encircled_energy(long_exposure_transfer(telescope, wavelength, r0, L0, n_frequencies), theta)
+
+
+def encircled_energy(transfer: tuple[np.ndarray, np.ndarray, float], theta: np.ndarray) -> np.ndarray:
+    """:func:`long_exposure_encircled_energy` [1] at radii ``theta`` [rad] from its transfer function
+    (:func:`long_exposure_transfer`'s ``(f, OTF(f), df)``), made once for many radii (the same numbers)."""
+    f, values, df = transfer
     theta = np.asarray(theta, dtype=float)
-    return 2 * np.pi * theta * (j1(2 * np.pi * np.outer(theta, f)) @ transfer) * (cutoff / n_frequencies)
+    return 2 * np.pi * theta * (j1(2 * np.pi * np.outer(theta, f)) @ values) * df
 
 
 def fwhm(profile_theta: np.ndarray, profile: np.ndarray) -> float:

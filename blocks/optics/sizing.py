@@ -29,7 +29,7 @@ from evsda.graph import ParameterError
 
 from .atmosphere import Atmosphere
 from .paths import LOG
-from .psf import long_exposure_encircled_energy
+from .psf import ENCIRCLED_FREQUENCIES, encircled_energy, long_exposure_transfer
 from .render import oversampling_for
 from .screen_kernels import MARGIN
 from .telescope import Telescope
@@ -67,12 +67,12 @@ def stamp_width_px(telescope: Telescope, wavelength_m: float, pixel_scale_rad: f
     """Odd stamp width [pixel], 3 to 129, enclosing all but ``tolerance / 2`` of the long-exposure PSF's power."""
     theta = np.arange(1, 1025) * pixel_scale_rad / 4
     # the first radius enclosing 1 - tolerance / 2, by bisection (numpy's searchsorted, side "left"): the
-    # encircled energy at ~10 radii instead of 1024 (each a sum over 8192 frequencies)
+    # encircled energy at ~10 radii instead of 1024 (each a sum over 8192 frequencies of one transfer function)
+    transfer = long_exposure_transfer(telescope, wavelength_m, r0_m, outer_scale_m, ENCIRCLED_FREQUENCIES)
     low, high = 0, theta.size
     while low < high:
         mid = low + (high - low) // 2
-        if long_exposure_encircled_energy(telescope, wavelength_m, r0_m, outer_scale_m, theta[mid:mid + 1])[0] \
-                < 1 - tolerance / 2:
+        if encircled_energy(transfer, theta[mid:mid + 1])[0] < 1 - tolerance / 2:
             low = mid + 1
         else:
             high = mid

@@ -395,6 +395,27 @@ def test_stamp_width_by_bisection_is_the_searchsorted_over_every_radius():
         assert stamp_width_px(telescope, wavelength, pixel, r0, 25.0, tolerance) == expected
 
 
+def test_encircled_energy_from_one_transfer_function_is_that_made_at_each_radius():
+    # stamp_width_px makes the transfer function once for the radii its bisection visits: the numbers of making it
+    # again for each radius (the formula as it was written before, turbulent and not)
+    from scipy.special import j1
+
+    from evsda.blocks.optics.kolmogorov import atmospheric_mtf
+    from evsda.blocks.optics.psf import encircled_energy, long_exposure_transfer
+    telescope, wavelength, n = Telescope(0.6, 0.3), 600e-9, 8192
+    cutoff = telescope.diameter_m / wavelength
+    f = (np.arange(n) + 0.5) * cutoff / n
+    for r0 in (0.05, np.inf):
+        transfer = telescope.otf(f, wavelength)
+        if np.isfinite(r0):
+            transfer = transfer * atmospheric_mtf(f, wavelength, r0, 25.0)
+        once = long_exposure_transfer(telescope, wavelength, r0, 25.0, n)
+        for radius in np.arange(1, 40) * 1.5e-6:
+            theta = np.array([radius])
+            expected = 2 * np.pi * theta * (j1(2 * np.pi * np.outer(theta, f)) @ transfer) * (cutoff / n)
+            np.testing.assert_array_equal(encircled_energy(once, theta), expected)
+
+
 def test_pupil_fft_falls_back_to_scipy_without_a_usable_private_binding(monkeypatch):
     # scipy's private pocketfft binding is used only if it imports, takes the call and gives scipy.fft.fft's bits;
     # a scipy where it is absent or changed runs the public transform, the same numbers

@@ -137,6 +137,14 @@ def test_choices_from_what_the_pixels_see_do_not_depend_on_the_windows(flux):
         assert set(frames) == {"pupil_fft"}
 
 
+@pytest.mark.parametrize("preset", [GEN4, "library:sensors/davis346.yaml", "library:sensors/dvs128.yaml"])
+def test_presets_read_by_libyaml_are_those_of_the_python_parser(monkeypatch, preset):
+    import yaml
+    fast = load_pixel_params(resolve(preset), "optics")
+    monkeypatch.delattr(yaml, "CSafeLoader", raising=False)          # a PyYAML built without libyaml
+    assert load_pixel_params(resolve(preset), "optics") == fast
+
+
 def test_a_detector_without_a_pixel_block_is_one_clear_error(tmp_path):
     preset = tmp_path / "camera_only.yaml"
     preset.write_text("evsda: 1\nname: x\nblocks:\n  camera: {type: camera, params: {width_px: 8}}\n")
