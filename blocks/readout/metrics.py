@@ -177,7 +177,7 @@ class EventMetrics(Block):
             bit = SOURCE_BIT | (SATELLITE_BIT if sources.kind[s] == SourceKind.SATELLITE else 0)
             points = densify(seen[:, s])
             if points.size:
-                self._stamp(points, bit)
+                self._stamp(distinct_points(points), bit)
 
     def _stamp(self, points: np.ndarray, bit: int) -> None:
         """Set ``bit`` on every pixel whose centre is within ``track_radius_px`` of one of ``points``.
@@ -287,6 +287,20 @@ def _box_offsets(radius: float) -> np.ndarray:
     r = int(np.ceil(radius))
     dx, dy = np.meshgrid(np.arange(-r, r + 2), np.arange(-r, r + 2))
     return np.stack([dx.ravel(), dy.ravel()], axis=-1).astype(np.int64)
+
+
+#: np.unique's hash table, unsorted (NumPy >= 2.3): ~15 against ~100 us for a window's points
+_UNSORTED = {"sorted": False} if np.lib.NumpyVersion(np.__version__) >= "2.3.0" else {}
+
+
+def distinct_points(points: np.ndarray) -> np.ndarray:
+    """The distinct rows of ``points`` [n, 2], in any order.
+
+    A slow source repeats its points: a tracked satellite's ~200 points a window (its samples and the points
+    between them) are ~35 distinct values. The marks are the union over the points, so each is stamped once.
+    """
+    pairs = np.ascontiguousarray(points, dtype=np.float64).view(np.complex128).ravel()
+    return np.unique(pairs, **_UNSORTED).view(np.float64).reshape(-1, 2)
 
 
 def densify(xy: np.ndarray, step_px: float = 0.5) -> np.ndarray:

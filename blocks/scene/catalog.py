@@ -63,6 +63,10 @@ def load_hipparcos(path: str) -> StarCatalog:
     except UserError as exc:
         raise ParameterError(str(exc)) from None
     try:
+        with opener(path, "rb") as f:
+            catalog = _fixed_layout(f.read())
+        if catalog is not None:
+            return catalog
         with opener(path, "rt", encoding="ascii", errors="replace") as f:
             for number, line in enumerate(f, start=1):
                 fields = line.split("|", 38)     # H0-H37 (the last field read) and the rest
@@ -76,6 +80,62 @@ def load_hipparcos(path: str) -> StarCatalog:
     hip, *columns, b_v = zip(*rows)
     return StarCatalog(np.array([f"HIP {h}" for h in hip]), *(np.array(column) for column in columns),
                        b_v=np.array(b_v))
+
+
+def _fixed_layout(data: bytes) -> StarCatalog | None:
+    """The catalogue read column by column when every line has the first line's length and its separators up to
+    H37 where the first line has them (the layout of ``hip_main.dat``: lines of 450 characters), or None (then
+    the records are read line by line).
+
+    The same records and the same numbers as the line-by-line reader: each field is the same characters, read
+    by Python's ``float``. A field read that is empty, holds other than printable ASCII (which ``str.strip`` and
+    ``bytes.strip``, or the text decoding, would treat differently) or is no number leaves the file to the
+    line-by-line reader (whose error then names the line). The bundled 9 933 stars: the records in about half
+    of the line-by-line reader's CPU (~20 against ~40 ms at load 6; docs/speed.md).
+    """
+    width = data.find(b"\n") + 1
+    if width <= 1 or len(data) % width or b"\r" in data or data.count(b"\n") != len(data) // width:
+        return None
+    text = np.frombuffer(data, np.uint8).reshape(-1, width)
+    ends = np.flatnonzero(text[0] == 124)[:38]      # the separators after fields H0-H37
+    if ends.size < 38 or not (text[:, -1] == 10).all():
+        return None
+    head = text[:, : ends[-1] + 1]
+    if np.count_nonzero(head == 124) != head.shape[0] * ends.size or not (head[:, ends] == 124).all():
+        return None
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    fields = {n: np.ascontiguousarray(text[:, starts[n]: ends[n]]) for n in (1, 5, 8, 9, 11, 12, 13, 37)}
+    if any(field.shape[1] == 0 or np.count_nonzero((field < 32) | (field > 126)) for field in fields.values()):
+        return None
+    blank = {n: (field == 32).all(axis=1) for n, field in fields.items()}
+    keep = ~(blank[5] | blank[8])
+    if not keep.any():
+        return None
+
+    def kept(n: int) -> np.ndarray:         # field Hn of the records read, as bytes with the blanks around it
+        return fields[n][keep].view(f"S{fields[n].shape[1]}").ravel()
+
+    try:
+        columns = [_numbers_or_zero(kept(n).tolist(), blank[n][keep]) for n, _ in _NUMERIC_FIELDS]
+    except ValueError:
+        return None
+    hip = np.strings.add("HIP ", np.strings.strip(kept(1)).astype(str))
+    return StarCatalog(hip.astype(f"U{int(np.strings.str_len(hip).max())}"), *columns,
+                       b_v=np.array([_number_or_nan(v) for v in kept(37).tolist()]))
+
+
+def _numbers_or_zero(texts: list[bytes], blank: np.ndarray) -> np.ndarray:
+    """Python's ``float`` of each text (blanks around a number allowed), 0 where the field is blank."""
+    if not blank.any():
+        return np.array(list(map(float, texts)))
+    return np.array([0.0 if b else float(v) for v, b in zip(texts, blank.tolist())])
+
+
+def _number_or_nan(text: bytes) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return float("nan")
 
 
 def _colour(fields: list[str]) -> float:

@@ -48,24 +48,25 @@ class Recent:
     Within one window a block asks its models for the same samples several times (the
     pointing frame, the observer's horizon axes and position, a track's state): the
     second and later asks are served from here, the same arrays, made read-only so that
-    no caller can change what another is given. Keyed by the times' exact values.
+    no caller can change what another is given. Keyed by the times' shape and bytes (float
+    ns, never NaN or -0): one comparison of bytes instead of an array comparison a kept
+    entry (~17 asks a window from a satellite's view, most of them for kept times).
     """
 
     def __init__(self, size: int = 4):
         self._size = size
-        self._entries: list[tuple[np.ndarray, object]] = []
+        self._entries: list[tuple[tuple, object]] = []
 
     def get(self, t: np.ndarray, compute: Callable[[np.ndarray], object]):
         """``compute(t)``, or its result for equal ``t`` kept from an earlier call."""
-        for times, result in self._entries:
-            if times.shape == t.shape and np.array_equal(times, t):
+        key = (t.shape, t.tobytes())
+        for kept, result in self._entries:
+            if kept == key:
                 return result
         result = compute(t)
         for array in (result if isinstance(result, tuple) else (result,)):
             array.flags.writeable = False
-        kept = t.copy()
-        kept.flags.writeable = False
-        self._entries = [(kept, result), *self._entries[: self._size - 1]]
+        self._entries = [(key, result), *self._entries[: self._size - 1]]
         return result
 
 
@@ -99,7 +100,8 @@ class KnotGrid:
     def values(self, k: np.ndarray) -> tuple[np.ndarray, ...]:
         """The function's values at knot indices ``k`` (any shape of integers)."""
         k = np.asarray(k, dtype=np.int64)
-        wanted = np.unique(k)
+        # one knot interval (the usual window): its one index without np.unique's sort
+        wanted = k.reshape(-1)[:1] if k.size and k.min() == k.max() else np.unique(k)
         cache = self._cache       # one grid may serve blocks on several threads: read and fill this dict only
         found = {int(i): cache.get(int(i)) for i in wanted}
         missing = [i for i, row in found.items() if row is None]

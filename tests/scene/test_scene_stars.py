@@ -144,3 +144,52 @@ def test_a_star_catalogue_with_a_field_that_is_no_number_is_one_clear_error(tmp_
     bad.write_text(bad.read_text().replace(" abc", " 9.27"))
     stars = load_hipparcos(str(bad))
     assert list(stars.vmag) == [9.10, 9.27] and list(stars.parallax_mas) == [3.54, 21.90]
+
+
+CATALOGUE_FIELDS = ("name", "vmag", "ra_deg", "dec_deg", "pm_ra_mas_yr", "pm_dec_mas_yr", "parallax_mas", "b_v")
+
+
+def _both_readings(path, monkeypatch):
+    """The catalogue read column by column (where the fixed layout allows) and line by line."""
+    from evsda.blocks.scene import catalog
+
+    fast = catalog.load_hipparcos.__wrapped__(str(path))
+    with monkeypatch.context() as patch:
+        patch.setattr(catalog, "_fixed_layout", lambda data: None)
+        slow = catalog.load_hipparcos.__wrapped__(str(path))
+    return fast, slow
+
+
+def test_the_catalogue_read_column_by_column_is_the_line_by_line_reading(tmp_path, monkeypatch):
+    """The fixed-layout reader gives the line-by-line reader's arrays bit for bit, blank fields included, and
+    leaves lines it cannot read by columns to it."""
+    import gzip
+
+    from evsda.blocks.scene import catalog
+
+    fast, slow = _both_readings(library.path("stars/hip_main.dat.gz"), monkeypatch)
+    assert len(fast) == 9928          # 9 933 lines, 5 without an astrometric solution
+    for name in CATALOGUE_FIELDS:
+        a, b = getattr(fast, name), getattr(slow, name)
+        assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), name
+
+    lines = gzip.decompress(library.path("stars/hip_main.dat.gz").read_bytes()).split(b"\n")[:40]
+    ends = [i for i, c in enumerate(lines[0]) if c == ord("|")]
+
+    def blanked(line: bytes, field: int) -> bytes:
+        start = ends[field - 1] + 1
+        return line[:start] + b" " * (ends[field] - start) + line[ends[field]:]
+
+    lines[3] = blanked(blanked(lines[3], 11), 37)       # no parallax, no B-V
+    lines[5] = blanked(lines[5], 8)                     # no RA: skipped
+    edited = tmp_path / "hip.dat"
+    edited.write_bytes(b"\n".join(lines) + b"\n")
+    assert catalog._fixed_layout(edited.read_bytes()) is not None
+    fast, slow = _both_readings(edited, monkeypatch)
+    assert len(fast) == 39 and fast.parallax_mas[3] == 0 and np.isnan(fast.b_v[3])
+    for name in CATALOGUE_FIELDS:
+        assert getattr(fast, name).tobytes() == getattr(slow, name).tobytes(), name
+    text = b"\n".join(lines) + b"\n"
+    for change in (b"|\t6.53|", b"| 6|53|", b"| 6.5x|"):   # a control character, a separator more, no number
+        variant = text.replace(b"| 6.53|", change, 1)
+        assert len(variant) == len(text) and catalog._fixed_layout(variant) is None, change
