@@ -92,9 +92,11 @@ def fft_spline_corners(rng: np.random.Generator, n: int, m: int, first: int, del
     columns.view(np.float64)[...] *= scale                        # both parts in one pass (the same products)
     screen = sfft.ifft(columns, axis=1, norm="forward", workers=1, overwrite_x=True)[:, first:first + m]
     powers, ey, ex, ey_mean, ex_mean, gains = low
-    screen += _subharmonics(rng, powers, ey[first:first + m], ex[:, first:first + m], ey_mean, ex_mean,
-                            gains=gains)
-    return screen
+    subharmonics = _subharmonics(rng, powers, ey[first:first + m], ex[:, first:first + m], ey_mean, ex_mean,
+                                 gains=gains)
+    # the screen plus its subharmonics written into the latter's contiguous rows: the same sums, for about half the
+    # time of the sum written into the strided cut of the transform (NumPy's loop over it is slower)
+    return np.add(screen, subharmonics, out=subharmonics)
 
 
 def spline_response(f: np.ndarray, delta: float) -> np.ndarray:

@@ -327,3 +327,23 @@ def test_fields_in_padded_rows_are_those_in_contiguous_rows(n, monkeypatch):
     for a, b in zip(padded, fields(), strict=True):
         assert a.flags.c_contiguous
         assert np.array_equal(a.view(np.uint64), b.view(np.uint64))
+
+
+def test_transfer_products_over_whole_padded_rows_are_those_over_the_fields_columns(monkeypatch):
+    # propagate multiplies each step's spectrum by its transfer function over the padded rows whole (one contiguous
+    # product, propagation._times_rows) where NumPy gives the views' product bit for bit: the same fields as the
+    # product over the views
+    from evsda.blocks.optics import propagation
+    assert propagation.whole_rows_agree()
+    distance, _, planes, delta1, deltan, screens, source = _screened_path(256, (2, 4))
+
+    def field():
+        return propagate(source, LAMBDA, delta1, deltan, planes, screens, source_curvature=-distance,
+                         collimate=distance, window=40)
+
+    calls = []
+    monkeypatch.setattr(propagation, "whole_rows_agree", lambda: calls.append(True) or True)
+    whole = field()
+    assert calls                                   # the whole rows were multiplied
+    monkeypatch.setattr(propagation, "whole_rows_agree", lambda: False)
+    assert np.array_equal(whole.view(np.uint64), field().view(np.uint64))

@@ -701,3 +701,23 @@ def test_fft_spectra_computed_in_full_where_a_kernel_rounds_by_position(monkeypa
     psd[0, 0] = 0.0
     full = np.sqrt(psd) * (1.0 / (n * delta) * n * n)
     assert np.array_equal(fft_screens._amplitudes(n, delta, 0.1, 20.0, False), full)
+
+
+def test_spline_corners_sum_their_subharmonics_into_contiguous_rows_bit_for_bit():
+    # fft_spline_corners adds the screen's transform and its subharmonics into the subharmonics' contiguous rows: the
+    # numbers of the sum written into the transform's strided cut, as before (a sum is the same either way round)
+    from scipy import fft as sfft
+
+    from evsda.blocks.optics import fft_screens
+    n, m, first, delta, r0, L0 = 132, 64, 4, 0.02, 0.1, 25.0
+    got = fft_screens.fft_spline_corners(np.random.default_rng(8), n, m, first, delta, r0, L0)
+    rng = np.random.default_rng(8)
+    amplitude, low = fft_screens._spectra(n, delta, r0, L0, True, True)
+    columns = sfft.ifft(fft_screens._coefficients(rng, amplitude), axis=0, norm="forward", workers=1)[first:first + m]
+    columns.view(np.float64)[...] *= np.float64(np.longdouble(1) / np.longdouble(n * n))
+    expected = sfft.ifft(columns, axis=1, norm="forward", workers=1)[:, first:first + m]
+    powers, ey, ex, ey_mean, ex_mean, gains = low
+    expected += fft_screens._subharmonics(rng, powers, ey[first:first + m], ex[:, first:first + m], ey_mean, ex_mean,
+                                          gains=gains)
+    assert got.flags.c_contiguous
+    assert np.array_equal(got.view(np.uint64), expected.view(np.uint64))
