@@ -154,5 +154,6 @@ class LargeScales:
     def _phasors(self, axis: int, start: int, count: int):
         """``cos``, ``sin`` of ``w[k] p`` (K, count) along ``axis`` (0: y, 1: x) at ``p = start ..``."""
         cos, sin = np.empty((2, len(self.a), count))
-        mode_phasors(self.frequencies[axis], self.low[2 * axis], self.low[2 * axis + 1], start, count, STRIDE, cos, sin)
+        mode_phasors(self.frequencies[axis], self.low[2 * axis], self.low[2 * axis + 1], start, count, STRIDE, cos, sin,
+                     0)
         return cos, sin

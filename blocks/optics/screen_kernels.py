@@ -273,9 +273,9 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
 
 
 @jit
-def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out):
+def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out, at):
     """``cos`` and ``sin`` of each mode's phase ``w[k] p`` (``w`` [rad per sample]) at integer positions ``p = start ..
-    start + count - 1`` [samples] into ``cos_out``, ``sin_out`` (K, count), from ``p = stride h + l``: ``low_*[k, l]``
+    start + count - 1`` [samples] into ``cos_out``, ``sin_out`` (K, .) from column ``at``, from ``p = stride h + l``: ``low_*[k, l]``
     at ``w l`` (tabled) and ``cos``, ``sin`` of ``w (stride h)`` by the angle-addition formulas (each value from its
     own ``h`` and ``l`` only, wherever it lies in the output: the cosine and sine of each ``h`` are libm's, as NumPy's
     ``cos``, ``sin`` of the same double). ``h`` and ``l`` are counted along, not divided out per value."""
@@ -287,8 +287,8 @@ def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out):
         ch, sh = math.cos(phase), math.sin(phase)
         for i in range(count):
             cl, sl = low_cos[k, low], low_sin[k, low]
-            cos_out[k, i] = ch * cl - sh * sl
-            sin_out[k, i] = sh * cl + ch * sl
+            cos_out[k, at + i] = ch * cl - sh * sl
+            sin_out[k, at + i] = sh * cl + ch * sl
             low += 1
             if low == stride and i + 1 < count:
                 low, h = 0, h + 1
@@ -300,15 +300,15 @@ def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out):
 def read_spans(rows, cols, top, left, height, width, first, stop):
     """In each row of an array (first sample at absolute (``top``, ``left``), ``height x width``), the columns
     ``first[r] .. stop[r] - 1`` that the frames' grids ``rows`` (F, ny), ``cols`` (F, nx) [samples] read with the
-    4-tap spline, a sample either side (positions are rounded when read), clipped to the array (``first = width``,
-    ``stop = 0`` where no frame reads)."""
+    4-tap spline (:func:`_taps`' indices of the first and last positions, from the same ``rows - top``), clipped to
+    the array (``first = width``, ``stop = 0`` where no frame reads)."""
     first[:] = width
     stop[:] = 0
     for f in range(rows.shape[0]):
-        r0 = min(max(math.floor(rows[f, 0]) - 2 - top, 0), height)
-        r1 = min(max(math.floor(rows[f, rows.shape[1] - 1]) + 4 - top, 0), height)
-        c0 = min(max(math.floor(cols[f, 0]) - 2 - left, 0), width)
-        c1 = min(max(math.floor(cols[f, cols.shape[1] - 1]) + 4 - left, 0), width)
+        r0 = min(max(math.floor(rows[f, 0] - top) - 1, 0), height)
+        r1 = min(max(math.floor(rows[f, rows.shape[1] - 1] - top) + 3, 0), height)
+        c0 = min(max(math.floor(cols[f, 0] - left) - 1, 0), width)
+        c1 = min(max(math.floor(cols[f, cols.shape[1] - 1] - left) + 3, 0), width)
         for r in range(r0, r1):
             first[r] = min(first[r], c0)
             stop[r] = max(stop[r], c1)
@@ -421,10 +421,16 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
                 first = np.empty(height, np.int64)
                 end = np.empty(height, np.int64)
                 read_spans(rows[frame:stop], cols[frame:stop], top, left, height, width, first, end)
+                # the phasors of the rows and columns read only (the tables' other entries are never used)
+                r0, r1, c0, c1 = height, 0, width, 0
+                for r in range(height):
+                    if end[r] > first[r]:
+                        r0, r1 = min(r0, r), r + 1
+                        c0, c1 = min(c0, first[r]), max(c1, end[r])
                 cos_y, sin_y = np.empty((modes, height)), np.empty((modes, height))
                 cos_x, sin_x = np.empty((modes, width)), np.empty((modes, width))
-                mode_phasors(frequencies[0], low[0], low[1], top, height, stride, cos_y, sin_y)
-                mode_phasors(frequencies[1], low[2], low[3], left, width, stride, cos_x, sin_x)
+                mode_phasors(frequencies[0], low[0], low[1], top + r0, max(r1 - r0, 0), stride, cos_y, sin_y, r0)
+                mode_phasors(frequencies[1], low[2], low[3], left + c0, max(c1 - c0, 0), stride, cos_x, sin_x, c0)
                 source = canvas
                 canvas = np.empty((height, width))
                 add_modes(source, canvas, cos_y, sin_y, cos_x, sin_x, amplitudes[0], amplitudes[1], first, end)

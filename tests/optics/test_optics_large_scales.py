@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from evsda.blocks.optics.kolmogorov import structure_function, von_karman_covariance
-from evsda.blocks.optics.large_scales import LargeScales, cells, split_outer_scale
+from evsda.blocks.optics.large_scales import STRIDE, LargeScales, cells, split_outer_scale
 from evsda.blocks.optics.layer_screen import LayerScreen
 
 DELTA, L0 = 0.02, 25.0
@@ -97,3 +97,39 @@ def test_add_modes_sums_each_value_mode_by_mode(modes):
                 total += u * float(cos_x[k, c]) + v * float(sin_x[k, c])
             expected[r, c] = float(source[r, c]) + total
     np.testing.assert_array_equal(out, expected)
+
+
+def test_mode_phasors_of_a_part_are_the_wholes_there():
+    # a walk tabulates the modes' phasors of the rows and columns its frames read only (from column `at` of the
+    # tables): each value depends on its absolute position alone, so a part's are the whole range's, bit for bit
+    from evsda.blocks.optics.screen_kernels import mode_phasors
+    modes = LargeScales(np.random.default_rng(5), DELTA, 25.0, 2.0)
+    k = len(modes.a)
+    whole, part = np.full((2, k, 90), np.nan), np.full((2, k, 90), np.nan)
+    mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], -37, 90, STRIDE, whole[0], whole[1], 0)
+    mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], -37 + 13, 50, STRIDE, part[0], part[1], 13)
+    np.testing.assert_array_equal(part[:, :, 13:63], whole[:, :, 13:63])
+    assert np.isnan(part[:, :, :13]).all() and np.isnan(part[:, :, 63:]).all()
+
+
+def test_read_spans_are_the_columns_the_reads_touch():
+    # read_spans gives each row's columns exactly as _taps indexes them (from the same `u - top`, which may round up
+    # to the next integer: -1e-17 - (-5) is 5.0), so the modes are added where the reads look and nowhere else
+    from evsda.blocks.optics.screen_kernels import _taps, read_spans
+    rng = np.random.default_rng(3)
+    top, left, height, width = -5, 7, 24, 40
+    base = np.linspace(0.0, 6.0, 9)
+    rows = top + 3.0 + base + np.cumsum(rng.uniform(0, 0.4, 12))[:, None]
+    cols = left + 3.0 + base + np.cumsum(rng.uniform(0, 2.0, 12))[:, None]
+    rows[0] = -1e-17 + base
+    touched = np.zeros((height, width), bool)
+    for r, c in zip(rows, cols):
+        iy, ix, w = np.empty(len(r), np.int64), np.empty(len(c), np.int64), np.empty((4, len(r)))
+        _taps(r, top, iy, w)
+        _taps(c, left, ix, w)
+        touched[iy[0]:iy[-1] + 4, ix[0]:ix[-1] + 4] = True
+    first, stop = np.empty(height, np.int64), np.empty(height, np.int64)
+    read_spans(rows, cols, top, left, height, width, first, stop)
+    for r in range(height):
+        at = np.flatnonzero(touched[r])
+        assert (first[r], stop[r]) == ((at[0], at[-1] + 1) if len(at) else (width, 0))
