@@ -143,9 +143,10 @@ def _helper_pool(count: int) -> ThreadPoolExecutor:
 
 
 def _forget_helpers() -> None:
-    """In a forked child: the parent's helper threads do not exist there."""
-    global _helpers, _helper_count
-    _helpers, _helper_count = None, 0
+    """In a forked child: the parent's helper threads do not exist there (nor its late helpers at work, and its
+    condition may have been held by one of its threads)."""
+    global _helpers, _helper_count, _late_working, _cores
+    _helpers, _helper_count, _late_working, _cores = None, 0, 0, threading.Condition()
 
 
 if hasattr(os, "register_at_fork"):
@@ -153,20 +154,26 @@ if hasattr(os, "register_at_fork"):
 
 
 _steps_running = 0                              # pipelined block steps running now (:func:`running_step`)
+_late_working = 0                               # helpers at work that joined their loop late
+_cores = threading.Condition()                  # guards the two counts; notified when either falls or a loop ends
+#: a loop that starts beside another step gets the helpers it lacks once a core comes free (``EVSDA_LATE_HELPERS=off``:
+#: only those free when it starts)
+LATE_HELPERS = os.environ.get("EVSDA_LATE_HELPERS", "on").strip().lower() != "off"
 
 
 @contextmanager
 def running_step():
     """Count a pipelined block step as running while in this context: :func:`parallel_map` gives such a step
-    one helper fewer for every other step running beside it (they share the cores)."""
+    one helper fewer for every other step running beside it (they share the cores), until that step ends."""
     global _steps_running
-    with _helpers_lock:
+    with _cores:
         _steps_running += 1
     try:
         yield
     finally:
-        with _helpers_lock:
+        with _cores:
             _steps_running -= 1
+            _cores.notify_all()
 
 
 def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[T]:
@@ -178,10 +185,18 @@ def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[
     is started, the items already started finish, and the error of the first failing item (in the items'
     order) is raised, the one the loop above would raise. Which thread runs an item is not fixed, so ``fn``
     must give the same result on any thread.
+
+    Pipelined, a loop gets one helper fewer for each other step running beside it when it starts, so the
+    threads at work stay within the cores; the helpers it lacks wait and join it once a core comes free (a step
+    beside it ends) while items are left. On the tracked pass the optics' loop starts beside the pixels' step in
+    nearly every window: without them its ~6 items ran on its own thread to the end while the pixels' core
+    idled once their step was done (docs/speed.md).
     """
     items = list(items)
+    wanted = min(threads, len(items)) - 1
     helpers = min(threads - max(_steps_running - 1, 0), len(items)) - 1
-    if helpers < 1:
+    late = wanted - max(helpers, 0) if LATE_HELPERS else 0
+    if helpers < 1 and late < 1:
         return [fn(item) for item in items]
     results: list[Any] = [None] * len(items)
     errors: dict[int, BaseException] = {}
@@ -201,11 +216,34 @@ def parallel_map(fn: Callable[[Any], T], items: Iterable, threads: int) -> list[
                 with lock:
                     errors[i] = exc
 
-    pool = _helper_pool(helpers)
-    started = [pool.submit(work) for _ in range(helpers)]
+    def left() -> bool:
+        return taken[0] < len(items) and not errors
+
+    def join_late() -> None:
+        """A helper the loop lacked at its start: it waits for a free core, then takes items as the others do."""
+        global _late_working
+        with _cores:
+            while left() and _steps_running + _late_working >= threads:
+                _cores.wait()
+            if not left():
+                return
+            _late_working += 1
+        try:
+            work()
+        finally:
+            with _cores:
+                _late_working -= 1
+                _cores.notify_all()
+
+    pool = _helper_pool(wanted)
+    started = [pool.submit(work) for _ in range(max(helpers, 0))]
+    started += [pool.submit(join_late) for _ in range(late)]
     try:
         work()
     finally:
+        if late:
+            with _cores:
+                _cores.notify_all()               # waiting helpers leave
         for future in started:
             if not future.cancel():               # running: it finishes the item it took
                 future.result()

@@ -115,3 +115,54 @@ def test_a_step_beside_another_pipelined_step_takes_no_helper_on_two_threads():
         assert threads_used() == 2                   # alone: the caller and a helper
         with threads.running_step():                 # another step running beside it
             assert threads_used() == 1
+
+
+def test_a_helper_joins_a_loop_beside_another_step_once_that_step_ends():
+    # the loop starts beside another pipelined step (no helper then); that step ends at the loop's 6th item and
+    # the helper it lacked joins it for the items left; the results are the loop's, in order
+    if not threads.LATE_HELPERS:
+        pytest.skip("EVSDA_LATE_HELPERS=off")
+    beside, ending = threading.Event(), threading.Event()
+
+    def other_step():
+        with threads.running_step():
+            beside.set()
+            ending.wait(5)
+
+    other = threading.Thread(target=other_step)
+    other.start()
+    assert beside.wait(5)
+    ran_on = {}
+
+    def item(i):
+        if i == 5:
+            ending.set()
+        time.sleep(0.005)
+        ran_on[i] = threading.get_ident()
+        return i * i
+
+    with threads.running_step():
+        results = threads.parallel_map(item, range(40), 2)
+    other.join()
+    assert results == [i * i for i in range(40)]
+    assert {ran_on[i] for i in range(6)} == {threading.get_ident()}     # the caller alone while the step ran
+    assert len(set(ran_on.values())) == 2                               # then a helper joined
+
+
+def test_a_waiting_helper_leaves_when_the_loop_ends_or_fails():
+    # beside a step that never ends, the lacking helper waits and leaves with the loop: no item runs twice or on
+    # it, and the first failing item's error is raised as without it
+    with threads.running_step():
+        with threads.running_step():
+            seen = []
+            assert threads.parallel_map(lambda i: seen.append(threading.get_ident()) or i, range(10), 2) \
+                == list(range(10))
+            assert set(seen) == {threading.get_ident()}
+
+            def failing(i):
+                if i == 3:
+                    raise ValueError(i)
+                return i
+            with pytest.raises(ValueError, match="3"):
+                threads.parallel_map(failing, range(10), 2)
+    assert threads.parallel_map(lambda i: i, range(4), 2) == list(range(4))
