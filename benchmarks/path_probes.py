@@ -26,7 +26,8 @@ before), and checks that both give the same choices and estimates (compared with
 ``--fresh`` times what a run pays: in fresh processes (this checkout's and, with ``--against``, the other's own
 ``.venv``, alternated), a run of ``--graph`` (default: the tracked pass, its first window: ``--duration 0.1``) with
 the probe cache off and one step at a time (``EVSDA_PIPELINE=0``, so that the process's CPU time during the probes
-is theirs), on the process's threads; it prints the medians of the first window's probes (wall and CPU: the run's
+is theirs), on the process's threads; it prints the medians of the first optics step up to its probes (wall, and its
+thread's CPU: the imager, the sampling, the window's samples), of the first window's probes (wall and CPU: the run's
 first compiled code is among them, Numba's typing and target contexts, ~0.2 s of interpreter) and of all of the
 run's probes, and whether every run gave the same choices and estimates (a digest of their ``repr``).
 
@@ -165,11 +166,13 @@ from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.paths import PathChooser
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
-spans, imagers = [], []
+spans, imagers, started, before = [], [], [], []
 probe_ahead, step = PathChooser.probe_ahead, PointSourceOptics.step
 
 def timed(self, *args):
     t, c = time.perf_counter(), time.process_time()
+    if not before:                         # the first step up to its probes, on its thread
+        before.append((t - started[0][0], time.thread_time() - started[0][1]))
     try:
         return probe_ahead(self, *args)
     finally:
@@ -177,6 +180,8 @@ def timed(self, *args):
 
 @functools.wraps(step)
 def kept(self, *args, **kwargs):
+    if not started:
+        started.append((time.perf_counter(), time.thread_time()))
     out = step(self, *args, **kwargs)
     if self._imager not in imagers:
         imagers.append(self._imager)
@@ -188,7 +193,7 @@ with tempfile.TemporaryDirectory() as tmp:
     run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
 made = repr([(sorted(c._choices.items()), sorted(c._pupil_errors.items()), sorted(c._estimates.items(), key=repr))
              for c in (imager.chooser for imager in imagers)])
-print(json.dumps({"first": spans[0], "all": [sum(s[0] for s in spans), sum(s[1] for s in spans)],
+print(json.dumps({"first": spans[0], "before": before[0], "all": [sum(s[0] for s in spans), sum(s[1] for s in spans)],
                   "digest": hashlib.sha256(made.encode()).hexdigest()[:16]}))
 """
 
@@ -205,14 +210,18 @@ def fresh_runs(args) -> None:
         return fresh(FRESH, env, (str(args.graph.resolve()), str(args.duration)), checkout)
 
     def show(k, name, out, load):
-        print(f"  run {k + 1} ({name}): first window's probes {out['first'][0]:.3f} s wall, {out['first'][1]:.3f} s "
-              f"CPU; all {out['all'][0]:.3f} s wall; load {load:.2f}", flush=True)
+        print(f"  run {k + 1} ({name}): the first optics step before its probes {1e3 * out['before'][0]:.1f} ms wall, "
+              f"{1e3 * out['before'][1]:.1f} ms CPU; first window's probes {out['first'][0]:.3f} s wall, "
+              f"{out['first'][1]:.3f} s CPU; all {out['all'][0]:.3f} s wall; load {load:.2f}", flush=True)
 
     runs, loads = alternated(trees, args.repeats, run, show)
     print(f"\n{args.graph.name}, {args.duration:g} s, {os.environ.get('EVSDA_THREADS', 'all')} threads, medians of "
           f"{args.repeats} fresh runs, load {statistics.median(loads):.2f} ({min(loads):.2f}-{max(loads):.2f}):")
     for name, values in runs.items():
         first = [v["first"] for v in values]
+        ahead = [v["before"] for v in values]
+        print(f"  {name}: the first optics step before its probes {1e3 * statistics.median(w for w, _ in ahead):.1f} ms "
+              f"wall, {1e3 * statistics.median(c for _, c in ahead):.1f} ms CPU (its thread's)")
         print(f"  {name}: first window's probes {statistics.median(w for w, _ in first):.3f} s wall, "
               f"{statistics.median(c for _, c in first):.3f} s CPU; all probes "
               f"{statistics.median(v['all'][0] for v in values):.3f} s wall, "
