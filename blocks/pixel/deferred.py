@@ -35,8 +35,8 @@ from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
 from .fastmath import _float_to_bits
 from .own_sweep import drive_left, sweep_own
-from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NO_STEP, NOISE_SCALE, PARA,
-                         STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, advanced, drifted, quiet_until,
+from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NOISE_SCALE, PARA,
+                         STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, drifted, quiet_until,
                          relaxed_by, run_pixels)
 
 
@@ -223,7 +223,7 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
     gathered into contiguous rows first, so that this loop too is vectorised) the pixels taking change
     ``k`` (those with ``lo < k``, a prefix once ordered by ``lo``) take it together, ``a^j`` computed
     once, in loops over their fields gathered into contiguous rows: the filter's relaxation once for each
-    run of pixels with the same ``L`` (:func:`_sweep`), the drift vectorised.
+    run of pixels with the same ``L`` bits (:func:`_relax_runs`: runs only merge), the drift vectorised.
     Each pixel goes through the same arithmetic in the same order (:func:`.pixel_loop.relaxed_by`;
     :mod:`.fastmath`'s functions give the same bits in vectorised loops), so its state is the
     reference's bit for bit (tested).
@@ -260,13 +260,27 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
         j_first[s] = steps[lo[i]] - 1 - count[p, STEP]
     _first_sweep(f[S_L], f[S_M], f[S_LEAK], f[S_PARA_C], f[S_TH_ON], f[S_SCALE], f[S_Y], f[S_LOG_A], f[S_PARA],
                  j_first, leak_hz, dt, large)         # each pixel's first change, from its own step and input
+    # their L as runs of equal bits: the pixels with lo = k - 1 join the runs at change k (the same step as those
+    # before them: one run where the bits are the same), the runs' L relaxed change by change
+    at, value = np.empty(n + 1, np.int64), np.empty(n)
+    n_at, m = 0, 0
     for k in range(first + 1, end):
+        for s in range(m, starts[k - first]):
+            if n_at == 0 or _float_to_bits(f[S_L, s]) != _float_to_bits(value[n_at - 1]):
+                at[n_at], value[n_at] = s, f[S_L, s]
+                n_at += 1
         m = starts[k - first]                          # the pixels with lo < k
         j = steps[k] - steps[k - 1]                    # from the step before change k - 1 to the one before k
         if j > 0:
             row = inputs[k - 1]
-            _sweep(f[S_L, :m], f[S_M, :m], f[S_LEAK, :m], f[S_PARA_C, :m], f[S_TH_ON, :m], f[S_SCALE, :m],
-                   power(row[LOG_A], j), row[Y], row[LOG_A], row[PARA], j, leak_hz, dt, large)
+            n_at = _relax_runs(at, value, n_at, power(row[LOG_A], j), row[Y], row[LOG_A], row[PARA], j, leak_hz, dt,
+                               large)
+            _drift(f[S_M, :m], f[S_LEAK, :m], f[S_PARA_C, :m], f[S_TH_ON, :m], f[S_SCALE, :m], row[PARA], j, leak_hz,
+                   dt)
+    at[n_at] = m
+    for r in range(n_at):                              # the runs' L back to their pixels
+        for s in range(at[r], at[r + 1]):
+            f[S_L, s] = value[r]
     last = inputs[end - 1]
     for i in range(n):
         if i + _AHEAD < n:
@@ -281,35 +295,51 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _first_sweep(filtered, memorised, c_leak, c_para, th_on, noise_scale, y, log_a, para, j, leak_hz, dt, large):
     """Every pixel of the rows ``j[i]`` steps on at its own input ``y[i], log_a[i], para[i]`` (none for
-    ``j[i] <= 0``; :func:`.pixel_loop.advanced`, as one pixel alone)."""
+    ``j[i] <= 0``; :func:`.pixel_loop.advanced` with no ``a^j`` known, as one pixel alone: :func:`.pixel_loop.relaxed_by`
+    of :func:`.crossing.power`), computed by every pixel, kept by those that move (a loop that vectorises)."""
     for i in range(filtered.size):
-        filtered[i], memorised[i], c_leak[i], c_para[i] = advanced(
-            j[i], NO_STEP, 0.0, 0.0, filtered[i], memorised[i], c_leak[i], c_para[i], y[i], log_a[i], para[i],
-            th_on[i], noise_scale[i], leak_hz, dt, large)
+        moved_l, moved_m, moved_leak, moved_para = relaxed_by(
+            power(log_a[i], j[i]), filtered[i], memorised[i], c_leak[i], c_para[i], y[i], log_a[i], para[i], th_on[i],
+            noise_scale[i], j[i], leak_hz, dt, large)
+        moves = j[i] > 0
+        filtered[i] = moved_l if moves else filtered[i]
+        memorised[i] = moved_m if moves else memorised[i]
+        c_leak[i] = moved_leak if moves else c_leak[i]
+        c_para[i] = moved_para if moves else c_para[i]
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _sweep(filtered, memorised, c_leak, c_para, th_on, noise_scale, retention, y, log_a, para, j, leak_hz, dt, large):
-    """Every pixel of the rows ``j > 0`` steps on at the input ``y, log_a, para`` (:func:`.pixel_loop.relaxed_by`,
-    ``retention = a^j``). The filter's new ``L`` depends on the pixel only through its ``L``, and the pixels
-    taking the background's changes have mostly reached the same ``L`` bit for bit (on the tracked pass 99.5 %
-    of them repeat the ``L`` of the pixel before them): it is computed again (an ``exp`` and a ``log``) only
-    where the bits differ from that pixel's; the drift of ``M`` after, in a loop that vectorises."""
-    known, last, relaxed = False, np.int64(0), 0.0
-    for i in range(filtered.size):
-        bits = _float_to_bits(filtered[i])
-        if not (known and bits == last):
-            known, last = True, bits
-            relaxed = _relaxed_l(retention, filtered[i], y, log_a, para, j, leak_hz, dt, large)
-        filtered[i] = relaxed
-    for i in range(filtered.size):
+def _relax_runs(at, value, n_at, retention, y, log_a, para, j, leak_hz, dt, large):
+    """The ``L`` of the runs ``value[:n_at]`` (first pixels ``at``) ``j > 0`` steps on at the input ``y, log_a, para``
+    (:func:`.pixel_loop.relaxed_by`, ``retention = a^j``), neighbours left with the same bits merged into one run.
+    Returns the runs' number. The new ``L`` depends on a pixel only through its ``L``, so a run's pixels keep
+    one ``L``: on the tracked pass ~650 000 (pixel, change) pairs a window take ~15 000 relaxations."""
+    w, last, relaxed = 0, np.int64(0), 0.0
+    for r in range(n_at):
+        bits = _float_to_bits(value[r])
+        if w > 0 and bits == last:
+            continue                                   # the run before had these bits: the same L after
+        last = bits
+        moved = _relaxed_l(retention, value[r], y, log_a, para, j, leak_hz, dt, large)
+        if w > 0 and _float_to_bits(moved) == _float_to_bits(relaxed):
+            continue                                   # the run before ends with the same bits: one run
+        at[w], value[w], relaxed = at[r], moved, moved
+        w += 1
+    return w
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _drift(memorised, c_leak, c_para, th_on, noise_scale, para, j, leak_hz, dt):
+    """Every pixel's ``M`` and causes ``j`` steps on at the parasitic rate ``para`` (:func:`.pixel_loop.drifted`), in a
+    loop the compiler vectorises."""
+    for i in range(memorised.size):
         memorised[i], c_leak[i], c_para[i] = drifted(memorised[i], c_leak[i], c_para[i], para, th_on[i],
                                                      noise_scale[i], j, leak_hz, dt)
 
 
 @numba.njit(cache=True, error_model="numpy")
 def _relaxed_l(retention, filtered, y, log_a, para, j, leak_hz, dt, large):
-    """The filter's ``L`` of :func:`.pixel_loop.relaxed_by` (not inlined: :func:`_sweep` calls it seldom, and its
+    """The filter's ``L`` of :func:`.pixel_loop.relaxed_by` (not inlined: :func:`_relax_runs` calls it seldom, and its
     ``exp`` and ``log`` inlined in a loop that does not vectorise took ~1 s more of the first compile)."""
     return relaxed_by(retention, filtered, 0.0, 0.0, 0.0, y, log_a, para, 0.0, 0.0, j, leak_hz, dt, large)[0]
 
