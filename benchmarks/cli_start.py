@@ -62,7 +62,7 @@ def checkout_of(evsda: str) -> Path:
 PARTS = {
     "numpy": "import numpy",
     "pydantic": "import pydantic, pydantic_core",
-    "the rest of the command line": "import evsda.graph.cli",
+    "the rest of the command line": "import evsda.graph.cli\nevsda.graph.cli.lean_array_api()",   # as a run calls it
     "networkx": "import networkx",
     "numba, llvmlite": "import numba",
     "scipy.special (with SciPy's array-API set-up)": "import scipy.special",

@@ -85,6 +85,11 @@ class Stopwatch(executor.Stopwatch):          # the executor's stopwatch on the 
 executor.Stopwatch = Stopwatch
 
 t = clock()
+try:                       # as the evsda command does before it loads a graph (a checkout from before has no such step)
+    from evsda.graph.scipy_imports import lean_array_api
+    lean_array_api()
+except ImportError:
+    pass
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}", *sys.argv[3:]])
 spent["load the graph (imports its blocks)"] = clock() - t
 parts = {"optics": ("evsda.blocks.optics", [

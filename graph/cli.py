@@ -29,12 +29,14 @@ from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
 from .report import describe_block, describe_store, list_blocks, run_summary, store_info
 from .result_cache import cache_root
+from .scipy_imports import lean_array_api
 from .store import RunStore
 from .sweep import MAX_POINTS, SAMPLING, parse_limits, read_grid, run_sweep
 from .threads import limit_blas
 
 
 def _load(args) -> Graph:
+    lean_array_api()                # before the graph's blocks import SciPy
     limits = Limits.parse(getattr(args, "limit", ()))
     target = Path(args.graph)
     if target.is_dir() and (target / "zarr.json").exists():  # a run store: re-run its resolved graph

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 from .block import Block
 from .errors import UserError
 from .numba_loads import lazy_registries
+from .scipy_imports import lean_array_api
 from .threads import usable_cores
 
 if TYPE_CHECKING:
@@ -363,6 +364,7 @@ def _serve(conn: Connection) -> None:
     if threads is not None:
         os.environ["EVSDA_THREADS"] = str(threads)
     try:
+        lean_array_api()                                # before the block's modules import SciPy
         cls: Any = importlib.import_module(module)
         for part in qualname.split("."):
             cls = getattr(cls, part)
