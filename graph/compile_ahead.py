@@ -1,18 +1,20 @@
-"""Numba's first compiles on the second core: a block's compiled loops built ahead in a child process.
+"""Numba's first compiles on both cores: a block's compiled loops built ahead in a child process and in this one.
 
 A run with an empty Numba cache (a user's first run after an install, CI, a new machine) compiles every
 compiled loop before it first runs, and Numba compiles under one lock, so a process compiles on one core
-while the other waits. :func:`start` runs a block's own small warm-up (a function that calls the block's
-loops with the argument types a run gives them) in a fresh interpreter, which compiles them and writes
-them to the same on-disk cache (``NUMBA_CACHE_DIR``, or Numba's folder beside the sources) while this
-process compiles the blocks that run first. The block calls :meth:`Ahead.wait` before it first calls its
-loops, and Numba then loads them from the cache instead of compiling them: the compiled code, and so every
-result, is the same.
+while the other waits. :func:`start` hands a block's compile tasks (its cached loops, each with the argument types
+a run calls it with) to a fresh interpreter, which compiles them in their order and writes them to the same on-disk
+cache (``NUMBA_CACHE_DIR``, or Numba's folder beside the sources) while this process compiles the blocks that run
+first. The block calls :meth:`Ahead.wait` before it first calls its loops: this process, done with its own compiles
+by then, takes the tasks the child has not begun from the end of the list and compiles them itself (each task is
+claimed once, by whichever process creates its file in a shared folder first), then waits for the child; Numba
+loads the child's loops from the cache instead of compiling them. The compiled code, and so every result, is the
+same whoever compiles a loop.
 
 A child starts only when none of the named modules' cached loops has a signature cached for its current
 source (reading their cache indexes takes milliseconds: later runs start no child), when the run may use
 more than one thread (``EVSDA_THREADS``), and unless ``EVSDA_COMPILE_AHEAD=off``. One child at a time per
-warm-up. A child that fails costs nothing but its time: the block then compiles what it needs itself.
+task list. A child that fails costs nothing but its time: the block then compiles what it needs itself.
 
 Wherever the loops are compiled (the child, or this process when no child starts), :func:`quicker_inlining`
 first takes out a copying cost of Numba's inliner (``inline="always"``, which the pixels' vectorised loops use):
@@ -32,8 +34,10 @@ import inspect
 import json
 import logging
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 from collections.abc import Callable
 
@@ -46,7 +50,7 @@ WAIT_LIMIT_S = 600.0
 
 _CHILD = r"""
 import json, os, sys, threading, time
-parent, path, target, args = json.loads(sys.argv[1])
+parent, path, tasks, claims = json.loads(sys.argv[1])
 
 def orphaned():                    # the run ended without stopping this child (killed): end with it
     while os.getppid() == parent:
@@ -55,28 +59,38 @@ def orphaned():                    # the run ended without stopping this child (
 
 threading.Thread(target=orphaned, daemon=True).start()
 sys.path[:] = path
-module, name = target.split(":")
-getattr(__import__(module, fromlist=[name]), name)(*args)
+from evsda.graph.compile_ahead import compile_claimed, quicker_compiles
+quicker_compiles()
+compile_claimed(tasks, claims, range(len(tasks)))
 """
 
-_started: dict[str, Ahead] = {}          # warm-up target -> its child (this process starts one per target)
+#: a compile task: ``("package.module:function", "argument types")``, the types as Numba spells them in a signature
+#: (``"f8[:, ::1], i8, b1"``; one type with a trailing comma)
+Task = tuple[str, str]
+
+_started: dict[tuple[Task, ...], Ahead] = {}          # task list -> its child (one per list in this process)
 _lock = threading.Lock()
 
 
 class Ahead:
-    """A child process compiling a block's loops; :meth:`wait` returns once it has ended (at once if none)."""
+    """A child process compiling a block's tasks; :meth:`wait` takes the tasks it has not begun and returns once it
+    has ended (at once if none)."""
 
-    def __init__(self, process: subprocess.Popen | None):
+    def __init__(self, process: subprocess.Popen | None, tasks: tuple[Task, ...] = (), claims: str | None = None):
         self.process = process
         self.started = process is not None
+        self.tasks, self.claims = tasks, claims
         self._lock = threading.Lock()          # blocks that share the child wait for it together
 
     def wait(self) -> None:
-        """Wait for the child (the cached loops are then all written); kill it after ``WAIT_LIMIT_S``."""
+        """Compile here the tasks the child has not claimed, last first, then wait for the child (the cached loops
+        are then all written); kill it after ``WAIT_LIMIT_S``."""
         with self._lock:
             process, self.process = self.process, None
             if process is None:
                 return
+            if process.poll() is None:
+                compile_claimed(self.tasks, self.claims, reversed(range(len(self.tasks))))
             try:
                 process.wait(timeout=WAIT_LIMIT_S)
             except subprocess.TimeoutExpired:
@@ -85,34 +99,81 @@ class Ahead:
             if process.returncode:
                 log.info("compiling ahead ended with status %s; the block compiles what it needs itself",
                          process.returncode)
+            _remove(self.claims)
 
 
-def start(target: str, modules: tuple[str, ...], *args) -> Ahead:
-    """Run ``target`` (``"package.module:function"``, called with ``args``, JSON values) in a child process
-    when none of ``modules``' cached loops is in the Numba cache; an :class:`Ahead` to wait on either way."""
+def start(tasks: tuple[Task, ...], modules: tuple[str, ...]) -> Ahead:
+    """Compile ``tasks`` in a child process (and in this one at :meth:`Ahead.wait`) when none of ``modules``'
+    cached loops is in the Numba cache; an :class:`Ahead` to wait on either way."""
+    tasks = tuple(map(tuple, tasks))
     with _lock:
-        if target in _started:
-            return _started[target]
+        if tasks in _started:
+            return _started[tasks]
         if _cached(modules):
             return Ahead(None)
-        quicker_inlining()                       # this process compiles too (all of them, without a child)
-        quicker_typing()
-        quicker_llvm_calls()
-        quicker_ir_walks()
-        inlinees_once()
+        quicker_compiles()                       # this process compiles too (some, or all of them without a child)
         if not _wanted():
             return Ahead(None)
         env = dict(os.environ, EVSDA_COMPILE_AHEAD="off", EVSDA_THREADS="1", OPENBLAS_NUM_THREADS="1")
+        claims = tempfile.mkdtemp(prefix="evsda-claims-")
         try:
-            process = subprocess.Popen([sys.executable, "-c", _CHILD, json.dumps([os.getpid(), sys.path, target, list(args)])],
+            process = subprocess.Popen([sys.executable, "-c", _CHILD,
+                                        json.dumps([os.getpid(), sys.path, tasks, claims])],
                                        env=env, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                        stderr=subprocess.DEVNULL, close_fds=True)
         except OSError as error:
             log.info("cannot compile ahead (%s)", error)
+            _remove(claims)
             return Ahead(None)
-        atexit.register(_end, process)
-        _started[target] = ahead = Ahead(process)
+        atexit.register(_end, process, claims)
+        _started[tasks] = ahead = Ahead(process, tasks, claims)
         return ahead
+
+
+def quicker_compiles() -> None:
+    """Numba's compiles without the costs that decide nothing (each edit below, where it is not switched off)."""
+    quicker_inlining()
+    quicker_typing()
+    quicker_llvm_calls()
+    quicker_ir_walks()
+    inlinees_once()
+
+
+def compile_claimed(tasks: tuple[Task, ...], claims: str, order) -> None:
+    """Compile each task of ``tasks``, in ``order`` (indexes), that this process claims first in the folder
+    ``claims``; a task that fails is left to the block's own call."""
+    for index in order:
+        if not _claimed(claims, index):
+            continue
+        function, types = tasks[index]
+        try:
+            _compile(function, types)
+        except Exception as error:                 # noqa: BLE001 -- the block compiles it itself when it calls it
+            log.info("compiling %s ahead failed (%s)", function, error)
+
+
+def _claimed(claims: str, index: int) -> bool:
+    """Whether this process is the first to claim task ``index`` (its file created in ``claims``)."""
+    try:
+        os.close(os.open(os.path.join(claims, str(index)), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except OSError:                                # claimed by the other process (or the folder is gone)
+        return False
+    return True
+
+
+def _compile(function: str, types: str) -> None:
+    """Compile (or load from the cache) the dispatcher ``function`` for the argument types ``types``: what its
+    first call with arguments of those types compiles, under the same cache key."""
+    from numba.core.sigutils import normalize_signature
+    module, name = function.split(":")
+    dispatcher = getattr(importlib.import_module(module), name)
+    arguments, _ = normalize_signature(types)
+    dispatcher.compile(tuple(arguments))
+
+
+def _remove(claims: str | None) -> None:
+    if claims is not None:
+        shutil.rmtree(claims, ignore_errors=True)
 
 
 def _wanted() -> bool:
@@ -155,12 +216,13 @@ def _cached(modules: tuple[str, ...]) -> bool:
     return False
 
 
-def _end(process: subprocess.Popen) -> None:
+def _end(process: subprocess.Popen, claims: str) -> None:
     """At exit: a child still compiling is stopped (a half-written cache entry is never visible: Numba
-    writes each file whole and renames it)."""
+    writes each file whole and renames it), and its claims' folder removed."""
     if process.poll() is None:
         process.kill()
         process.wait()
+    _remove(claims)
 
 
 # -- Numba's inliner, copying less ---------------------------------------------------------------------------
@@ -531,3 +593,4 @@ def _untyped_flags(flags) -> dict:
     values = flags.values()
     del values["release_gil"]
     return values
+

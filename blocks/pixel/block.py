@@ -72,8 +72,7 @@ class DvsPixel(Block):
     def setup(self, run: RunInfo) -> None:
         super().setup(run)
         if self.params.implementation == "fast":    # with an empty Numba cache: compiled while the optics compile
-            self._ahead = compile_ahead.start("evsda.blocks.pixel.warm_up:run_small_scene", warm_up.MODULES,
-                                              self.params.model_dump(mode="json"))
+            self._ahead = compile_ahead.start(warm_up.TASKS, warm_up.MODULES)
 
     def set_state(self, state) -> None:
         super().set_state(state)

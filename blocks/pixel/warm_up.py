@@ -1,10 +1,11 @@
-"""The pixel block's compiled loops, called once on a small scene: what a run's first window compiles.
+"""The pixel block's compiled loops, with the argument types a run's first window calls them with.
 
-:func:`run_small_scene` is what :mod:`evsda.graph.compile_ahead` runs in a second process while a run's first
-windows compile the optics (the block starts it in ``setup``). The scene takes the paths of a tracked pass: a
-320 x 180 sensor under a uniform sky that changes every 10 ms (the background changes the pixels defer) and a
-Gaussian spot streaking across it at 1500 px/s (a stamp's own changes, swept and then looped), three 0.05 s windows
-sampled every 1 ms, so that the loops are compiled for the same argument types as in a run.
+:data:`TASKS` is what :mod:`evsda.graph.compile_ahead` compiles in a second process (and in the run's own, once it
+waits) while a run's first windows compile the optics (the block starts it in ``setup``): each cached loop the block
+calls, with its argument types. :func:`run_small_scene` is the small scene they come from, and what the tests check
+them against: the paths of a tracked pass, a 320 x 180 sensor under a uniform sky that changes every 10 ms (the
+background changes the pixels defer) and a Gaussian spot streaking across it at 1500 px/s (a stamp's own changes,
+swept and then looped), three 0.05 s windows sampled every 1 ms.
 """
 
 from __future__ import annotations
@@ -18,6 +19,29 @@ from evsda.graph import RunInfo, Window
 #: cache check of :func:`evsda.graph.compile_ahead.start`
 MODULES = tuple(f"evsda.blocks.pixel.{name}" for name in ("deferred", "drive_kernel", "own_changes", "pixel_loop",
                                                          "sampling"))
+
+_DEFERRED, _LOOP, _OWN, _SAMPLING = (f"evsda.blocks.pixel.{name}" for name in ("deferred", "pixel_loop",
+                                                                                   "own_changes", "sampling"))
+
+#: the loops the block calls and their argument types (Numba's spelling), as the scene calls them: the child that
+#: compiles ahead takes them from the first, the run's process from the last. ``take_and_run`` first: with the loops
+#: it calls (``run_pixels``, the sweep and ``drive_rows``, the searches, ``start_pixels``' schedule) it is ~4/5 of the
+#: compile, and each later one is independent of the others
+TASKS = (
+    (f"{_DEFERRED}:take_and_run", "f8[:, ::1], i8[:, ::1], i8[::1], i8[::1], f8[::1], i8[::1], i8[::1], i8, i8[::1], "
+                                  "f8[:, ::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], i8, f8[::1], f8[::1], i8, f8, f8, "
+                                  "b1, i8, f8, i8, b1, f8, f8, f8, f8, i8[::1], i8[::1], i1[::1], u1[::1]"),
+    ("evsda.blocks.pixel.drive_kernel:drive_rows", "f8[::1], f8[::1], f8[:, ::1]"),
+    (f"{_LOOP}:start_pixels", "f8[:, ::1], i8[:, ::1], i8[::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[:, ::1], "
+                              "f8[::1], i8, f8, f8, b1, i8, f8"),
+    (f"{_SAMPLING}:_summed_stamps", "f8[:, :, :, ::1], i4[:, :, ::1], i8[::1], i8[::1], i8[::1], i8, i8"),
+    (f"{_DEFERRED}:select_pixels", "f8[:, ::1], i8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8, i8, i8, "
+                                   "f8[::1], f8[::1], f8[::1], f8[::1], f8, f8, b1, b1, i8, i8"),
+    (f"{_OWN}:own_changes", "f8[::1], f8[::1], i8[::1], i8[::1], f8[::1], b1[::1]"),
+    (f"{_OWN}:under_stamps", "i8[::1], i8[::1], i4[::1]"),
+    (f"{_DEFERRED}:take_ranges", "i8[::1], b1[::1], i8[::1], i8, i8, i8, i8, i8, i8[::1], i8[::1], i8[::1], i8[::1]"),
+    (f"{_SAMPLING}:_adds_flux", "f8[:, :, ::1], i8[::1], b1[:, ::1]"),
+)
 
 
 def run_small_scene(params: dict) -> int:

@@ -9,40 +9,55 @@ import textwrap
 import pytest
 
 MODULE = textwrap.dedent("""
-    import os, signal
+    import os, signal, time
     import numba
+
+    if os.environ.get("EVSDA_COMPILE_AHEAD") == "off":          # in the child compiling ahead only
+        if os.environ.get("AHEAD_KILLED"):
+            os.kill(os.getpid(), signal.SIGKILL)
+        time.sleep(float(os.environ.get("AHEAD_SLOW", "0")))        # its first task takes that long
 
     @numba.njit(cache=True)
     def twice(x):
         return 2 * x
 
-    def warm(n):
-        twice(n)
+    @numba.njit(cache=True)
+    def thrice(x):
+        return 3 * x
 
-    def fail(n):
-        raise RuntimeError("the warm-up broke")
-
-    def killed(n):
-        os.kill(os.getpid(), signal.SIGKILL)
+    @numba.njit(cache=True)
+    def broken(x):
+        return x.no_such_attribute
 """)
+
+#: twice(4) after the tasks: compiled by the child (or this process), loaded from the cache here
+TASKS = [["ahead_kernels:twice", "i8,"], ["ahead_kernels:thrice", "i8,"], ["ahead_kernels:twice", "f8,"]]
 
 PARENT = textwrap.dedent("""
-    import json, sys
+    import json, os, sys, time
     import ahead_kernels
     from evsda.graph import compile_ahead
-    ahead = compile_ahead.start(sys.argv[1], ("ahead_kernels",), 3)
+    tasks, when = json.loads(sys.argv[1]), sys.argv[2]
+    ahead = compile_ahead.start(tasks, ("ahead_kernels",))
+    if ahead.process is not None and when == "late":          # the child has ended: nothing left to take here
+        ahead.process.wait()
+    if ahead.process is not None and when == "begun":         # the child has claimed its first task
+        while not os.path.exists(os.path.join(ahead.claims, "0")):
+            time.sleep(0.01)
     ahead.wait()
     value = ahead_kernels.twice(4)
-    stats = ahead_kernels.twice.stats
-    print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(stats.cache_hits.values()),
-                      "compiled": sum(stats.cache_misses.values()), "inliner": compile_ahead._inliner,
+    stats = [ahead_kernels.twice.stats, ahead_kernels.thrice.stats]
+    print(json.dumps({"started": ahead.started, "value": value, "loaded": sum(sum(s.cache_hits.values()) for s in stats),
+                      "compiled": sum(sum(s.cache_misses.values()) for s in stats), "inliner": compile_ahead._inliner,
                       "typing": compile_ahead._typing, "llvm": compile_ahead._llvm_calls,
-                      "walks": compile_ahead._ir_walks, "inlinees": compile_ahead._inlinees}))
+                      "walks": compile_ahead._ir_walks, "inlinees": compile_ahead._inlinees,
+                      "claims_left": ahead.claims is not None and os.path.exists(ahead.claims)}))
 """)
 
 
-def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
-    """Run PARENT in a fresh interpreter with the kernels' module on its path and its own Numba cache folder; what
+def parent(tmp_path, tasks=TASKS, when="late", **env) -> dict:
+    """Run PARENT in a fresh interpreter with the kernels' module on its path and its own Numba cache folder,
+    ``when`` it waits for the child ("late": after the child ended, "begun": once it claimed its first task); what
     it printed, and that it printed nothing else."""
     environ = {name: value for name, value in os.environ.items()
                if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING",
@@ -50,8 +65,8 @@ def parent(tmp_path, target="ahead_kernels:warm", **env) -> dict:
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
-    out = subprocess.run([sys.executable, "-c", PARENT, target], env=environ, capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run([sys.executable, "-c", PARENT, json.dumps(tasks), when], env=environ, capture_output=True,
+                         text=True, check=True)
     assert out.stderr == "" and len(out.stdout.splitlines()) == 1
     return json.loads(out.stdout)
 
@@ -62,25 +77,36 @@ def kernels(tmp_path):
     return tmp_path
 
 
+EDITED = {"inliner": True, "typing": True, "llvm": True, "walks": True, "inlinees": True, "claims_left": False}
+
+
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
     first = parent(kernels)
-    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, "inliner": True, "typing": True,
-                     "llvm": True, "walks": True, "inlinees": True}
+    assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, **EDITED}
     again = parent(kernels)
     assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None,
-                     "typing": None, "llvm": None, "walks": None, "inlinees": None}                                       # nothing compiles
+                     "typing": None, "llvm": None, "walks": None, "inlinees": None, "claims_left": False}  # nothing compiles
+
+
+def test_this_process_compiles_the_tasks_the_child_has_not_begun_from_the_last(kernels):
+    """The child is on its first task (twice for integers, 2 s): this process takes the other two, the last first;
+    twice(4) then loads what the child cached."""
+    assert parent(kernels, when="begun", AHEAD_SLOW="2") == {"started": True, "value": 8, "loaded": 1, "compiled": 2,
+                                                            **EDITED}
+
+
+def test_a_task_that_fails_leaves_the_others_compiled(kernels):
+    assert parent(kernels, [["ahead_kernels:broken", "i8,"], *TASKS]) == {"started": True, "value": 8, "loaded": 1,
+                                                                        "compiled": 0, **EDITED}
 
 
 @pytest.mark.parametrize("env", [{"EVSDA_THREADS": "1"}, {"EVSDA_COMPILE_AHEAD": "off"}])
 def test_one_thread_or_switched_off_compiles_here(kernels, env):
-    assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                      "typing": True, "llvm": True, "walks": True, "inlinees": True}
+    assert parent(kernels, **env) == {"started": False, "value": 8, "loaded": 0, "compiled": 1, **EDITED}
 
 
-@pytest.mark.parametrize("target", ["ahead_kernels:fail", "ahead_kernels:killed"])
-def test_a_child_that_fails_or_is_killed_costs_only_its_time(kernels, target):
-    assert parent(kernels, target) == {"started": True, "value": 8, "loaded": 0, "compiled": 1, "inliner": True,
-                                       "typing": True, "llvm": True, "walks": True, "inlinees": True}
+def test_a_child_that_is_killed_costs_only_its_time(kernels):
+    assert parent(kernels, AHEAD_KILLED="1") == {"started": True, "value": 8, "loaded": 0, "compiled": 1, **EDITED}
 
 
 INLINED_KERNELS = textwrap.dedent("""

@@ -1,4 +1,5 @@
-"""The pixel block's warm-up scene, compiled ahead in a second process when a run starts with an empty Numba cache."""
+"""The pixel block's compile tasks and warm-up scene, compiled ahead in a second process when a run starts with an empty
+Numba cache."""
 
 import importlib
 import json
@@ -35,6 +36,36 @@ run_graph(graph)
 print(json.dumps({"scene": sorted(scene), "new": {name: sorted(types - scene.get(name, set()))
                                                   for name, types in signatures().items() if types - scene.get(name, set())}}))
 """
+
+
+#: in a fresh interpreter: the compile tasks (loaded where the cache holds them), then the warm-up scene; the compiled
+#: pixel loops' argument types that the scene added to the tasks'
+TASKS_THEN_SCENE = """
+import json, sys, tempfile
+from evsda.blocks.pixel import warm_up
+from evsda.graph import compile_ahead
+
+def signatures():
+    return {f"{name}.{key}": set(map(str, value.signatures)) for name, module in list(sys.modules.items())
+            if name.startswith("evsda.blocks.pixel.") for key, value in vars(module).items()
+            if getattr(value, "signatures", None) and getattr(value, "__module__", None) == name}
+
+with tempfile.TemporaryDirectory() as claims:
+    compile_ahead.compile_claimed(warm_up.TASKS, claims, range(len(warm_up.TASKS)))
+tasks = signatures()
+warm_up.run_small_scene({})
+print(json.dumps({"tasks": sorted(tasks), "new": {name: sorted(types - tasks.get(name, set()))
+                                                  for name, types in signatures().items() if types - tasks.get(name, set())}}))
+"""
+
+
+def test_the_tasks_compile_every_loop_the_scene_calls():
+    """The compile tasks cover the scene's calls: after them the scene compiles no pixel loop for other types."""
+    env = {**os.environ, "EVSDA_COMPILE_AHEAD": "off"}
+    out = subprocess.run([sys.executable, "-c", TASKS_THEN_SCENE], env=env, capture_output=True, text=True, check=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    assert {f"{function.replace(':', '.')}" for function, _ in warm_up.TASKS} <= set(result["tasks"])
+    assert result["new"] == {}
 
 
 def test_the_scene_fires_and_calls_a_compiled_loop_of_every_module_it_names():
