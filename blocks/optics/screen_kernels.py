@@ -1,6 +1,6 @@
 """Compiled loops of :class:`.layer_screen.LayerScreen`: plan a walk, extend, sample.
 
-* :func:`plan_walk` decides, frame by frame, what keeps each footprint inside the screen's
+* :func:`plan_layers` decides, frame by frame, what keeps each footprint inside the screen's
   window (regenerations and one-column conditional extensions) from integers alone, so the
   values are then made in a few compiled calls instead of one Python call per frame.
 * :func:`extend_columns` adds one column of B-spline coefficients per step by Assemat et al.
@@ -38,55 +38,39 @@ RIGHT, LEFT, DOWN, UP = 0, 1, 2, 3
 
 
 @jit
-def plan_walk(rows, cols, epochs, n, margin, regenerate_only, origin, epoch, has_values, canvas_steps):
-    """Operations that keep each frame's box, from its grid's first to last ``rows`` (F, ny) and ``cols`` (F, nx)
-    [samples], inside an ``n``-sample window.
-
-    Returns ``kind``, ``side``, ``op_epoch``, ``centre`` (n_ops, 2), the window origin before each
-    operation ``before`` (n_ops, 2), ``frame_ops`` (F,): operations done before frame f is read, and
-    ``starts``: the first operation of each canvas (at a regeneration, where the walk turns back on
-    an axis, which would overwrite values earlier frames read, and every ``canvas_steps``), closed
-    by ``n_ops``, and ``renewals``: the canvases (indices into ``starts``) that begin with a regeneration. A window is regenerated around a footprint at a new epoch, when the footprint is
-    over 1.5 windows away, or always (``regenerate_only``); otherwise it grows one column or row at
-    a time toward the footprint, dropping one on the opposite side. ``kind`` is -1 on a footprint
-    wider than the window allows.
-    """
-    frames = rows.shape[0]
-    low = np.empty((frames, 2))
-    high = np.empty((frames, 2))
-    for f in range(frames):
+def _footprint_boxes(rows, cols, low, high):
+    """Each frame's box, from its grid's first to last ``rows`` (F, ny) and ``cols`` (F, nx) [samples], into ``low``,
+    ``high`` (F, 2) (row, column)."""
+    for f in range(rows.shape[0]):
         low[f, 0], low[f, 1] = rows[f, 0], cols[f, 0]
         high[f, 0], high[f, 1] = rows[f, rows.shape[1] - 1], cols[f, cols.shape[1] - 1]
-    capacity = 4 * frames + 16              # a footprint seldom moves more than a few samples a frame
-    while True:
-        # arrays of a fixed size for each try (an array reassigned in the loop costs reference counts at every use)
-        kind = np.empty(capacity, np.int8)
-        side = np.empty(capacity, np.int8)
-        op_epoch = np.empty(capacity, np.int64)
-        centre = np.empty((capacity, 2))
-        before = np.empty((capacity, 2), np.int64)
-        frame_ops = np.empty(frames, np.int64)
-        starts = np.zeros(capacity + 2, np.int64)            # (arrays, not lists: they compile faster)
-        renewals = np.empty(capacity + 2, np.int64)          # canvases that start with a regeneration
-        count, n_starts, n_renewals = _plan_into(low, high, epochs, n, margin, regenerate_only, origin, epoch,
-                                                 has_values, canvas_steps, kind, side, op_epoch, centre, before,
-                                                 frame_ops, starts, renewals)
-        if count < 0:
-            kind[:1] = -1
-            return (kind[:1], side[:0], op_epoch[:0], centre[:0], before[:0], frame_ops, np.zeros(1, np.int64),
-                    np.zeros(0, np.int64))
-        if count <= capacity:
-            return (kind[:count], side[:count], op_epoch[:count], centre[:count], before[:count], frame_ops,
-                    starts[:n_starts], renewals[:n_renewals])
-        capacity = 2 * count                # the plan needs more operations than fit: plan again with room
+
+
+@jit
+def _plan_arrays(capacity):
+    """``_plan_into``'s arrays for ``capacity`` operations: ``kind``, ``side``, ``op_epoch``, ``centre``,
+    ``before``, ``starts`` and ``renewals`` (arrays, not lists: they compile faster)."""
+    return (np.empty(capacity, np.int8), np.empty(capacity, np.int8), np.empty(capacity, np.int64),
+            np.empty((capacity, 2)), np.empty((capacity, 2), np.int64), np.empty(capacity + 2, np.int64),
+            np.empty(capacity + 2, np.int64))
 
 
 @jit
 def _plan_into(low, high, epochs, n, margin, regenerate_only, origin, epoch, has_values, canvas_steps, kind, side,
                op_epoch, centre, before, frame_ops, starts, renewals):
-    """:func:`plan_walk`'s loop into arrays of ``capacity = kind.shape[0]`` operations: returns the operations, canvas
-    starts and renewals counted (operations -1: a footprint wider than the window allows; more than ``capacity``:
-    it stopped at the first frame that did not fit, with the operations counted so far and that frame's)."""
+    """Operations that keep each frame's box (``low`` .. ``high`` (F, 2) [samples]) inside an ``n``-sample window, into
+    arrays of ``capacity = kind.shape[0]`` operations: ``kind``, ``side``, ``op_epoch``, ``centre`` (., 2), the
+    window origin before each operation ``before`` (., 2); ``frame_ops`` (F,): operations done before frame f is
+    read; ``starts``: the first operation of each canvas (at a regeneration, where the walk turns back on an axis,
+    which would overwrite values earlier frames read, and every ``canvas_steps``), closed by the count of
+    operations (``starts[0]`` must be 0); ``renewals``: the canvases (indices into ``starts``) that begin with a
+    regeneration. A window is regenerated around a footprint at a new epoch, when the footprint is over 1.5 windows
+    away, or always (``regenerate_only``); otherwise it grows one column or row at a time toward the footprint,
+    dropping one on the opposite side.
+
+    Returns the operations, canvas starts and renewals counted (operations -1: a footprint wider than the window
+    allows; more than ``capacity``: it stopped at the first frame that did not fit, with the operations counted so
+    far and that frame's)."""
     frames = low.shape[0]
     capacity = kind.shape[0]
     n_starts, n_renewals = 1, 0
@@ -367,7 +351,7 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
 def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, stencil_rows,
                   stencil_back, frame_ops, frame, rows, cols, weight, out_t, assign, low, frequencies, amplitudes,
                   stride):
-    """Make and read a run of a walk's canvases (:func:`plan_walk`'s operations ``edges[c] .. edges[c + 1] - 1``,
+    """Make and read a run of a walk's canvases (:func:`plan_layers`' operations ``edges[c] .. edges[c + 1] - 1``,
     no regeneration among them; with ``as_is``, the present window before them) in one call: each canvas holds the
     window (``window`` (n, n),
     its first sample at absolute ``origin``, both updated) and the windows of its one-column steps
@@ -448,7 +432,7 @@ SEGMENT_COLUMNS = 5
 
 @jit
 def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_epochs, has_values, canvas_steps):
-    """:func:`plan_walk` for each layer ``l`` of ``rows`` (L, F, ny), ``cols`` (L, F, nx) [samples] (window of ``ns[l]``
+    """``_plan_into`` for each layer ``l`` of ``rows`` (L, F, ny), ``cols`` (L, F, nx) [samples] (window of ``ns[l]``
     samples at ``origins[l]``, ``layer_epochs[l]``, ``has_values[l]``), packed for :func:`walk_segments`.
 
     Returns the first layer whose footprint does not fit its window (-1: none); the operations' ``sides``,
@@ -466,17 +450,26 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
     befores = np.empty((16, 2), np.int64)
     edges = np.empty(16, np.int64)
     segments = np.empty((layers + 1, SEGMENT_COLUMNS), np.int64)
+    # one layer's plan, into arrays made once for all layers (grown where a plan needs more operations)
+    room = 4 * frames + 16                  # a footprint seldom moves more than a few samples a frame
+    low, high = np.empty((frames, 2)), np.empty((frames, 2))
+    kind, side, op_epoch, centre, before, starts, renewals = _plan_arrays(room)
     failed, e, g = -1, 0, 0
     for l in range(layers):
-        kind, side, op_epoch, centre, before, fo, starts, renewals = plan_walk(
-            rows[l], cols[l], epochs, ns[l], margin, regenerate_only[l], origins[l], layer_epochs[l], has_values[l],
-            canvas_steps)
-        if kind.shape[0] and kind[0] < 0:
+        _footprint_boxes(rows[l], cols[l], low, high)
+        while True:
+            starts[0] = 0
+            count, n_starts, n_renewals = _plan_into(low, high, epochs, ns[l], margin, regenerate_only[l], origins[l],
+                                                     layer_epochs[l], has_values[l], canvas_steps, kind, side,
+                                                     op_epoch, centre, before, frame_ops[l], starts, renewals)
+            if count <= room:
+                break
+            room = 2 * count                # the plan needs more operations than fit: plan again with room
+            kind, side, op_epoch, centre, before, starts, renewals = _plan_arrays(room)
+        if count < 0:
             failed = l
             break
-        for f in range(frames):
-            frame_ops[l, f] = fo[f]
-        a0, a1 = op_at[l], op_at[l] + kind.shape[0]
+        a0, a1 = op_at[l], op_at[l] + count
         op_at[l + 1] = a1
         if a1 > sides.shape[0]:
             capacity = max(2 * sides.shape[0], a1)
@@ -488,23 +481,23 @@ def plan_layers(rows, cols, epochs, ns, margin, regenerate_only, origins, layer_
             sides[a0 + i], op_epochs[a0 + i] = side[i], op_epoch[i]
             centres[a0 + i, 0], centres[a0 + i, 1] = centre[i, 0], centre[i, 1]
             befores[a0 + i, 0], befores[a0 + i, 1] = before[i, 0], before[i, 1]
-        if e + starts.shape[0] + renewals.shape[0] > edges.shape[0]:
-            edges = _grow(edges, 2 * (e + starts.shape[0] + renewals.shape[0]))
-        if g + renewals.shape[0] + 1 > segments.shape[0]:
-            grown = 2 * (g + renewals.shape[0] + 1)
+        if e + n_starts + n_renewals > edges.shape[0]:
+            edges = _grow(edges, 2 * (e + n_starts + n_renewals))
+        if g + n_renewals + 1 > segments.shape[0]:
+            grown = 2 * (g + n_renewals + 1)
             segments = _grow(segments.reshape(-1), grown * SEGMENT_COLUMNS).reshape((grown, SEGMENT_COLUMNS))
         # the window as it is, then its canvases up to the first regeneration; then from each regeneration's fresh
         # window to the next (LayerScreen.walk's runs)
-        last = renewals[0] if renewals.shape[0] else starts.shape[0] - 1
+        last = renewals[0] if n_renewals else n_starts - 1
         e0 = e
         for c in range(last + 1):
             edges[e] = starts[c]
             e += 1
         renew = -1
-        for r in range(renewals.shape[0] + 1):
+        for r in range(n_renewals + 1):
             if r > 0:
                 renew = starts[renewals[r - 1]]
-                following = renewals[r] if r < renewals.shape[0] else starts.shape[0] - 1
+                following = renewals[r] if r < n_renewals else n_starts - 1
                 e0 = e
                 edges[e] = renew + 1
                 e += 1

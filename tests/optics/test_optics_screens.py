@@ -721,3 +721,28 @@ def test_spline_corners_sum_their_subharmonics_into_contiguous_rows_bit_for_bit(
                                           gains=gains)
     assert got.flags.c_contiguous
     assert np.array_equal(got.view(np.uint64), expected.view(np.uint64))
+
+
+def test_a_layers_plan_is_the_same_planned_alone_or_after_others():
+    # plan_layers plans each layer into arrays made once for all layers and grown where a plan needs more operations
+    # than they hold (here the fourth, after three slower ones have grown the packed outputs past them): every layer's
+    # operations, frame counts and runs are those of planning it alone
+    from evsda.blocks.optics.screen_kernels import plan_layers
+    frames, grid = 30, np.linspace(3.0, 11.0, 40)
+    rows = np.array([[grid + 0.01 * f for f in range(frames)]] * 5)
+    cols = np.array([[grid + speed * f for f in range(frames)] for speed in (3.0, 3.0, 3.0, 6.0, 0.5)])
+    layers = len(rows)
+    common = (np.zeros(frames, np.int64), np.full(layers, 20), MARGIN, np.zeros(layers, bool),
+              np.zeros((layers, 2), np.int64), np.zeros(layers, np.int64), np.ones(layers, bool), 2048)
+    failed, sides, before, centre, op_epoch, op_at, frame_ops, edges, segments = plan_layers(rows, cols, *common)
+    assert failed == -1 and op_at[-1] > 4 * frames + 16
+    for layer in range(layers):
+        alone = plan_layers(rows[layer:layer + 1], cols[layer:layer + 1],
+                            *(c[layer:layer + 1] if isinstance(c, np.ndarray) and c.shape[:1] == (layers,) else c
+                              for c in common))
+        ops = slice(op_at[layer], op_at[layer + 1])
+        for together, single in zip((sides[ops], before[ops], centre[ops], op_epoch[ops], frame_ops[layer]),
+                                    (alone[1], alone[2], alone[3], alone[4], alone[6][0])):
+            np.testing.assert_array_equal(together, single)
+        (_, e0, e1, as_is, renew), = segments[segments[:, 0] == layer]
+        np.testing.assert_array_equal(edges[e0:e1], alone[7][alone[8][0, 1]:alone[8][0, 2]])
