@@ -43,8 +43,8 @@ from .crossing import (J_LIMIT, NEVER, NO_STEP, UNSETTLED, band_bound, band_hold
                        relaxed_at, search_crossing)
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_log, drive_rest, drive_rows
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LATER, LOG_A, M_, NOISE_SCALE, OWED,
-                         PARA, READY, SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _fetch_row, _settle_step, advanced, drifted,
-                         next_crossing_known, quiet_until)
+                         PARA, READY, SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _fetch_row, _settle_step, drifted,
+                         next_crossing_known, quiet_until, relaxed_by)
 
 TILE = 128                   # pixels swept together (ordered by their number of changes, so rounds shrink a tile)
 MIN_SWEPT = 2                # pixels with fewer own changes are left to the event-driven loop (one change: nothing
@@ -259,17 +259,19 @@ def _enter(fs, js, m, n_end, leak_hz, dt, large):
 
 @jit
 def _fresh(fs, js, m, leak_hz, dt, large):
-    """The advance of the tile's pixels marked ``I_FRESH`` (:func:`.pixel_loop.advanced` without a known ``a^j``:
-    the same bits, as a known ``a^j`` was taken by the same :func:`.crossing.power`), computed by every pixel in a
-    loop the compiler vectorises (most are, in the first round; later rounds seldom have any)."""
+    """The advance of the tile's pixels marked ``I_FRESH`` (:func:`.pixel_loop.advanced` without a known ``a^j``,
+    ``j > 0``: :func:`.pixel_loop.relaxed_by` of :func:`.crossing.power`; the same bits, as a known ``a^j`` was taken
+    by the same :func:`.crossing.power`), computed by every pixel in a loop the compiler vectorises (most are, in
+    the first round; later rounds seldom have any)."""
     for s in range(m):
         fresh = js[I_FRESH * TILE + s] != 0
         filtered, memorised = fs[F_L * TILE + s], fs[F_M * TILE + s]
         c_leak, c_para = fs[F_LEAK * TILE + s], fs[F_PARA_C * TILE + s]
         j = js[I_CHANGE * TILE + s] - 1 - js[I_STEP * TILE + s]
-        moved_l, moved_m, moved_leak, moved_para = advanced(
-            j, NO_STEP, 0.0, 0.0, filtered, memorised, c_leak, c_para, fs[F_Y * TILE + s], fs[F_LOG_A * TILE + s],
-            fs[F_PARA * TILE + s], fs[F_TH_ON * TILE + s], fs[F_SCALE * TILE + s], leak_hz, dt, large)
+        log_a = fs[F_LOG_A * TILE + s]
+        moved_l, moved_m, moved_leak, moved_para = relaxed_by(
+            power(log_a, j), filtered, memorised, c_leak, c_para, fs[F_Y * TILE + s], log_a, fs[F_PARA * TILE + s],
+            fs[F_TH_ON * TILE + s], fs[F_SCALE * TILE + s], j, leak_hz, dt, large)
         fs[F_L * TILE + s] = moved_l if fresh else filtered
         fs[F_M * TILE + s] = moved_m if fresh else memorised
         fs[F_LEAK * TILE + s] = moved_leak if fresh else c_leak
