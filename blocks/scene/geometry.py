@@ -49,8 +49,8 @@ class Recent:
     pointing frame, the observer's horizon axes and position, a track's state): the
     second and later asks are served from here, the same arrays, made read-only so that
     no caller can change what another is given. Keyed by the times' shape and bytes (float
-    ns, never NaN or -0): one comparison of bytes instead of an array comparison a kept
-    entry (~17 asks a window from a satellite's view, most of them for kept times).
+    ns, never NaN or -0): one comparison of bytes for each kept entry instead of an array
+    comparison (~17 asks a window from a satellite's view, most of them for kept times).
     """
 
     def __init__(self, size: int = 4):
