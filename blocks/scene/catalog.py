@@ -119,8 +119,8 @@ def _fixed_layout(data: bytes) -> StarCatalog | None:
         columns = [_numbers_or_zero(kept(n).tolist(), blank[n][keep]) for n, _ in _NUMERIC_FIELDS]
     except ValueError:
         return None
-    hip = np.strings.add("HIP ", np.strings.strip(kept(1)).astype(str))
-    return StarCatalog(hip.astype(f"U{int(np.strings.str_len(hip).max())}"), *columns,
+    hip = np.char.add("HIP ", np.char.strip(kept(1)).astype(str))
+    return StarCatalog(hip.astype(f"U{int(np.char.str_len(hip).max())}"), *columns,
                        b_v=np.array([_number_or_nan(v) for v in kept(37).tolist()]))
 
 
