@@ -23,6 +23,7 @@ import inspect
 import sys
 
 from .compile_ahead import attempted_edit, switched_off
+from .numba_symbols import one_pass_symbols
 
 #: the Numba versions whose ``Cache.load_overload`` and ``refresh`` were checked
 _CHECKED = ("0.68.1",)
@@ -51,6 +52,7 @@ def lazy_registries() -> bool:
     global _lazy
     if _lazy is None and "numba" in sys.modules:
         _lazy = attempted_edit(_edit_load, "Numba's cached loads left as they are")
+        one_pass_symbols()                          # and read each loaded module's symbols in one pass
     return bool(_lazy)
 
 
