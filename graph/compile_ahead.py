@@ -23,7 +23,8 @@ two costs of its typing that decide nothing (``EVSDA_QUICKER_TYPING=off``: Numba
 :func:`quicker_llvm_calls` Numba's events around each call into LLVM (``EVSDA_QUICKER_LLVM_CALLS=off``: Numba's own),
 and :func:`quicker_ir_walks` a call per leaf of Numba's walk for an IR statement's variables
 (``EVSDA_QUICKER_IR_WALKS=off``: Numba's own), and :func:`inlinees_once` builds an inlined function's IR once per
-compile context rather than at each of its call sites (``EVSDA_INLINEES_ONCE=off``: Numba's own).
+compile context rather than at each of its call sites (``EVSDA_INLINEES_ONCE=off``: Numba's own), and
+:func:`call_types_once` types a call of a function once per argument types (``EVSDA_CALL_TYPES_ONCE=off``: Numba's own).
 """
 
 from __future__ import annotations
@@ -137,6 +138,7 @@ def quicker_compiles() -> None:
     quicker_llvm_calls()
     quicker_ir_walks()
     inlinees_once()
+    call_types_once()
 
 
 def compile_claimed(tasks: tuple[Task, ...], claims: str, order) -> None:
@@ -593,4 +595,89 @@ def _untyped_flags(flags) -> dict:
     values = flags.values()
     del values["release_gil"]
     return values
+
+
+# -- a call's type once per function, arguments and context ---------------------------------------------------
+
+#: the Numba versions, and the digest of ``BaseFunction.get_call_type``'s source, :func:`call_types_once` was checked on
+_CALL_TYPES_CHECKED = ("0.68.1",)
+_NUMBAS_GET_CALL_TYPE = "6559c167bfc0ad36ab4af049ed2f2b9ddc28ce1eedbc2e3462b69b62079e850e"
+
+_call_types_edit: bool | None = None   # None: not tried; True: Numba's call typing edited; False: left as it is
+_call_types: dict = {}                 # (function type, context, target, flags, arguments, keywords) -> (signature, impl key)
+_memoisable: dict = {}                 # function type -> whether none of its templates inlines an overload
+_numbas_get_call_type = None           # Numba's BaseFunction.get_call_type, once edited
+
+
+def call_types_once() -> bool:
+    """Make Numba type a call of a function (an operator, a NumPy function, an ``@overload``) once per function type,
+    argument types and typing context; whether it now does (False: this Numba's call typing is not the one checked,
+    and it is left as it is).
+
+    ``BaseFunction.get_call_type`` tries the function's typing templates in order for each call site and each time
+    type inference comes back to it: the pixels' compile types ~15 600 calls of ~890 distinct kinds (``mul``,
+    ``getitem``, ``add``, ... of the same types, again and again), each time from the first template. A template's
+    answer depends on those and on the compile's flags (an overload's implementation is compiled for them, and
+    Numba keeps it under them: the same flags object is part of the key here); the one side effect, the
+    implementation key recorded for the signature's argument types (``_impl_keys``, which lowering reads), is set
+    again from the first answer at each call, as Numba would set it. Functions with an overload inlined at typing
+    (``@overload(inline=...)``, whose typing builds fresh IR for the inliner each time) are typed as Numba does.
+    Failed typings are not kept. Only on the Numba versions checked and where ``get_call_type``'s source is Numba's
+    as checked; it stays so for the
+    process. ``EVSDA_CALL_TYPES_ONCE=off`` leaves Numba's typing as it is.
+    """
+    global _call_types_edit
+    if _call_types_edit is None:
+        _call_types_edit = attempted_edit(_edit_call_types, "Numba's call typing left as it is")
+    return _call_types_edit
+
+
+def _edit_call_types() -> bool:
+    import hashlib
+
+    import numba
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.core.target_extension import get_local_target
+    from numba.core.targetconfig import ConfigStack
+    from numba.core.types.functions import BaseFunction
+
+    if numba.__version__ not in _CALL_TYPES_CHECKED or switched_off("EVSDA_CALL_TYPES_ONCE"):
+        return False
+    numbas = BaseFunction.get_call_type
+    if hashlib.sha256(inspect.getsource(numbas).encode()).hexdigest() != _NUMBAS_GET_CALL_TYPE:
+        return False
+    global _numbas_get_call_type
+    _numbas_get_call_type = numbas
+
+    def get_call_type(self, context, args, kws):
+        key = (self, context, get_local_target(context), ConfigStack.top_or_none(), tuple(args), tuple(kws.items()))
+        try:
+            signature, impl_key = _call_types[key]
+        except KeyError:
+            pass
+        except TypeError:                            # an argument type that cannot be hashed: typed as Numba does
+            return numbas(self, context, args, kws)
+        else:
+            self._impl_keys[signature.args] = impl_key
+            return signature
+        signature = numbas(self, context, args, kws)
+        if signature is not None and _typed_alike(self):
+            _call_types[key] = signature, self._impl_keys[signature.args]
+        return signature
+
+    get_call_type.__doc__ = numbas.__doc__
+    get_call_type.__qualname__ = numbas.__qualname__
+    with global_compiler_lock:
+        BaseFunction.get_call_type = get_call_type
+    return True
+
+
+def _typed_alike(function) -> bool:
+    """Whether each typing of ``function``'s calls gives the same answer and leaves the same state: none of its
+    templates is an overload inlined at typing (which keeps fresh IR for the inliner at each typing)."""
+    known = _memoisable.get(function)
+    if known is None:
+        known = _memoisable[function] = all(getattr(getattr(template, "_inline", None), "is_never_inline", True)
+                                            for template in function.templates)
+    return known
 

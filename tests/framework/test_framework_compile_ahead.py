@@ -51,6 +51,7 @@ PARENT = textwrap.dedent("""
                       "compiled": sum(sum(s.cache_misses.values()) for s in stats), "inliner": compile_ahead._inliner,
                       "typing": compile_ahead._typing, "llvm": compile_ahead._llvm_calls,
                       "walks": compile_ahead._ir_walks, "inlinees": compile_ahead._inlinees,
+                      "call_types": compile_ahead._call_types_edit,
                       "claims_left": ahead.claims is not None and os.path.exists(ahead.claims)}))
 """)
 
@@ -61,7 +62,8 @@ def parent(tmp_path, tasks=TASKS, when="late", **env) -> dict:
     it printed, and that it printed nothing else."""
     environ = {name: value for name, value in os.environ.items()
                if name not in ("EVSDA_COMPILE_AHEAD", "EVSDA_QUICKER_INLINING", "EVSDA_QUICKER_TYPING",
-                               "EVSDA_QUICKER_LLVM_CALLS", "EVSDA_QUICKER_IR_WALKS", "EVSDA_INLINEES_ONCE")}
+                               "EVSDA_QUICKER_LLVM_CALLS", "EVSDA_QUICKER_IR_WALKS", "EVSDA_INLINEES_ONCE",
+                               "EVSDA_CALL_TYPES_ONCE")}
     environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), EVSDA_THREADS="2",
                    PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]))
     environ.update(env)
@@ -77,7 +79,8 @@ def kernels(tmp_path):
     return tmp_path
 
 
-EDITED = {"inliner": True, "typing": True, "llvm": True, "walks": True, "inlinees": True, "claims_left": False}
+EDITED = {"inliner": True, "typing": True, "llvm": True, "walks": True, "inlinees": True, "call_types": True,
+          "claims_left": False}
 
 
 def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(kernels):
@@ -85,7 +88,8 @@ def test_the_child_compiles_and_this_process_loads_then_no_child_once_cached(ker
     assert first == {"started": True, "value": 8, "loaded": 1, "compiled": 0, **EDITED}
     again = parent(kernels)
     assert again == {"started": False, "value": 8, "loaded": 1, "compiled": 0, "inliner": None,
-                     "typing": None, "llvm": None, "walks": None, "inlinees": None, "claims_left": False}  # nothing compiles
+                     "typing": None, "llvm": None, "walks": None, "inlinees": None, "call_types": None,
+                     "claims_left": False}                                                  # nothing compiles
 
 
 def test_this_process_compiles_the_tasks_the_child_has_not_begun_from_the_last(kernels):
@@ -178,7 +182,7 @@ PIXEL_FUNCTION = ASSEMBLY + textwrap.dedent(r"""
 
 
 @pytest.mark.parametrize("edit", ["quicker_inlining", "quicker_typing", "quicker_llvm_calls", "quicker_ir_walks",
-                                  "inlinees_once"])
+                                  "inlinees_once", "call_types_once"])
 @pytest.mark.parametrize("script", [INLINED, PIXEL_FUNCTION], ids=["nested inlined functions", "drive_rows"])
 def test_numbas_inliner_typing_or_llvm_calls_edited_compile_the_same_machine_code(tmp_path, script, edit):
     environ = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
@@ -187,6 +191,7 @@ def test_numbas_inliner_typing_or_llvm_calls_edited_compile_the_same_machine_cod
     environ.pop("EVSDA_QUICKER_LLVM_CALLS", None)
     environ.pop("EVSDA_QUICKER_IR_WALKS", None)
     environ.pop("EVSDA_INLINEES_ONCE", None)
+    environ.pop("EVSDA_CALL_TYPES_ONCE", None)
     out = subprocess.run([sys.executable, "-c", script, INLINED_KERNELS, edit], env=environ, capture_output=True,
                          text=True, check=True)
     assert json.loads(out.stdout) == {"edited": True, "same": True}
@@ -319,3 +324,40 @@ def test_an_inlined_functions_ir_is_built_once_per_context():
 
 def test_numbas_inlining_left_as_it_is_when_switched_off(kernels):
     assert parent(kernels, EVSDA_INLINEES_ONCE="off")["inlinees"] is False
+
+
+CALL_TYPES = textwrap.dedent(r"""
+    import json, sys
+    import numpy as np
+    from evsda.graph import compile_ahead
+    from evsda.blocks.pixel import drive_kernel
+
+    edited = compile_ahead.call_types_once()
+    kernels = {}
+    exec(sys.argv[1], kernels)
+    kernels["sweep"](np.linspace(0.0, 2.0, 11), 0.9, 0.7, 3)
+    import numba                                     # a pixel loop typed too (compiled, uncached, not run)
+    numba.njit(drive_kernel.drive_rows.py_func).compile((numba.float64[::1], numba.float64[::1], numba.float64[:, ::1]))
+    from numba.core.targetconfig import ConfigStack
+    same = []
+    for (function, context, target, flags, args, kws), (signature, impl_key) in compile_ahead._call_types.items():
+        with ConfigStack().enter(flags):                  # typed again as Numba types it, in the same compile flags
+            again = compile_ahead._numbas_get_call_type(function, context, args, dict(kws))
+        same.append(again == signature and function._impl_keys[again.args] == impl_key)
+    print(json.dumps({"edited": edited, "kept": len(same), "same": all(same)}))
+""")
+
+
+def test_a_call_typed_once_has_numbas_signature_and_implementation():
+    """Every call type kept (a sweep of nested inlined functions, the pixels' drive_rows) is Numba's own: typed again
+    by Numba's get_call_type, the same signature and the same implementation key."""
+    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_CALL_TYPES_ONCE"}
+    out = subprocess.run([sys.executable, "-c", CALL_TYPES, INLINED_KERNELS], env=environ, capture_output=True,
+                         text=True, check=True)
+    result = json.loads(out.stdout)
+    assert result["edited"] and result["same"] and result["kept"] > 20
+
+
+def test_numbas_call_typing_left_as_it_is_when_switched_off(kernels):
+    assert parent(kernels, EVSDA_CALL_TYPES_ONCE="off")["call_types"] is False
+
