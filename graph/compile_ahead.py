@@ -623,8 +623,7 @@ def call_types_once() -> bool:
     again from the first answer at each call, as Numba would set it. Functions with an overload inlined at typing
     (``@overload(inline=...)``, whose typing builds fresh IR for the inliner each time) are typed as Numba does.
     Failed typings are not kept. Only on the Numba versions checked and where ``get_call_type``'s source is Numba's
-    as checked; it stays so for the
-    process. ``EVSDA_CALL_TYPES_ONCE=off`` leaves Numba's typing as it is.
+    as checked; it stays so for the process. ``EVSDA_CALL_TYPES_ONCE=off`` leaves Numba's typing as it is.
     """
     global _call_types_edit
     if _call_types_edit is None:

@@ -131,7 +131,8 @@ def _numbers_or_zero(texts: list[bytes], blank: np.ndarray) -> np.ndarray:
     return np.array([0.0 if b else float(v) for v, b in zip(texts, blank.tolist())])
 
 
-def _number_or_nan(text: bytes) -> float:
+def _number_or_nan(text: str | bytes) -> float:
+    """Python's ``float`` of ``text``, NaN where it is no number."""
     try:
         return float(text)
     except ValueError:
@@ -140,10 +141,7 @@ def _number_or_nan(text: bytes) -> float:
 
 def _colour(fields: list[str]) -> float:
     """B - V (Hipparcos field H37) of a record, NaN if blank, absent or not a number [mag]."""
-    try:
-        return float(fields[37])
-    except (IndexError, ValueError):
-        return float("nan")
+    return _number_or_nan(fields[37]) if len(fields) > 37 else float("nan")
 
 
 #: the numeric fields read from a hip_main.dat record, by their Hipparcos field numbers H5 (Vmag), H8 (RAdeg),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -75,3 +76,20 @@ def evsda_main(plugin, capsys):
 def write(path: Path, text: str) -> Path:
     path.write_text(textwrap.dedent(text))
     return path
+
+
+@pytest.fixture
+def fresh_numba(tmp_path):
+    """``fresh_numba(script, switch)``: a runner of ``script`` in fresh interpreters with their own Numba cache folder in
+    ``tmp_path`` (its modules importable), ``switch`` unset unless given, and PYTHONHASHSEED fixed, so that hashes
+    compare across processes; each run returns the JSON of the script's last line."""
+    def bind(script: str, switch: str):
+        def run(**env) -> dict:
+            environ = {name: value for name, value in os.environ.items() if name != switch}
+            environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONHASHSEED="11",
+                           PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]), **env)
+            out = subprocess.run([sys.executable, "-c", script], env=environ, capture_output=True, text=True,
+                                 check=True)
+            return json.loads(out.stdout.splitlines()[-1])
+        return run
+    return bind

@@ -1,9 +1,5 @@
 """Numba's cached loads without the compiler's registries (evsda.graph.numba_loads): the same results, less set-up."""
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 MODULE = textwrap.dedent("""
@@ -49,20 +45,12 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def run(tmp_path, **env) -> dict:
-    """SCRIPT in a fresh interpreter (with PYTHONHASHSEED fixed, so that hashes compare across processes)."""
-    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_LAZY_REGISTRIES"}
-    environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONHASHSEED="11",
-                   PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]), **env)
-    out = subprocess.run([sys.executable, "-c", SCRIPT], env=environ, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.splitlines()[-1])
-
-
-def test_cached_loads_skip_the_registries_and_give_the_same_results(tmp_path):
+def test_cached_loads_skip_the_registries_and_give_the_same_results(fresh_numba, tmp_path):
+    run = fresh_numba(SCRIPT, "EVSDA_LAZY_REGISTRIES")
     (tmp_path / "loads_kernels.py").write_text(MODULE)
-    compiled = run(tmp_path)                                # an empty cache: compiled (and refreshed) here
-    loaded = run(tmp_path)                                  # then loaded from the cache without a refresh
-    numbas = run(tmp_path, EVSDA_LAZY_REGISTRIES="off")     # loaded as Numba does
+    compiled = run()                            # an empty cache: compiled (and refreshed) here
+    loaded = run()                              # then loaded from the cache without a refresh
+    numbas = run(EVSDA_LAZY_REGISTRIES="off")   # loaded as Numba does
     assert compiled["loaded"] == 0 and loaded["loaded"] == numbas["loaded"] == 3
     assert compiled["values"] == loaded["values"] == numbas["values"]
     assert compiled["values"][0] == [0.0, 0.5, 1.0, 1.5, 2.0] and compiled["values"][2] == "negative"

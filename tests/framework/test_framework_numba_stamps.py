@@ -3,11 +3,8 @@ compiles its cached functions again, an unchanged package loads them."""
 
 import ast
 import importlib
-import json
 import os
 import pathlib
-import subprocess
-import sys
 import textwrap
 
 import pytest
@@ -55,17 +52,10 @@ def package(tmp_path) -> pathlib.Path:
     return folder
 
 
-def run(tmp_path, **env) -> dict:
-    """SCRIPT in a fresh interpreter, with its own Numba cache folder."""
-    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_PACKAGE_STAMPS"}
-    environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]), **env)
-    out = subprocess.run([sys.executable, "-c", SCRIPT], env=environ, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.splitlines()[-1])
-
-
-def test_an_unchanged_package_loads_from_the_cache(tmp_path):
+def test_an_unchanged_package_loads_from_the_cache(fresh_numba, tmp_path):
+    run = fresh_numba(SCRIPT, "EVSDA_PACKAGE_STAMPS")
     package(tmp_path)
-    first, second = run(tmp_path), run(tmp_path)
+    first, second = run(), run()
     assert first["stamped"] and second["stamped"]
     assert (first["compiled"], first["loaded"]) == (1, 0)
     assert (second["compiled"], second["loaded"]) == (0, 1)
@@ -74,23 +64,26 @@ def test_an_unchanged_package_loads_from_the_cache(tmp_path):
 
 @pytest.mark.parametrize(("name", "old", "new", "value"), [("callee", "2.0 * x", "3.0 * x", 4.0),
                                                             ("constants", "1.0", "5.0", 7.0)])
-def test_a_change_to_another_file_of_the_package_compiles_the_caller_again(tmp_path, name, old, new, value):
+def test_a_change_to_another_file_of_the_package_compiles_the_caller_again(fresh_numba, tmp_path, name, old, new,
+                                                                           value):
+    run = fresh_numba(SCRIPT, "EVSDA_PACKAGE_STAMPS")
     folder = package(tmp_path)
-    assert run(tmp_path)["value"] == 3.0
+    assert run()["value"] == 3.0
     source = folder / f"{name}.py"
     source.write_text(source.read_text().replace(old, new))
-    changed = run(tmp_path)
+    changed = run()
     assert (changed["compiled"], changed["loaded"], changed["value"]) == (1, 0, value)
-    assert run(tmp_path)["loaded"] == 1                   # and loaded from the cache after that
+    assert run()["loaded"] == 1                           # and loaded from the cache after that
 
 
-def test_switched_off_numbas_stamps_keep_the_old_code(tmp_path):
+def test_switched_off_numbas_stamps_keep_the_old_code(fresh_numba, tmp_path):
     """Numba's own stamp (the hazard this module takes away): the callee's change is not seen."""
+    run = fresh_numba(SCRIPT, "EVSDA_PACKAGE_STAMPS")
     folder = package(tmp_path)
-    assert run(tmp_path, EVSDA_PACKAGE_STAMPS="off")["value"] == 3.0
+    assert run(EVSDA_PACKAGE_STAMPS="off")["value"] == 3.0
     callee = folder / "callee.py"
     callee.write_text(callee.read_text().replace("2.0 * x", "3.0 * x"))
-    stale = run(tmp_path, EVSDA_PACKAGE_STAMPS="off")
+    stale = run(EVSDA_PACKAGE_STAMPS="off")
     assert not stale["stamped"] and stale["loaded"] == 1 and stale["value"] == 3.0
 
 

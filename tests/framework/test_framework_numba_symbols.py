@@ -1,9 +1,5 @@
 """Numba's loaded symbols read in one pass (evsda.graph.numba_symbols): the same symbols and results, or Numba's walk."""
 
-import json
-import os
-import subprocess
-import sys
 import textwrap
 
 import pytest
@@ -59,20 +55,12 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def run(tmp_path, **env) -> dict:
-    """SCRIPT in a fresh interpreter (with PYTHONHASHSEED fixed, so that hashes compare across processes)."""
-    environ = {name: value for name, value in os.environ.items() if name != "EVSDA_ONE_PASS_SYMBOLS"}
-    environ.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONHASHSEED="11",
-                   PYTHONPATH=os.pathsep.join([str(tmp_path), *sys.path]), **env)
-    out = subprocess.run([sys.executable, "-c", SCRIPT], env=environ, capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.splitlines()[-1])
-
-
-def test_loaded_symbols_in_one_pass_are_numbas_and_give_the_same_results(tmp_path):
+def test_loaded_symbols_in_one_pass_are_numbas_and_give_the_same_results(fresh_numba, tmp_path):
+    run = fresh_numba(SCRIPT, "EVSDA_ONE_PASS_SYMBOLS")
     (tmp_path / "loads_kernels.py").write_text(MODULE)
-    compiled = run(tmp_path)                                 # an empty cache: compiled here
-    loaded = run(tmp_path)                                   # then loaded, the symbols read in one pass
-    numbas = run(tmp_path, EVSDA_ONE_PASS_SYMBOLS="off")     # loaded as Numba does
+    compiled = run()                            # an empty cache: compiled here
+    loaded = run()                              # then loaded, the symbols read in one pass
+    numbas = run(EVSDA_ONE_PASS_SYMBOLS="off")  # loaded as Numba does
     assert compiled["loaded"] == 0 and loaded["loaded"] == numbas["loaded"] == 3
     assert compiled["values"] == loaded["values"] == numbas["values"]
     assert compiled["values"][2] == "negative"
