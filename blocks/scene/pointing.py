@@ -76,7 +76,7 @@ class PointingModel:
     def __init__(self, pointing: Pointing, observer: ObserverModel, epoch: datetime, knot_step_ns: int):
         self.pointing = pointing
         self.observer = observer
-        self._recent = Recent(8)      # shared by the scene's blocks (shared_models), a window or two apart
+        self._recent = Recent()       # shared by the scene's blocks (shared_models), a window or two apart
         if pointing.mode == TRACK:
             if not (pointing.target_line1 and pointing.target_line2):
                 raise ParameterError("pointing: mode 'track' needs a target orbit (connect a tle_source to its "
