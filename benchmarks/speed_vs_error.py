@@ -11,7 +11,8 @@ afford, and prints each run's wall and CPU time beside its errors against that c
   error against ``pupil_fft``, 8-12 % of the flux here), the screen update
   (``screen_update``), the satellite's Skyfield knot step (``sat.knot_step_s``) and each source's render
   interval from its physics (``source_intervals``, ``interval_factor``: blocks/optics/render_interval.py; the
-  faithful run renders every source at every render time);
+  faithful run renders every source at every render time) and the profile's layers rendered as fewer equivalent
+  layers (``equivalent_layers``: blocks/optics/equivalent_layers.py);
 * statistics, against the faithful run: the track's event count (events within 4 pixels of
   the true satellite position at their time, relative difference), the centroid error (RMS
   distance between the two runs' 50 ms centroids of those events [pixel]), the event-timing
@@ -69,6 +70,7 @@ FAITHFUL = {"sensor/pixel.time_step_s": 1e-6, "telescope/optics.render_rate_hz":
 DEFAULTS_EVERY = {"telescope/optics.render_rate_hz": 1000, "telescope/optics.psf_path": "auto", "sat.knot_step_s": 10.0}
 #: the scene's defaults: each source rendered as often as its physics needs (the block's interval_factor)
 DEFAULTS = {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True}
+EQUIVALENT = "telescope/optics.equivalent_layers"
 VARIANTS = [
     ("faithful", {}),
     ("seed 2", {"run.seed": 2}),
@@ -99,6 +101,13 @@ VARIANTS = [
     # factors than the default's 2, on the defaults (1 kHz base)
     ("intervals x1", {**DEFAULTS, "telescope/optics.interval_factor": 1.0}),
     ("intervals x4", {**DEFAULTS, "telescope/optics.interval_factor": 4.0}),
+    # the profile's 7 layers rendered as fewer equivalent layers (blocks/optics/equivalent_layers.py), also on both
+    # noise draws' random numbers (the screens are other draws: compare with those rows)
+    ("3 equivalent layers", {EQUIVALENT: 3}),
+    ("4 equivalent layers", {EQUIVALENT: 4}),
+    ("3 equivalent layers, noise draw", {NOISE_DRAW: "b", EQUIVALENT: 3}),
+    ("3 equivalent layers, noise draw 2", {NOISE_DRAW: "c", EQUIVALENT: 3}),
+    ("defaults, 3 equivalent layers", {**DEFAULTS, EQUIVALENT: 3}),
 ]
 FLOORS = ("seed 2", "noise draw", "noise draw 2")                      # the noise floors' rows
 TRACK_RADIUS_PX = 4.0

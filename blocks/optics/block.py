@@ -14,6 +14,7 @@ from evsda.graph.threads import parallel_map
 from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
+from .equivalent_layers import equivalent_layers
 from .imaging import Imager, line_of_sight
 from .render_interval import RenderInterval
 from .telescope import Telescope
@@ -92,6 +93,11 @@ class PointSourceOptics(Block):
         hv_ground_cn2: float = Field(1.7e-14, ge=0, le=1e-11,
                                      description="Hufnagel-Valley ground term A (1.7e-14 for HV5/7) [m^-2/3]")
         n_layers: int = Field(4, ge=1, le=32, description="Layers the Hufnagel-Valley profile is lumped into [1]")
+        # off: bit for bit; 3 on the tracked pass: docs/optics.md, "Equivalent layers"
+        equivalent_layers: int | None = Field(
+            None, ge=1, le=32, description="Render the profile's screens as this many equivalent layers (summed "
+                                           "Cn^2 dh, 5/3-moment altitudes and winds: r0, theta0 and the winds' tau0 "
+                                           "kept; equivalent_layers); None: every layer [1]")
         ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
         wind_direction_deg: float = Field(0.0, ge=-360, le=360,
                                           description="Wind direction from the focal plane's +x toward +y at the first render "
@@ -186,9 +192,12 @@ class PointSourceOptics(Block):
                 self._atmosphere, self._atmosphere_ready = self.build_atmosphere(), True
             p = self.params
             seed = tuple(int(w) for w in self.rng.bit_generator.seed_seq.generate_state(2))
-            self._imager = Imager(self.telescope, focal_plane, wavelength, self._atmosphere, p, seed=seed,
+            rendered = (self._atmosphere if self._atmosphere is None or p.equivalent_layers is None
+                        else equivalent_layers(self._atmosphere, p.equivalent_layers))
+            self._imager = Imager(self.telescope, focal_plane, wavelength, rendered, p, seed=seed,
                                   label=self.label, pixels=self._pixels(focal_plane, wavelength))
-            self._intervals = (RenderInterval(self._imager.atmosphere, wavelength, focal_plane.pixel_scale_rad,
+            # the full profile: equivalent layers change the screens, not how often a source is rendered
+            self._intervals = (RenderInterval(self._atmosphere, wavelength, focal_plane.pixel_scale_rad,
                                               self._imager.chooser.pixels, p.interval_factor)
                                if p.source_intervals else None)
             if self.optics_state:

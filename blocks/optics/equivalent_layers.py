@@ -1,0 +1,107 @@
+"""Equivalent layers: a Cn^2 profile rendered as fewer thin layers (the ``equivalent_layers`` parameter).
+
+Each layer of a profile costs the pupil path its own phase screens for every source, so a profile of ``L``
+layers costs ``L`` screens' walks. Adaptive-optics work lumps a profile into fewer *equivalent turbulent
+layers* (Fusco et al. 1999, Proc. SPIE 3763, doi:10.1117/12.363606; Fusco et al. 2001, J. Opt. Soc. Am. A 18,
+2527; compared with other compressions by Saxenhuber et al. 2017, Appl. Opt. 56, 2621,
+doi:10.1364/AO.56.002621; the rule below as AOtools' ``turbulence.profile_compression.equivalent_layers``
+implements it): the layers, sorted by altitude, are split into ``N`` groups of neighbours, and each group
+becomes one layer with
+
+* the group's summed turbulence integral ``J = sum_i J_i`` (``J = Cn^2 dh``), so every ``r0`` (the whole
+  path's, ``r0 = (0.423 k^2 sec(zeta) sum J)^(-3/5)``, Hardy 1998 Eq. 3.40) is kept exactly;
+* the 5/3-moment altitude ``h = (sum_i J_i h_i^(5/3) / J)^(3/5)`` (Fusco et al. 1999's equivalent layer), so
+  the isoplanatic angle ``theta0 ~ (sum J h^(5/3))^(-3/5)`` (Fried 1982; Hardy 1998 Eq. 3.61) is kept exactly;
+* the 5/3-moment wind speed ``|v| = (sum_i J_i |v_i|^(5/3) / J)^(3/5)`` (as AOtools' ``equivalent_layers``
+  does for the coherence time), in the direction of the ``J |v|^(5/3)``-weighted mean of the layers' wind
+  directions.
+
+What that keeps for a point's phase in frozen flow: each layer's footprint moves at ``u_i = h_i s' - v_i``
+(:mod:`.imaging`: ``s'`` the rate of the line of sight's crossing per metre of altitude, zero for a star fixed
+in the ground frame, ``~ sec(z) omega`` for a mount slewing at ``omega``), and the phase's temporal structure
+function of Kolmogorov layers is ``D(tau) = 6.88 sum_i (|u_i| tau / r0_i)^(5/3)`` (Fried 1966; Roddier 1981,
+Prog. Optics 19, 281), i.e. ``6.88 (0.423 k^2 sec z)(sum_i J_i |u_i|^(5/3)) tau^(5/3)``. A star's
+(``s' = 0``) is kept exactly by the wind moment, and so is its coherence time ``tau0 = 0.314 r0 / v_bar``; a
+slewed footprint's is kept exactly where the slew dominates every layer's wind (``|h s'| >> |v|``: the altitude
+moment) and approximately between, worst where a layer's footprint rests against its air (``h_i s' = v_i``).
+Not kept: other altitude moments (the scintillation's ``sum J h^(5/6)`` and ``sum J h^2``, Roddier 1981), the
+outer scale's cut at long lags, and aperture-filtered statistics such as the image motion's temporal spectrum
+(these weigh the layers' speeds by other powers). docs/optics.md, "Equivalent layers", gives this profile's
+figures.
+
+Which groups: the split of the sorted layers into ``N`` neighbours' groups that minimises the optimal-grouping
+cost of Saxenhuber et al. (2017), ``sum_groups sum_i J_i |h_i - h_group|``, with the equivalent altitude as the
+group's: the cost adds over groups, so dynamic programming over the split points finds the exact minimum
+(Bellman 1957, *Dynamic Programming*) where Saxenhuber et al. search locally.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .atmosphere import Atmosphere, Layer
+
+
+def moment(weights: np.ndarray, values: np.ndarray) -> float:
+    """The ``weights``-weighted 5/3-moment ``(sum w |x|^(5/3) / sum w)^(3/5)`` of ``values`` [their unit]; the
+    unweighted one where the weights sum to zero (layers without turbulence)."""
+    weights, values = np.asarray(weights, dtype=float), np.abs(np.asarray(values, dtype=float))
+    if np.sum(weights) <= 0:
+        weights = np.ones_like(values)
+    return float((np.sum(weights * values ** (5 / 3)) / np.sum(weights)) ** (3 / 5))
+
+
+def equivalent_layer(layers: tuple[Layer, ...]) -> Layer:
+    """One layer for ``layers``: their summed ``J``, the 5/3-moment altitude and wind speed, and the
+    ``J |v|^(5/3)``-weighted mean wind direction (module docstring)."""
+    cn2 = np.array([layer.cn2_dh for layer in layers])
+    speed = np.array([layer.wind_speed_m_s for layer in layers])
+    direction = np.array([layer.wind_direction_rad for layer in layers])
+    weight = cn2 * speed ** (5 / 3)
+    mean_direction = (float(np.arctan2(np.sum(weight * np.sin(direction)), np.sum(weight * np.cos(direction))))
+                      if np.sum(weight) > 0 else float(direction[np.argmax(cn2)]))
+    return Layer(moment(cn2, [layer.altitude_m for layer in layers]), float(np.sum(cn2)), moment(cn2, speed),
+                 mean_direction)
+
+
+def group_cost(altitude: np.ndarray, cn2: np.ndarray) -> float:
+    """Saxenhuber et al. (2017)'s grouping cost of one group, ``sum_i J_i |h_i - h_eq|`` [m^(4/3)], ``h_eq`` the
+    5/3-moment altitude."""
+    return float(np.sum(cn2 * np.abs(altitude - moment(cn2, altitude))))
+
+
+def best_groups(altitude: np.ndarray, cn2: np.ndarray, n_groups: int) -> list[range]:
+    """The split of layers sorted by ``altitude`` into ``n_groups`` runs of neighbours with the least summed
+    :func:`group_cost`, by dynamic programming over the split points (index ranges into the sorted layers)."""
+    count = len(altitude)
+    cost = [[group_cost(altitude[i:j], cn2[i:j]) if j > i else np.inf for j in range(count + 1)]
+            for i in range(count + 1)]
+    best = np.full((n_groups + 1, count + 1), np.inf)          # best[g, j]: the first j layers in g groups
+    start = np.zeros((n_groups + 1, count + 1), dtype=int)
+    best[0, 0] = 0.0
+    for groups in range(1, n_groups + 1):
+        for end in range(groups, count + 1):
+            totals = [best[groups - 1, i] + cost[i][end] for i in range(groups - 1, end)]
+            choice = int(np.argmin(totals))
+            best[groups, end], start[groups, end] = totals[choice], groups - 1 + choice
+    runs, end = [], count
+    for groups in range(n_groups, 0, -1):
+        runs.append(range(start[groups, end], end))
+        end = start[groups, end]
+    return runs[::-1]
+
+
+def equivalent_layers(atmosphere: Atmosphere, n_layers: int) -> Atmosphere:
+    """``atmosphere`` as ``n_layers`` equivalent layers (module docstring); unchanged (the same object) when it
+    has that many layers or fewer."""
+    if n_layers < 1:
+        raise ValueError(f"equivalent layers: n_layers must be at least 1, not {n_layers}")
+    if len(atmosphere.layers) <= n_layers:
+        return atmosphere
+    layers = sorted(atmosphere.layers, key=lambda layer: layer.altitude_m)
+    altitude = np.array([layer.altitude_m for layer in layers])
+    cn2 = np.array([layer.cn2_dh for layer in layers])
+    groups = best_groups(altitude, cn2, n_layers)
+    return replace(atmosphere, layers=tuple(equivalent_layer(tuple(layers[i] for i in run)) for run in groups))

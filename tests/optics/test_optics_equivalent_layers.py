@@ -1,0 +1,149 @@
+"""Equivalent layers (blocks/optics/equivalent_layers.py) against closed forms of the full profile: r0 and the seeing
+(Fried 1966; Hardy 1998 Eq. 3.40), the isoplanatic angle (Fried 1982; Hardy 1998 Eq. 3.61), Roddier's coherence
+time and the point phase's temporal structure function of frozen-flow layers (Roddier 1981)."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from evsda.blocks.optics.atmosphere import Atmosphere, Layer
+from evsda.blocks.optics import PointSourceOptics
+from evsda.blocks.optics.equivalent_layers import best_groups, equivalent_layers, group_cost
+from evsda.blocks.ports import FocalPlane
+from evsda.graph import RunInfo
+from evsda.library import resolve
+
+WAVELENGTH = 0.5e-6                       # [m]
+K = 2 * np.pi / WAVELENGTH                # [1/m]
+MEDIAN = "library:atmospheres/median_seeing.csv"
+#: the tracked ISS's line of sight on the 10 s pass of benchmarks/end_to_end.yaml (zenith 63.7-65.7 deg): the rate
+#: of its crossing per metre of altitude, (dx, dy)/dt in the screens' frame, measured on the pass (0.0110-0.0114,
+#: -0.0079 to -0.0084) [1/s]; the median_seeing winds blow along +x
+PASS_SIGHT_RATE = np.array([0.0112, -0.0082])
+
+
+def median_seeing() -> Atmosphere:
+    return Atmosphere.from_table(resolve(MEDIAN))
+
+
+def columns(atmosphere: Atmosphere):
+    """``J`` [m^(1/3)], altitudes [m] and wind vectors (L, 2) [m/s] of the layers."""
+    return (np.array([layer.cn2_dh for layer in atmosphere.layers]),
+            np.array([layer.altitude_m for layer in atmosphere.layers]),
+            np.array([layer.wind_m_s for layer in atmosphere.layers]))
+
+
+def fried_r0(atmosphere: Atmosphere, zenith: float = 0.0) -> float:
+    """``r0 = (0.423 k^2 sec(z) sum J)^(-3/5)`` [m] (Hardy 1998 Eq. 3.40), written out here."""
+    return float((0.423 * K**2 / np.cos(zenith) * columns(atmosphere)[0].sum()) ** (-3 / 5))
+
+
+def isoplanatic_angle(atmosphere: Atmosphere, zenith: float = 0.0) -> float:
+    """``theta0 = (2.914 k^2 sec(z)^(8/3) sum J h^(5/3))^(-3/5)`` [rad] (Hardy 1998 Eq. 3.61), written out here."""
+    cn2, altitude, _ = columns(atmosphere)
+    return float((2.914 * K**2 / np.cos(zenith) ** (8 / 3) * np.sum(cn2 * altitude ** (5 / 3))) ** (-3 / 5))
+
+
+def phase_structure(atmosphere: Atmosphere, lag_s: float, sight_rate=(0.0, 0.0), zenith: float = 0.0) -> float:
+    """The point phase's temporal structure function of frozen-flow Kolmogorov layers [rad^2],
+    ``D(tau) = 6.88 sum_i (|u_i| tau / r0_i)^(5/3)`` (Fried 1966; Roddier 1981), each layer's footprint moving at
+    ``u_i = h_i s' - v_i`` (blocks/optics/imaging.py) and ``r0_i = (0.423 k^2 sec(z) J_i)^(-3/5)``."""
+    cn2, altitude, wind = columns(atmosphere)
+    speed = np.hypot(*(altitude[:, None] * np.asarray(sight_rate) - wind).T)
+    r0_i = (0.423 * K**2 / np.cos(zenith) * cn2) ** (-3 / 5)
+    return float(6.88 * np.sum((speed * lag_s / r0_i) ** (5 / 3)))
+
+
+def coherence_time(atmosphere: Atmosphere, sight_rate=(0.0, 0.0), zenith: float = 0.0) -> float:
+    """Roddier's ``tau0`` [s]: the lag where ``D(tau) = 1 rad^2``, i.e. ``0.314 r0 / v_bar`` (Roddier 1981)."""
+    return float((1.0 / phase_structure(atmosphere, 1.0, sight_rate, zenith)) ** (3 / 5))
+
+
+@pytest.mark.parametrize("n_layers", [1, 2, 3, 4, 5, 6])
+def test_r0_seeing_and_isoplanatic_angle_are_those_of_the_full_profile(n_layers):
+    full = median_seeing()
+    fewer = equivalent_layers(full, n_layers)
+    assert len(fewer.layers) == n_layers
+    for zenith in (0.0, np.deg2rad(65.0)):
+        assert fried_r0(fewer, zenith) == pytest.approx(fried_r0(full, zenith), rel=1e-12)
+        assert fewer.r0(WAVELENGTH, zenith) == pytest.approx(full.r0(WAVELENGTH, zenith), rel=1e-12)
+        assert isoplanatic_angle(fewer, zenith) == pytest.approx(isoplanatic_angle(full, zenith), rel=1e-12)
+        assert fewer.isoplanatic_angle(WAVELENGTH, zenith) == pytest.approx(isoplanatic_angle(full, zenith), rel=1e-12)
+    # the table's published figures: r0 = 0.10 m at 500 nm, seeing 0.98 lambda / r0 = 1.01 arcsec (its header), and
+    # theta0 of HV5/7 (7 urad at r0 = 5 cm, Valley 1980; Hardy 1998 Sec. 3.3.5) with J scaled by (5/10)^(5/3): x 2
+    assert fried_r0(fewer) == pytest.approx(0.10, rel=1e-3)
+    assert np.rad2deg(0.98 * WAVELENGTH / fried_r0(fewer)) * 3600 == pytest.approx(1.01, abs=0.005)
+    assert isoplanatic_angle(fewer) == pytest.approx(14e-6, rel=0.05)
+
+
+@pytest.mark.parametrize("n_layers", [1, 3, 4])
+def test_a_stars_phase_structure_function_and_coherence_time_are_kept(n_layers):
+    # a star's footprints move with the wind only: D(tau) ~ sum J |v|^(5/3) tau^(5/3), kept by the wind moment
+    full = median_seeing()
+    fewer = equivalent_layers(full, n_layers)
+    for lag in (1e-4, 1e-3, 1e-2):
+        assert phase_structure(fewer, lag) == pytest.approx(phase_structure(full, lag), rel=1e-12)
+    assert coherence_time(fewer) == pytest.approx(coherence_time(full), rel=1e-12)
+    # Roddier's tau0 = 0.314 r0 / v_bar, v_bar the J-weighted 5/3-moment of the winds: ~ 10 ms for median seeing
+    cn2, _, wind = columns(full)
+    v_bar = (np.sum(cn2 * np.hypot(*wind.T) ** (5 / 3)) / cn2.sum()) ** (3 / 5)
+    assert coherence_time(fewer) == pytest.approx(0.314 * fried_r0(full) / v_bar, rel=2e-3)
+
+
+@pytest.mark.parametrize("n_layers, tolerance", [(3, 0.04), (4, 0.01)])
+def test_the_tracked_satellites_phase_structure_function_is_kept_within_a_few_percent(n_layers, tolerance):
+    # the tracked ISS's footprints move at h s' - v: the slew's part is kept by the altitude moment, the wind's by
+    # the wind moment, their mixture approximately (worst where a layer's footprint rests against its air)
+    full, zenith = median_seeing(), np.deg2rad(65.0)
+    fewer = equivalent_layers(full, n_layers)
+    for rate in (PASS_SIGHT_RATE * 0.98, PASS_SIGHT_RATE, PASS_SIGHT_RATE * 1.02):
+        ratio = phase_structure(fewer, 1e-3, rate, zenith) / phase_structure(full, 1e-3, rate, zenith)
+        assert abs(ratio - 1) < tolerance
+        assert coherence_time(fewer, rate, zenith) / coherence_time(full, rate, zenith) == pytest.approx(
+            ratio ** (-3 / 5), rel=1e-9)
+    # a slew that dwarfs every wind: D(tau) -> 6.88 (0.423 k^2 sec z) |s'|^(5/3) sum J h^(5/3) tau^(5/3), kept
+    fast = PASS_SIGHT_RATE * 1e4
+    assert phase_structure(fewer, 1e-3, fast, zenith) == pytest.approx(phase_structure(full, 1e-3, fast, zenith),
+                                                                       rel=1e-3)
+
+
+def test_the_groups_are_the_exhaustive_minimum_of_the_grouping_cost():
+    rng = np.random.default_rng(5)
+    for count, n_groups in ((7, 3), (8, 4), (6, 2), (9, 5)):
+        altitude = np.sort(rng.uniform(0, 20e3, count))
+        cn2 = rng.uniform(1e-15, 1e-13, count)
+        chosen = best_groups(altitude, cn2, n_groups)
+        assert [i for run in chosen for i in run] == list(range(count))
+        exhaustive = min(sum(group_cost(altitude[a:b], cn2[a:b]) for a, b in zip((0, *cuts), (*cuts, count)))
+                         for cuts in itertools.combinations(range(1, count), n_groups - 1))
+        assert sum(group_cost(altitude[run.start:run.stop], cn2[run.start:run.stop]) for run in chosen) == \
+            pytest.approx(exhaustive, rel=1e-12)
+
+
+def test_winds_in_other_directions_keep_the_stars_moment_and_unsorted_layers_are_sorted():
+    layers = (Layer(5000.0, 2e-14, 20.0, np.pi / 2), Layer(100.0, 5e-13, 5.0, 0.0), Layer(800.0, 1e-13, 8.0, np.pi))
+    full = Atmosphere(layers)
+    fewer = equivalent_layers(full, 2)
+    assert [layer.altitude_m for layer in fewer.layers] == sorted(layer.altitude_m for layer in fewer.layers)
+    assert phase_structure(fewer, 1e-3) == pytest.approx(phase_structure(full, 1e-3), rel=1e-12)
+    assert isoplanatic_angle(fewer) == pytest.approx(isoplanatic_angle(full), rel=1e-12)
+
+
+def test_a_profile_with_no_more_layers_is_returned_as_it_is():
+    full = median_seeing()
+    assert equivalent_layers(full, 7) is full and equivalent_layers(full, 12) is full
+    with pytest.raises(ValueError):
+        equivalent_layers(full, 0)
+
+
+def test_the_block_renders_the_equivalent_layers_and_keeps_the_full_profile_for_its_render_intervals():
+    params = {"atmosphere": "table", "profile_file": MEDIAN}
+    assert PointSourceOptics.Params(**params).equivalent_layers is None       # default: every layer, bit for bit
+    blocks = [PointSourceOptics(**params), PointSourceOptics(**params, equivalent_layers=3)]
+    for block in blocks:
+        block.setup(RunInfo(seed=1))
+        block._ensure_imager(FocalPlane(1280, 720, 4.86e-6, 0.4), 550e-9)
+    assert [len(block._imager.atmosphere.layers) for block in blocks] == [7, 3]
+    assert blocks[0]._imager.atmosphere == median_seeing()
+    assert blocks[1]._intervals.layers[1].size == 7   # the render intervals' tau0 bound reads the full profile
