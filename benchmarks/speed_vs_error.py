@@ -107,9 +107,13 @@ VARIANTS = [
     ("4 equivalent layers", {EQUIVALENT: 4}),
     ("3 equivalent layers, noise draw", {NOISE_DRAW: "b", EQUIVALENT: 3}),
     ("3 equivalent layers, noise draw 2", {NOISE_DRAW: "c", EQUIVALENT: 3}),
+    ("noise draw 3", {NOISE_DRAW: "d"}),
+    ("3 equivalent layers, noise draw 3", {NOISE_DRAW: "d", EQUIVALENT: 3}),
+    ("4 equivalent layers, noise draw", {NOISE_DRAW: "b", EQUIVALENT: 4}),
+    ("4 equivalent layers, noise draw 2", {NOISE_DRAW: "c", EQUIVALENT: 4}),
     ("defaults, 3 equivalent layers", {**DEFAULTS, EQUIVALENT: 3}),
 ]
-FLOORS = ("seed 2", "noise draw", "noise draw 2")                      # the noise floors' rows
+FLOORS = ("seed 2", "noise draw", "noise draw 2", "noise draw 3")                      # the noise floors' rows
 TRACK_RADIUS_PX = 4.0
 BIN_NS = 50_000_000
 STAR_CENTROID_EVENTS = 5
