@@ -195,6 +195,51 @@ def _expanded_size(root: yaml.Node) -> int:
     return sizes[id(root)]
 
 
+if yaml.__with_libyaml__:
+    class _QuickLoader(yaml.cyaml.CParser, _UniqueKeyLoader):
+        """``_UniqueKeyLoader``'s constructor and resolvers (the same values, duplicate keys refused) over
+        libyaml's parser, ~10x quicker than PyYAML's own reader, scanner and parser (``_quick_document``)."""
+
+        def __init__(self, stream):
+            yaml.cyaml.CParser.__init__(self, stream)
+            yaml.constructor.SafeConstructor.__init__(self)
+            yaml.resolver.Resolver.__init__(self)
+else:                # PyYAML built without libyaml: its own parser reads every document
+    _QuickLoader = None
+
+
+def _plain_tree(root: yaml.Node) -> bool:
+    """Whether ``root`` holds no node twice (no alias) and fewer than ``MAX_YAML_VALUES`` values."""
+    seen: set[int] = set()
+    stack = [root]
+    while stack:
+        node = stack.pop()
+        if id(node) in seen or len(seen) >= MAX_YAML_VALUES:
+            return False
+        seen.add(id(node))
+        stack.extend(_children(node))
+    return True
+
+
+def _quick_document(text: str) -> tuple[bool, Any]:
+    """``(True, document)`` for a document that libyaml reads without an error, an alias or too many values,
+    else ``(False, None)``: ``read_yaml`` then reads it with PyYAML's own parser, whose errors and limits
+    (counted while composing) it reports. The tracked pass's graph file and library files (~13 kB) take ~5 ms
+    so instead of ~35 ms of CPU (a loaded host) on the start's one-core stretch (docs/speed.md)."""
+    if _QuickLoader is None:
+        return False, None
+    loader = _QuickLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None or not _plain_tree(node):
+            return False, None
+        return True, loader.construct_document(node)
+    except (yaml.YAMLError, RecursionError):
+        return False, None
+    finally:
+        loader.dispose()
+
+
 def read_yaml(path: Path, what: str = "graph file") -> Any:
     """Parse a YAML file safely; a missing, special, oversized, non-UTF-8 or invalid file, a duplicate
     key, or an alias bomb is a GraphError naming the file and the line, never quoting the file."""
@@ -202,6 +247,9 @@ def read_yaml(path: Path, what: str = "graph file") -> Any:
         text = read_text(path, what, MAX_YAML_BYTES)
     except FileProblem as exc:
         raise GraphError([Problem(str(path), "", exc.reason)]) from None
+    quick, document = _quick_document(text)
+    if quick:
+        return document
     loader = _BoundedLoader(text, what)
     try:
         node = loader.get_single_node()

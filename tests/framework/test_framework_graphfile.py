@@ -278,3 +278,30 @@ def test_scientific_notation_is_a_number_everywhere(plugin, tmp_path):
     path = write(tmp_path / "sci.yaml", good_graph(tmp_path).read_text().replace("slope_per_s: 50", "slope_per_s: 5e1"))
     assert load_graph(path).nodes["ramp"].block.params.slope_per_s == 50.0
     assert load_graph(path).to_dict()["blocks"]["ramp"]["params"]["slope_per_s"] == 50.0
+
+
+def test_libyaml_reads_every_bundled_file_as_pyyamls_own_parser(tmp_path):
+    """read_yaml's quick path (libyaml's parser, the same constructor and resolvers) gives the values PyYAML's
+    own parser gives, types included, on every bundled graph and library file; a document with an alias, an error
+    or a duplicate key goes to PyYAML's parser, which reports it as before."""
+    from evsda.graph import reading
+
+    if reading._QuickLoader is None:
+        pytest.skip("PyYAML without libyaml")
+    root = Path(__file__).parents[2]
+    files = [p for folder in ("library", "examples", "benchmarks") for p in (root / folder).rglob("*.yaml")]
+    assert len(files) > 20
+    for path in files:
+        text = path.read_text()
+        quick, document = reading._quick_document(text)
+        loader = reading._BoundedLoader(text, "graph file")
+        try:
+            expected = loader.construct_document(loader.get_single_node())
+        finally:
+            loader.dispose()
+        assert quick and repr(document) == repr(expected) and document == expected, path
+    assert reading._quick_document("a: &x [1, 2]\nb: *x\n") == (False, None)
+    assert reading._quick_document("a: 1\na: 2\n") == (False, None)
+    assert reading._quick_document("a: [1, 2\n") == (False, None)
+    aliased = write(tmp_path / "aliased.yaml", "a: &x [1e-5, 2]\nb: *x\n")
+    assert reading.read_yaml(aliased) == {"a": [1e-5, 2], "b": [1e-5, 2]}
