@@ -18,10 +18,13 @@ process are emptied first.
 otherwise), all the probes the pass's first window makes (both pupil-error bins and the analytic-path probes,
 their long-exposure tables included), alternating :meth:`.PathChooser.probe_ahead` (every bin's probes in one
 schedule, as the optics block makes them) and the choices made one bin after another (each bin's probes alone, as
-before), and checks that both give the same choices and estimates (compared with ``repr``).
+before), and checks that both give the same choices and estimates (compared with ``repr``). With ``--speculate``
+the first way is instead the schedule made ahead as before the fifteenth session: a thread with nothing else to make
+begins the next pair of a bin even where the one pair being measured is likely to decide it
+(``_PairRun.likely_decided`` always False); each way's pairs begun and propagations made are printed.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py [--repeats 5] [--all-frames] [--against DIR]
-    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --ahead [--repeats 5]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --ahead [--speculate] [--repeats 5]
 
 ``--fresh`` times what a run pays: in fresh processes (this checkout's and, with ``--against``, the other's own
 ``.venv``, alternated), a run of ``--graph`` (default: the tracked pass, its first window: ``--duration 0.1``) with
@@ -53,7 +56,8 @@ import numpy as np
 from evsda.blocks.optics import fft_screens, propagation
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.layer_screen import LayerScreen
-from evsda.blocks.optics.paths import ANALYTIC_PATHS, PUPIL_ERROR_ZENITH_BIN_RAD, PathChooser
+from evsda.blocks.optics import reference_path
+from evsda.blocks.optics.paths import ANALYTIC_PATHS, PUPIL_ERROR_ZENITH_BIN_RAD, PathChooser, _PairRun
 from evsda.blocks.threads import worker_threads
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
@@ -114,10 +118,11 @@ def forget_tables(checkout: Path | None) -> None:
                 kept.cache_clear()
 
 
-def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
+def ahead_or_not(imager, frames: tuple, repeats: int, speculate: bool = False) -> None:
     """``--ahead``: the probes of the first window's ``frames`` (zenith angles, ranges, what the pixels see, in view:
-    (render times, tracks) as the block gives them) made ahead and made one bin after another, alternated, from cold
-    each round."""
+    (render times, tracks) as the block gives them) made one bin after another (``speculate``: made ahead as before
+    the fifteenth session, a pair begun beside one likely to decide) and made ahead, alternated, from cold each
+    round."""
     chooser = imager.chooser
     chooser.forced_path = "auto"
 
@@ -134,7 +139,25 @@ def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
     first = {}
     for i, key in enumerate(chooser.keys(zenith[visible], range_m[visible], seen[visible])):
         first.setdefault(key, float(zenith[visible][i]))
-    ways = {"one bin after another": lambda: None, "made ahead": lambda: chooser.probe_ahead(*frames)}
+    likely = _PairRun.likely_decided
+
+    def speculating():
+        _PairRun.likely_decided = lambda run: False
+        try:
+            chooser.probe_ahead(*frames)
+        finally:
+            _PairRun.likely_decided = likely
+
+    ways = {"made ahead, speculating": speculating} if speculate else {"one bin after another": lambda: None}
+    ways["made ahead"] = lambda: chooser.probe_ahead(*frames)
+    counts = {name: [] for name in ways}
+    take, propagate = _PairRun.take, reference_path.propagate_point_source
+
+    def counted(count, call):
+        def wrapped(*args, **kwargs):
+            count[0] += 1
+            return call(*args, **kwargs)
+        return wrapped
     times = {name: [] for name in ways}
     made = {}
     loads = []
@@ -142,17 +165,25 @@ def ahead_or_not(imager, frames: tuple, repeats: int) -> None:
         loads.append(os.getloadavg()[0])
         for name, way in ways.items():
             cold()
+            pairs, propagations = [0], [0]
+            _PairRun.take = counted(pairs, take)
+            reference_path.propagate_point_source = counted(propagations, propagate)
             t, c = time.perf_counter(), time.process_time()
-            way()
-            chosen = choices()
+            try:
+                way()
+                chosen = choices()
+            finally:
+                _PairRun.take, reference_path.propagate_point_source = take, propagate
             times[name].append((time.perf_counter() - t, time.process_time() - c))
+            counts[name].append((pairs[0], propagations[0]))
             made[name] = repr((chosen, sorted(chooser._pupil_errors.items()), sorted(chooser._estimates.items())))
     print(f"  the first window's {len(first)} bins ({len(chooser._pupil_errors)} pupil-error bins, "
           f"{len(chooser._estimates)} analytic probes), {worker_threads()} threads:")
     for name, values in times.items():
         print(f"  {name}: {statistics.median(w for w, _ in values):.3f} s wall, "
               f"{statistics.median(c for _, c in values):.3f} s CPU (medians of {repeats}; wall "
-              f"{', '.join(f'{w:.3f}' for w, _ in values)})")
+              f"{', '.join(f'{w:.3f}' for w, _ in values)}; CPU {', '.join(f'{c:.3f}' for _, c in values)}); "
+              f"pairs begun, propagations: {sorted(set(counts[name]))}")
     first_way, second_way = ways
     ratio = statistics.median(w for w, _ in times[second_way]) / statistics.median(w for w, _ in times[first_way])
     print(f"  wall ratio {second_way} / {first_way}: {ratio:.2f}; load {statistics.median(loads):.1f}; choices and "
@@ -238,6 +269,8 @@ def main() -> None:
     parser.add_argument("--against", type=Path, help="another checkout: its probes, propagation and FFT screens' cut")
     parser.add_argument("--ahead", action="store_true", help="the first window's probes made ahead or one bin "
                         "after another, wall time on the process's threads")
+    parser.add_argument("--speculate", action="store_true", help="with --ahead: against the schedule made ahead "
+                        "that begins a pair beside one likely to decide (before the fifteenth session)")
     parser.add_argument("--fresh", action="store_true", help="the probes as a run pays them, in fresh processes")
     parser.add_argument("--graph", type=Path, default=GRAPH, help="with --fresh: the graph (default: the pass)")
     parser.add_argument("--duration", type=float, default=0.1, help="with --fresh: simulated seconds [s]")
@@ -272,7 +305,7 @@ def main() -> None:
     imager = imagers[-1]
     chooser = imager.chooser
     if args.ahead:
-        return ahead_or_not(imager, windows[0], args.repeats)
+        return ahead_or_not(imager, windows[0], args.repeats, args.speculate)
     if args.all_frames:
         imager.tolerance = float("nan")
     bins = [(6, 19), (6, -1)]              # the tracked pass at 65 deg: the ISS (7.4e5 m) and the stars (far)

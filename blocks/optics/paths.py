@@ -473,7 +473,9 @@ class PathChooser:
           two threads do not make the same grid's screen spectra and transfer functions side by side), else an
           analytic group, else
         * the next pair of a bin none of whose pairs is being measured, else (rather than idle) the next pair of
-          any open bin (dropped after its first frame if a pair before it decides: at most one a thread).
+          any open bin (dropped after its first frame if a pair before it decides: at most one a thread), but for a
+          bin whose pair being measured would decide were its frames the mean so far (:meth:`_PairRun.likely_decided`):
+          the thread waits for that pair instead (a pair made to be dropped costs a pair's CPU and saves no wall).
 
         A pair's screens and Fresnel propagations need no renderer: they do not wait for it, only their stamps do
         (a thread that would wait makes table parts meanwhile).
@@ -500,6 +502,7 @@ class PathChooser:
                 tabled[i].set()
         rendering = threading.Event()
         lock = threading.Lock()
+        changed = threading.Condition(lock)        # a unit ended: a pair's verdict may have moved, or one failed
         renderer: list[bool] = []
         failed: list[bool] = []
         out: dict[tuple, Any] = {}
@@ -518,11 +521,14 @@ class PathChooser:
                 return "pair", run, run.take()
             if groups:
                 return ("analytic", *groups.pop(0))
-            for idle in (True, False):
-                for run in runs:
-                    if run.open() and (run.running == 0 or not idle):
-                        return "pair", run, run.take()
-            return None
+            for run in runs:
+                if run.open() and run.running == 0:
+                    return "pair", run, run.take()
+            likely = [run for run in runs if run.open() and run.likely_decided()]
+            for run in runs:
+                if run.open() and run not in likely:
+                    return "pair", run, run.take()
+            return ("wait",) if likely else None
 
         def made(event: threading.Event, make: Callable[[], Any]) -> None:
             try:
@@ -587,6 +593,9 @@ class PathChooser:
             while True:
                 with lock:
                     unit = next_unit()
+                    while unit == ("wait",):
+                        changed.wait()
+                        unit = next_unit()
                 if unit is None:
                     return
                 try:
@@ -594,6 +603,9 @@ class PathChooser:
                 except BaseException:
                     failed.append(True)
                     raise
+                finally:
+                    with lock:
+                        changed.notify_all()
 
         threads = worker_threads()
         parallel_map(worker, range(threads), threads)
@@ -865,6 +877,21 @@ class _PairRun:
     def open(self) -> bool:
         """Whether another pair may be needed: no verdict yet, pairs left."""
         return self.verdict is None and 2 * self.taken < REFERENCE_PROBE_FRAMES[1]
+
+    def likely_decided(self) -> bool:
+        """Whether the one pair being measured would decide the verdict, with the pairs done beside it, were its two
+        frames the mean of those done (a guess: it only spares making a pair that would be dropped)."""
+        known = [*self.measured, *(d for pair in sorted(self.pairs) if pair >= len(self.measured) // 2
+                                   for d in self.pairs[pair])]
+        if self.running != 1 or not known:
+            return False
+        mean = float(np.mean(known))
+        frames = list(self.measured)
+        for pair in range(len(self.measured) // 2, self.taken):
+            frames += self.pairs[pair] if pair in self.pairs else [mean, mean]
+            if pupil_verdict(frames, self.scintillation, self.tolerance) is not None:
+                return True
+        return False
 
     def take(self) -> int:
         self.taken += 1

@@ -115,3 +115,41 @@ def test_a_pair_dropped_while_a_frame_is_made_leaves_the_rest_unmade(monkeypatch
         assert len(asked) == asks + 1 and not reference.screens
         assert len(propagated) == (asks >= layers + 1) + (asks >= 2 * layers + 3)
     assert chooser._pair_distances((2, 18), ZENITH_RAD, RANGE_M, 0, lambda: True) == expected
+
+
+def test_a_pair_likely_to_decide_is_waited_for():
+    # the one pair being measured would decide were its frames the mean of those done: a thread with nothing else
+    # to make waits for it rather than make the next pair, which would be dropped
+    run = _PairRun((0, 0), 0.0, 0.0, 0.0, 0.1)
+    assert not run.likely_decided()                                # nothing measured, nothing running
+    run.take(), run.take()
+    assert not run.likely_decided()                                # two running
+    run.done(0, [0.05, 0.07])
+    assert run.likely_decided()                                    # 4 frames about 0.06: within at 2 SE
+    ahead = _PairRun((0, 0), 0.0, 0.0, 0.0, 0.1)
+    ahead.take(), ahead.take()
+    ahead.done(1, [0.05, 0.07])                                    # the second done first, the first running
+    assert ahead.likely_decided() and not ahead.measured
+    spread = _PairRun((0, 0), 0.0, 0.0, 0.0, 0.1)
+    spread.take(), spread.take()
+    spread.done(0, [0.0, 0.2])                                     # too spread to decide on two frames more
+    assert not spread.likely_decided()
+
+
+def test_two_threads_wait_for_the_deciding_pair_instead_of_making_one_to_drop(monkeypatch):
+    import time
+
+    monkeypatch.setenv("EVSDA_THREADS", "2")
+    made = []
+
+    def pair_distances(self, key, zenith_rad, range_m, pair, needed=lambda: True, rendered=lambda: True):
+        made.append(pair)
+        time.sleep(0.05 if pair == 0 else 0.3)                    # the first pair ends first
+        return [0.05, 0.07]
+    monkeypatch.setattr(PathChooser, "_pair_distances", pair_distances)
+    imager = make_imager()
+    imager.pupil_renderer                                          # made before: the two threads take pairs at once
+    run = _PairRun((0, 0), 0.0, 0.0, 0.0, 0.1)
+    measured, verdict = imager.chooser._measure([run], [])["reference", (0, 0)]
+    assert (measured, verdict[0]) == ([0.05, 0.07, 0.05, 0.07], True)
+    assert sorted(made) == [0, 1]                                  # no third pair begun beside the second
