@@ -61,7 +61,8 @@ def main() -> None:
     base = runs["every layer"]
     for name, rows in runs.items():
         wall, cpu = (statistics.median(r[key] for r in rows) for key in ("wall_s", "cpu_s"))
-        print(f"  {name:22s} wall {wall:6.2f} s  CPU {cpu:6.2f} s  load {statistics.median(r['load'] for r in rows):.2f}"
+        load = statistics.median(r["load"] for r in rows)
+        print(f"  {name:22s} wall {wall:6.2f} s  CPU {cpu:6.2f} s  load {load:.2f}"
               f"  store {', '.join(sorted(digests[name]))}")
         if rows is not base:
             print("    against every layer, each round: wall "

@@ -147,3 +147,33 @@ def test_the_block_renders_the_equivalent_layers_and_keeps_the_full_profile_for_
     assert [len(block._imager.atmosphere.layers) for block in blocks] == [7, 3]
     assert blocks[0]._imager.atmosphere == median_seeing()
     assert blocks[1]._intervals.layers[1].size == 7   # the render intervals' tau0 bound reads the full profile
+
+
+def test_a_run_on_equivalent_layers_keeps_its_flux_and_does_not_depend_on_its_windows():
+    # the default Hufnagel-Valley profile (4 layers) as 2, a satellite on the pupil path: the same stamps however the
+    # run is cut into windows, the same collected flux as on every layer, other screens
+    from evsda.blocks.ports import PointSources
+    from evsda.graph import Window
+    focal_plane = FocalPlane(640, 480, 4.86e-6, 1.2)
+
+    def run(block, length_s):
+        block.setup(RunInfo(duration_ns=40_000_000))
+        stamps = []
+        for i in range(round(0.04 / length_s)):
+            window = Window.from_seconds(i * length_s, (i + 1) * length_s, index=i)
+            t_ns = window.sample_times_ns(1_000_000)
+            n = len(t_ns)
+            sources = PointSources(focal_plane, 550e-9, t_ns, np.array(["25544"]), np.array([0], np.int8),
+                                   (300.0 + 40.0 * t_ns * 1e-9)[:, None], np.full((n, 1), 200.0), np.full((n, 1), 2e4),
+                                   np.full((n, 1), 8.0), np.full((n, 1), 6e5), np.full(n, np.deg2rad(30.0)))
+            stamps.append(block.step(window, sources=[sources])["irradiance"].stamp_flux)
+        return np.concatenate(stamps)
+
+    params = dict(aperture_m=0.25, obscuration=0.2, seed=4, psf_path="pupil_fft", render_rate_hz=1000.0)
+    fewer = run(PointSourceOptics(**params, equivalent_layers=2), 0.04)
+    np.testing.assert_array_equal(fewer, run(PointSourceOptics(**params, equivalent_layers=2), 0.01))
+    every = run(PointSourceOptics(**params), 0.04)
+    assert not np.array_equal(fewer, every)
+    frames = len(fewer)              # each frame's flux in its stamp: the same r0, within the screens' draws
+    np.testing.assert_allclose(fewer.reshape(frames, -1).sum(axis=1), every.reshape(frames, -1).sum(axis=1),
+                               rtol=0.02)
