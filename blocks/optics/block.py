@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -15,7 +16,7 @@ from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
 from .equivalent_layers import equivalent_layers
-from .imaging import Imager, line_of_sight
+from .imaging import Imager, line_of_sight_at
 from .render_interval import RenderInterval
 from .telescope import Telescope
 from .truth import truth_rows
@@ -27,6 +28,15 @@ from .truth import truth_rows
 #: phases, 1.3 MB a source at 1 kHz on its 40-sample pupil, out of cache; docs/speed.md, thirteenth session). Before
 #: that, a window's ~8 at once made the walk ~8 % and the tilted phase ~55 % slower (tenth session)
 TOGETHER = 4
+
+
+def _isclose(a, b, rtol: float, atol: float = 1e-8) -> bool:
+    """``np.isclose(a, b, rtol, atol)`` of two numbers (``|a - b| <= atol + rtol |b|``; non-finite ones close only
+    where equal) without its array set-up (~30 us)."""
+    a, b = float(a), float(b)
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return a == b
+    return abs(a - b) <= atol + rtol * abs(b)
 
 
 class PointSourceOptics(Block):
@@ -241,7 +251,7 @@ class PointSourceOptics(Block):
                     (b.width_px, b.height_px, b.pixel_pitch_m, b.focal_length_m):
                 raise InputError(f"{self.label} input 'sources': connected PointSources disagree on the "
                                  f"focal plane ({a} vs {b})")
-            if not np.isclose(first.wavelength_m, other.wavelength_m, rtol=1e-9):
+            if not _isclose(first.wavelength_m, other.wavelength_m, rtol=1e-9):
                 raise InputError(f"{self.label} input 'sources': connected PointSources disagree on the "
                                  f"wavelength ({first.wavelength_m} m vs {other.wavelength_m} m)")
         return first.focal_plane, float(first.wavelength_m)
@@ -280,15 +290,17 @@ class PointSourceOptics(Block):
                   "t": np.broadcast_to(np.asarray(src.t_ns, dtype=float)[:, None], (n_t, n_src))}
         fields = {name: np.asarray(values, dtype=float).reshape(n_t, n_src) for name, values in fields.items()}
         live, rates = self._rates(fields, held, n_src, self._sky_distance(src.focal_plane))
-        index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
-        before = index < 0
-        # where a render time comes before the window's first input sample: the held sample (when it fits)
-        carried = {name: np.asarray(held[name], dtype=float) for name in (*fields, "rate", "sky_rate")
-                   if held is not None and name in held and np.asarray(held[name]).shape == (n_src,)} \
-            if before.any() else {}
-        index = np.clip(index, 0, None)
         # the usual input: sampled at the render times, its samples the held ones
         same = n_t == len(t_ns) and np.array_equal(src.t_ns, t_ns)
+        index, before, carried = None, None, {}
+        if not same:
+            index = np.searchsorted(np.asarray(src.t_ns), t_ns, side="right") - 1
+            before = index < 0
+            # where a render time comes before the window's first input sample: the held sample (when it fits)
+            carried = {name: np.asarray(held[name], dtype=float) for name in (*fields, "rate", "sky_rate")
+                       if held is not None and name in held and np.asarray(held[name]).shape == (n_src,)} \
+                if before.any() else {}
+            index = np.clip(index, 0, None)
 
         def sampled(name: str, values, columns) -> np.ndarray:
             """Quantity ``name``'s held samples of the sources ``columns`` (render times, sources), from their input
@@ -337,7 +349,15 @@ class PointSourceOptics(Block):
             if n_t and n_src else np.zeros(0, np.int64)
         if not live.size:
             return live, (np.full((n_t, 0), np.nan), np.full((n_t, 0), np.nan))
-        both = {n: np.concatenate([before[n][live][None], fields[n][:, live]]) for n in names}
+        # the positions source by source; the time and the boresight (the input's, the same for every source) one
+        # column (n + 1, 1) where the held sample before is the same for every source too, as a held input's is: the
+        # same numbers element by element, broadcast in the sums (the sines and cosines once a sample, not a source)
+        both = {n: np.concatenate([before[n][live][None], fields[n][:, live]]) for n in ("x", "y")}
+        for n in names[2:]:
+            held_n = before[n][live]
+            uniform = bool((held_n.view(np.uint64) == held_n[:1].view(np.uint64)).all())     # bits: NaN, -0.0
+            both[n] = np.concatenate([held_n[:1][None], fields[n][:, :1]]) if uniform else \
+                np.concatenate([held_n[None], fields[n][:, live]])
         x = both["x"]
         rates = []
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -369,10 +389,13 @@ class PointSourceOptics(Block):
         scale = focal_plane.pixel_scale_rad
 
         def distance(both: dict, apparent: np.ndarray) -> np.ndarray:
-            theta = (np.stack([both["x"], both["y"]], axis=-1) - centre) * scale
-            u = np.stack(line_of_sight(theta, both["zenith"], both["azimuth"], both["rotation"]), axis=-1)
-            units = u / np.linalg.norm(u, axis=-1, keepdims=True)           # each sample's once
-            chord = np.linalg.norm(units[1:] - units[:-1], axis=-1)
+            # component by component (the sums np.linalg.norm makes of stacked vectors, in the same order)
+            u = line_of_sight_at((both["x"] - centre[0]) * scale, -((both["y"] - centre[1]) * scale),
+                                 both["zenith"], both["azimuth"], both["rotation"])
+            length = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+            units = [c / length for c in u]                                   # each sample's once
+            step = [c[1:] - c[:-1] for c in units]
+            chord = np.sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2])
             turned = 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0)) / scale
             azimuth = both["azimuth"]
             known = np.isfinite(azimuth[:-1]) & np.isfinite(azimuth[1:])
@@ -500,13 +523,13 @@ class PointSourceOptics(Block):
         # the same keys as a track's alone), split at the tracks' counts
         in_view = visible[:, tracks].T                                            # (tracks, render times)
         track_of, frame_of = np.nonzero(in_view)
-        bins = imager.chooser.keys(columns["zenith"][frame_of, tracks[track_of]],
-                                   columns["range"][frame_of, tracks[track_of]],
-                                   seen[frame_of, tracks[track_of]])
+        column_of = tracks[track_of]
+        bins = imager.chooser.keys(columns["zenith"][frame_of, column_of], columns["range"][frame_of, column_of],
+                                   seen[frame_of, column_of])
         ends = np.cumsum(in_view.sum(axis=1)).tolist()
         jobs = []
         for column, j in enumerate(tracks):                                       # tracks in order
-            key, tr = ids[source_of[j]], {name: values[:, j] for name, values in columns.items()}
+            key, tr = ids[source_of[j]], {name: columns[name][:, j] for name in ("x", "y", "zenith", "range")}
             tr["placed"] = tuple(p[:, column] for p in placed)
             first, stop = ends[column - 1] if column else 0, ends[column]
             idx = frame_of[first:stop]
@@ -517,9 +540,10 @@ class PointSourceOptics(Block):
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)
-        # each frame's energy fractions [1] as the sources render, times the frame's collected flux [photon/s] once all
-        # are in (below)
+        # each frame's energy fractions [1] times the frame's collected flux [photon/s], written as each source renders
+        # (on the thread that renders it; the frames out of view stay zero)
         flux = np.zeros((len(t_ns), len(jobs), size, size))
+        collected_flux = np.where(in_view.T, columns["flux"][:, tracks] * collected, 0.0)[:, :, None, None]
 
         def render(job):
             s, key, tr, idx, seen, paths, every = job
@@ -541,7 +565,7 @@ class PointSourceOptics(Block):
                     o, stamps, record = self._render_held(imager, key, tr, at, seen[part], stretch_paths,
                                                           every[part], t_ns, cadence_ns, record)
                 origin[at, s] = o
-                flux[at, s] = stamps
+                flux[at, s] = stamps * collected_flux[at, s]
                 imager.seen(key, t_ns[at[-1]])
             return key, record
 
@@ -573,7 +597,7 @@ class PointSourceOptics(Block):
                     o, own, record = self._held(t_ns[idx], fresh, continuing, self.held_stamps.get(key), paths, o,
                                                 stamps[k])
                 origin[span, s] = o
-                flux[span, s] = own
+                np.multiply(own, collected_flux[span, s], out=flux[span, s])
                 imager.seen(key, t_ns[idx[-1]])
                 done.append((s, (key, record)))
             return done
@@ -606,7 +630,6 @@ class PointSourceOptics(Block):
         records = [record for _, record in sorted(
             (item for done in parallel_map(lambda unit: unit[0](unit[1]), units, threads) for item in done),
             key=lambda item: item[0])]
-        flux *= np.where(in_view.T, columns["flux"][:, tracks] * collected, 0.0)[:, :, None, None]
         if self._intervals is not None and len(t_ns):
             # a held stamp carries into the next window only for a source in view at this window's last render time
             self.held_stamps = {key: record for key, record in records

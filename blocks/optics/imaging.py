@@ -69,11 +69,34 @@ def line_of_sight(theta: np.ndarray, zenith_rad, azimuth_rad, rotation_rad) -> t
     field rotation ``psi`` (the image's up axis turned from the local elevation direction towards increasing
     azimuth) [rad]: ``b + alpha a + epsilon e`` (inverse gnomonic projection, Calabretta & Greisen 2002 Sec. 5.1.1),
     ``alpha, epsilon`` the offsets along azimuth and elevation, ``a``, ``e`` their unit vectors at the boresight."""
-    xi, eta = theta[..., 0], -theta[..., 1]                                              # image right, up [rad]
+    return line_of_sight_at(theta[..., 0], -theta[..., 1], zenith_rad, azimuth_rad, rotation_rad)
+
+
+def line_of_sight_at(xi: np.ndarray, eta: np.ndarray, zenith_rad, azimuth_rad, rotation_rad) -> tuple[np.ndarray, ...]:
+    """:func:`line_of_sight` at offsets ``xi`` right and ``eta`` up on the image [rad] given apart (each one array,
+    the same numbers: no stacked or strided offsets)."""
     c, s = np.cos(rotation_rad), np.sin(rotation_rad)
     alpha, epsilon = xi * c + eta * s, eta * c - xi * s                                   # along azimuth, elevation
     sa, ca, sz, cz = np.sin(azimuth_rad), np.cos(azimuth_rad), np.sin(zenith_rad), np.cos(zenith_rad)
     return sa * sz + alpha * ca - epsilon * sa * cz, ca * sz - alpha * sa - epsilon * ca * cz, cz + epsilon * sz
+
+
+def _per_row(*values) -> tuple:
+    """``values`` as float arrays, each (T, N) one whose every row holds one value as its first column (T, 1) (a
+    window's boresight beside each of its tracks); None left None."""
+    out = []
+    for value in values:
+        if value is not None:
+            value = np.asarray(value, dtype=float)
+            if value.ndim == 2 and value.shape[1] > 1 and _same_bits(value, value[:, :1]):
+                value = value[:, :1]
+        out.append(value)
+    return tuple(out)
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether float64 ``a`` and ``b`` (broadcast) hold the same bits everywhere (signed zeros and NaNs too)."""
+    return bool((a.view(np.uint64) == b.view(np.uint64)).all())
 
 
 def _along(values, t_s: np.ndarray) -> np.ndarray:
@@ -287,23 +310,26 @@ class Imager:
         sources are taken as seen from a staring mount: ``theta sec z`` with the frame on the detector's axes.
         """
         x_px, y_px = np.asarray(x_px, dtype=float), np.asarray(y_px, dtype=float)
-        zenith = np.where(np.isfinite(zenith_rad), zenith_rad, 0.0)
-        theta = (np.stack([x_px, y_px], axis=-1) - self.boresight) * self.pixel_scale     # (x right, y down) [rad]
-        staring = theta / np.cos(zenith)[..., None]
+        # the offsets' two components apart, and a boresight the same in every column (a window's tracks side by
+        # side) as one column: the same numbers element by element, broadcast (its sines and cosines once a frame)
+        zenith, azimuth, rotation = _per_row(zenith_rad, azimuth_rad, rotation_rad)
+        zenith = np.where(np.isfinite(zenith), zenith, 0.0)
+        theta_x = (x_px - self.boresight[0]) * self.pixel_scale                          # (right, down) [rad]
+        theta_y = (y_px - self.boresight[1]) * self.pixel_scale
+        secant = np.cos(zenith)
+        staring = (theta_x / secant, theta_y / secant)
         if azimuth_rad is None or self.frame is None:
-            return staring
-        azimuth = np.asarray(azimuth_rad, dtype=float)
-        rotation = np.asarray(rotation_rad, dtype=float)
+            return np.stack(staring, axis=-1)
         known = np.isfinite(azimuth) & np.isfinite(rotation)
-        east, north, up = line_of_sight(theta, zenith, azimuth, rotation)
+        east, north, up = line_of_sight_at(theta_x, -theta_y, zenith, azimuth, rotation)
         a0, z0, psi0 = self.frame
         with np.errstate(invalid="ignore", divide="ignore"):
             ge, gn = east / up - np.sin(a0) * np.tan(z0), north / up - np.cos(a0) * np.tan(z0)
         along_azimuth = ge * np.cos(a0) - gn * np.sin(a0)                                 # [1] per metre of altitude
         outwards = (ge * np.sin(a0) + gn * np.cos(a0)) * np.cos(z0)
-        grounded = np.stack([along_azimuth * np.cos(psi0) + outwards * np.sin(psi0),
-                             outwards * np.cos(psi0) - along_azimuth * np.sin(psi0)], axis=-1)
-        return np.where(known[..., None], grounded, staring)
+        grounded = (along_azimuth * np.cos(psi0) + outwards * np.sin(psi0),
+                    outwards * np.cos(psi0) - along_azimuth * np.sin(psi0))
+        return np.stack([np.where(known, g, s) for g, s in zip(grounded, staring)], axis=-1)
 
     def placement(self, x_px, y_px, zenith_rad, azimuth_rad=None, rotation_rad=None) -> tuple[np.ndarray, ...]:
         """Stamp origins (..., 2) int32 and sub-pixel offsets (..., 2) [pixel] (:func:`.stamp_placement`) and lines
@@ -341,6 +367,11 @@ class Imager:
         frame's zenith angle)."""
         if keys is None:
             keys = self.chooser.keys(zenith_rad, range_m, seen)
+        if keys and keys.count(keys[0]) == len(keys):  # one bin throughout (the usual track): its first frame's
+            path = self.chooser.choose_key(keys[0], float(zenith_rad[0]), source).path
+            if prepare and path in ANALYTIC_PATHS:
+                self.path_named[path].renderer(zenith_rad[0])
+            return [path] * len(keys)
         # each bin's first frame (the smallest index, written last), in the order the frames meet them
         first = dict(zip(reversed(keys), range(len(keys) - 1, -1, -1)))
         chosen = {}
@@ -348,8 +379,6 @@ class Imager:
             chosen[key] = path = self.chooser.choose_key(key, float(zenith_rad[i]), source).path
             if prepare and path in ANALYTIC_PATHS:
                 self.path_named[path].renderer(zenith_rad[i])
-        if len(chosen) == 1:                          # one bin throughout (the usual track)
-            return [path] * len(keys)
         return list(map(chosen.__getitem__, keys))
 
     def prepare(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray,
@@ -360,8 +389,9 @@ class Imager:
         ``seen`` (F, 3): each frame's apparent rate [pixel/s], collected source flux [photon/s] and sky
         [photon/s per pixel], for a chooser that knows the detector (:meth:`.PathChooser.key`); ``keys``: these
         frames' bins, if made already (:meth:`.PathChooser.keys` of many tracks' frames at once)."""
-        range_m = np.asarray(range_m, dtype=float)
-        zenith_rad = np.broadcast_to(np.asarray(zenith_rad, dtype=float), range_m.shape)
+        range_m, zenith_rad = np.asarray(range_m, dtype=float), np.asarray(zenith_rad, dtype=float)
+        if zenith_rad.shape != range_m.shape:
+            zenith_rad = np.broadcast_to(zenith_rad, range_m.shape)
         self.ensure_geometry(float(zenith_rad[0]) if len(zenith_rad) else np.nan)
         self.pupil_renderer
         paths = self._paths(source, zenith_rad, range_m, seen, prepare=True, keys=keys)

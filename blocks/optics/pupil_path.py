@@ -109,14 +109,16 @@ class PupilPath:
         # compiled pass, the footprints as :meth:`.Imager.footprints_at` makes them (the screens are drawn for r0 = 1 m)
         rows, cols = np.empty((2, count * layers, frames, g.n_pupil))
         weight = np.empty((count * layers, frames))
+        # every source's lines of sight, cosines and ranges at once (element by element: each source's numbers)
+        sight, range_m = np.ascontiguousarray(sight, dtype=float), np.ascontiguousarray(range_m, dtype=float)
+        turbulent = np.isfinite(zenith_rad)
+        cosine = np.cos(np.where(turbulent, zenith_rad, 0.0))
         for k, source in enumerate(sources):
             every = self._layer_screens(source)
             screens += [every[i] for i in chosen]
-            part, zenith = slice(k * layers, (k + 1) * layers), zenith_rad[k]
-            turbulent = np.isfinite(zenith)
-            layer_grids(altitude, wind, cn2, spacing, t_s, np.ascontiguousarray(sight[k], dtype=float),
-                        np.cos(np.where(turbulent, zenith, 0.0)), np.ascontiguousarray(range_m[k], dtype=float),
-                        turbulent, xp, k2, rows[part], cols[part], weight[part])
+            part = slice(k * layers, (k + 1) * layers)
+            layer_grids(altitude, wind, cn2, spacing, t_s, sight[k], cosine[k], range_m[k], turbulent[k], xp, k2,
+                        rows[part], cols[part], weight[part])
         phase_t = np.empty((count, frames, g.n_pupil, g.n_pupil))   # written by each first layer's reads: no zeroing
         accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True,     # each layer in turn, one walk
                           outputs=np.repeat(np.arange(count, dtype=np.int64), layers))

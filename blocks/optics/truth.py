@@ -32,8 +32,8 @@ def truth_rows(focal_plane: FocalPlane, t_ns: np.ndarray, ids: list[str], kinds:
     time_index, track = np.nonzero(on_detector)          # row-major: sorted by time, then source
     source = track if sources is None else np.asarray(sources)[track]
 
-    def column(name: str) -> np.ndarray:
-        return np.asarray(columns[name])[time_index, track].astype(np.float32)
+    def column(name: str) -> np.ndarray:           # the boolean mask reads them in the same row-major order
+        return np.asarray(columns[name])[on_detector].astype(np.float32)
 
     return Truth(focal_plane, np.asarray(ids, dtype=str), np.asarray(kinds, dtype=np.int8), t_ns[time_index],
                  source.astype(np.int32), column("x"), column("y"), column("magnitude"), column("flux"),

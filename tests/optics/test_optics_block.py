@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from evsda.blocks.optics import PointSourceOptics
-from evsda.blocks.optics.imaging import Imager
+from evsda.blocks.optics.imaging import Imager, line_of_sight
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics.paths import total_variation
 from evsda.blocks.optics.psf import long_exposure_encircled_energy
@@ -395,3 +395,77 @@ def test_pupil_path_error_estimate_matches_what_the_reference_shows():
     errors, estimate = _paths_apart(Atmosphere.hufnagel_valley(2).scaled_to_r0(0.1), 0.1)
     assert 0.5 * estimate < errors.mean() < 2 * estimate
 
+
+
+def test_lines_of_sight_with_one_boresight_a_render_time_are_each_tracks_own_bit_for_bit():
+    # a window's tracks share the boresight at each render time: Imager.sight then takes its sines and cosines once
+    # a render time (a column, broadcast); every finite number is the bits each track's frames give alone
+    imager = Imager(Telescope(0.2), FOCAL_PLANE, WAVELENGTH, Atmosphere.hufnagel_valley(2),
+                    PointSourceOptics.Params(psf_path="pupil_fft"), seed=(4,))
+    imager.ensure_geometry(0.5)
+    imager.set_frame(1.1, 0.5, 0.2)
+    rng = np.random.default_rng(5)
+    frames, tracks = 7, 4
+    x, y = rng.uniform(0, 640, (2, frames, tracks))
+    x[1:3, 2] = np.nan
+    zenith, azimuth, rotation = (np.repeat(rng.uniform(lo, hi, (frames, 1)), tracks, axis=1)
+                                 for lo, hi in ((0.4, 0.6), (1.0, 1.2), (0.1, 0.3)))
+    azimuth[4] = np.nan                                  # a render time without the boresight's azimuth: staring
+    together = imager.sight(x, y, zenith, azimuth, rotation)
+    for j in range(tracks):
+        alone = imager.sight(x[:, j].copy(), y[:, j].copy(), zenith[:, j].copy(), azimuth[:, j].copy(),
+                             rotation[:, j].copy())
+        finite = np.isfinite(alone)
+        np.testing.assert_array_equal(np.isfinite(together[:, j]), finite)
+        np.testing.assert_array_equal(together[:, j][finite].view(np.uint64), alone[finite].view(np.uint64))
+
+
+def test_line_of_sight_rates_per_render_time_are_the_stacked_sums_bit_for_bit():
+    # PointSourceOptics._sky_distance: the boresight and the times one column a sample (broadcast, the block's
+    # usual input) or one a source, and the reference (np.linalg.norm of stacked vectors): the same finite bits
+    rng = np.random.default_rng(6)
+    samples, sources = 9, 5
+    both = {"x": rng.uniform(0, 640, (samples, sources)), "y": rng.uniform(0, 480, (samples, sources))}
+    both["x"][3, 1] = np.nan
+    for name, (lo, hi) in (("zenith", (0.4, 0.6)), ("azimuth", (1.0, 1.2)), ("rotation", (0.1, 0.3))):
+        both[name] = rng.uniform(lo, hi, (samples, 1))
+    apparent = PointSourceOptics._apparent_distance(both)
+    distance = PointSourceOptics._sky_distance(FOCAL_PLANE)
+    with np.errstate(invalid="ignore"):
+        per_sample = distance(both, apparent)
+        per_source = distance({k: np.ascontiguousarray(np.broadcast_to(v, (samples, sources))) for k, v in both.items()},
+                              apparent)
+        centre = np.array([(FOCAL_PLANE.width_px - 1) / 2, (FOCAL_PLANE.height_px - 1) / 2])
+        scale = FOCAL_PLANE.pixel_scale_rad
+        theta = (np.stack([both["x"], both["y"]], axis=-1) - centre) * scale
+        u = np.stack(line_of_sight(theta, both["zenith"], both["azimuth"], both["rotation"]), axis=-1)
+        units = u / np.linalg.norm(u, axis=-1, keepdims=True)
+        chord = np.linalg.norm(units[1:] - units[:-1], axis=-1)
+        reference = 2.0 * np.arcsin(np.minimum(chord / 2.0, 1.0)) / scale
+    finite = np.isfinite(reference)
+    assert finite.sum() == reference.size - 2
+    for result in (per_sample, per_source):
+        np.testing.assert_array_equal(np.isfinite(result), finite)
+        np.testing.assert_array_equal(result[finite].view(np.uint64), reference[finite].view(np.uint64))
+
+
+def test_wavelengths_agree_as_numpy_isclose_says():
+    from evsda.blocks.optics.block import _isclose
+    values = [5.5e-7, 5.5e-7 + 5e-9, 5.5e-7 + 2e-8, 0.0, 1e-8, np.inf, -np.inf, np.nan, 1.0, 1.0 + 1e-9, 1.0 + 3e-9]
+    for a in values:
+        for b in values:
+            assert _isclose(a, b, rtol=1e-9) == bool(np.isclose(a, b, rtol=1e-9)), (a, b)
+
+
+def test_a_tracks_paths_one_bin_or_several_are_each_frames_choice():
+    imager = Imager(Telescope(0.2), FOCAL_PLANE, WAVELENGTH, Atmosphere.hufnagel_valley(2), PointSourceOptics.Params(),
+                    seed=(4,))
+    zenith, range_m = np.full(6, 0.5), np.full(6, np.inf)
+    keys = imager.chooser.keys(zenith, range_m)
+    one = imager._paths("s", zenith, range_m, None, keys=keys)
+    assert len(set(keys)) == 1 and one == [imager.chooser.choose_key(keys[0], 0.5, "s").path] * 6
+    zenith[3:] = 1.0                                     # two bins: each frame its bin's choice
+    keys = imager.chooser.keys(zenith, range_m)
+    several = imager._paths("s", zenith, range_m, None, keys=keys)
+    assert len(set(keys)) == 2
+    assert several == [imager.chooser.choose_key(key, float(z), "s").path for key, z in zip(keys, zenith)]
