@@ -122,7 +122,7 @@ def load_graph(*args, **kwargs):
     for module in list(sys.modules.values()):             # the blocks imported parallel_map by name
         if getattr(module, "parallel_map", None) is plain_map:
             module.parallel_map = parallel_map
-    extras = [("numba.core.caching", "Cache", "load_overload", "numba load"),
+    extras = [("numba.core.caching", "Cache", "_load_overload", "numba load"),   # under numba_loads' edit too
               ("evsda.blocks.optics.imaging", "Imager", "prepare", "path choice"),
               ("evsda.blocks.optics.paths", "PathChooser", "_remembered", "probe"),
               ("evsda.blocks.optics.paths", "PathChooser", "probe_ahead", "probe")]
