@@ -312,7 +312,7 @@ class LayerScreen:
         out_t = np.zeros((rows.shape[0], cols.shape[1], rows.shape[1]))
         coefficients, top, left = self._with_large_scales(self.coefficients, int(self.origin[0]), int(self.origin[1]),
                                                           rows, cols)
-        if not sample_grids_transposed(coefficients, top, left, rows, cols,
+        if not sample_grids_transposed(np.ascontiguousarray(coefficients), top, left, rows, cols,
                                        np.ones(rows.shape[0]), 0, rows.shape[0], out_t, False):
             raise ValueError("screen sampled outside its window")
         return out_t.transpose(0, 2, 1)

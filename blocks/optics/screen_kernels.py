@@ -22,6 +22,10 @@ import math
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils, errors
+from numba.extending import intrinsic
 
 from .normal_draws import _fill
 
@@ -205,6 +209,147 @@ def _taps(u, offset, index, weights):
         weights[3, i] = t3 / 6.0
 
 
+def _splat(builder, value, lanes):
+    """A vector of ``lanes`` doubles, each ``value``."""
+    vector = ir.VectorType(ir.DoubleType(), lanes)
+    first = builder.insert_element(ir.Constant(vector, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
+    return builder.shuffle_vector(first, ir.Constant(vector, ir.Undefined),
+                                  ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes))
+
+
+def _lanes_at(context, builder, array_type, array, indices, lanes):
+    """Pointer to the ``lanes`` doubles of ``array`` from ``indices`` along its last (contiguous) axis."""
+    values = context.make_array(array_type)(context, builder, array)
+    item = cgutils.get_item_pointer(context, builder, array_type, values, indices, wraparound=False)
+    return builder.bitcast(item, ir.VectorType(ir.DoubleType(), lanes).as_pointer())
+
+
+def _tap_sum(builder, weights, vectors):
+    """``w0 v0 + w1 v1 + w2 v2 + w3 v3`` lane by lane, summed left to right (the scalar expression's order; no
+    fused multiply-adds: plain ``fmul`` and ``fadd``)."""
+    total = builder.fmul(weights[0], vectors[0])
+    for w, v in zip(weights[1:], vectors[1:]):
+        total = builder.fadd(total, builder.fmul(w, v))
+    return total
+
+
+def _contiguous_doubles(*arrays):
+    """Typing check: the vector reads and writes below assume C-contiguous float64 arrays."""
+    for array in arrays:
+        if not (isinstance(array, types.Array) and array.layout == "C" and array.dtype == types.float64):
+            raise errors.TypingError(f"expected a C-contiguous float64 array, got {array}")
+
+
+@intrinsic
+def _rows_combined_transposed(typingctx, coefficients, rows, weights, column, lines, q, i):
+    """The y pass of four output rows and four columns at once: ``lines[q + p, i + l] = w[l, 0] C[r_l, c + p] +
+    w[l, 1] C[r_l + 1, c + p] + w[l, 2] C[r_l + 2, c + p] + w[l, 3] C[r_l + 3, c + p]`` for ``l, p`` in 0..3, ``C``
+    the coefficients, ``r_l = rows[l]``, ``w[l, t] = weights[4 l + t]``, ``c = column``. Each output row is one
+    4-lane vector along a coefficient row (the scalar expression in each lane), the 4 x 4 block is transposed in
+    registers (8 shuffles) and stored as four 4-lane runs of ``lines``' rows: no strided store per value."""
+    _contiguous_doubles(coefficients, lines)
+
+    def codegen(context, builder, signature, args):
+        array, picked, taps, start, out, q, i = args
+        lanes, mask = 4, lambda *m: ir.Constant(ir.VectorType(ir.IntType(32), 4), list(m))
+        sums = []
+        for l in range(4):
+            r = builder.extract_value(picked, l)
+            vectors = [builder.load(_lanes_at(context, builder, signature.args[0], array,
+                                              [builder.add(r, r.type(t)), start], lanes), align=8) for t in range(4)]
+            weights = [_splat(builder, builder.extract_value(taps, 4 * l + t), lanes) for t in range(4)]
+            sums.append(_tap_sum(builder, weights, vectors))
+        even01, odd01 = (builder.shuffle_vector(sums[0], sums[1], mask(0, 4, 2, 6)),
+                         builder.shuffle_vector(sums[0], sums[1], mask(1, 5, 3, 7)))
+        even23, odd23 = (builder.shuffle_vector(sums[2], sums[3], mask(0, 4, 2, 6)),
+                         builder.shuffle_vector(sums[2], sums[3], mask(1, 5, 3, 7)))
+        columns = [builder.shuffle_vector(even01, even23, mask(0, 1, 4, 5)),
+                   builder.shuffle_vector(odd01, odd23, mask(0, 1, 4, 5)),
+                   builder.shuffle_vector(even01, even23, mask(2, 3, 6, 7)),
+                   builder.shuffle_vector(odd01, odd23, mask(2, 3, 6, 7))]
+        for p in range(4):
+            builder.store(columns[p], _lanes_at(context, builder, signature.args[4], out, [builder.add(q, q.type(p)), i],
+                                                lanes), align=8)
+        return context.get_dummy_value()
+    return types.void(coefficients, rows, weights, column, lines, q, i), codegen
+
+
+#: output rows the x pass makes per vector (8: one AVX-512 register, two AVX2 ones where the CPU has no AVX-512;
+#: each lane the same sum either way)
+X_LANES = 8
+
+
+@intrinsic
+def _lines_combined(typingctx, lines, c, taps, g, out_t, f, j, i, assign):
+    """The x pass on :data:`X_LANES` output rows at once: ``out_t[f, j, i:i + X_LANES] += g (a0 lines[c, i:..] + a1
+    lines[c + 1, i:..] + a2 lines[c + 2, i:..] + a3 lines[c + 3, i:..])`` (``0.0 +`` instead of the old values with
+    ``assign``), ``taps = (a0, a1, a2, a3)``, each lane the scalar expression in its order."""
+    _contiguous_doubles(lines, out_t)
+
+    def codegen(context, builder, signature, args):
+        rows, c, taps, g, out, f, j, i, assign = args
+        lanes = X_LANES
+        vectors = [builder.load(_lanes_at(context, builder, signature.args[0], rows, [builder.add(c, c.type(t)), i],
+                                          lanes), align=8) for t in range(4)]
+        weights = [_splat(builder, builder.extract_value(taps, t), lanes) for t in range(4)]
+        target = _lanes_at(context, builder, signature.args[4], out, [f, j, i], lanes)
+        kept = builder.select(assign, ir.Constant(ir.VectorType(ir.DoubleType(), lanes), [0.0] * lanes),
+                              builder.load(target, align=8))
+        builder.store(builder.fadd(kept, builder.fmul(_splat(builder, g, lanes), _tap_sum(builder, weights, vectors))),
+                      target, align=8)
+        return context.get_dummy_value()
+    return types.void(lines, c, taps, g, out_t, f, j, i, assign), codegen
+
+
+@jit
+def _y_pass(coefficients, iy, wy, c0, c1, lines, combined):
+    """``lines[q, i] = wy[0, i] C[iy[i], c0 + q] + .. + wy[3, i] C[iy[i] + 3, c0 + q]`` (``C`` the coefficients)
+    for every output row ``i`` and column ``c0 + q < c1``: by blocks of four rows and four columns
+    (:func:`_rows_combined_transposed`), the rows and columns left over one at a time (the same expression)."""
+    ny, m = iy.shape[0], c1 - c0
+    whole = m - m % 4
+    for i0 in range(0, ny - ny % 4, 4):
+        picked = (iy[i0], iy[i0 + 1], iy[i0 + 2], iy[i0 + 3])
+        taps = (wy[0, i0], wy[1, i0], wy[2, i0], wy[3, i0], wy[0, i0 + 1], wy[1, i0 + 1], wy[2, i0 + 1],
+                wy[3, i0 + 1], wy[0, i0 + 2], wy[1, i0 + 2], wy[2, i0 + 2], wy[3, i0 + 2], wy[0, i0 + 3],
+                wy[1, i0 + 3], wy[2, i0 + 3], wy[3, i0 + 3])
+        for q in range(0, whole, 4):
+            _rows_combined_transposed(coefficients, picked, taps, c0 + q, lines, q, i0)
+        for q in range(whole, m):
+            for i in range(i0, i0 + 4):
+                r = iy[i]
+                lines[q, i] = (wy[0, i] * coefficients[r, c0 + q] + wy[1, i] * coefficients[r + 1, c0 + q]
+                               + wy[2, i] * coefficients[r + 2, c0 + q] + wy[3, i] * coefficients[r + 3, c0 + q])
+    for i in range(ny - ny % 4, ny):
+        r = iy[i]
+        w0, w1, w2, w3 = wy[0, i], wy[1, i], wy[2, i], wy[3, i]
+        k0, k1, k2, k3 = (coefficients[r, c0:c1], coefficients[r + 1, c0:c1], coefficients[r + 2, c0:c1],
+                          coefficients[r + 3, c0:c1])
+        for q in range(m):
+            combined[q] = w0 * k0[q] + w1 * k1[q] + w2 * k2[q] + w3 * k3[q]
+        for q in range(m):
+            lines[q, i] = combined[q]
+
+
+@jit
+def _x_pass(lines, ix, wx, c0, g, out_t, f, assign):
+    """``out_t[f, j, i] (+)= g (wx[0, j] lines[c, i] + .. + wx[3, j] lines[c + 3, i])``, ``c = ix[j] - c0``, for every
+    output column ``j`` and row ``i``: :data:`X_LANES` rows at once (:func:`_lines_combined`), the rows left over one
+    at a time (the same expression; ``0.0 +`` it with ``assign``)."""
+    ny, whole = lines.shape[1], lines.shape[1] - lines.shape[1] % X_LANES
+    for j in range(ix.shape[0]):
+        c = ix[j] - c0
+        a0, a1, a2, a3 = wx[0, j], wx[1, j], wx[2, j], wx[3, j]
+        taps = (a0, a1, a2, a3)
+        for i in range(0, whole, X_LANES):
+            _lines_combined(lines, c, taps, g, out_t, f, j, i, assign)
+        l0, l1, l2, l3 = lines[c], lines[c + 1], lines[c + 2], lines[c + 3]
+        target = out_t[f, j]
+        for i in range(whole, ny):
+            term = g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
+            target[i] = 0.0 + term if assign else target[i] + term
+
+
 @jit
 def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, stop, out_t, assign):
     """``out_t[f] += weight[f] * screen(rows[f], cols[f]).T`` for frames ``first <= f < stop`` (with ``assign``,
@@ -212,11 +357,12 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
 
     ``rows`` (F, ny) and ``cols`` (F, nx) are increasing absolute positions [samples]; the
     coefficient array's first sample is at (``top``, ``left``); ``out_t`` is (F, nx, ny), the
-    phase transposed. Each frame is read on its own (the same result in any batch): every output
-    row combines 4 coefficient rows along y, then 4 of those values along x. The y-combined rows
-    are stored by column (``lines[c, i]``), so the 4-tap combination along x runs over contiguous
-    output rows of ``out_t`` (SIMD) instead of gathering columns for each output sample. Returns
-    False (and stops) when a grid reaches outside the array.
+    phase transposed; both C-contiguous. Each frame is read on its own (the same result in any batch): every
+    output row combines 4 coefficient rows along y (:func:`_y_pass`), then 4 of those values along x
+    (:func:`_x_pass`). The y-combined rows are stored by column (``lines[c, i]``, transposed in 4 x 4 blocks in
+    registers), so the 4-tap combination along x runs over contiguous output rows of ``out_t`` (SIMD) instead of
+    gathering columns for each output sample. Every value is the scalar expression, in its order, in each vector
+    lane. Returns False (and stops) when a grid reaches outside the array.
     """
     height, width = coefficients.shape
     ny, nx = rows.shape[1], cols.shape[1]
@@ -232,27 +378,8 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
         if iy[0] < 0 or iy[ny - 1] + 3 >= height or ix[0] < 0 or ix[nx - 1] + 3 >= width:
             return False
         c0, c1 = ix[0], ix[nx - 1] + 4
-        g = weight[f]
-        for i in range(ny):
-            r = iy[i]
-            w0, w1, w2, w3 = wy[0, i], wy[1, i], wy[2, i], wy[3, i]
-            k0, k1, k2, k3 = (coefficients[r, c0:c1], coefficients[r + 1, c0:c1], coefficients[r + 2, c0:c1],
-                              coefficients[r + 3, c0:c1])
-            for q in range(c1 - c0):
-                combined[q] = w0 * k0[q] + w1 * k1[q] + w2 * k2[q] + w3 * k3[q]
-            for q in range(c1 - c0):
-                lines[q, i] = combined[q]
-        for j in range(nx):
-            c = ix[j] - c0
-            a0, a1, a2, a3 = wx[0, j], wx[1, j], wx[2, j], wx[3, j]
-            l0, l1, l2, l3 = lines[c], lines[c + 1], lines[c + 2], lines[c + 3]
-            target = out_t[f, j]
-            if assign:
-                for i in range(ny):
-                    target[i] = 0.0 + g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
-            else:
-                for i in range(ny):
-                    target[i] += g * (a0 * l0[i] + a1 * l1[i] + a2 * l2[i] + a3 * l3[i])
+        _y_pass(coefficients, iy, wy, c0, c1, lines, combined)
+        _x_pass(lines, ix, wx, c0, weight[f], out_t, f, assign)
     return True
 
 

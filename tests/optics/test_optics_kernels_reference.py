@@ -64,3 +64,20 @@ def test_transposed_sampler_is_the_same_sums_in_order():
     reference_sample(coefficients, 2, 3, rows[1:], cols[1:], weight[1:], slow[1:])
     np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
     assert not sample_grids_transposed(coefficients, 2, 3, rows + 40, cols, weight, 0, 4, fast, False)
+
+
+def test_vector_blocks_and_their_tails_are_the_same_sums_in_order():
+    # the reads' 4 x 4 blocks along y (transposed in registers) and 8-lane runs along x, with every kind of tail:
+    # output rows and columns not multiples of 4 or 8, spans of coefficient columns of any length, fewer than 4 rows
+    rng = np.random.default_rng(10)
+    coefficients = rng.standard_normal((60, 90))
+    for ny, nx, span in [(40, 40, 8.4), (41, 43, 20.8), (3, 5, 1.3), (13, 9, 6.1), (8, 8, 0.2)]:
+        rows = 5 + rng.uniform(0, 3, (3, 1)) + np.linspace(0, span, ny)[None]
+        cols = 8 + rng.uniform(0, 40, (3, 1)) + np.linspace(0, 1.3 * span, nx)[None]
+        weight = rng.uniform(0.5, 2.0, 3)
+        for assign in (False, True):
+            fast = rng.standard_normal((3, nx, ny))
+            slow = np.zeros((3, ny, nx)) if assign else fast.transpose(0, 2, 1).copy()
+            assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 0, 3, fast, assign)
+            reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
+            np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
