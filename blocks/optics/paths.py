@@ -104,6 +104,8 @@ REJECT_STANDARD_ERRORS = 3.0
 #: predictive standard errors by which the frames still to come would have to average above the mean so far for the
 #: rejection on every frame to remain possible; beyond them the probes stop, within (:func:`futile_rejection`) [1]
 FUTILITY_STANDARD_ERRORS = 3.0
+#: frames before a rejection is judged out of reach (a spread from fewer frames of a skewed distribution is too low) [1]
+FUTILITY_FRAMES = 6
 #: frames per mean in the averaging fit (divisors of PROBE_FRAMES) [1]
 AVERAGED_GROUPS = (1, 2, 3, 4, 6, 8, 12, 24)
 #: positions (the probe's first sub-pixel offsets) the averaging fit holds its frames at [1]
@@ -209,8 +211,8 @@ def pupil_verdict(distances: list[float], scintillation: float, tolerance: float
     * otherwise within at ``frames[1]`` frames: the error cannot be told from the budget at the probes'
       precision (the mean is at most ``tolerance + 3 se``), and a path ~100x slower is not taken on that (by the
       mean alone, an error equal to the tolerance would go either way by the seed);
-    * with ``curtail``, within before ``frames[1]`` once that rejection is out of reach
-      (:func:`futile_rejection`): the verdict of all ``frames[1]`` frames, but for ~0.1 % of the seeds of an
+    * with ``curtail``, within before ``frames[1]``, from :data:`FUTILITY_FRAMES` on, once that rejection is out of
+      reach (:func:`futile_rejection`): the verdict of all ``frames[1]`` frames, but for ~0.1 % of the seeds of an
       error between 1.2x and 3x the tolerance (close calls the full rule rejects), on fewer frames.
     """
     if scintillation > tolerance:
@@ -225,7 +227,7 @@ def pupil_verdict(distances: list[float], scintillation: float, tolerance: float
     if high <= tolerance:
         return True, f"<= tolerance {tolerance:g} at {ACCEPT_STANDARD_ERRORS:g} standard errors ({high:.3g})"
     if n < frames[1]:
-        if not curtail:
+        if not curtail or n < FUTILITY_FRAMES:
             return None
         futile = futile_rejection(mean, spread, n, tolerance, frames[1])
         if futile is None:
@@ -701,7 +703,7 @@ class PathChooser:
                "seed": list(imager.seed), "averaging": self.pixels is not None,
                "frames": [PROBE_FRAMES, list(REFERENCE_PROBE_FRAMES), list(AVERAGED_GROUPS), AVERAGED_POSITIONS,
                           ACCEPT_STANDARD_ERRORS, REJECT_STANDARD_ERRORS, FUTILITY_STANDARD_ERRORS,
-                          PUPIL_ERROR_ZENITH_BIN_RAD]}
+                          FUTILITY_FRAMES, PUPIL_ERROR_ZENITH_BIN_RAD]}
 
     def _choose_seen(self, zenith_rad: float, range_m: float, seen: tuple[int, int, int, int],
                      context: str) -> PathChoice:
