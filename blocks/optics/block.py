@@ -519,6 +519,10 @@ class PointSourceOptics(Block):
         # every frame's stamp placement and line of sight, all tracks in view at once (Imager.placement)
         tracks = np.flatnonzero(visible.any(axis=0))
         placed = imager.placement(*(columns[name][:, tracks] for name in ("x", "y", "zenith", "azimuth", "rotation")))
+        # the same by track (tracks, render times, ...), with the zenith angles and ranges: a group's frames in one
+        # gather each (render_together)
+        by_track = tuple(np.ascontiguousarray(np.swapaxes(values, 0, 1)) for values in
+                         (*placed, columns["zenith"][:, tracks], columns["range"][:, tracks]))
         # every frame in view, track by track: the path choices' bins of all of them in one call (element by element,
         # the same keys as a track's alone), split at the tracks' counts
         in_view = visible[:, tracks].T                                            # (tracks, render times)
@@ -581,10 +585,12 @@ class PointSourceOptics(Block):
             for (_, key, *_), _, _ in group:
                 if not imager.keeps(key, t_ns[idx[0]]):
                     imager.forget([key])
-            placed = tuple(np.stack([tr["placed"][i][at] for (_, _, tr, *_), _, _ in group]) for i in range(3))
-            stamps = imager.render_many([key for (_, key, *_), _, _ in group], t_s[at],
-                                        np.stack([tr["zenith"][at] for (_, _, tr, *_), _, _ in group]),
-                                        np.stack([tr["range"][at] for (_, _, tr, *_), _, _ in group]), placed)
+            # their placements, zenith angles and ranges at the frames rendered (sources, frames, ...): job s is track s
+            sources = [s for (s, *_), _, _ in group]
+            origin_of, offset, sight, zenith, range_m = (values[sources, span] if fresh is None
+                                                         else values[np.ix_(sources, at)] for values in by_track)
+            placed = (origin_of, offset, sight)
+            stamps = imager.render_many([key for (_, key, *_), _, _ in group], t_s[at], zenith, range_m, placed)
             done = []
             for k, ((s, key, tr, _, _, paths, _), _, continuing) in enumerate(group):
                 o = placed[0][k].astype(np.int32, copy=False)
