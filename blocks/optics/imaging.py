@@ -82,14 +82,13 @@ def line_of_sight_at(xi: np.ndarray, eta: np.ndarray, zenith_rad, azimuth_rad, r
 
 
 def _per_row(*values) -> tuple:
-    """``values`` as float arrays, each (T, N) one whose every row holds one value as its first column (T, 1) (a
-    window's boresight beside each of its tracks); None left None."""
+    """``values`` as float arrays (None as NaN, as ``np.asarray`` gives it), each (T, N) one whose every row holds one
+    value as its first column (T, 1) (a window's boresight beside each of its tracks)."""
     out = []
     for value in values:
-        if value is not None:
-            value = np.asarray(value, dtype=float)
-            if value.ndim == 2 and value.shape[1] > 1 and _same_bits(value, value[:, :1]):
-                value = value[:, :1]
+        value = np.asarray(value, dtype=float)
+        if value.ndim == 2 and value.shape[1] > 1 and _same_bits(value, value[:, :1]):
+            value = value[:, :1]
         out.append(value)
     return tuple(out)
 
