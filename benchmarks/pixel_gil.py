@@ -12,10 +12,13 @@ of the pixel code are stepped over the same inputs without running the pass agai
 prints the block's CPU per window (``EVSDA_THREADS=1``: the process's, one thread) without cProfile.
 ``--against DIR`` steps a copy of another checkout's ``blocks/pixel`` (DIR, e.g. the session's start) beside
 this one in the same process, window by window, alternating which goes first, checks that their events are
-the same, and prints both blocks' CPU per window and their ratio (the host's drift cancels).
+the same, and prints both blocks' CPU per window and their ratio (the host's drift cancels). ``--held`` prints,
+without cProfile, the block's CPU a window outside its compiled loops (the Python and NumPy that hold the GIL; the
+loops' calls timed each, their argument checks counted with them), with ``--against`` for both checkouts; run it
+with ``EVSDA_THREADS=1``, which keeps every call on the block's thread.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2] [--inputs F] [--no-profile]
-        [--against DIR]
+        [--against DIR] [--held]
 """
 
 from __future__ import annotations
@@ -43,7 +46,27 @@ from evsda.graph.graphfile import load_graph
 GRAPH = Path(__file__).with_name("end_to_end.yaml")
 #: compiled kernels the block calls on its own thread, all ``nogil``
 KERNELS = ("select_pixels", "take_and_run", "take_ranges", "drive_rows", "own_changes", "under_stamps", "_adds_flux",
-           "_sum_stamps", "_summed_stamps")
+           "_sum_stamps", "_summed_stamps", "window_changes", "time_ordered")
+
+
+def timed_loops(package: str, spent: dict) -> None:
+    """Wraps every compiled loop that ``package``'s modules (``evsda.blocks.pixel`` or a copy) call by a global name
+    in a timer adding its thread CPU to ``spent[name]`` [ns]."""
+    import numba
+
+    def timer(name, loop):
+        def timed(*args):
+            start = time.thread_time_ns()
+            try:
+                return loop(*args)
+            finally:
+                spent[name] = spent.get(name, 0) + time.thread_time_ns() - start
+        return timed
+
+    for module in [m for name, m in list(sys.modules.items()) if name.startswith(package + ".")]:
+        for name, value in list(vars(module).items()):
+            if isinstance(value, numba.core.registry.CPUDispatcher):
+                setattr(module, name, timer(name, value))
 
 
 def pixel_inputs(duration_s: float) -> tuple[pixel_block.DvsPixel, list]:
@@ -78,9 +101,10 @@ class _Against(pickle.Unpickler):
         return super().find_class(module, name)
 
 
-def side_by_side(pickled: bytes, inputs: list, against: Path) -> None:
+def side_by_side(pickled: bytes, inputs: list, against: Path, held: bool = False) -> None:
     """Steps this checkout's block and ``against``'s (``blocks/pixel`` copied) alternately window by window over
-    the same inputs (windows after the first), checks their events are the same, prints the CPU per window."""
+    the same inputs (windows after the first), checks their events are the same, prints the CPU per window
+    (``held``: also outside the compiled loops, :func:`timed_loops`)."""
     root = Path(tempfile.mkdtemp(prefix="pixel_against_"))
     shutil.copytree(against / "blocks" / "pixel", root / "pixel_against", ignore=shutil.ignore_patterns("__pycache__"))
     sys.path.insert(0, str(root))
@@ -88,13 +112,20 @@ def side_by_side(pickled: bytes, inputs: list, against: Path) -> None:
     window, irradiance = inputs[0]
     for block in blocks.values():
         block.step(window, irradiance=irradiance)                # start-up and compiled loops' load, not timed
+    spent: dict = {"this": {}, "against": {}}
+    if held:
+        timed_loops("evsda.blocks.pixel", spent["this"])
+        timed_loops("pixel_against", spent["against"])
     cpu: dict = {"this": [], "against": []}
+    loops: dict = {"this": [], "against": []}
     for i, (window, irradiance) in enumerate(inputs[1:]):
         events = {}
         for name in ("this", "against") if i % 2 else ("against", "this"):
+            before = sum(spent[name].values())
             start = time.process_time()
             events[name] = blocks[name].step(window, irradiance=irradiance)["events"]
             cpu[name].append(time.process_time() - start)
+            loops[name].append((sum(spent[name].values()) - before) * 1e-9)
         for field in ("t_ns", "x", "y", "p", "cause"):
             if not np.array_equal(getattr(events["this"], field), getattr(events["against"], field)):
                 raise SystemExit(f"window {i + 1}: the events' {field} differ from {against}'s")
@@ -103,7 +134,35 @@ def side_by_side(pickled: bytes, inputs: list, against: Path) -> None:
           f"{os.getloadavg()[0]:.1f}), the same events: {against} {np.median(other) * 1e3:.2f} ms -> this "
           f"{np.median(this) * 1e3:.2f} ms CPU a window (medians); sums {other.sum():.3f} -> {this.sum():.3f} s, "
           f"ratio of sums {this.sum() / other.sum():.3f}, median of the windows' ratios {np.median(this / other):.3f}")
+    if held:
+        this_held, other_held = this - np.array(loops["this"]), other - np.array(loops["against"])
+        print(f"  outside the compiled loops (GIL held): {against} {np.median(other_held) * 1e3:.2f} ms -> this "
+              f"{np.median(this_held) * 1e3:.2f} ms a window (medians); sums {other_held.sum():.3f} -> "
+              f"{this_held.sum():.3f} s")
     shutil.rmtree(root, ignore_errors=True)
+
+
+def held_per_window(block, inputs: list) -> None:
+    """Prints the block's CPU a window and the part outside its compiled loops (:func:`timed_loops`), the largest
+    loops, and the events' digest."""
+    digest = hashlib.sha256()
+    window, irradiance = inputs[0]
+    block.step(window, irradiance=irradiance)                    # start-up and compiled loops' load, not timed
+    spent: dict = {}
+    timed_loops("evsda.blocks.pixel", spent)
+    cpu = []
+    for window, irradiance in inputs[1:]:
+        start = time.process_time()
+        events = block.step(window, irradiance=irradiance)["events"]
+        cpu.append(time.process_time() - start)
+        for name in ("t_ns", "x", "y", "p", "cause"):
+            digest.update(getattr(events, name).tobytes())
+        digest.update(str(events.n_loss).encode())
+    n, loops = len(cpu), sum(spent.values()) * 1e-9
+    print(f"pixel block, {n} windows after the first (load {os.getloadavg()[0]:.1f}): {sum(cpu) / n * 1e3:.2f} ms CPU "
+          f"a window, outside the compiled loops (GIL held) {(sum(cpu) - loops) / n * 1e3:.2f} ms; loops: "
+          + ", ".join(f"{k} {v * 1e-6 / n:.2f}" for k, v in sorted(spent.items(), key=lambda kv: -kv[1])))
+    print(f"  events' digest {digest.hexdigest()[:16]}")
 
 
 def main() -> None:
@@ -112,6 +171,7 @@ def main() -> None:
     parser.add_argument("--inputs", type=Path, help="pickle of the captured inputs: written if absent, else read")
     parser.add_argument("--no-profile", action="store_true", help="CPU per window only, without cProfile")
     parser.add_argument("--against", type=Path, help="another checkout whose blocks/pixel steps beside this one")
+    parser.add_argument("--held", action="store_true", help="CPU outside the compiled loops, without cProfile")
     args = parser.parse_args()
     if args.inputs is not None and args.inputs.exists():
         with open(args.inputs, "rb") as f:
@@ -122,7 +182,10 @@ def main() -> None:
             with open(args.inputs, "wb") as f:
                 pickle.dump((block, inputs), f, protocol=5)
     if args.against is not None:
-        side_by_side(pickle.dumps(block, protocol=5), inputs, args.against)
+        side_by_side(pickle.dumps(block, protocol=5), inputs, args.against, args.held)
+        return
+    if args.held:
+        held_per_window(block, inputs)
         return
     digest = hashlib.sha256()
     window, irradiance = inputs[0]

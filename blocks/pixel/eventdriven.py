@@ -36,8 +36,8 @@ from .model import PixelModel
 from .deferred import SharedChanges, select_pixels, take_and_run, take_ranges
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
-from .own_changes import own_changes, under_stamps
-from .pixel_loop import COUNT, FLUX, PARA, REAL, Y, resolve_schedules, start_pixels
+from .own_changes import under_stamps, window_changes
+from .pixel_loop import COUNT, PARA, REAL, Y, resolve_schedules, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
@@ -127,30 +127,16 @@ class EventDrivenPixels:
         """
         s = self.s
         history = SharedChanges(s, len(REAL))
-        empty = np.zeros(0, np.int64)
-        shared = empty
-        own_pixel, own_step, own_flux = empty, empty, np.zeros(0)
         touched, stamp_row = under_stamps(s["off_background"], stamps.pixel, self._slot)   # under stamps, now or before
         kept = s["shared_step"].size                          # changes from before this window
-        behind = s["applied"][touched] < history.end          # with earlier background changes not taken
-        if behind.any() and not steps.size:
-            self._catch_up(history, touched[behind])
-            behind[:] = False
         if steps.size:
-            shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
-            if touched.size:
-                held = s["real"][touched, FLUX]
-                if kept:                # behind: their flux after the changes they were left out of
-                    held[behind] = s["shared_input"][kept - 1, FLUX]
-                # the last kept change first for those (column -1), as an own change; those before it quietly
-                row, col, own_flux, off = own_changes(held, background, stamp_row, stamps.sample, stamps.flux, behind)
-                own_pixel = touched[row]                                              # sorted by pixel, then step
-                own_step = np.r_[s["shared_step"][kept - 1] if kept else 0, steps][col + 1].astype(np.int64)
-                s["off_background"] = touched[off]
-        first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else empty
-        changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
-        pending = s["applied"][changed] - int(s["shared_base"])       # the kept changes they have not taken
-        quiet_from = np.where(pending < kept - 1, pending, -1)
+            shared, own_step, own_flux, s["off_background"], changed, first, counts, quiet_from = window_changes(
+                touched, stamp_row, stamps.sample, stamps.flux, s["real"], s["applied"], np.int64(s["shared_base"]),
+                s["shared_step"], s["shared_input"], float(held_background), background, steps)
+        else:                         # no samples: those behind take the earlier background changes now
+            self._catch_up(history, history.behind(touched))
+            shared = own_step = changed = first = counts = quiet_from = np.zeros(0, np.int64)
+            own_flux = np.zeros(0)
         if shared.size:
             rows = self._inputs(background[shared])
             history.append(steps[shared], rows)
@@ -167,7 +153,7 @@ class EventDrivenPixels:
                                           changed, np.int64(n_end), base, end, *suffix, self._envelope, leak_hz * dt,
                                           dt, self.defer_background, refresh, *span)
             return (pixels,) + take_ranges(pixels, takes, s["applied"], base, end, np.int64(kept),
-                                           np.int64(own_pixel.size), np.int64(s["shared_step"].size), changed, first,
+                                           np.int64(own_step.size), np.int64(s["shared_step"].size), changed, first,
                                            counts, quiet_from)
 
         n, parts = s["next"].size, worker_threads()     # the sensor in parts, in threads: the same lists

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from evsda.blocks.ports import FocalPlane, TriggeredEvents
+
+_DIGIT_BITS = 11               # the radix sort's widest digit: 2048 counters (16 KB, in L1) a pass
 
 
 class EventLog:
@@ -30,12 +33,80 @@ class EventLog:
             out = TriggeredEvents.empty(focal_plane)
             return TriggeredEvents(focal_plane, out.t_ns, out.x, out.y, out.p, out.cause, self.n_loss, (0, 0, 0, 0))
         step, pixel, polarity, cause = (np.concatenate(parts) for parts in zip(*self._chunks))
-        # the keys are unique (one event per pixel per step, Eqs. 17 and 20), so any sort gives this order;
-        # NumPy's default (SIMD) sort is 3-4x faster than the stable one
-        order = np.argsort(step * np.int64(focal_plane.width_px * focal_plane.height_px) + pixel)
-        step, pixel, polarity, cause = step[order], pixel[order], polarity[order], cause[order]
-        width = focal_plane.width_px
-        row = pixel // width                         # the column as pixel - row width: NumPy's % is ~3x slower
-        counts = tuple(int(c) for c in np.bincount(cause, minlength=4)[:4])
-        return TriggeredEvents(focal_plane, step * np.int64(dt_ns), (pixel - row * width).astype(np.uint16),
-                               row.astype(np.uint16), polarity, cause, self.n_loss, counts)
+        n = step.size
+        t_ns, x, y, p, c = (np.empty(n, np.int64), np.empty(n, np.uint16), np.empty(n, np.uint16), np.empty(n, np.int8),
+                            np.empty(n, np.uint8))
+        counts = np.zeros(4, np.int64)
+        scratch = [np.empty(n, np.int64) for _ in range(4)]
+        time_ordered(step, pixel, polarity, cause, np.int64(focal_plane.width_px),
+                     np.int64(focal_plane.width_px * focal_plane.height_px), np.int64(dt_ns), t_ns, x, y, p, c, counts,
+                     *scratch)
+        return TriggeredEvents(focal_plane, t_ns, x, y, p, c, self.n_loss, tuple(int(k) for k in counts))
+
+
+@numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
+def time_ordered(step, pixel, polarity, cause, width, n_pixels, dt_ns, t_ns, x, y, p, c, counts, keys, order,
+                 other_keys, other_order):
+    """The events sorted by step, then pixel (row, then column) into ``t_ns``, ``x``, ``y``, ``p``, ``c``: times
+    ``step dt_ns`` [ns], columns and rows (``uint16``), polarities and causes; ``counts[c]`` adds the events of cause
+    ``c`` (0-3). ``keys``, ``order`` and ``other_*``: scratch of the events' size.
+
+    The keys ``(step, pixel)`` are unique (one event per pixel per step, Eqs. 17 and 20), so this is the order of any
+    sort of them: NumPy's ``argsort`` of ``step * n_pixels + pixel`` under the GIL before, here a radix sort
+    (:func:`_key_order`) in one call that releases it."""
+    order = _key_order(step, pixel, n_pixels, keys, order, other_keys, other_order)
+    for i in range(order.size):
+        e = order[i]
+        row = pixel[e] // width
+        t_ns[i] = step[e] * dt_ns
+        x[i], y[i] = pixel[e] - row * width, row
+        p[i], c[i] = polarity[e], cause[e]
+        if cause[e] < 4:
+            counts[cause[e]] += 1
+
+
+@numba.njit(cache=True, inline="always")
+def _key_order(step, pixel, n_pixels, keys, order, other_keys, other_order):
+    """The stable order of the keys ``(step, pixel)`` (in ``order`` or ``other_order``, which it returns): a least-
+    significant-digit radix sort (Knuth, TAOCP vol. 3, Sec. 5.2.5) of ``(step - first step) 2^b + pixel``
+    (``2^b >= n_pixels``), in passes of at most ``_DIGIT_BITS`` bits. Where the events come in pixel order (the
+    compiled loops' chunks, in turn), the passes over the pixel's bits would leave them as they are and are not made:
+    the steps' ~17 bits a window on the tracked pass take two."""
+    n = step.size
+    first = step[0] if n else 0
+    for i in range(n):
+        first = min(first, step[i])
+    pixel_bits = 0
+    while (n_pixels - 1) >> pixel_bits:
+        pixel_bits += 1
+    top, by_pixel = 0, True
+    for i in range(n):
+        keys[i] = ((step[i] - first) << pixel_bits) | pixel[i]
+        order[i] = i
+        top = max(top, keys[i])
+        if i and pixel[i] < pixel[i - 1]:
+            by_pixel = False
+    low = pixel_bits if by_pixel else 0
+    bits = low
+    while top >> bits:
+        bits += 1
+    passes = -(-(bits - low) // _DIGIT_BITS)
+    if passes == 0:
+        return order
+    digit = -(-(bits - low) // passes)
+    mask = (1 << digit) - 1
+    start = np.empty((1 << digit) + 1, np.int64)
+    for shift in range(low, low + passes * digit, digit):
+        for d in range(start.size):
+            start[d] = 0
+        for i in range(n):
+            start[((keys[i] >> shift) & mask) + 1] += 1
+        for d in range(1 << digit):
+            start[d + 1] += start[d]
+        for i in range(n):
+            d = (keys[i] >> shift) & mask
+            other_keys[start[d]], other_order[start[d]] = keys[i], order[i]
+            start[d] += 1
+        keys, other_keys = other_keys, keys
+        order, other_order = other_order, order
+    return order

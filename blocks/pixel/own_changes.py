@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from evsda.blocks.pixel.pixel_loop import FLUX
 from evsda.blocks.pixel.sampling import stable_order
 
 
@@ -72,6 +73,57 @@ def own_changes(held, background, row_of, sample, flux, lead):
             k = k + 1 if entries else following      # elsewhere the value is the background's, unchanged
         off[i] = k_max > 0 and value != background[k_max - 1]
     return rows[:out].copy(), columns[:out].copy(), values[:out].copy(), off
+
+
+@numba.njit(cache=True, nogil=True)      # runs beside other blocks' steps (pipelined windows)
+def window_changes(touched, stamp_row, sample, flux, real, applied, base, shared_step, shared_input, held_background,
+                   background, steps):
+    """A window's input changes, for a window with samples (``background[k]`` from ``steps[k]``; ``held_background``
+    before them): ``(shared, own_step, own_flux, off_background, changed, first, counts, quiet_from)``.
+
+    ``shared`` are the samples where the uniform background changes. The pixels under stamps (``touched``, sorted;
+    ``stamp_row``, ``sample``, ``flux``: the stamp entries as :func:`own_changes` takes them) get their own changes,
+    sorted by pixel then step (``own_step``, ``own_flux``), from their flux in the state table ``real`` or, where they
+    have not taken every background change kept (``applied`` below ``base`` + the ``shared_step.size`` kept; rows
+    ``shared_input``), from the last kept change's, which then leads their changes (at its step); ``off_background``
+    are those whose last value is not the background's. ``changed`` are the pixels with own changes,
+    ``first`` and ``counts`` where each one's changes start and how many, and ``quiet_from`` the first kept change
+    each has not taken where the ones before the last kept change are left to take quietly (-1: none). The NumPy
+    bookkeeping of :meth:`.eventdriven.EventDrivenPixels.run_window` under the GIL before, in one call that
+    releases it (the same arrays).
+    """
+    k_max, kept, n = background.size, shared_step.size, touched.size
+    shared = np.empty(k_max, np.int64)
+    n_shared = 0
+    for k in range(k_max):
+        if background[k] != (background[k - 1] if k else held_background):
+            shared[n_shared] = k
+            n_shared += 1
+    held, behind = np.empty(n), np.empty(n, np.bool_)
+    for i in range(n):
+        behind[i] = applied[touched[i]] < base + kept
+        held[i] = shared_input[kept - 1, FLUX] if behind[i] and kept > 0 else real[touched[i], FLUX]
+    row, column, own_flux, off = own_changes(held, background, stamp_row, sample, flux, behind)
+    n_own = row.size
+    own_step, first = np.empty(n_own, np.int64), np.empty(n_own, np.int64)
+    changed, counts, quiet_from = np.empty(n_own, np.int64), np.empty(n_own, np.int64), np.empty(n_own, np.int64)
+    c = -1
+    for j in range(n_own):
+        own_step[j] = steps[column[j]] if column[j] >= 0 else (shared_step[kept - 1] if kept > 0 else 0)
+        if j == 0 or row[j] != row[j - 1]:              # a pixel's first change
+            c += 1
+            first[c], changed[c], counts[c] = j, touched[row[j]], 0
+            pending = applied[changed[c]] - base
+            quiet_from[c] = pending if pending < kept - 1 else -1
+        counts[c] += 1
+    off_background = np.empty(n, np.int64)
+    n_off = 0
+    for i in range(n):
+        if off[i]:
+            off_background[n_off] = touched[i]
+            n_off += 1
+    return (shared[:n_shared], own_step, own_flux, off_background[:n_off], changed[:c + 1], first[:c + 1],
+            counts[:c + 1], quiet_from[:c + 1])
 
 
 @numba.njit(cache=True, nogil=True)

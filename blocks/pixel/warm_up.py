@@ -17,8 +17,8 @@ from evsda.graph import RunInfo, Window
 
 #: the modules of the compiled loops the block calls (the loops they call are compiled and cached with them), for the
 #: cache check of :func:`evsda.graph.compile_ahead.start`
-MODULES = tuple(f"evsda.blocks.pixel.{name}" for name in ("deferred", "drive_kernel", "own_changes", "pixel_loop",
-                                                         "sampling"))
+MODULES = tuple(f"evsda.blocks.pixel.{name}" for name in ("deferred", "drive_kernel", "eventlog", "own_changes",
+                                                         "pixel_loop", "sampling"))
 
 _DEFERRED, _LOOP, _OWN, _SAMPLING = (f"evsda.blocks.pixel.{name}" for name in ("deferred", "pixel_loop",
                                                                                    "own_changes", "sampling"))
@@ -37,10 +37,13 @@ TASKS = (
     (f"{_SAMPLING}:_summed_stamps", "f8[:, :, :, ::1], i4[:, :, ::1], i8[::1], i8[::1], i8[::1], i8, i8"),
     (f"{_DEFERRED}:select_pixels", "f8[:, ::1], i8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8, i8, i8, "
                                    "f8[::1], f8[::1], f8[::1], f8[::1], f8, f8, b1, b1, i8, i8"),
-    (f"{_OWN}:own_changes", "f8[::1], f8[::1], i8[::1], i8[::1], f8[::1], b1[::1]"),
+    (f"{_OWN}:window_changes", "i8[::1], i8[::1], i8[::1], f8[::1], f8[:, ::1], i8[::1], i8, i8[::1], f8[:, ::1], f8, "
+                               "f8[::1], i8[::1]"),
     (f"{_OWN}:under_stamps", "i8[::1], i8[::1], i4[::1]"),
     (f"{_DEFERRED}:take_ranges", "i8[::1], b1[::1], i8[::1], i8, i8, i8, i8, i8, i8[::1], i8[::1], i8[::1], i8[::1]"),
     (f"{_SAMPLING}:_adds_flux", "f8[:, :, ::1], i8[::1], b1[:, ::1]"),
+    ("evsda.blocks.pixel.eventlog:time_ordered", "i8[::1], i8[::1], i1[::1], u1[::1], i8, i8, i8, i8[::1], u2[::1], u2[::1], "
+                                                "i1[::1], u1[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1]"),
 )
 
 

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from evsda.blocks.pixel.own_changes import own_changes, under_stamps
+from evsda.blocks.pixel.own_changes import own_changes, under_stamps, window_changes
+from evsda.blocks.pixel.pixel_loop import FLUX, REAL
 
 
 def dense_changes(held, background, row_of, sample, flux):
@@ -67,3 +68,47 @@ def test_sorted_runs_is_numpys_sort():
         for values in (rng.permutation(n), np.concatenate(runs)[:n], rng.integers(0, 9, n), np.arange(n)[::-1]):
             values = np.ascontiguousarray(values, dtype=np.int64)
             np.testing.assert_array_equal(_sorted_runs(values), np.sort(values))
+
+
+def numpy_window_changes(touched, stamp_row, sample, flux, real, applied, base, shared_step, shared_input,
+                         held_background, background, steps):
+    """The NumPy bookkeeping ``run_window`` did before :func:`window_changes` (a window with samples)."""
+    kept = shared_step.size
+    behind = applied[touched] < base + kept
+    shared = np.flatnonzero(background != np.r_[held_background, background[:-1]])
+    held = real[touched, FLUX]
+    if kept:
+        held[behind] = shared_input[kept - 1, FLUX]
+    row, col, own_flux, off = own_changes(held, background, stamp_row, sample, flux, behind)
+    own_pixel = touched[row]
+    own_step = np.r_[shared_step[kept - 1] if kept else 0, steps][col + 1].astype(np.int64)
+    first = np.flatnonzero(np.r_[True, own_pixel[1:] != own_pixel[:-1]]) if own_pixel.size else np.zeros(0, np.int64)
+    changed, counts = own_pixel[first], np.diff(np.r_[first, own_pixel.size])
+    pending = applied[changed] - base
+    quiet_from = np.where(pending < kept - 1, pending, -1)
+    return shared, own_step, own_flux, touched[off], changed, first, counts, quiet_from
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_window_changes_are_the_numpy_bookkeeping(seed):
+    rng = np.random.default_rng(seed)
+    n_pixels, k = int(rng.integers(1, 60)), int(rng.integers(1, 10))
+    touched = np.unique(rng.integers(0, n_pixels, int(rng.integers(0, n_pixels + 1))))
+    m = int(rng.integers(0, 3 * touched.size + 1)) if touched.size else 0
+    sample = np.sort(rng.integers(0, k, m))
+    stamp_row = rng.integers(0, max(touched.size, 1), m)
+    flux = rng.choice([0.0, 0.5, 3.0], size=m)
+    real = rng.choice([1.0, 1.5, 2.5], size=(n_pixels, len(REAL)))
+    kept = int(rng.integers(0, 5)) if seed % 4 else 0                  # background changes kept from before
+    base = int(rng.integers(0, 4))
+    applied = base + rng.integers(0, kept + 1, n_pixels)               # some pixels behind, some up to date
+    shared_step = np.sort(rng.integers(0, 100, kept))
+    shared_input = rng.choice([1.0, 2.0], size=(kept, len(REAL)))
+    background = rng.choice([1.0, 1.5], size=k)
+    steps = 100 + np.arange(k, dtype=np.int64) * 7
+    held_background = float(rng.choice([1.0, 1.5]))
+    args = (touched, stamp_row, sample, flux, real, applied, np.int64(base), shared_step, shared_input,
+            held_background, background, steps)
+    for got, want in zip(window_changes(*args), numpy_window_changes(*args)):
+        np.testing.assert_array_equal(got, want)
+        assert got.dtype == want.dtype
