@@ -16,7 +16,7 @@ from evsda.graph.params import DataFile
 
 from .atmosphere import Atmosphere
 from .equivalent_layers import equivalent_layers
-from .imaging import Imager, line_of_sight_at
+from .imaging import Imager, line_of_sight_at, same_bits
 from .render_interval import RenderInterval
 from .telescope import Telescope
 from .truth import truth_rows
@@ -355,8 +355,7 @@ class PointSourceOptics(Block):
         both = {n: np.concatenate([before[n][live][None], fields[n][:, live]]) for n in ("x", "y")}
         for n in names[2:]:
             held_n = before[n][live]
-            uniform = bool((held_n.view(np.uint64) == held_n[:1].view(np.uint64)).all())     # bits: NaN, -0.0
-            both[n] = np.concatenate([held_n[:1][None], fields[n][:, :1]]) if uniform else \
+            both[n] = np.concatenate([held_n[:1][None], fields[n][:, :1]]) if same_bits(held_n, held_n[:1]) else \
                 np.concatenate([held_n[None], fields[n][:, live]])
         x = both["x"]
         rates = []

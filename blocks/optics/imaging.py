@@ -87,13 +87,13 @@ def _per_row(*values) -> tuple:
     out = []
     for value in values:
         value = np.asarray(value, dtype=float)
-        if value.ndim == 2 and value.shape[1] > 1 and _same_bits(value, value[:, :1]):
+        if value.ndim == 2 and value.shape[1] > 1 and same_bits(value, value[:, :1]):
             value = value[:, :1]
         out.append(value)
     return tuple(out)
 
 
-def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether float64 ``a`` and ``b`` (broadcast) hold the same bits everywhere (signed zeros and NaNs too)."""
     return bool((a.view(np.uint64) == b.view(np.uint64)).all())
 
