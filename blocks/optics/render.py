@@ -373,6 +373,7 @@ def tilted_phase(phase, curvature, r2, ky, kx, x, out):
     """``out[f, i, j] = ((phase[f, i, j] + curvature[f] r2[i, j]) + ky[f] x[i]) + kx[f] x[j]`` [rad], rounded to
     ``out``'s precision: a defocus ``c r^2`` and the tilt ``k theta . r`` of a sub-pixel offset added to the phase in
     one pass (numpy's broadcast sums, bit for bit). ``phase`` may be a strided view (the screens' transposed sum)."""
+    column_fft.wide_vectors()
     frames, rows, cols = phase.shape
     for f in range(frames):
         for i in range(rows):
@@ -387,6 +388,7 @@ def tilted_phase_transposed(phase_t, curvature, r2, ky, kx, x, out):
     """:func:`tilted_phase` on and into transposed arrays: ``out[f, j, i]`` is element ``(i, j)`` from the
     contiguous ``phase_t[f, j, i]`` (``r2`` read as ``r2[j, i]``: it is symmetric), so that every read and write runs
     along memory (vector lanes; 2.6x faster than reading the transposed view)."""
+    column_fft.wide_vectors()
     for f in range(phase_t.shape[0]):
         _tilted_frame_transposed(phase_t[f], curvature[f], r2, ky[f], kx[f], x, out[f])
 
@@ -456,6 +458,7 @@ def tilted_sincos_transposed(phase_t, curvature, r2, ky, kx, x, cosine, sine):
     """:func:`tilted_phase_transposed` and numpy's float32 ``cos`` and ``sin`` of it, frame by frame: ``cosine``,
     ``sine`` (F, n, n) float32, C-contiguous, transposed as ``phase_t``. False (outputs unspecified) where a tilted
     phase's magnitude exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's."""
+    column_fft.wide_vectors()
     within = True
     for f in range(phase_t.shape[0]):
         within &= _tilted_sincos_frame(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine[f], sine[f])
@@ -467,6 +470,7 @@ def _tilted_sincos_frame(phase_t, curvature, r2, ky, kx, x, cosine, sine):
     """One frame (n, n) of :func:`tilted_sincos_transposed`, ``curvature``, ``ky`` and ``kx`` its scalars: whether
     every phase was within ``SINCOS_LIMIT``. Compiled once for both of its callers (not inlined: the sine's
     polynomials compiled twice cost ~0.6 s of a first run)."""
+    column_fft.wide_vectors()
     # the frame's phases into ``cosine``, then their sines and cosines: loops in vector lanes over a frame in cache
     # (one loop that mixed the double-precision sums with the single-precision sine ran slower than numpy's)
     _tilted_frame_transposed(phase_t, curvature, r2, ky, kx, x, cosine)
@@ -516,6 +520,7 @@ def _stamp_frames(phase_t, curvature, r2, ky, kx, x, amplitude_t, b, b_t, factor
     ``ky``, ``kx`` (F,) as :func:`tilted_phase`'s; ``out`` (F, M, M) float64; the rest this thread's buffers
     (:meth:`PupilRenderer._frame_buffers`) and the twiddles. False (``out`` unspecified) at the first frame whose
     tilted phase exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's sine and cosine."""
+    column_fft.wide_vectors()
     frames, n = phase_t.shape[0], phase_t.shape[1]
     m = image.shape[0]
     flat_psf, flat_cosine, flat_sine = psf.reshape(-1), cosine.reshape(-1), sine.reshape(-1)
@@ -538,6 +543,7 @@ def pupil_field(amplitude, cosine, sine, grid):
     """``grid[f, :n, :n] = amplitude (cosine + i sine)`` and ``grid[f, :n, n:] = 0`` for (F, n, n) ``cosine``, ``sine``
     and ``amplitude`` (1, n, n) or (F, n, n): numpy's product of the complex field with a real amplitude, bit for bit
     (an imaginary part of zero adds only signed zeros)."""
+    column_fft.wide_vectors()
     frames, n = cosine.shape[0], cosine.shape[1]
     size = grid.shape[2]
     for f in range(frames):
@@ -554,6 +560,7 @@ def pupil_field(amplitude, cosine, sine, grid):
 def squared_modulus(spectrum, out, clear_from=-1):
     """``out = re^2 + im^2`` of a complex64 ``spectrum`` (F, L, L) in one pass (numpy's ``real**2 + imag**2``, bit for
     bit); rows ``clear_from:`` of ``spectrum`` are set to zero once read (the next padded FFT's zeros), if given."""
+    column_fft.wide_vectors()
     frames, rows, cols = spectrum.shape
     for f in range(frames):
         for i in range(rows):

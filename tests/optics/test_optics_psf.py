@@ -502,3 +502,30 @@ def test_renderer_buffers_start_on_a_cache_line():
     for buffer in (*renderer._frame_buffers(), *renderer._per_frame(3), *renderer._workspace(2),
                    renderer._local.scratch):
         assert buffer.ctypes.data % render.ALIGNMENT == 0
+
+
+def test_wide_vectors_only_ask_llvm_for_wider_vectors():
+    # column_fft.wide_vectors tags the compiled function that calls it with LLVM's vector-width attributes (512-bit
+    # vectors where the CPU has them); the function computes what it computes without the call, bit for bit
+    import numba
+
+    from evsda.blocks.optics import column_fft
+
+    def scaled(values, out):
+        for i in range(values.size):
+            out[i] = values[i] * np.float32(3.0) + values[i] / np.float32(7.0)
+
+    scaled_inline = numba.njit(inline="always")(scaled)
+
+    @numba.njit
+    def wide(values, out):
+        column_fft.wide_vectors()
+        scaled_inline(values, out)
+
+    values = (np.random.default_rng(5).standard_normal(1001) * 1e3).astype(np.float32)
+    out, expected = np.empty_like(values), np.empty_like(values)
+    wide(values, out)
+    scaled(values, expected)
+    np.testing.assert_array_equal(out.view(np.uint32), expected.view(np.uint32))
+    llvm = next(iter(wide.inspect_llvm().values()))
+    assert all(attribute in llvm for attribute in column_fft.WIDE_VECTOR_ATTRIBUTES)
