@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from evsda.blocks.optics.screen_kernels import _taps, sample_grids_transposed
+import numba
+
+from evsda.blocks.optics.screen_kernels import (SMALLEST_FAST_POSITION, _sixth, _sixths_exact, _taps, _taps_divided,
+                                               sample_grids_transposed)
 
 
 def sum_in_order(terms) -> float:
@@ -81,3 +84,50 @@ def test_vector_blocks_and_their_tails_are_the_same_sums_in_order():
             assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 0, 3, fast, assign)
             reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
             np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
+
+
+@numba.njit
+def sixths(a, out):
+    for i in range(a.shape[0]):
+        out[i] = _sixth(a[i])
+
+
+def same_bits(a, b) -> bool:
+    return np.array_equal(np.asarray(a).view(np.int64), np.asarray(b).view(np.int64))
+
+
+def test_sixth_is_the_correctly_rounded_division():
+    # Markstein's multiply-and-correct gives a / 6's bits for every finite |a| >= 2^-1019 (and +0): random
+    # significands over the whole exponent range, significands divisible by 3 (exact quotients), both ends of a binade
+    rng = np.random.default_rng(11)
+    n = 200_000
+    for significands in (rng.integers(2**52, 2**53, n), 3 * rng.integers(2**52 // 3 + 1, 2**53 // 3, n),
+                         2**53 - 1 - rng.integers(0, 4096, n), 2**52 + rng.integers(0, 4096, n)):
+        a = np.ldexp(significands.astype(float), rng.integers(-1019 - 52, 1023 - 52, n)) * rng.choice([-1.0, 1.0], n)
+        a = np.concatenate([a, [0.0, 2.0**-1019, 4.0, 1.0, 3.0, 6.0, 5.0]])
+        out = np.empty_like(a)
+        sixths(a, out)
+        assert same_bits(out, a / 6.0)
+
+
+def test_sixth_needs_its_bound():
+    # below it (subnormal dividends) the correction can round a tie the other way: why _taps checks its positions
+    a = np.ldexp(np.arange(3, 3000, 6, dtype=float), -1074)
+    out = np.empty_like(a)
+    sixths(a, out)
+    assert not same_bits(out, a / 6.0)
+
+
+def test_taps_are_the_divided_taps():
+    rng = np.random.default_rng(12)
+    awkward = [0.0, 3.0, -3.0, 1 - 2**-53, -2.0**-60, -1e-300, SMALLEST_FAST_POSITION, 0.5, -0.5]
+    for u, fast in [(rng.uniform(-50, 1000, 5000), True), (rng.uniform(-1, 1, 5000), True), (np.array(awkward), True),
+                    (np.array([2.5, 1e-200]), False), (np.array([2.5, 1e-320]), False), (np.array([2.5, -0.0]), False), (np.array([2.5, np.nan]), False),
+                    (np.array([np.inf, 2.5]), False)]:
+        assert _sixths_exact(u, 0.0) == fast
+        index, weights = np.empty(u.size, np.int64), np.empty((4, u.size))
+        divided_index, divided = np.empty(u.size, np.int64), np.empty((4, u.size))
+        _taps(u, 0.0, index, weights)
+        _taps_divided(u, 0.0, divided_index, divided)
+        np.testing.assert_array_equal(index, divided_index)
+        assert same_bits(weights, divided)
