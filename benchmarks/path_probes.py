@@ -32,10 +32,12 @@ the probe cache off and one step at a time (``EVSDA_PIPELINE=0``, so that the pr
 is theirs), on the process's threads; it prints the medians of the first optics step up to its probes (wall, and its
 thread's CPU: the imager, the sampling, the window's samples), of the first window's probes (wall and CPU: the run's
 first compiled code is among them, Numba's typing and target contexts, ~0.2 s of interpreter) and of all of the
-run's probes, and whether every run gave the same choices and estimates (a digest of their ``repr``).
+run's probes, Numba's cached loads (how many, and their threads' CPU in ``Cache._load_overload``) and the
+process's CPU, and whether every run gave the same choices and estimates (a digest of their ``repr``). ``--variant
+LABEL:VAR=VALUE`` adds this checkout with more environment, alternated (e.g. ``off:EVSDA_KEPT_SYMBOLS=off``).
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --fresh [--against DIR] [--repeats 5]
-        [--graph examples/iss_pass.yaml --duration 4]
+        [--graph examples/iss_pass.yaml --duration 4] [--variant LABEL:VAR=VALUE[,VAR=VALUE]]
 """
 
 from __future__ import annotations
@@ -193,12 +195,20 @@ def ahead_or_not(imager, frames: tuple, repeats: int, speculate: bool = False) -
 #: the child of ``--fresh``: argv graph, duration; prints the probes' spans (wall, CPU) and the choices' digest
 FRESH = r"""
 import functools, hashlib, json, sys, tempfile, time
+from numba.core import caching
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.paths import PathChooser
 from evsda.graph.executor import run_graph
 from evsda.graph.graphfile import load_graph
-spans, imagers, started, before = [], [], [], []
-probe_ahead, step = PathChooser.probe_ahead, PointSourceOptics.step
+spans, imagers, started, before, loads = [], [], [], [], []
+probe_ahead, step, load = PathChooser.probe_ahead, PointSourceOptics.step, caching.Cache._load_overload
+
+def loaded(self, *args):                   # a cached compiled function loaded: its thread's CPU
+    c = time.thread_time()
+    try:
+        return load(self, *args)
+    finally:
+        loads.append(time.thread_time() - c)
 
 def timed(self, *args):
     t, c = time.perf_counter(), time.process_time()
@@ -218,13 +228,14 @@ def kept(self, *args, **kwargs):
         imagers.append(self._imager)
     return out
 
-PathChooser.probe_ahead, PointSourceOptics.step = timed, kept
+PathChooser.probe_ahead, PointSourceOptics.step, caching.Cache._load_overload = timed, kept, loaded
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
 with tempfile.TemporaryDirectory() as tmp:
     run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
 made = repr([(sorted(c._choices.items()), sorted(c._pupil_errors.items()), sorted(c._estimates.items(), key=repr))
              for c in (imager.chooser for imager in imagers)])
 print(json.dumps({"first": spans[0], "before": before[0], "all": [sum(s[0] for s in spans), sum(s[1] for s in spans)],
+                  "loads": [len(loads), sum(loads)], "cpu": time.process_time(),
                   "digest": hashlib.sha256(made.encode()).hexdigest()[:16]}))
 """
 
@@ -234,16 +245,21 @@ def fresh_runs(args) -> None:
     sys.path.insert(0, str(Path(__file__).parent))
     from end_to_end import alternated, checkouts, fresh
 
-    trees = checkouts(argparse.ArgumentParser(), args.against)
+    trees = {name: (checkout, {}) for name, checkout in checkouts(argparse.ArgumentParser(), args.against).items()}
+    for variant in args.variant:
+        label, _, settings = variant.partition(":")
+        trees[label] = (None, dict(setting.split("=", 1) for setting in settings.split(",")))
     env = {"EVSDA_CACHE": "off", "EVSDA_PIPELINE": "0"}
 
-    def run(checkout):
-        return fresh(FRESH, env, (str(args.graph.resolve()), str(args.duration)), checkout)
+    def run(tree):
+        checkout, more = tree
+        return fresh(FRESH, {**env, **more}, (str(args.graph.resolve()), str(args.duration)), checkout)
 
     def show(k, name, out, load):
         print(f"  run {k + 1} ({name}): the first optics step before its probes {1e3 * out['before'][0]:.1f} ms wall, "
               f"{1e3 * out['before'][1]:.1f} ms CPU; first window's probes {out['first'][0]:.3f} s wall, "
-              f"{out['first'][1]:.3f} s CPU; all {out['all'][0]:.3f} s wall; load {load:.2f}", flush=True)
+              f"{out['first'][1]:.3f} s CPU; all {out['all'][0]:.3f} s wall; {out['loads'][0]} cached loads "
+              f"{1e3 * out['loads'][1]:.0f} ms CPU; the process {out['cpu']:.2f} s CPU; load {load:.2f}", flush=True)
 
     runs, loads = alternated(trees, args.repeats, run, show)
     print(f"\n{args.graph.name}, {args.duration:g} s, {os.environ.get('EVSDA_THREADS', 'all')} threads, medians of "
@@ -257,6 +273,9 @@ def fresh_runs(args) -> None:
               f"{statistics.median(c for _, c in first):.3f} s CPU; all probes "
               f"{statistics.median(v['all'][0] for v in values):.3f} s wall, "
               f"{statistics.median(v['all'][1] for v in values):.3f} s CPU")
+        print(f"  {name}: cached loads {statistics.median(v['loads'][0] for v in values):.0f}, "
+              f"{1e3 * statistics.median(v['loads'][1] for v in values):.0f} ms CPU (their threads'); the process "
+              f"{statistics.median(v['cpu'] for v in values):.2f} s CPU")
     digests = {v["digest"] for values in runs.values() for v in values}
     print(f"  choices and estimates: {'the same in every run' if len(digests) == 1 else 'DIFFERENT'} "
           f"({', '.join(sorted(digests))})")
@@ -274,6 +293,8 @@ def main() -> None:
     parser.add_argument("--fresh", action="store_true", help="the probes as a run pays them, in fresh processes")
     parser.add_argument("--graph", type=Path, default=GRAPH, help="with --fresh: the graph (default: the pass)")
     parser.add_argument("--duration", type=float, default=0.1, help="with --fresh: simulated seconds [s]")
+    parser.add_argument("--variant", action="append", default=[], metavar="LABEL:VAR=VALUE[,VAR=VALUE]",
+                        help="with --fresh: this checkout with more environment, alternated (repeat for more)")
     args = parser.parse_args()
     if args.fresh:
         return fresh_runs(args)

@@ -12,9 +12,10 @@ the modules ``refresh`` imports in Numba 0.68.1 only ``numba.cpython.hashing`` d
 secret).
 
 :func:`lazy_registries` makes ``load_overload`` take just those two and then load as Numba does: the same machine
-code runs, so every result is the same. It applies only on the Numba versions checked, only where
-``load_overload``'s source is Numba's as checked, and only for Numba's CPU target; ``EVSDA_LAZY_REGISTRIES=off``
-leaves Numba as it is.
+code runs, so every result is the same. Its loads name their cache folder to :mod:`.numba_symbols`, which keeps each
+library's defined names there (:func:`.numba_symbols.kept_symbols`). It applies only on the Numba versions checked,
+only where ``load_overload``'s source is Numba's as checked, and only for Numba's CPU target;
+``EVSDA_LAZY_REGISTRIES=off`` leaves Numba as it is.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import inspect
 import sys
 
 from .compile_ahead import attempted_edit, switched_off
-from .numba_symbols import one_pass_symbols
+from .numba_symbols import kept_symbols, names_beside, one_pass_symbols
 
 #: the Numba versions whose ``Cache.load_overload`` and ``refresh`` were checked
 _CHECKED = ("0.68.1",)
@@ -53,6 +54,7 @@ def lazy_registries() -> bool:
     if _lazy is None and "numba" in sys.modules:
         _lazy = attempted_edit(_edit_load, "Numba's cached loads left as they are")
         one_pass_symbols()                          # and read each loaded module's symbols in one pass
+        kept_symbols()                              # or keep them beside the cache, the bitcode parsed to link
     return bool(_lazy)
 
 
@@ -71,7 +73,7 @@ def _edit_load() -> bool:
         if type(target_context) is not CPUContext:
             return numbas(self, sig, target_context)
         _runtime(target_context)
-        with self._guard_against_spurious_io_errors():
+        with self._guard_against_spurious_io_errors(), names_beside(self._cache_path):
             return self._load_overload(sig, target_context)
 
     load_overload.__doc__ = numbas.__doc__
