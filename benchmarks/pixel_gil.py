@@ -12,7 +12,8 @@ of the pixel code are stepped over the same inputs without running the pass agai
 prints the block's CPU per window (``EVSDA_THREADS=1``: the process's, one thread) without cProfile.
 ``--against DIR`` steps a copy of another checkout's ``blocks/pixel`` (DIR, e.g. the session's start) beside
 this one in the same process, window by window, alternating which goes first, checks that their events are
-the same, and prints both blocks' CPU per window and their ratio (the host's drift cancels). ``--held`` prints,
+the same, and prints both blocks' CPU per window and their ratio (the host's drift cancels); the copy is kept in
+the temporary folder, one per checkout, so that its Numba cache serves the next run. ``--held`` prints,
 without cProfile, the block's CPU a window outside its compiled loops (the Python and NumPy that hold the GIL; the
 loops' calls timed each, their argument checks counted with them), with ``--against`` for both checkouts; run it
 with ``EVSDA_THREADS=1``, which keeps every call on the block's thread.
@@ -105,8 +106,11 @@ def side_by_side(pickled: bytes, inputs: list, against: Path, held: bool = False
     """Steps this checkout's block and ``against``'s (``blocks/pixel`` copied) alternately window by window over
     the same inputs (windows after the first), checks their events are the same, prints the CPU per window
     (``held``: also outside the compiled loops, :func:`timed_loops`)."""
-    root = Path(tempfile.mkdtemp(prefix="pixel_against_"))
-    shutil.copytree(against / "blocks" / "pixel", root / "pixel_against", ignore=shutil.ignore_patterns("__pycache__"))
+    # one folder per checkout, kept: its copy's Numba cache serves the next run (copytree keeps the files' times,
+    # which Numba's cache checks; a changed file is copied again and compiled again)
+    root = Path(tempfile.gettempdir()) / f"pixel_against_{hashlib.sha256(bytes(against.resolve())).hexdigest()[:12]}"
+    shutil.copytree(against / "blocks" / "pixel", root / "pixel_against", ignore=shutil.ignore_patterns("__pycache__"),
+                    dirs_exist_ok=True)
     sys.path.insert(0, str(root))
     blocks = {"this": pickle.loads(pickled), "against": _Against(io.BytesIO(pickled)).load()}
     window, irradiance = inputs[0]
@@ -139,7 +143,6 @@ def side_by_side(pickled: bytes, inputs: list, against: Path, held: bool = False
         print(f"  outside the compiled loops (GIL held): {against} {np.median(other_held) * 1e3:.2f} ms -> this "
               f"{np.median(this_held) * 1e3:.2f} ms a window (medians); sums {other_held.sum():.3f} -> "
               f"{this_held.sum():.3f} s")
-    shutil.rmtree(root, ignore_errors=True)
 
 
 def held_per_window(block, inputs: list) -> None:

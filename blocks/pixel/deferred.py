@@ -198,12 +198,15 @@ def take_and_run(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet
     if quiet.any():
         take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
                      large)
+    known_step, known_retention, known_relaxed = np.empty(pixels.size, np.int64), np.empty(pixels.size), \
+        np.empty(pixels.size)          # the sweep's last bound of each pixel, for run_pixels' first advance
     sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
-              leak_hz, dt, large)           # own_sweep.take_own: the sweep (searches a tile at a time), the rows left
-    drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
+              leak_hz, dt, large, known_step, known_retention, known_relaxed)   # own_sweep.take_own: the sweep
+    drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)        # the rows left
     return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
                       change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
-                      th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0, _LAZY)
+                      th_floor, ev_step, ev_pixel, ev_pol, ev_cause, np.int64(0), 0.0, _LAZY, known_step,
+                      known_retention, known_relaxed)
 
 
 # fields of the pixels swept together by take_quietly (rows of its table), then their own input before their first

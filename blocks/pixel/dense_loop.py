@@ -222,6 +222,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
     change_input = np.empty((max(n_samples, 2), n_real))
     one_pixel, no_change, changes = np.empty(1, np.int64), np.zeros(1, np.int64), np.empty(1, np.int64)
     unkept, no_envelope = np.empty(0, np.int64), np.empty(0)     # run_pixels keeps no schedule here (see below)
+    #                                                            and is given no bound taken before
     n_events = _FIRST                                         # int64, not Literal[int](0): see _FIRST
     lost = 0.0
     for t0 in range(0, columns.size, TILE):
@@ -275,7 +276,8 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                                                         changes, _ONE, change_step, change_input, n_end, leak_hz, dt,
                                                         large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
                                                         th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
-                                                        n_events, lost, _EXACT)
+                                                        n_events, lost, _EXACT, unkept, no_envelope,
+                                                        no_envelope)
                     done = n_done == 1
                     if not done:
                         break
@@ -305,7 +307,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                                                     changes, NEVER, change_step, change_input, n_end, leak_hz, dt,
                                                     large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
                                                     th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost,
-                                                    _EXACT)
+                                                    _EXACT, unkept, no_envelope, no_envelope)
                 done = n_done == 1
                 if not done:
                     break

@@ -81,8 +81,9 @@ def take_own(real, count, pixels, change_lo, change_hi, change_step, change_inpu
     the search's crossing; see the module). Returns the number of changes swept. Two compiled calls (``nogil``),
     which :func:`.deferred.take_and_run` makes itself (inlined there: a first run compiles them once, in it).
     """
+    n = pixels.size
     total = sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k,
-                      n_end, leak_hz, dt, large)
+                      n_end, leak_hz, dt, large, np.empty(n, np.int64), np.empty(n), np.empty(n))
     drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_input)
     return total
 
@@ -116,11 +117,15 @@ def drive_left(pixels, change_lo, change_hi, n_own, own_flux, drive_k, change_in
 
 @numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_input, n_own, own_flux, drive_k, n_end,
-              leak_hz, dt, large):
+              leak_hz, dt, large, known_step, known_retention, known_relaxed):
     """:func:`take_own`'s sweep (see the module), the change's drive computed from its flux as it is taken (own
     changes: ``own_flux``; the background's, at and above ``n_own``: their rows' drive, or where a round's tile mixes
-    both kinds, the ``FLUX`` of their rows driven again: the same bits)."""
+    both kinds, the ``FLUX`` of their rows driven again: the same bits). Sets ``known_step[i]``,
+    ``known_retention[i]``, ``known_relaxed[i]`` to the ``j``, ``a^j`` and relaxation of the last bound taken by
+    ``pixels[i]`` at the state it leaves it in (``NO_STEP``: none; :func:`.pixel_loop.run_pixels` starts from them)."""
     n = pixels.size
+    for i in range(n):
+        known_step[i] = NO_STEP
     # the pixels with changes to sweep, most first: a counting sort by their number
     most = 0
     for i in range(n):
@@ -201,6 +206,8 @@ def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_inp
                 for field, column in _STATE[:_CHANGED]:
                     real[p, column] = fs[field * TILE + s]
                 count[p, STEP], count[p, CMP_NEXT] = js[I_STEP * TILE + s], js[I_CMP * TILE + s]
+                known_step[i], known_retention[i] = js[I_J_KNOWN * TILE + s], fs[F_KNOWN * TILE + s]
+                known_relaxed[i] = fs[F_RELAXED * TILE + s]
                 change_lo[i] += taken
                 total += taken
     return total

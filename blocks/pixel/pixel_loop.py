@@ -376,7 +376,8 @@ def resolve_schedules(real, count, next_step, leak_hz, dt, large):
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
 def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, stop_after, change_step,
                change_input, n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
-               th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost, lazy):
+               th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost, lazy, known_step, known_retention,
+               known_relaxed):
     """Every event before step ``n_end`` of each of ``pixels``, one after the other, pixel ``pixels[i]`` through
     its input changes ``change_lo[i]:change_hi[i]``: from ``change_step[k]`` on its input is row ``k`` of
     ``change_input`` (columns ``FLUX`` and ``Y`` to ``ACCEPT`` of :data:`REAL`; rows may be shared by many
@@ -394,6 +395,12 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
     ``lazy``: a pixel with no input change left keeps a bound as its comparator schedule where one is shown
     (:func:`kept_schedule`; ``next_step`` holds the bound), and the search is made at the turn at which the
     crossing could be used; else (and where ``stop_after`` stops the pixel) the search's crossing is kept.
+
+    ``known_step[i]``, ``known_retention[i]``, ``known_relaxed[i]`` (empty: none): the ``j``, ``a^j`` and relaxation
+    the last bound of ``pixels[i]`` took at its present state (:func:`.own_sweep.sweep_own`'s, ``NO_STEP``: none),
+    which its first advance by ``j`` steps takes instead of their ``exp`` and ``log`` (:func:`advanced`: the same
+    bits), as after a bound taken here; an event at the step the bound reached (a shot-noise trial or a settling
+    step: most noise events) takes them too.
 
     A pixel's state is read into local variables at its turn and written back at its end: no array is
     passed through a call in the loops (Numba counts an array's references up and down at each, atomically:
@@ -419,6 +426,8 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         stop = ptr + stop_after
         t_change = change_step[ptr] if ptr < end else NEVER
         j_known, known, relaxed = NO_STEP, 0.0, 0.0          # what its schedule's bound took (none: from the state)
+        if known_step.size:
+            j_known, known, relaxed = known_step[i], known_retention[i], known_relaxed[i]
         quiet = SOON                    # quiet_until of the present state where the lazy schedule took it
         if cmp_next < 0:                # a kept bound: the search, where the crossing could come first (the state
             # is still the one the bound was taken at: kept_schedule); elsewhere none comes before what does
@@ -431,10 +440,10 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
             t_settle = _settle_step(ready, owed)
             t_event = min(cmp_next, shot_next, t_settle)
             event = t_event < t_change and t_event < n_end
-            if event:                                         # an event first: no use for the bound's a^j
+            if event:                                         # an event first (at the bound's j: its a^j)
                 if n_events + 2 > capacity:                   # no room: this pixel as it was, without its events
                     return first_event, i, lost_before
-                t, j_at = t_event, NO_STEP
+                t, j_at = t_event, j_known
             elif ptr < end:                                   # the next input takes over
                 t, j_at = t_change - 1, j_known
             else:

@@ -48,7 +48,8 @@ def loop_alone(real, count, next_step, wake, envelope, pixels, quiet_lo, quiet_e
         take_quietly(real, count, pixels[quiet], quiet_lo[quiet], quiet_end, shared_step, shared_input, leak_hz, dt,
                      large)
     return run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change_hi, NEVER, change_step,
-                      change_input, n_end, *rest, np.int64(0), 0.0, _LAZY)
+                      change_input, n_end, *rest, np.int64(0), 0.0, _LAZY, np.empty(0, np.int64), np.empty(0),
+                      np.empty(0))
 
 
 def run(monkeypatch, window_s: float, sweep: bool, form: str, threads: str = "1", room: int = 1024,
