@@ -6,7 +6,8 @@ creation, each window's ``append_events``, ``append_truth``, ``append_product``,
 ``set_attrs``), then replays those calls ``--rounds`` times into fresh stores in a temporary folder and commits each
 as a finished run does. Each replay's CPU is read per thread: the replaying thread (in a run, the main thread that
 records each window), Zarr's I/O thread (``zarr_io``: the event loop that runs Zarr's coroutines: metadata, the
-codec pipeline's orchestration), the event loop's workers (``asyncio``: Blosc, CRC-32C, file writes) and the rest
+codec pipeline's orchestration), the event loop's workers (``asyncio``: Blosc, CRC-32C, file writes; read from ``/proc`` in clock ticks, the replaying
+thread from its own clock) and the rest
 (the store's flush threads, which end with each flush). Zarr is imported before the replays; ``--import`` times its
 import in ``--rounds`` fresh processes that first import what a run has imported by then (NumPy, Numba, SciPy,
 pydantic, networkx), the store's first-window cost in a run.
@@ -116,7 +117,7 @@ def replay(module, created: dict, calls: list, digest: bool = False) -> dict:
     """One replay into a fresh store of ``module``: process CPU, each thread group's CPU [s], and the digest."""
     with tempfile.TemporaryDirectory() as folder:
         path = f"{folder}/run.zarr"
-        before, process = thread_cpu(), time.process_time()
+        before, process, own = thread_cpu(), time.process_time(), time.thread_time()
         target = module.RunStore.create(path, attrs=created)
         for name, args, kwargs in calls:
             getattr(target, name)(*args, **kwargs)
@@ -125,6 +126,7 @@ def replay(module, created: dict, calls: list, digest: bool = False) -> dict:
         spent = {"process": time.process_time() - process}
         after = thread_cpu()
         spent.update({key: after[key] - before[key] for key in THREADS})
+        spent["MainThread"] = time.thread_time() - own        # finer than /proc's clock ticks
         # the flush threads have ended by now: the rest of the process's CPU is theirs
         spent["other"] = spent["process"] - sum(spent[key] for key in THREADS)
         if digest:
