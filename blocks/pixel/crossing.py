@@ -30,7 +30,7 @@ import math
 import numba
 import numpy as np
 
-from .fastmath import exp_, log_
+from .fastmath import exp_, log_, wide_vectors
 
 NEVER = np.int64(1) << np.int64(62)        # "no such step" [steps]
 J_LIMIT = np.int64(1) << np.int64(52)      # longest look-ahead; beyond it a crossing counts as never [steps]
@@ -411,6 +411,7 @@ def _comparator_slopes(x, c, d, e, log_a, delta, large, g, slope):
     same bits: ``x`` is exact, ``a^j`` is taken as :func:`power` takes it, and the large-signal relaxation
     where ``a^j`` is flushed to 0 is ``-ln 1 = -0``, that function's shortcut, for any ``e`` :func:`large_weight`
     gives)."""
+    wide_vectors()
     n = c.size
     for slot in range(x.size // n):
         for k in range(n):

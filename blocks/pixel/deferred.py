@@ -33,7 +33,7 @@ import numpy as np
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
-from .fastmath import _float_to_bits
+from .fastmath import _float_to_bits, wide_vectors
 from .own_sweep import drive_left, sweep_own
 from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NOISE_SCALE, PARA,
                          STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, drifted, quiet_until,
@@ -231,6 +231,7 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
     :mod:`.fastmath`'s functions give the same bits in vectorised loops), so its state is the
     reference's bit for bit (tested).
     """
+    wide_vectors()
     n = pixels.size
     if n == 0:
         return

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 from . import lowpass, photoreceptor
-from .fastmath import exp_, log1p_, log_
+from .fastmath import exp_, log1p_, log_, wide_vectors
 from .model import PixelModel
 from .pixel_loop import ACCEPT, FLUX, LOG_A, PARA, Y
 
@@ -134,6 +134,7 @@ def drive_rows(flux, k, rows):
     loop (as fast as a copy of the loop per value, measured), and one loop is compiled instead of two
     (4.0 -> 1.4 s CPU cold, ``benchmarks/pixel_compile.py``).
     """
+    wide_vectors()
     square_law = k[SQUARE_LAW] != 0.0
     n = flux.size
     x, log_x = np.empty(n), np.empty(n)

@@ -29,6 +29,8 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
+from evsda.blocks.optics.column_fft import wide_vectors    # noqa: F401  (512-bit vectors: the loops here use it)
+
 _LN2_HI = 6.93147180369123816490e-01        # upper bits of ln 2 (fdlibm)
 _LN2_LO = 1.90821492927058770002e-10        # ln 2 - _LN2_HI
 _INV_LN2 = 1.44269504088896338700e+00

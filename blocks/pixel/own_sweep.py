@@ -42,6 +42,7 @@ from .comparator import TOLERANCE
 from .crossing import (J_LIMIT, NEVER, NO_STEP, UNSETTLED, band_bound, band_holds, batch_crossings, batched, power,
                        relaxed_at, search_crossing)
 from .drive_kernel import SQUARE_LAW, drive_cutoff, drive_log, drive_rest, drive_rows
+from .fastmath import wide_vectors
 from .pixel_loop import (_AHEAD, ACCEPT, C_LEAK, C_PARA, CMP_NEXT, FLUX, L_, LATER, LOG_A, M_, NOISE_SCALE, OWED,
                          PARA, READY, SHOT_NEXT, STEP, TH_OFF, TH_ON, Y, _fetch_row, _settle_step, drifted,
                          next_crossing_known, quiet_until, relaxed_by)
@@ -217,6 +218,7 @@ def sweep_own(real, count, pixels, change_lo, change_hi, change_step, change_inp
 def _drive(fs, m, drive_k):
     """The drive (``N_Y`` .. ``N_ACCEPT``) of the flux ``N_FLUX`` of the tile's pixels ``0 .. m - 1``
     (:func:`.drive_kernel.drive_rows`' three loops: the same bits)."""
+    wide_vectors()
     square_law = drive_k[SQUARE_LAW] != 0.0
     for s in range(m):
         fs[N_Y * TILE + s], fs[N_LOG_A * TILE + s] = drive_log(fs[N_FLUX * TILE + s], drive_k)         # x, ln x
@@ -270,6 +272,7 @@ def _fresh(fs, js, m, leak_hz, dt, large):
     ``j > 0``: :func:`.pixel_loop.relaxed_by` of :func:`.crossing.power`; the same bits, as a known ``a^j`` was taken
     by the same :func:`.crossing.power`), computed by every pixel in a loop the compiler vectorises (most are, in
     the first round; later rounds seldom have any)."""
+    wide_vectors()
     for s in range(m):
         fresh = js[I_FRESH * TILE + s] != 0
         filtered, memorised = fs[F_L * TILE + s], fs[F_M * TILE + s]
@@ -290,6 +293,7 @@ def _bound(fs, js, m, n_end, leak_dt, dt, large):
     """The change's new input for the pixels that take it, and the bound up to the last step the event-driven loop
     would act on (:func:`.pixel_loop._schedule_before` with :func:`.crossing.band_bound`): ``LATER`` where it holds,
     else ``I_SEARCH``. Returns the number of searches left."""
+    wide_vectors()
     n_search = 0
     for s in range(m):
         go = js[I_GO * TILE + s] != 0
