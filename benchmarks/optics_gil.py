@@ -31,8 +31,15 @@ and the part of it outside compiled ``nogil`` calls (the same upper bound of the
 fresh process each drift by 10-20 % on this host, even on code both trees share; in one process the drift cancels.
 ``--inputs FILE`` keeps the captured block and inputs (pickled; read back if it exists).
 
+``--replay --regions`` (no ``--against``) steps this checkout's block alone over those inputs and splits its CPU
+outside compiled ``nogil`` calls by region: each of the functions in ``REGIONS`` (the step's phases before the render
+loop, the render units, the pupil path's and renderer's Python, the screens' walk, the truth table) with its own time
+outside those calls and outside the regions under it, and the step's own lines; only these functions are wrapped
+(~0.3 us a call), so the figures are not a profiler's.
+
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py [--repeats 3] [--against DIR] [--functions]
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py --replay --against DIR [--inputs F] [--repeats 3]
+    OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/optics_gil.py --replay --regions [--inputs F] [--repeats 3]
 """
 
 from __future__ import annotations
@@ -303,6 +310,94 @@ def replay(pickled: bytes, inputs: list, against: Path, repeats: int) -> None:
               f"({min(ratios):.3f}-{max(ratios):.3f})")
 
 
+#: ``--regions``: (module, owner or None, function, label) of each region timed on its own
+REGIONS = (("block", "PointSourceOptics", "_held_samples", "sample and hold, rates (_held_samples)"),
+           ("render_interval", "RenderInterval", "multiples", "render intervals (multiples)"),
+           ("paths", "PathChooser", "probe_ahead", "probes ahead (probe_ahead)"),
+           ("imaging", "Imager", "placement", "placements (Imager.placement)"),
+           ("paths", "PathChooser", "keys", "path bins (PathChooser.keys)"),
+           ("imaging", "Imager", "prepare", "path choices (Imager.prepare)"),
+           ("block", None, "parallel_map", "the render loop's units (render_together, render)"),
+           ("imaging", "Imager", "render_many", "Imager and PupilPath render_many"),
+           ("imaging", "Imager", "render", "sources alone (Imager.render)"),
+           ("pupil_path", "PupilPath", "_phases", "the pupil path's _phases"),
+           ("pupil_path", None, "accumulate_layers", "the screens' walk (accumulate_layers)"),
+           ("render", "PupilRenderer", "stamps", "PupilRenderer.stamps"),
+           ("block", "PointSourceOptics", "_held", "held frames (_held)"),
+           ("block", None, "truth_rows", "truth table (truth_rows)"),
+           ("imaging", "Imager", "release", "release"))
+
+
+def regions(pickled: bytes, inputs: list, repeats: int) -> None:
+    """``--regions``: this checkout's block over the captured inputs, its CPU outside compiled ``nogil`` calls by
+    region (the module docstring)."""
+    from numba.core import dispatcher
+    from evsda.blocks import optics
+
+    clock, released, spent, stack = time.thread_time, [0.0], {}, []
+    base_call = dispatcher.Dispatcher.__call__
+
+    def call(self, *args, **kwargs):
+        if not self.targetoptions.get("nogil"):
+            return base_call(self, *args, **kwargs)
+        t = clock()
+        try:
+            return base_call(self, *args, **kwargs)
+        finally:
+            released[0] += clock() - t
+    dispatcher.Dispatcher.__call__ = call
+
+    def timed(inner, label):
+        def wrapper(*args, **kwargs):
+            t, free = clock(), released[0]
+            stack.append(0.0)
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                held = clock() - t - (released[0] - free)
+                spent[label] = spent.get(label, 0.0) + held - stack.pop()
+                if stack:
+                    stack[-1] += held
+        return wrapper
+
+    for module, owner, name, label in REGIONS:
+        namespace = importlib.import_module(f"{optics.__name__}.{module}")
+        target = getattr(namespace, owner) if owner else namespace
+        wrapper = timed(getattr(target, name), label)
+        static = owner is not None and isinstance(target.__dict__.get(name), staticmethod)
+        setattr(target, name, staticmethod(wrapper) if static else wrapper)
+    per_round = {}
+    for k in range(repeats):
+        block = pickle.loads(pickled)
+        block._atmosphere, block._atmosphere_ready = None, False
+        block.step(*inputs[0])                                  # set-up, compiled code's load, window 0's probes
+        spent.clear()
+        total = outside = 0.0
+        before = os.getloadavg()[0]
+        for window, sources, background in inputs[1:]:
+            t, free = clock(), released[0]
+            stack.append(0.0)
+            block.step(window, sources, background)
+            below = stack.pop()
+            step = clock() - t
+            total += step
+            outside += step - (released[0] - free)
+            spent["the step's own lines"] = spent.get("the step's own lines", 0.0) + step - (released[0] - free) - below
+        windows = len(inputs) - 1
+        figures = {"the step": total, "  outside compiled nogil calls": outside,
+                   **{"    " + label: value for label, value in spent.items()}}
+        for label, value in figures.items():
+            per_round.setdefault(label, []).append(1e3 * value / windows)
+        print(f"  round {k + 1}: the step {1e3 * total / windows:.2f} ms, {1e3 * outside / windows:.2f} outside nogil "
+              f"calls (load {(before + os.getloadavg()[0]) / 2:.1f})", flush=True)
+    print(f"\nthis checkout's optics step a window over {windows} windows (after the first), one thread [CPU ms]; "
+          f"medians of {repeats} rounds; each region's own time outside compiled nogil calls and the regions under it")
+    totals = [label for label in per_round if not label.startswith("    ")]
+    largest_first = sorted(set(per_round) - set(totals), key=lambda label: -statistics.median(per_round[label]))
+    for label in totals + largest_first:
+        print(f"  {label:62s} {statistics.median(per_round[label]):8.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
@@ -316,10 +411,12 @@ def main() -> None:
                              "the run's captured inputs, their outputs checked identical")
     parser.add_argument("--inputs", type=Path, help="with --replay: pickle of the captured block and inputs, written "
                                                     "if absent, else read")
+    parser.add_argument("--regions", action="store_true",
+                        help="with --replay (no --against): this checkout's CPU outside compiled nogil calls by region")
     args = parser.parse_args()
     if args.replay:
-        if args.against is None:
-            parser.error("--replay needs --against")
+        if (args.against is None) != args.regions:
+            parser.error("--replay needs --against, or --regions without it")
         os.environ.update(REPLAY_ENV)
         if args.inputs is not None and args.inputs.exists():
             with open(args.inputs, "rb") as f:
@@ -330,7 +427,10 @@ def main() -> None:
             if args.inputs is not None:
                 with open(args.inputs, "wb") as f:
                     pickle.dump((pickled, inputs), f, protocol=5)
-        replay(pickled, inputs, args.against, args.repeats)
+        if args.regions:
+            regions(pickled, inputs, args.repeats)
+        else:
+            replay(pickled, inputs, args.against, args.repeats)
         return
     trees = checkouts(parser, args.against)
     runs, loads = alternated(trees, args.repeats,

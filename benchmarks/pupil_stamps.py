@@ -32,9 +32,18 @@ per PSF (the profiler adds ~1 us per call it sees, ~1 us a PSF here).
 ``--against DIR`` adds, alternated, the same frames through another checkout's ``blocks/optics/render.py``
 from the screens' transposed sum on: a renderer without the defocus argument gets the former steps (a
 transposing copy, the defocus array added, then ``stamps``); one in four calls has a satellite's defocus.
+``--pairs N`` (with ``--against``) instead compares the two pupil paths call by call, ``N`` pairs of ``FRAMES``-frame
+calls interleaved (the order alternating), and prints each one's median and the median of the pairs' ratios with
+their quartiles: on a loaded host the drift between rounds cancels within a pair.
+
+``--items`` itemises the frame path (``render._stamp_frames``, the renderer's one compiled call a ``stamps()``): each
+of its steps in a compiled loop of its own over ``FRAMES`` frames, the frame's buffers in cache (the loops ask for
+the renderer's vector width, :func:`.column_fft.wide_vectors`): the tilted phase with its sine and cosine, the row
+FFTs with the field's product and their transposition, the column FFTs with ``|.|^2``, ``B PSF B^T`` with the scale,
+and ``_stamp_frames`` whole on the same frames (what is left is reading the phases and the calls).
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pupil_stamps.py [--repeats 7] [--profile] [--against DIR]
-        [--threads]
+        [--threads] [--items] [--pairs N]
 """
 
 from __future__ import annotations
@@ -53,11 +62,12 @@ import time
 import types
 from pathlib import Path
 
+import numba
 import numpy as np
 import scipy.fft as sfft
 from numba.core import config as numba_config
 
-from evsda.blocks.optics import column_fft
+from evsda.blocks.optics import column_fft, render
 from evsda.blocks.optics.fft_screens import fft_phase_screens
 from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler, _fft, aligned_empty
 from evsda.blocks.optics.telescope import Telescope
@@ -142,13 +152,118 @@ def profile(renderer, amplitude, phase, offsets, calls: int = 50) -> None:
         print(f"  {name:60s} {own / (calls * len(phase)) * 1e6:6.2f} us")
 
 
+@numba.njit(nogil=True)
+def _sincos_frames(phase_t, curvature, r2, ky, kx, x, cosine, sine):
+    """:func:`.render._stamp_frames`' first step alone: each frame's tilted phase with its float32 sine and cosine."""
+    column_fft.wide_vectors()
+    for f in range(phase_t.shape[0]):
+        render._tilted_sincos_frame(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine, sine)
+
+
+@numba.njit(nogil=True)
+def _row_frames(amplitude, cosine, sine, grid, scratch, twr, twi, frames):
+    """The row FFTs of one field ``frames`` times (the field's product in the first pass, the last pass's
+    transposition into the grid's rows), as :func:`.column_fft.field_powers` makes them."""
+    column_fft.wide_vectors()
+    flat_cosine, flat_sine = cosine.reshape(-1), sine.reshape(-1)
+    for _ in range(frames):
+        column_fft._radix2_field(amplitude, flat_cosine, flat_sine, scratch[0], scratch[1], twr, twi, 40)
+        column_fft._radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 40)
+        column_fft._radix5(scratch[2], scratch[3], scratch[0], 40, 40, 1)
+        column_fft._lanes_to_rows(scratch[0], grid)
+
+
+@numba.njit(nogil=True)
+def _column_frames(grid, psf, scratch, twr, twi, frames):
+    """The column FFTs with ``|.|^2`` of one grid ``frames`` times, as :func:`.column_fft.field_powers` makes them."""
+    column_fft.wide_vectors()
+    flat_psf = psf.reshape(-1)
+    for _ in range(frames):
+        column_fft._radix2(grid, scratch[0], scratch[1], twr, twi, 80)
+        column_fft._radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 80)
+        column_fft._radix5_powers(scratch[2], scratch[3], flat_psf)
+
+
+@numba.njit(nogil=True)
+def _product_frames(psf, b, b_t, half, image, out, factor, area):
+    """``B PSF B^T`` and the scale of one PSF into every frame of ``out``, as :func:`.render._stamp_frames` makes them."""
+    column_fft.wide_vectors()
+    m = image.shape[0]
+    for f in range(out.shape[0]):
+        np.dot(psf, b_t, half)
+        np.dot(b, half, image)
+        for i in range(m):
+            for j in range(m):
+                out[f, i, j] = np.float64(image[i, j]) * factor / area
+
+
+def items(renderer: PupilRenderer, amplitude, phase_t, offsets, curvature, repeats: int) -> None:
+    """``--items``: :func:`.render._stamp_frames`' steps each in a compiled loop of its own (module docstring)."""
+    frames = len(phase_t)
+    theta = offsets * renderer.sampler.pixel_scale_rad
+    k = 2 * np.pi / renderer.wavelength
+    ky, kx = k * theta[:, 1], k * theta[:, 0]
+    amplitude_t = np.ascontiguousarray(amplitude.T[None]).astype(np.float32)
+    cosine, sine, grid, psf, half, image, scratch = renderer._frame_buffers()
+    twr, twi = column_fft.TWIDDLES
+    factor, area = (renderer.delta**2 / renderer.wavelength) ** 2, float(renderer.area)
+    out = np.empty((frames, renderer.sampler.size, renderer.sampler.size))
+    steps = {
+        "_stamp_frames whole": lambda: render._stamp_frames(
+            phase_t, curvature, renderer.r2, ky, kx, renderer.x, amplitude_t, renderer.b, renderer.b_t, factor, area,
+            out, cosine, sine, grid, psf, half, image, scratch, twr, twi),
+        "  tilted phase, its sine and cosine": lambda: _sincos_frames(phase_t, curvature, renderer.r2, ky, kx,
+                                                                      renderer.x, cosine, sine),
+        "  row FFTs (the field's product, transposition)": lambda: _row_frames(
+            amplitude_t[0].reshape(-1), cosine, sine, grid, scratch, twr, twi, frames),
+        "  column FFTs with |.|^2": lambda: _column_frames(grid, psf, scratch, twr, twi, frames),
+        "  B PSF B^T and the scale": lambda: _product_frames(psf, renderer.b, renderer.b_t, half, image, out, factor,
+                                                             area)}
+    for work in steps.values():
+        work()                                                          # compiles the loops
+    times = {name: [] for name in steps}
+    loads = []
+    for _ in range(repeats):
+        loads.append(os.getloadavg()[0])
+        for name, work in steps.items():
+            times[name].append(statistics.median(per_psf_us(work, frames) for _ in range(10)))
+    print(f"the frame path's steps, each in its own compiled loop over {frames} frames (buffers in cache); medians of "
+          f"{repeats} rounds, load {statistics.median(loads):.1f}")
+    medians = {name: statistics.median(values) for name, values in times.items()}
+    for name, value in medians.items():
+        print(f"  {name:50s} {value:6.2f} us per PSF")
+    whole = medians["_stamp_frames whole"]
+    print(f"  {'  the rest (the phases read, the calls)':50s} {whole - sum(list(medians.values())[1:]):6.2f} us per PSF")
+
+
+def pairs(mine, theirs, count: int, label: str) -> None:
+    """``--pairs``: the two pupil paths (callables of ``FRAMES`` frames) interleaved call by call (module docstring)."""
+    own, other, ratios = [], [], []
+    before = os.getloadavg()[0]
+    for k in range(count):
+        got = {}
+        for name, work in ((("mine", mine), ("theirs", theirs)) if k % 2 == 0 else (("theirs", theirs), ("mine", mine))):
+            got[name] = per_psf_us(work, FRAMES)
+        own.append(got["mine"])
+        other.append(got["theirs"])
+        ratios.append(got["mine"] / got["theirs"])
+    print(f"{count} interleaved pairs of {FRAMES}-frame calls, one thread, load {before:.1f}-{os.getloadavg()[0]:.1f}: "
+          f"this tree {statistics.median(own):.2f}, {label} {statistics.median(other):.2f} us per PSF; the pairs' "
+          f"ratio {statistics.median(ratios):.3f} (quartiles {np.percentile(ratios, 25):.3f}-"
+          f"{np.percentile(ratios, 75):.3f})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7, help="alternated rounds (medians)")
     parser.add_argument("--profile", action="store_true", help="each function's own time in stamps()")
     parser.add_argument("--against", type=Path, help="another checkout: its pupil path from the screens' sum on")
     parser.add_argument("--threads", action="store_true", help="two threads' overlap of the pupil path (wall)")
+    parser.add_argument("--items", action="store_true", help="the frame path's steps, each in a compiled loop")
+    parser.add_argument("--pairs", type=int, help="with --against: this many interleaved pairs of calls instead")
     args = parser.parse_args()
+    if args.pairs and not args.against:
+        parser.error("--pairs needs --against")
     telescope = Telescope(0.2, 0.4)                                     # library:telescopes/astrograph_200mm.yaml
     renderer = PupilRenderer(StampSampler(STAMP, PIXEL_RAD, 9), N_PUPIL, DELTA_M, WAVELENGTH_M,
                              telescope.collecting_area_m2)
@@ -244,6 +359,13 @@ def main() -> None:
                                                                            curvature, renderer.r2), FRAMES)
         mine, theirs = cases["pupil path from the screens' sum"][0](), cases[f"  the same, {args.against}"][0]()
         print(f"largest stamp difference {np.abs(mine - theirs).max() / theirs.max():.2g} of the peak")
+        if args.pairs:
+            pairs(cases["pupil path from the screens' sum"][0], cases[f"  the same, {args.against}"][0], args.pairs,
+                  str(args.against))
+            return
+    if args.items:
+        items(renderer, amplitude, phase_t, offsets, curvature, args.repeats)
+        return
     for work, _ in cases.values():
         work()                                                          # first calls: Numba's cache, plans
     times = {name: [] for name in cases}
