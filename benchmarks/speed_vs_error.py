@@ -38,6 +38,8 @@ as it is, without the event detector (no P_d); pick its rows with ``--rows``.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/speed_vs_error.py [--duration 1] [--plot speed_vs_error.png]
     ... --scene examples/iss_pass.yaml --duration 4 --rows "seed 2" "noise draw" "render 500 Hz" --plot ''
+    ... --scene examples/iss_pass.yaml --warm-s 0 --duration 4 --plot '' --rows "3 equivalent layers" "noise draw" \
+        "3 equivalent layers, noise draw" --extra-draws h i j       # paired: star and track events' mean difference
 """
 
 from __future__ import annotations
@@ -247,11 +249,16 @@ def main() -> None:
                                                    "detector (no P_d)")
     parser.add_argument("--warm-s", type=float, default=0.1, help="a first run this long for the compiled caches "
                                                                      "(0: none, e.g. where the satellite enters later) [s]")
+    parser.add_argument("--extra-draws", nargs="*", default=[], metavar="SUFFIX",
+                        help="more noise draws (new suffixes, e.g. h i j): rows 'noise draw SUFFIX' and '3 equivalent "
+                             "layers, noise draw SUFFIX' each, after the chosen rows")
     args = parser.parse_args()
     wrapped = args.scene is None
     scene_file = GRAPH.with_name("end_to_end.yaml") if wrapped else args.scene.resolve()
     main_graph, prefix = (GRAPH, "scene/") if wrapped else (scene_file, "")
     variants = [v for v in VARIANTS[:args.only] if not args.rows or v[0] in ("faithful", *args.rows)]
+    variants += [(f"{name}noise draw {suffix}", {NOISE_DRAW: suffix, **change}) for suffix in args.extra_draws
+                 for name, change in (("", {}), ("3 equivalent layers, ", {EQUIVALENT: 3}))]
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {main_graph.name}, "
           f"{args.duration:g} s simulated per run; faithful: {FAITHFUL}")
     rows = []
@@ -275,8 +282,25 @@ def main() -> None:
                   f"star events {stats['stars']['total']:6d} ({e['star_events']:+6.1%}, per star "
                   f"{e['star_count_rms']:5.1%} RMS)  star centroid {e['star_centroid_px']:5.2f} px", flush=True)
     print(f"load average at the end: {os.getloadavg()[0]:.2f}")
+    paired_equivalent_layers(rows)
     if args.plot:
         pareto(rows, args.plot)
+
+
+def paired_equivalent_layers(rows) -> None:
+    """The star and track events of each row "3 equivalent layers[, DRAW]" against its every-layer twin on the same
+    draw ("faithful" or DRAW), paired: each pair's relative difference, their mean and standard error [%]."""
+    counts = {name: stats for name, _, stats, _ in rows}
+    pairs = [(counts[name.removeprefix("3 equivalent layers").removeprefix(", ") or "faithful"], counts[name])
+             for name in counts if name.startswith("3 equivalent layers")
+             and (name.removeprefix("3 equivalent layers").removeprefix(", ") or "faithful") in counts]
+    if not pairs:
+        return
+    for label, key in (("star events", lambda s: s["stars"]["total"]), ("track events", lambda s: s["track"])):
+        d = np.array([key(three) / max(key(every), 1) - 1 for every, three in pairs]) * 100
+        spread = d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else np.nan
+        print(f"3 equivalent layers against every layer, {d.size} paired draws, {label}: mean {d.mean():+.2f} % "
+              f"(standard error {spread:.2f}); each: " + " ".join(f"{x:+.1f}" for x in d))
 
 
 def pareto(rows, path: str) -> None:
