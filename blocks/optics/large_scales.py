@@ -44,7 +44,7 @@ import numpy as np
 
 from .autoregressive import stencil_width
 from .kolmogorov import phase_psd, von_karman_covariance
-from .screen_kernels import add_modes, mode_phasors
+from .screen_kernels import add_modes, mode_phasors, mode_tables
 
 #: the conditional draws' outer scale in stencil reaches [1]
 SPLIT = 30.0
@@ -114,24 +114,15 @@ class LargeScales:
         c = cells(L0, L1)
         rings = len(c.power)
         u = rng.random((rings, SECTORS, 2))                      # radius quantile, angle within the sector
-        radius = c.radius(u[:, :, 0])
-        angle = np.pi * (np.arange(SECTORS)[None, :] + u[:, :, 1]) / SECTORS
+        radius = c.radius(u[:, :, 0])                            # (NumPy's exp: not libm's, so not compiled)
         k = rings * SECTORS
-        # angular frequencies per sample [rad], y (rows) and x (columns), filled in place (np.r_ and np.stack cost
-        # more than the arithmetic at these sizes)
-        self.frequencies = np.empty((2, k))
-        np.multiply(2 * np.pi * delta * radius, np.sin(angle), out=self.frequencies[0].reshape(rings, SECTORS))
-        np.multiply(2 * np.pi * delta * radius, np.cos(angle), out=self.frequencies[1].reshape(rings, SECTORS))
+        normal = rng.standard_normal((2, k))
+        # angular frequencies per sample [rad] (y, x), B-spline coefficient amplitudes (2, K) and the phasors within a
+        # stride (cos, sin along y, then x), in one compiled call (NumPy's calls on 20-element arrays cost ~45 us)
+        self.frequencies, self.amplitudes, self.low = np.empty((2, k)), np.empty((2, k)), np.empty((4, k, STRIDE))
+        mode_tables(u, radius, c.power, 2 * np.pi * delta, normal, self.frequencies, self.amplitudes, self.low)
         self.wy, self.wx = self.frequencies
-        gain = 3.0 / (2.0 + np.cos(self.wy)) * 3.0 / (2.0 + np.cos(self.wx))   # samples -> B-spline coefficients
-        scale = np.sqrt(np.repeat(c.power / SECTORS, SECTORS)) * gain
-        self.amplitudes = scale * rng.standard_normal((2, k))                              # (2, K)
         self.a, self.b = self.amplitudes
-        within = np.multiply.outer(self.frequencies.ravel(), np.arange(float(STRIDE)))    # phases within a stride
-        self.low = np.empty((4, k, STRIDE))                                               # cos, sin along y, then x
-        for axis in (0, 1):
-            np.cos(within[axis * k:(axis + 1) * k], out=self.low[2 * axis])
-            np.sin(within[axis * k:(axis + 1) * k], out=self.low[2 * axis + 1])
 
     def add_to(self, coefficients: np.ndarray, top: int, left: int) -> np.ndarray:
         """``coefficients`` (an array whose first sample is at absolute (``top``, ``left``)) plus the modes' B-spline

@@ -9,6 +9,8 @@
 * :func:`sample_grids_transposed` reads separable grids with the 4-tap cubic B-spline (Unser 1999,
   IEEE Signal Process. Mag. 16(6), 22, Eq. 4), its weights computed once per row and column of
   each frame (no dense scatter matrices).
+* :func:`mode_tables` makes a draw of the large-scale modes' frequencies, amplitudes and phasor tables
+  (:class:`.large_scales.LargeScales`).
 * :func:`walk_canvases` makes a walk's canvases up to its next regeneration, adds the large-scale
   modes where their frames read (:func:`add_modes`) and reads them.
 * :func:`plan_layers` and :func:`walk_segments` do both for every layer of a line of sight in one
@@ -475,6 +477,36 @@ def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out, at
                 low, h = 0, h + 1
                 phase = w[k] * (span * h)
                 ch, sh = math.cos(phase), math.sin(phase)
+
+
+@jit
+def mode_tables(u, radius, power, two_pi_delta, normal, frequencies, amplitudes, low):
+    """:class:`.large_scales.LargeScales`' frequencies, amplitudes and tables from its draws, in one call: ring ``r``,
+    sector ``s`` (mode ``k = r S + s``, ``S = u.shape[1]`` sectors) at angle ``pi (s + u[r, s, 1]) / S`` and radius
+    ``radius[r, s]`` [cycles m^-1] has ``frequencies[:, k]`` = ``2 pi delta radius`` (``two_pi_delta``, one double)
+    times its sine and cosine [rad per sample] (y, x); ``amplitudes[:, k] = sqrt(power[r] / S) gain normal[:, k]``,
+    ``gain = 3 / (2 + cos wy) 3 / (2 + cos wx)`` (samples to B-spline coefficients, Unser 1999 Eq. 4); ``low``
+    (4, K, STRIDE): cos, sin of ``w l`` along y, then x, ``l = 0 .. STRIDE - 1``. The arithmetic of NumPy's arrays
+    in the same order, value by value, and libm's ``cos``, ``sin`` (NumPy's here; tested bit for bit against NumPy's
+    arrays in ``tests/optics/test_optics_large_scales.py``)."""
+    rings, sectors = u.shape[0], u.shape[1]
+    for r in range(rings):
+        share = math.sqrt(power[r] / sectors)
+        for s in range(sectors):
+            k = r * sectors + s
+            angle = np.pi * (s + u[r, s, 1]) / sectors
+            w = two_pi_delta * radius[r, s]
+            wy, wx = w * math.sin(angle), w * math.cos(angle)
+            frequencies[0, k], frequencies[1, k] = wy, wx
+            gain = 3.0 / (2.0 + math.cos(wy)) * 3.0 / (2.0 + math.cos(wx))
+            scale = share * gain
+            amplitudes[0, k], amplitudes[1, k] = scale * normal[0, k], scale * normal[1, k]
+    for axis in range(2):
+        for k in range(frequencies.shape[1]):
+            for l in range(low.shape[2]):
+                phase = frequencies[axis, k] * float(l)
+                low[2 * axis, k, l] = math.cos(phase)
+                low[2 * axis + 1, k, l] = math.sin(phase)
 
 
 @jit

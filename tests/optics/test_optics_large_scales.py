@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from evsda.blocks.optics.kolmogorov import structure_function, von_karman_covariance
-from evsda.blocks.optics.large_scales import STRIDE, LargeScales, cells, split_outer_scale
+from evsda.blocks.optics.large_scales import SECTORS, STRIDE, LargeScales, cells, split_outer_scale
 from evsda.blocks.optics.layer_screen import LayerScreen
+from evsda.blocks.optics.normal_draws import SeededDraws, entropy_words
 
 DELTA, L0 = 0.02, 25.0
 
@@ -133,3 +134,37 @@ def test_read_spans_are_the_columns_the_reads_touch():
     for r in range(height):
         at = np.flatnonzero(touched[r])
         assert (first[r], stop[r]) == ((at[0], at[-1] + 1) if len(at) else (width, 0))
+
+
+def numpy_modes(rng, delta, L0, L1):
+    """The modes' frequencies, amplitudes and tables by NumPy's array arithmetic (LargeScales before its tables were
+    compiled, screen_kernels.mode_tables): the reference."""
+    c = cells(L0, L1)
+    rings = len(c.power)
+    u = rng.random((rings, SECTORS, 2))
+    radius = c.radius(u[:, :, 0])
+    angle = np.pi * (np.arange(SECTORS)[None, :] + u[:, :, 1]) / SECTORS
+    k = rings * SECTORS
+    frequencies = np.empty((2, k))
+    np.multiply(2 * np.pi * delta * radius, np.sin(angle), out=frequencies[0].reshape(rings, SECTORS))
+    np.multiply(2 * np.pi * delta * radius, np.cos(angle), out=frequencies[1].reshape(rings, SECTORS))
+    gain = 3.0 / (2.0 + np.cos(frequencies[0])) * 3.0 / (2.0 + np.cos(frequencies[1]))
+    amplitudes = np.sqrt(np.repeat(c.power / SECTORS, SECTORS)) * gain * rng.standard_normal((2, k))
+    within = np.multiply.outer(frequencies.ravel(), np.arange(float(STRIDE)))
+    low = np.empty((4, k, STRIDE))
+    for axis in (0, 1):
+        np.cos(within[axis * k:(axis + 1) * k], out=low[2 * axis])
+        np.sin(within[axis * k:(axis + 1) * k], out=low[2 * axis + 1])
+    return frequencies, amplitudes, low
+
+
+def test_compiled_modes_are_numpys():
+    # the compiled tables (screen_kernels.mode_tables) are NumPy's arithmetic bit for bit, for NumPy's generator and
+    # the compiled seeded draws, screens of several sizes and spacings
+    for delta, L0, n in [(0.02, 25.0, 20), (0.02, 25.0, 38), (0.05, 10.0, 24), (0.01, 50.0, 64)]:
+        L1 = split_outer_scale(n, delta, L0)
+        for seed in range(150):
+            for draws in (lambda: np.random.default_rng(seed), lambda: SeededDraws(entropy_words((seed, 7, 0)))):
+                modes, expected = LargeScales(draws(), delta, L0, L1), numpy_modes(draws(), delta, L0, L1)
+                for got, want in zip((modes.frequencies, modes.amplitudes, modes.low), expected):
+                    np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
