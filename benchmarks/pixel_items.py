@@ -154,7 +154,9 @@ def main() -> None:
     def counted_select(real, count, next_step, wake, applied, touched, changed, n_end, *rest):
         first, stop = rest[-2:]
         counts["awake"] = counts.get("awake", 0) + int(np.count_nonzero(wake[first:stop] < n_end))
+        start = time.thread_time_ns()
         out = select(real, count, next_step, wake, applied, touched, changed, n_end, *rest)
+        spent["select_pixels"] = spent.get("select_pixels", 0) + time.thread_time_ns() - start
         counts["selected"] = counts.get("selected", 0) + out[0].size
         return out
 
@@ -189,7 +191,7 @@ def main() -> None:
         recorder.wait()
     n = len(inputs) - 1
     print(f"pixel block, {n} windows (load {os.getloadavg()[0]:.1f}): {cpu / n * 1e3:.2f} ms CPU a window; "
-          f"take_and_run's parts (ms a window): "
+          f"take_and_run's parts and select_pixels (ms a window): "
           + ", ".join(f"{k} {v * 1e-6 / n:.2f}" for k, v in sorted(spent.items(), key=lambda kv: -kv[1])))
     for name in ("run_pixels background", "run_pixels stamps"):
         pixels, events = counts.get(name + " pixels", 0), counts.get(name + " events", 0)

@@ -59,7 +59,8 @@ _STATE = ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_P
           (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON), (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE))
 _CHANGED = 9
 _SEARCH, _KEPT = 1, 2        # I_SEARCH: the bound failed; after the pixel's last change (run_pixels' lazy schedule)
-(K_C, K_D, K_LOG_A, K_DELTA, K_ON, K_OFF, K_KNOWN, K_FLOAT) = range(8)      # _kept's searches, [field * TILE + k]
+(K_C, K_D, K_LOG_A, K_DELTA, K_ON, K_OFF, K_KNOWN, K_AT, K_RELAXED, K_FLOAT) = range(10)   # _kept's searches,
+#                                                                                  [field * TILE + k]
 (K_J0, K_LANE, K_OUT, K_INT) = range(4)
 # a first run compiles each compiled function called from another again into the caller's code: the sweep and
 # drive_left are inlined into deferred.take_and_run (Numba's IR, not compiled on their own there), and so are the
@@ -363,7 +364,9 @@ def _kept(fs, js, size, n_end, leak_dt, dt, large, kept_f, kept_j):
     pixels marked ``_KEPT`` (the round's state is theirs: later rounds leave them): ``LATER`` where
     :func:`.pixel_loop.quiet_until` shows the window quiet, else :func:`.pixel_loop.next_crossing_known`'s crossing
     (no horizon), the searches :func:`.crossing.batched` takes all at once (:func:`.crossing.batch_crossings`:
-    on the pass nearly every one, most an event in the window), the others and those it leaves one at a time."""
+    on the pass nearly every one, most an event in the window), the others and those it leaves one at a time. A
+    crossing found together carries its ``a^j`` and relaxation (:func:`_at_crossings`) as the pixel's last bound
+    would: :func:`.pixel_loop.run_pixels`' advance to that event takes them (the same bits)."""
     n = 0
     for s in range(size):
         if js[I_SEARCH * TILE + s] == _KEPT:
@@ -399,10 +402,30 @@ def _kept(fs, js, size, n_end, leak_dt, dt, large, kept_f, kept_j):
                     kept_f[K_DELTA * TILE:K_DELTA * TILE + n], kept_f[K_ON * TILE:K_ON * TILE + n],
                     kept_f[K_OFF * TILE:K_OFF * TILE + n], large, kept_j[K_OUT * TILE:K_OUT * TILE + n])
     for k in range(n):
+        if kept_j[K_OUT * TILE + k] == UNSETTLED:     # Newton's candidate not the crossing: search_crossing bisects
+            kept_j[K_OUT * TILE + k] = search_crossing(
+                kept_j[K_J0 * TILE + k], kept_f[K_C * TILE + k], kept_f[K_D * TILE + k], kept_f[K_LOG_A * TILE + k],
+                kept_f[K_DELTA * TILE + k], kept_f[K_ON * TILE + k], kept_f[K_OFF * TILE + k], J_LIMIT, J_LIMIT,
+                kept_f[K_KNOWN * TILE + k], large)[0]
+    _at_crossings(kept_f, kept_j, n, large)
+    for k in range(n):
         s, j = kept_j[K_LANE * TILE + k], kept_j[K_OUT * TILE + k]
-        step = js[I_STEP * TILE + s]
-        if j == UNSETTLED:                    # Newton's candidate not the crossing: search_crossing bisects
-            j = search_crossing(kept_j[K_J0 * TILE + k], kept_f[K_C * TILE + k], kept_f[K_D * TILE + k],
-                                kept_f[K_LOG_A * TILE + k], kept_f[K_DELTA * TILE + k], kept_f[K_ON * TILE + k],
-                                kept_f[K_OFF * TILE + k], J_LIMIT, J_LIMIT, kept_f[K_KNOWN * TILE + k], large)[0]
-        js[I_CMP * TILE + s] = NEVER if j >= NEVER else step + j
+        if j >= NEVER:
+            js[I_CMP * TILE + s] = NEVER
+        else:                                 # run_pixels' advance to the crossing takes its a^j and relaxation
+            js[I_CMP * TILE + s] = js[I_STEP * TILE + s] + j
+            js[I_J_KNOWN * TILE + s], fs[F_KNOWN * TILE + s] = j, kept_f[K_AT * TILE + k]
+            fs[F_RELAXED * TILE + s] = kept_f[K_RELAXED * TILE + k]
+
+
+@jit
+def _at_crossings(kept_f, kept_j, n, large):
+    """``a^j`` and the relaxation (:func:`.crossing.relaxed_at`, as a bound takes them) at the crossing ``j`` of each of
+    :func:`_kept`'s ``n`` batched searches (none found: at ``J_LIMIT``, unused), in a loop the compiler vectorises."""
+    wide_vectors()
+    for k in range(n):
+        j = min(kept_j[K_OUT * TILE + k], J_LIMIT)
+        log_a, d = kept_f[K_LOG_A * TILE + k], kept_f[K_D * TILE + k]
+        retention = power(log_a, j)
+        kept_f[K_AT * TILE + k] = retention
+        kept_f[K_RELAXED * TILE + k] = relaxed_at(j, retention, d, log_a, large)
