@@ -1,8 +1,7 @@
 """Equivalent layers (blocks/optics/equivalent_layers.py) against closed forms of the full profile: r0 and the seeing
 (Fried 1966; Hardy 1998 Eq. 3.40), the isoplanatic angle (Fried 1982; Hardy 1998 Eq. 3.61), Roddier's coherence
-time and the point phase's temporal structure function of frozen-flow layers (Roddier 1981), the winds' second
-moment (the rate variance of any aperture-averaged quantity: Tyler 1994's tracking frequency) and the large-aperture
-scintillation index (Dravins et al. 1997)."""
+time and the point phase's temporal structure function of frozen-flow layers (Roddier 1981), and a star's image
+motion's temporal structure function (Tyler 1994)."""
 
 import itertools
 
@@ -11,8 +10,7 @@ import pytest
 
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics import PointSourceOptics
-from evsda.blocks.optics.equivalent_layers import (best_groups, equivalent_layers, group_cost, moment,
-                                                   spread_to_second_moment)
+from evsda.blocks.optics.equivalent_layers import best_groups, equivalent_layers, group_cost
 from evsda.blocks.ports import FocalPlane
 from evsda.graph import RunInfo
 from evsda.library import resolve
@@ -111,43 +109,6 @@ def test_the_tracked_satellites_phase_structure_function_is_kept_within_a_few_pe
                                                                        rel=1e-3)
 
 
-def footprint_moment(atmosphere: Atmosphere, order: float, sight_rate=(0.0, 0.0)) -> float:
-    """``sum_i J_i |h_i s' - v_i|^p`` [m^(1/3) (m/s)^p], the footprints' speeds (blocks/optics/imaging.py) weighted
-    by ``J``: order 5/3 gives the point phase's ``D(tau)``, order 2 the rate variance of any aperture-averaged quantity
-    (a smooth function of the phase: its rate is ``-u . grad``, so its variance weighs each layer by ``J |u|^2``;
-    the image motion's, Tyler 1994, JOSA A 11, 358: tracking frequency ``~ (sum J v^2)^(1/2)``)."""
-    cn2, altitude, wind = columns(atmosphere)
-    return float(np.sum(cn2 * np.hypot(*(altitude[:, None] * np.asarray(sight_rate) - wind).T) ** order))
-
-
-def large_aperture_scintillation(atmosphere: Atmosphere, diameter: float, zenith: float = 0.0) -> float:
-    """``sigma_I^2 = 17.34 D^(-7/3) sec(z)^3 sum J h^2`` [1] (Dravins et al. 1997, PASP 109, 173, Eq. 10)."""
-    cn2, altitude, _ = columns(atmosphere)
-    return float(17.34 * diameter ** (-7 / 3) / np.cos(zenith) ** 3 * np.sum(cn2 * altitude**2))
-
-
-@pytest.mark.parametrize("n_layers", [3, 4, 5, 6])
-def test_the_winds_and_altitudes_second_moments_are_kept_beside_their_five_thirds_moments(n_layers):
-    # a star's footprints move with the wind: sum J |v|^2 (its image motion's and every pixel's rate variance) and
-    # sum J |v|^(5/3) (D(tau), tau0) both kept; sum J h^2 (the large-aperture scintillation, a slew-dominated
-    # footprint's rate variance) beside sum J h^(5/3) (theta0)
-    full = median_seeing()
-    fewer = equivalent_layers(full, n_layers)
-    for order in (5 / 3, 2.0):
-        assert footprint_moment(fewer, order) == pytest.approx(footprint_moment(full, order), rel=1e-12)
-    for zenith in (0.0, np.deg2rad(65.0)):
-        assert large_aperture_scintillation(fewer, 0.2, zenith) == pytest.approx(
-            large_aperture_scintillation(full, 0.2, zenith), rel=1e-12)
-        assert isoplanatic_angle(fewer, zenith) == pytest.approx(isoplanatic_angle(full, zenith), rel=1e-12)
-    # and the aperture-averaged index of the weak-fluctuation integral within 1 % at 0.2-0.5 m
-    for diameter in (0.2, 0.5):
-        assert fewer.scintillation_index(diameter, WAVELENGTH, 1.1) == pytest.approx(
-            full.scintillation_index(diameter, WAVELENGTH, 1.1), rel=0.01)
-    # a slew that dwarfs every wind: the footprints' second moment -> |s'|^2 sum J h^2, kept
-    fast = PASS_SIGHT_RATE * 1e4
-    assert footprint_moment(fewer, 2.0, fast) == pytest.approx(footprint_moment(full, 2.0, fast), rel=1e-3)
-
-
 def image_motion_structure(atmosphere: Atmosphere, lag_s: float, diameter: float = 0.2) -> float:
     """A star's image motion (G-tilt, both axes) temporal structure function of frozen-flow von Karman layers, up to
     a constant: ``sum_i J_i int k^3 (k^2 + L0^-2)^(-11/6) [2 J1(kR)/(kR)]^2 (1 - J0(k |v_i| tau)) dk``, the aperture's
@@ -160,40 +121,14 @@ def image_motion_structure(atmosphere: Atmosphere, lag_s: float, diameter: float
     return float(np.sum(cn2 * np.trapezoid(filtered * (1 - j0(shift)), np.log(k), axis=1)))
 
 
-def test_a_stars_image_motion_is_kept_within_one_and_a_half_percent_at_every_lag():
-    # the second moment holds its short lags ((v tau)^2: sum J v^2), the 5/3 its middle ones; 5/3 moments alone:
-    # -1.6 % at 0.5 ms, +3.7 % at 10 ms (docs/optics.md, "Equivalent layers")
+def test_a_stars_image_motion_is_kept_within_four_percent_at_every_lag():
+    # its short lags weigh the winds by v^2 (sum J v^2: 2.1 % low in 3 groups), its middle ones between: -1.6 % at
+    # 0.5 ms, +3.7 % at 10 ms (docs/optics.md, "Equivalent layers"); the star events of the main job over 30 paired
+    # draws: +0.4 +- 0.5 % (docs/speed.md, sixteenth session)
     full = median_seeing()
     fewer = equivalent_layers(full, 3)
-    for lag in (5e-4, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 0.2, 1.0):
-        assert image_motion_structure(fewer, lag) == pytest.approx(image_motion_structure(full, lag), rel=0.015)
-
-
-def test_one_group_keeps_the_five_thirds_moments_where_the_second_cannot_also_hold():
-    # one speed cannot hold two power means of unequal speeds (the 5/3 mean is below the 2nd: Hardy, Littlewood &
-    # Polya 1934, Inequalities, Thm. 16): the 5/3 moments win (theta0, tau0), the second moments fall short
-    full = median_seeing()
-    (layer,) = equivalent_layers(full, 1).layers
-    cn2, altitude, wind = columns(full)
-    speed = np.hypot(*wind.T)
-    assert layer.wind_speed_m_s == pytest.approx((np.sum(cn2 * speed ** (5 / 3)) / cn2.sum()) ** (3 / 5), rel=1e-12)
-    assert layer.altitude_m == pytest.approx((np.sum(cn2 * altitude ** (5 / 3)) / cn2.sum()) ** (3 / 5), rel=1e-12)
-    assert footprint_moment(equivalent_layers(full, 1), 2.0) < 0.9 * footprint_moment(full, 2.0)
-
-
-def test_the_spread_keeps_both_sums_and_the_order_and_leaves_alike_groups_alone():
-    rng = np.random.default_rng(3)
-    weights, values = rng.uniform(0.1, 1.0, 9), rng.uniform(2.0, 40.0, 9)
-    runs = [slice(0, 3), slice(3, 7), slice(7, 9)]
-    group_weights = np.array([weights[run].sum() for run in runs])
-    five_thirds = np.array([moment(weights[run], values[run]) for run in runs])
-    kept = spread_to_second_moment(group_weights, five_thirds, weights, values)
-    for order in (5 / 3, 2.0):
-        assert np.sum(group_weights * kept**order) == pytest.approx(np.sum(weights * values**order), rel=1e-12)
-    assert np.array_equal(np.argsort(kept), np.argsort(five_thirds))
-    alike = np.repeat([3.0, 9.0, 20.0], 3)                  # no spread within a group: nothing lost, nothing moved
-    kept = spread_to_second_moment(np.array([3.0, 3.0, 3.0]), np.array([3.0, 9.0, 20.0]), np.ones(9), alike)
-    np.testing.assert_allclose(kept, [3.0, 9.0, 20.0], rtol=1e-12)
+    for lag, low, high in ((5e-4, -0.02, -0.01), (1e-2, 0.03, 0.045), (0.2, 0.0, 0.01), (1.0, 0.0, 0.005)):
+        assert low < image_motion_structure(fewer, lag) / image_motion_structure(full, lag) - 1 < high
 
 
 def test_the_groups_are_the_exhaustive_minimum_of_the_grouping_cost():
