@@ -5,6 +5,10 @@ This package knows nothing about physics; the blocks live in :mod:`evsda.blocks`
 
 from importlib.metadata import PackageNotFoundError, version
 
+from .entry_points import cache_entry_points
+
+cache_entry_points()                # before pydantic (imported with .block) takes importlib's function
+
 from .block import NS_PER_S, Block, RunInfo, Window, block_rng, parse_epoch
 from .errors import GraphError, InputError, ParameterError, Problem, SceneError, StoreError, UserError
 from .limits import Footprint, Limits
