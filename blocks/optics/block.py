@@ -106,9 +106,8 @@ class PointSourceOptics(Block):
         # off: bit for bit; 3 on the tracked pass: docs/optics.md, "Equivalent layers"
         equivalent_layers: int | None = Field(
             None, ge=1, le=32, description="Render the profile's screens as this many equivalent layers (summed "
-                                           "Cn^2 dh; altitudes and winds keeping the profile's 5/3 and 2nd moments: "
-                                           "r0, theta0, a star's tau0 and its image motion's rate kept; "
-                                           "equivalent_layers); None: every layer [1]")
+                                           "Cn^2 dh, 5/3-moment altitudes and winds: r0, theta0 and the winds' tau0 "
+                                           "kept; equivalent_layers); None: every layer [1]")
         ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
         wind_direction_deg: float = Field(0.0, ge=-360, le=360,
                                           description="Wind direction from the focal plane's +x toward +y at the first render "
