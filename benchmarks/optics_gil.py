@@ -238,13 +238,12 @@ def optics_package(checkout: Path) -> types.ModuleType:
     return package
 
 
-def replay(pickled: bytes, inputs: list, against: Path, repeats: int) -> None:
-    """:func:`captured`'s block stepped side by side with ``against``'s over its inputs (the module docstring)."""
+def time_released_calls() -> list[float]:
+    """Time every call of a compiled ``nogil`` function in this process from now on (this thread's CPU, added into
+    the returned one-item list [s]): Numba's ``Dispatcher.__call__`` wrapped."""
     from numba.core import dispatcher
-    from evsda.blocks.optics import block, paths
 
-    other = optics_package(against)
-    clock, probing, released = time.thread_time, [0.0], [0.0]
+    released, clock = [0.0], time.thread_time
     base_call = dispatcher.Dispatcher.__call__
 
     def call(self, *args, **kwargs):
@@ -256,6 +255,15 @@ def replay(pickled: bytes, inputs: list, against: Path, repeats: int) -> None:
         finally:
             released[0] += clock() - t
     dispatcher.Dispatcher.__call__ = call
+    return released
+
+
+def replay(pickled: bytes, inputs: list, against: Path, repeats: int) -> None:
+    """:func:`captured`'s block stepped side by side with ``against``'s over its inputs (the module docstring)."""
+    from evsda.blocks.optics import block, paths
+
+    other = optics_package(against)
+    clock, probing, released = time.thread_time, [0.0], time_released_calls()
     for chooser in (paths.PathChooser, other.paths.PathChooser):
         for name in ("_probe", "probe_ahead"):
             if hasattr(chooser, name):
@@ -331,21 +339,9 @@ REGIONS = (("block", "PointSourceOptics", "_held_samples", "sample and hold, rat
 def regions(pickled: bytes, inputs: list, repeats: int) -> None:
     """``--regions``: this checkout's block over the captured inputs, its CPU outside compiled ``nogil`` calls by
     region (the module docstring)."""
-    from numba.core import dispatcher
     from evsda.blocks import optics
 
-    clock, released, spent, stack = time.thread_time, [0.0], {}, []
-    base_call = dispatcher.Dispatcher.__call__
-
-    def call(self, *args, **kwargs):
-        if not self.targetoptions.get("nogil"):
-            return base_call(self, *args, **kwargs)
-        t = clock()
-        try:
-            return base_call(self, *args, **kwargs)
-        finally:
-            released[0] += clock() - t
-    dispatcher.Dispatcher.__call__ = call
+    clock, released, spent, stack = time.thread_time, time_released_calls(), {}, []
 
     def timed(inner, label):
         def wrapper(*args, **kwargs):
