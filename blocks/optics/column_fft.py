@@ -18,16 +18,16 @@ adds and subtracts a literal zero, the same operations).
 
 Each pass is its own compiled function, its lane count a compile-time constant: in one function, or with the
 lane count read from the arrays, the compiler left the radix-8 pass scalar.
-Each asks for vectors of up to 512 bits (:func:`evsda.blocks.wide_vectors.wide_vectors`; AVX-512 CPUs otherwise get
-256-bit loops): the same operations in each lane, so the same bits.
+Each asks for vectors of up to 512 bits (:func:`wide_vectors`; AVX-512 CPUs otherwise get 256-bit loops): the
+same operations in each lane, so the same bits.
 """
 
 from __future__ import annotations
 
 import numba
 import numpy as np
-
-from ..wide_vectors import WIDE_VECTOR_ATTRIBUTES, wide_vectors    # noqa: F401  (the passes below ask for them)
+from numba.core import types
+from numba.extending import intrinsic
 
 #: transform length and lanes (the padded grid is square: 80 columns of 80 samples)
 LENGTH = 80
@@ -41,6 +41,25 @@ TWIDDLES = (_TWIDDLE_RE, _TWIDDLE_IM)
 _C1, _S1 = _F32(0.3090169943749474241022934171828191), -_F32(0.9510565162951535721164393333793821)
 _C2, _S2 = _F32(-0.8090169943749474241022934171828191), -_F32(0.5877852522924731291687059546390728)
 _HALF_SQRT2 = _F32(0.707106781186547524400844362104849)
+
+
+#: LLVM function attributes of :func:`wide_vectors`: vectors up to 512 bits in the loops and as legal types
+WIDE_VECTOR_ATTRIBUTES = ('"prefer-vector-width"="512"', '"min-legal-vector-width"="512"')
+
+
+@intrinsic
+def wide_vectors(typingctx):
+    """Compile the calling function with vectors of up to 512 bits where the CPU has them (AVX-512): LLVM's x86
+    tuning keeps loops to 256-bit vectors on AVX-512 CPUs unless a function asks for more
+    (``WIDE_VECTOR_ATTRIBUTES``). The lanes make the same operations either way (no reductions, nothing fused), so
+    the bits are the same; on a CPU without AVX-512 nothing changes. A stamp takes ~0.87x the time with them
+    (docs/speed.md, sixteenth session). A call compiles to nothing."""
+    def codegen(context, builder, signature, args):
+        # llvmlite's attribute set names only LLVM's keyword attributes; these string attributes are written as given
+        for attribute in WIDE_VECTOR_ATTRIBUTES:
+            set.add(builder.function.attributes, attribute)
+        return context.get_dummy_value()
+    return types.none(), codegen
 
 
 def columns(grid: np.ndarray, scratch: np.ndarray) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from ..wide_vectors import wide_vectors    # noqa: F401  (512-bit vectors: the pixels' loops import it from here)
+from evsda.blocks.optics.column_fft import wide_vectors    # noqa: F401  (512-bit vectors: the loops here use it)
 
 _LN2_HI = 6.93147180369123816490e-01        # upper bits of ln 2 (fdlibm)
 _LN2_LO = 1.90821492927058770002e-10        # ln 2 - _LN2_HI
