@@ -73,6 +73,13 @@ DEFAULTS_EVERY = {"telescope/optics.render_rate_hz": 1000, "telescope/optics.psf
 #: the scene's defaults: each source rendered as often as its physics needs (the block's interval_factor)
 DEFAULTS = {**DEFAULTS_EVERY, "telescope/optics.source_intervals": True}
 EQUIVALENT = "telescope/optics.equivalent_layers"
+def paired_draws(draws) -> list:
+    """Rows "noise draw LABEL" and "3 equivalent layers, noise draw LABEL" on the noise draw SUFFIX, for each
+    (LABEL, SUFFIX) of ``draws``: every layer and 3 equivalent layers on the same random numbers."""
+    return [(f"{name}noise draw {label}", {NOISE_DRAW: suffix, **change}) for label, suffix in draws
+            for name, change in (("", {}), ("3 equivalent layers, ", {EQUIVALENT: 3}))]
+
+
 VARIANTS = [
     ("faithful", {}),
     ("seed 2", {"run.seed": 2}),
@@ -115,8 +122,7 @@ VARIANTS = [
     ("4 equivalent layers, noise draw 2", {NOISE_DRAW: "c", EQUIVALENT: 4}),
     ("defaults, 3 equivalent layers", {**DEFAULTS, EQUIVALENT: 3}),
     # three more paired draws (the staring main job's stars need six: docs/speed.md, "Equivalent layers")
-    *((f"{name}noise draw {n}", {NOISE_DRAW: suffix, **change}) for n, suffix in ((4, "e"), (5, "f"), (6, "g"))
-      for name, change in (("", {}), ("3 equivalent layers, ", {EQUIVALENT: 3}))),
+    *paired_draws(((4, "e"), (5, "f"), (6, "g"))),
 ]
 FLOORS = ("seed 2", *(f"noise draw{n}" for n in ("", " 2", " 3", " 4", " 5", " 6")))     # the noise floors' rows
 TRACK_RADIUS_PX = 4.0
@@ -257,8 +263,7 @@ def main() -> None:
     scene_file = GRAPH.with_name("end_to_end.yaml") if wrapped else args.scene.resolve()
     main_graph, prefix = (GRAPH, "scene/") if wrapped else (scene_file, "")
     variants = [v for v in VARIANTS[:args.only] if not args.rows or v[0] in ("faithful", *args.rows)]
-    variants += [(f"{name}noise draw {suffix}", {NOISE_DRAW: suffix, **change}) for suffix in args.extra_draws
-                 for name, change in (("", {}), ("3 equivalent layers, ", {EQUIVALENT: 3}))]
+    variants += paired_draws((suffix, suffix) for suffix in args.extra_draws)
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {main_graph.name}, "
           f"{args.duration:g} s simulated per run; faithful: {FAITHFUL}")
     rows = []
@@ -291,9 +296,9 @@ def paired_equivalent_layers(rows) -> None:
     """The star and track events of each row "3 equivalent layers[, DRAW]" against its every-layer twin on the same
     draw ("faithful" or DRAW), paired: each pair's relative difference, their mean and standard error [%]."""
     counts = {name: stats for name, _, stats, _ in rows}
-    pairs = [(counts[name.removeprefix("3 equivalent layers").removeprefix(", ") or "faithful"], counts[name])
-             for name in counts if name.startswith("3 equivalent layers")
-             and (name.removeprefix("3 equivalent layers").removeprefix(", ") or "faithful") in counts]
+    twins = {name: name.removeprefix("3 equivalent layers").removeprefix(", ") or "faithful" for name in counts
+             if name.startswith("3 equivalent layers")}
+    pairs = [(counts[twin], counts[name]) for name, twin in twins.items() if twin in counts]
     if not pairs:
         return
     for label, key in (("star events", lambda s: s["stars"]["total"]), ("track events", lambda s: s["track"])):
