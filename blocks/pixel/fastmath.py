@@ -29,8 +29,6 @@ import numpy as np
 from numba import types
 from numba.extending import intrinsic
 
-from evsda.blocks.optics.column_fft import wide_vectors    # noqa: F401  (512-bit vectors: the loops here use it)
-
 _LN2_HI = 6.93147180369123816490e-01        # upper bits of ln 2 (fdlibm)
 _LN2_LO = 1.90821492927058770002e-10        # ln 2 - _LN2_HI
 _INV_LN2 = 1.44269504088896338700e+00
@@ -44,6 +42,24 @@ _SMALLEST_NORMAL = 2.2250738585072014e-308
 _TWO_54 = 18014398509481984.0
 
 jit = numba.njit(cache=True, error_model="numpy", inline="always")     # inlined: loops over pixels vectorise
+
+
+#: LLVM function attributes of :func:`wide_vectors` (as the optics' ``column_fft.WIDE_VECTOR_ATTRIBUTES``)
+WIDE_VECTOR_ATTRIBUTES = ('"prefer-vector-width"="512"', '"min-legal-vector-width"="512"')
+
+
+@intrinsic
+def wide_vectors(typingctx):
+    """Compile the calling function with vectors of up to 512 bits where the CPU has them (AVX-512), as the optics'
+    ``column_fft.wide_vectors``: the same lane-wise operations, so the same bits. Defined here, not imported from
+    there, because the pixels' compiled code must read only this folder's code (their Numba cache is stamped by it,
+    ``evsda.graph.numba_stamps``). A call compiles to nothing."""
+    def codegen(context, builder, signature, args):
+        # llvmlite's attribute set names only LLVM's keyword attributes; these string attributes are written as given
+        for attribute in WIDE_VECTOR_ATTRIBUTES:
+            set.add(builder.function.attributes, attribute)
+        return context.get_dummy_value()
+    return types.none(), codegen
 
 
 @intrinsic
