@@ -40,6 +40,8 @@ as it is, without the event detector (no P_d); pick its rows with ``--rows``.
     ... --scene examples/iss_pass.yaml --duration 4 --rows "seed 2" "noise draw" "render 500 Hz" --plot ''
     ... --scene examples/iss_pass.yaml --warm-s 0 --duration 4 --plot '' --rows "3 equivalent layers" "noise draw" \
         "3 equivalent layers, noise draw" --extra-draws h i j       # paired: star and track events' mean difference
+    ... --duration 2 --plot '' --rows "noise draw" "3 equivalent layers" --extra-draws c d \
+        --set telescope/optics.profile_file=library:atmospheres/las_campanas.csv       # another profile, every row
 """
 
 from __future__ import annotations
@@ -255,6 +257,9 @@ def main() -> None:
                                                    "detector (no P_d)")
     parser.add_argument("--warm-s", type=float, default=0.1, help="a first run this long for the compiled caches "
                                                                      "(0: none, e.g. where the satellite enters later) [s]")
+    parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting of every row, the faithful one's too, as in FAITHFUL (repeatable), e.g. "
+                             "telescope/optics.profile_file=library:atmospheres/las_campanas.csv")
     parser.add_argument("--extra-draws", nargs="*", default=[], metavar="SUFFIX",
                         help="more noise draws (new suffixes, e.g. h i j): rows 'noise draw SUFFIX' and '3 equivalent "
                              "layers, noise draw SUFFIX' each, after the chosen rows")
@@ -264,15 +269,17 @@ def main() -> None:
     main_graph, prefix = (GRAPH, "scene/") if wrapped else (scene_file, "")
     variants = [v for v in VARIANTS[:args.only] if not args.rows or v[0] in ("faithful", *args.rows)]
     variants += paired_draws((suffix, suffix) for suffix in args.extra_draws)
+    faithful_settings = {**FAITHFUL, **dict(item.split("=", 1) for item in args.settings)}
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {main_graph.name}, "
-          f"{args.duration:g} s simulated per run; faithful: {FAITHFUL}")
+          f"{args.duration:g} s simulated per run; faithful: {faithful_settings}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         if args.warm_s:
-            run_cli(args.warm_s, Path(tmp) / "warm.zarr", scene(FAITHFUL, prefix), main_graph)  # compiled caches
+            # the compiled caches
+            run_cli(args.warm_s, Path(tmp) / "warm.zarr", scene(faithful_settings, prefix), main_graph)
         faithful = None
         for name, change in variants:
-            settings = {**FAITHFUL, **change}
+            settings = {**faithful_settings, **change}
             store = Path(tmp) / f"{len(rows)}.zarr"
             graph = (renamed_graph(Path(tmp), scene_file, change[NOISE_DRAW], wrapped) if NOISE_DRAW in change
                      else main_graph)

@@ -77,6 +77,9 @@ class Atmosphere:
 
     layers: tuple[Layer, ...]
     L0: float = 25.0
+    #: for equivalent layers (:mod:`.equivalent_layers`), each layer's members in the full profile (their ``J``
+    #: weigh within the group only, so a profile scaled after it was compressed keeps them); None: layers as given
+    members: tuple[tuple[Layer, ...], ...] | None = None
 
     # -- construction -------------------------------------------------------------------------
     @classmethod

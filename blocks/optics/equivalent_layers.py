@@ -22,12 +22,15 @@ in the ground frame, ``~ sec(z) omega`` for a mount slewing at ``omega``), and t
 function of Kolmogorov layers is ``D(tau) = 6.88 sum_i (|u_i| tau / r0_i)^(5/3)`` (Fried 1966; Roddier 1981,
 Prog. Optics 19, 281), i.e. ``6.88 (0.423 k^2 sec z)(sum_i J_i |u_i|^(5/3)) tau^(5/3)``. A star's
 (``s' = 0``) is kept exactly by the wind moment, and so is its coherence time ``tau0 = 0.314 r0 / v_bar``; a
-slewed footprint's is kept exactly where the slew dominates every layer's wind (``|h s'| >> |v|``: the altitude
-moment) and approximately between, worst where a layer's footprint rests against its air (``h_i s' = v_i``).
-Not kept: other altitude moments (the scintillation's ``sum J h^(5/6)`` and ``sum J h^2``, Roddier 1981), the
-outer scale's cut at long lags, and aperture-filtered statistics such as the image motion's temporal spectrum
-(these weigh the layers' speeds by other powers). docs/optics.md, "Equivalent layers", gives this profile's
-figures.
+slewed footprint's is not (``sum J |h s' - v|^(5/3)`` mixes the slew and the wind: no common group wind keeps
+it for every ``s'``). So each source gets its own winds (:func:`footprint_winds`; every source walks its own
+screens, :mod:`.pupil_path`): for the source's ``s'``, group ``g``'s footprint moves at ``u_g`` with
+``J_g |u_g|^(5/3) = sum_i J_i |u_i|^(5/3)`` over its members, in the direction of ``sum_i J_i |u_i|^(5/3)
+u_i / |u_i|``, i.e. at the wind ``w_g = h_g s' - u_g``: **every source's ``D(tau)`` and ``tau0`` are kept
+exactly** (at ``s' = 0`` the group wind above). Not kept: other altitude moments (the scintillation's
+``sum J h^(5/6)`` and ``sum J h^2``, Roddier 1981), the outer scale's cut at long lags, and aperture-filtered
+statistics such as the image motion's temporal spectrum (these weigh the layers' speeds by other powers).
+docs/optics.md, "Equivalent layers", gives this profile's figures.
 
 Which groups: the split of the sorted layers into ``N`` neighbours' groups that minimises the optimal-grouping
 cost of Saxenhuber et al. (2017), ``sum_groups sum_i J_i |h_i - h_group|``, with the equivalent altitude as the
@@ -66,6 +69,27 @@ def equivalent_layer(layers: tuple[Layer, ...]) -> Layer:
                  mean_direction)
 
 
+def footprint_winds(atmosphere: Atmosphere, sight_rate) -> np.ndarray:
+    """The winds (L, 2) [m/s] that carry a source's footprints through the layers of an equivalent ``atmosphere``
+    (:attr:`.Atmosphere.members` set) for its line of sight crossing them at ``sight_rate`` ``s'`` (2,) [1/s] per
+    metre of altitude: each group's ``w_g = h_g s' - u_g``, ``|u_g|`` the ``J``-weighted 5/3-moment of its members'
+    footprint speeds ``|h_i s' - v_i|`` and its direction that of ``sum_i J_i |u_i|^(5/3) u_i / |u_i|`` (module
+    docstring; the members' strongest layer's where that sum vanishes)."""
+    rate = np.asarray(sight_rate, dtype=float)
+    winds = np.empty((len(atmosphere.layers), 2))
+    for g, (layer, members) in enumerate(zip(atmosphere.layers, atmosphere.members)):
+        cn2 = np.array([member.cn2_dh for member in members])
+        moving = np.array([member.altitude_m * rate - member.wind_m_s for member in members])    # u_i (M, 2)
+        speed = np.hypot(moving[:, 0], moving[:, 1])
+        pull = np.sum((cn2 * speed ** (2 / 3))[:, None] * moving, axis=0)     # sum J |u|^(5/3) u / |u|
+        strongest = moving[np.argmax(cn2)]
+        toward = pull if np.any(pull) else strongest
+        norm = np.hypot(toward[0], toward[1])
+        footprint = moment(cn2, speed) * toward / norm if norm > 0 else np.zeros(2)
+        winds[g] = layer.altitude_m * rate - footprint
+    return winds
+
+
 def group_cost(altitude: np.ndarray, cn2: np.ndarray) -> float:
     """Saxenhuber et al. (2017)'s grouping cost of one group, ``sum_i J_i |h_i - h_eq|`` [m^(4/3)], ``h_eq`` the
     5/3-moment altitude."""
@@ -94,8 +118,9 @@ def best_groups(altitude: np.ndarray, cn2: np.ndarray, n_groups: int) -> list[ra
 
 
 def equivalent_layers(atmosphere: Atmosphere, n_layers: int) -> Atmosphere:
-    """``atmosphere`` as ``n_layers`` equivalent layers (module docstring); unchanged (the same object) when it
-    has that many layers or fewer."""
+    """``atmosphere`` as ``n_layers`` equivalent layers (module docstring), each with its members
+    (:attr:`.Atmosphere.members`, which :func:`footprint_winds` reads); unchanged (the same object) when it has that
+    many layers or fewer."""
     if n_layers < 1:
         raise ValueError(f"equivalent layers: n_layers must be at least 1, not {n_layers}")
     if len(atmosphere.layers) <= n_layers:
@@ -103,5 +128,5 @@ def equivalent_layers(atmosphere: Atmosphere, n_layers: int) -> Atmosphere:
     layers = sorted(atmosphere.layers, key=lambda layer: layer.altitude_m)
     altitude = np.array([layer.altitude_m for layer in layers])
     cn2 = np.array([layer.cn2_dh for layer in layers])
-    groups = best_groups(altitude, cn2, n_layers)
-    return replace(atmosphere, layers=tuple(equivalent_layer(tuple(layers[i] for i in run)) for run in groups))
+    members = tuple(tuple(layers[i] for i in run) for run in best_groups(altitude, cn2, n_layers))
+    return replace(atmosphere, layers=tuple(equivalent_layer(group) for group in members), members=members)

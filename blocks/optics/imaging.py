@@ -25,7 +25,8 @@ frame (:meth:`Imager.sight`): a mount tracking a satellite at ``omega`` sweeps t
 footprint across each layer at ``L omega`` (77 m/s at ``L`` = 4.4 km for 1 deg/s), while the stars'
 footprints, fixed in azimuth and elevation but for the sidereal rate, move with the wind
 only. Each source sees its own screens: sources a few arcseconds apart are already beyond
-the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7).
+the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7). On equivalent layers each source's footprints also move at
+its own winds, which keep its footprints' speed moment (:meth:`Imager.source_flow`, :mod:`.equivalent_layers`).
 
 The pieces, one module each: the sampling (:mod:`.sizing`), the path choice and its error
 estimates (:mod:`.paths`), and the paths, ``airy`` and ``long_exposure``
@@ -47,6 +48,7 @@ from evsda.blocks.ports import FocalPlane
 
 from .analytic_path import AnalyticPath
 from .atmosphere import Atmosphere
+from .equivalent_layers import footprint_winds
 from .paths import ANALYTIC_PATHS, PATHS, PathChooser
 from .pupil_path import PupilPath, layer_columns
 from .reference_path import ReferencePath
@@ -147,6 +149,9 @@ class Imager:
         self.last_seen_ns: dict[str, int] = {}
         #: :attr:`hold_ns` and the geometry it was worked out for
         self._hold: tuple[PupilGeometry | None, int | None] = (None, None)
+        #: on equivalent layers, each source's own frozen flow (:meth:`source_flow`): its first render time [s], its
+        #: line of sight then (2,) [1] and, from its second render time on, its winds (L, 2) [m/s]
+        self.flows: dict[str, tuple[float, np.ndarray, np.ndarray | None]] = {}
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -230,6 +235,7 @@ class Imager:
         for source in sources:
             held = [store.pop(source, None) for store in self._screen_stores()]
             self.last_seen_ns.pop(source, None)
+            self.flows.pop(source, None)
             if any(h is not None for h in held):
                 self.generations[source] = self.generations.get(source, 0) + 1
 
@@ -254,10 +260,24 @@ class Imager:
             self._hold = (self.geometry, hold)
         return hold
 
+    def hold_of(self, source: str) -> int:
+        """:attr:`hold_ns` for one source: with its own winds (:meth:`source_flow`), the screens' window over their
+        speeds, ``min over layers of n delta / |w|``, at most ``MAX_HOLD_S``."""
+        flow = self.flows.get(source)
+        if flow is None or flow[2] is None or self.geometry is None:
+            return self.hold_ns
+        limit = MAX_HOLD_S
+        for layer, wind, n, delta in zip(self.atmosphere.layers, flow[2], self.geometry.layer_n,
+                                         self.geometry.layer_delta_m):
+            speed = float(np.hypot(wind[0], wind[1]))
+            if layer.cn2_dh > 0 and speed > 0:
+                limit = min(limit, n * delta / speed)
+        return int(round(limit * 1e9))
+
     def keeps(self, source: str, t_ns: int) -> bool:
-        """Whether a source in view again at render time ``t_ns`` continues its held screens (:attr:`hold_ns`)."""
+        """Whether a source in view again at render time ``t_ns`` continues its held screens (:meth:`hold_of`)."""
         seen = self.last_seen_ns.get(source)
-        return seen is not None and int(t_ns) - seen <= self.hold_ns
+        return seen is not None and int(t_ns) - seen <= self.hold_of(source)
 
     def seen(self, source: str, t_ns: int) -> None:
         """Record render time ``t_ns`` [ns] as the last a source was in view, if it holds screens."""
@@ -267,8 +287,7 @@ class Imager:
     def release(self, t_ns: int) -> None:
         """Drop the screens of sources not in view since ``hold_ns`` or more before render time ``t_ns``: none can
         keep them at a later render time. Reads render times only, so windows and resumes do not change it."""
-        hold = self.hold_ns
-        gone = [s for s in sorted(self.holding()) if int(t_ns) - self.last_seen_ns.get(s, -2**62) >= hold]
+        gone = [s for s in sorted(self.holding()) if int(t_ns) - self.last_seen_ns.get(s, -2**62) >= self.hold_of(s)]
         self.forget(gone)
 
     def epochs_of(self, t_s: np.ndarray) -> np.ndarray:
@@ -357,6 +376,32 @@ class Imager:
         finite = np.isfinite(range_m)
         scale = np.where(finite, 1.0 - slant / np.where(finite, range_m, 1.0), 1.0)
         return centre, scale
+
+    def source_flow(self, source: str, t_s: np.ndarray, sight: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """A source's own winds (L, 2) [m/s] and the times (F,) [s] they carry its footprints over, on equivalent
+        layers (:attr:`.Atmosphere.members`; None on a profile's own layers, whose winds serve every source).
+
+        Its footprints sit at ``h sight - w (t - t0)``: ``w`` from :func:`.footprint_winds` for the rate ``s'`` of its
+        line of sight between its first render time ``t0`` and its second (``sight`` (F, 2) at ``t_s`` (F,), these
+        frames'), so that its footprints' ``sum J |u|^(5/3)`` is the full profile's at that ``s'``. Measured from
+        render times only, so the same however the run is cut into windows; at ``t0`` the winds play no part (zero
+        until they are known). Kept with the screens (:meth:`forget`)."""
+        if self.atmosphere is None or self.atmosphere.members is None:
+            return None
+        flow = self.flows.get(source)
+        if flow is None:
+            flow = self.flows[source] = (float(t_s[0]), np.array(sight[0], dtype=float), None)
+        start, first_sight, winds = flow
+        if winds is None:
+            later = np.flatnonzero(t_s > start)
+            if later.size:
+                k = int(later[0])
+                rate = (np.asarray(sight[k], dtype=float) - first_sight) / (float(t_s[k]) - start)
+                winds = footprint_winds(self.atmosphere, np.where(np.isfinite(rate), rate, 0.0))
+                self.flows[source] = (start, first_sight, winds)
+        if winds is None:
+            winds = np.zeros((len(self.atmosphere.layers), 2))
+        return winds, np.asarray(t_s, dtype=float) - start
 
     # -- rendering --------------------------------------------------------------------------------
     def _paths(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None,
@@ -464,6 +509,8 @@ class Imager:
             "generations": dict(self.generations),
             "frame": None if self.frame is None else list(self.frame),
             "last_seen_ns": dict(self.last_seen_ns),
+            **({"flows": {source: [start, first_sight.tolist(), None if winds is None else winds.tolist()]
+                          for source, (start, first_sight, winds) in self.flows.items()}} if self.flows else {}),
         }
 
     def set_state(self, state: dict) -> None:
@@ -477,6 +524,9 @@ class Imager:
         frame = state.get("frame")
         self.frame = None if frame is None else tuple(float(v) for v in frame)
         self.last_seen_ns = {str(k): int(v) for k, v in (state.get("last_seen_ns") or {}).items()}
+        self.flows = {str(k): (float(start), np.array(first_sight, dtype=float),
+                               None if winds is None else np.array(winds, dtype=float))
+                      for k, (start, first_sight, winds) in (state.get("flows") or {}).items()}
         self.pupil.modal_screens = {}
         self.pupil.set_state(state.get("screens") or {})
         self.reference.set_state(state.get("reference_screens") or {})

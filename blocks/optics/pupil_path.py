@@ -117,7 +117,9 @@ class PupilPath:
             every = self._layer_screens(source)
             screens += [every[i] for i in chosen]
             part = slice(k * layers, (k + 1) * layers)
-            layer_grids(altitude, wind, cn2, spacing, t_s, sight[k], cosine[k], range_m[k], turbulent[k], xp, k2,
+            flow = self.imager.source_flow(source, t_s, sight[k])      # equivalent layers: the source's own winds
+            winds, times = (wind, t_s) if flow is None else (np.ascontiguousarray(flow[0][chosen]), flow[1])
+            layer_grids(altitude, winds, cn2, spacing, times, sight[k], cosine[k], range_m[k], turbulent[k], xp, k2,
                         rows[part], cols[part], weight[part])
         phase_t = np.empty((count, frames, g.n_pupil, g.n_pupil))   # written by each first layer's reads: no zeroing
         accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True,     # each layer in turn, one walk
