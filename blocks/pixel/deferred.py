@@ -266,7 +266,7 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
                  j_first, leak_hz, dt, large)         # each pixel's first change, from its own step and input
     # their L as runs of equal bits: the pixels with lo = k - 1 join the runs at change k (the same step as those
     # before them: one run where the bits are the same), the runs' L relaxed change by change
-    at, value = np.empty(n + 1, np.int64), np.empty(n)
+    at, value, moved = np.empty(n + 1, np.int64), np.empty(n), np.empty(n)
     n_at, m = 0, 0
     for k in range(first + 1, end):
         for s in range(m, starts[k - first]):
@@ -277,8 +277,8 @@ def take_quietly(real, count, pixels, lo, end, steps, inputs, leak_hz, dt, large
         j = steps[k] - steps[k - 1]                    # from the step before change k - 1 to the one before k
         if j > 0:
             row = inputs[k - 1]
-            n_at = _relax_runs(at, value, n_at, power(row[LOG_A], j), row[Y], row[LOG_A], row[PARA], j, leak_hz, dt,
-                               large)
+            n_at = _relax_runs(at, value, moved, n_at, power(row[LOG_A], j), row[Y], row[LOG_A], row[PARA], j, leak_hz,
+                               dt, large)
             _drift(f[S_M, :m], f[S_LEAK, :m], f[S_PARA_C, :m], f[S_TH_ON, :m], f[S_SCALE, :m], row[PARA], j, leak_hz,
                    dt)
     at[n_at] = m
@@ -313,21 +313,22 @@ def _first_sweep(filtered, memorised, c_leak, c_para, th_on, noise_scale, y, log
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _relax_runs(at, value, n_at, retention, y, log_a, para, j, leak_hz, dt, large):
+def _relax_runs(at, value, moved, n_at, retention, y, log_a, para, j, leak_hz, dt, large):
     """The ``L`` of the runs ``value[:n_at]`` (first pixels ``at``) ``j > 0`` steps on at the input ``y, log_a, para``
     (:func:`.pixel_loop.relaxed_by`, ``retention = a^j``), neighbours left with the same bits merged into one run.
     Returns the runs' number. The new ``L`` depends on a pixel only through its ``L``, so a run's pixels keep
-    one ``L``: on the tracked pass ~650 000 (pixel, change) pairs a window take ~15 000 relaxations."""
+    one ``L``: on the tracked pass ~650 000 (pixel, change) pairs a window take ~15 000 relaxations, each run's
+    computed in a vectorised loop first (:func:`_relaxed_runs`, into the scratch ``moved``), then merged."""
+    _relaxed_runs(moved, value, n_at, retention, y, log_a, para, j, leak_hz, dt, large)
     w, last, relaxed = 0, np.int64(0), 0.0
     for r in range(n_at):
         bits = _float_to_bits(value[r])
         if w > 0 and bits == last:
             continue                                   # the run before had these bits: the same L after
         last = bits
-        moved = _relaxed_l(retention, value[r], y, log_a, para, j, leak_hz, dt, large)
-        if w > 0 and _float_to_bits(moved) == _float_to_bits(relaxed):
+        if w > 0 and _float_to_bits(moved[r]) == _float_to_bits(relaxed):
             continue                                   # the run before ends with the same bits: one run
-        at[w], value[w], relaxed = at[r], moved, moved
+        at[w], value[w], relaxed = at[r], moved[r], moved[r]
         w += 1
     return w
 
@@ -342,10 +343,13 @@ def _drift(memorised, c_leak, c_para, th_on, noise_scale, para, j, leak_hz, dt):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _relaxed_l(retention, filtered, y, log_a, para, j, leak_hz, dt, large):
-    """The filter's ``L`` of :func:`.pixel_loop.relaxed_by` (not inlined: :func:`_relax_runs` calls it seldom, and its
-    ``exp`` and ``log`` inlined in a loop that does not vectorise took ~1 s more of the first compile)."""
-    return relaxed_by(retention, filtered, 0.0, 0.0, 0.0, y, log_a, para, 0.0, 0.0, j, leak_hz, dt, large)[0]
+def _relaxed_runs(moved, value, n_at, retention, y, log_a, para, j, leak_hz, dt, large):
+    """``moved[r]``: the filter's ``L`` of :func:`.pixel_loop.relaxed_by` from ``value[r]``, for ``r < n_at``, in a loop
+    the compiler vectorises (:mod:`.fastmath`'s ``exp`` and ``log``: the same bits as one at a time; a call of its own,
+    not inlined, as a scalar loop over the runs took ~1 s more of the first compile with them inlined)."""
+    wide_vectors()
+    for r in range(n_at):
+        moved[r] = relaxed_by(retention, value[r], 0.0, 0.0, 0.0, y, log_a, para, 0.0, 0.0, j, leak_hz, dt, large)[0]
 
 
 class SharedChanges:
