@@ -12,9 +12,16 @@ call's own, and prints the medians over ``--repeats`` runs of:
 * the store's writes and commits (the executor's ``(store)``; no checkpoint before the end, as in a run
   shorter than ``evsda run``'s 30 s between checkpoints) and what is left (executor, finishing).
 
-Every item is ``time.process_time`` around the calls (no profiler), nested items are shown indented
-and are included in the line above them. The figures are CPU seconds, so a loaded machine moves them
-less than wall times (cache contention still adds ~20-40 % at load 8-11); the load average is printed.
+Every item is the main thread's CPU time around the calls (``time.thread_time``, no profiler; one thread, so
+a block's steps run there), nested items are shown indented and are included in the line above them. The
+store's own threads (Zarr's I/O thread and its encoders) work while the next steps run; their CPU is the
+run's CPU on other threads, a line of its own (seventeenth session: with the process's clock around each call,
+as before, it fell on whichever block's step it overlapped, ~0.2-0.35 s of the pass, most of it on the
+scene's and readout's small blocks, and the rest on the executor). The one-core start is split as a run pays
+it: the command line's import, then Numba's (a run meets it in the graph load, at the first block module that
+compiles; it was counted nowhere before the seventeenth session), then the rest of the graph load. The
+figures are CPU seconds, so a loaded machine moves them less than wall times (cache contention still adds
+~20-40 % at load 8-11); the load average is printed.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/cpu_breakdown.py [--graph G] [--duration 10] [--repeats 3]
         [--cache cold,warm] [--against OTHER_CHECKOUT] [--sets "" "telescope/optics.source_intervals=false"]
@@ -44,11 +51,14 @@ from end_to_end import GRAPH, ONE_THREAD, fresh  # noqa: E402
 
 CHILD = r"""
 import json, sys, tempfile, time
-clock = time.process_time
+clock = time.thread_time           # the main thread's: every block steps there, the store's threads apart
 spent = {}
 start = clock()
 import evsda.graph.cli
 spent["import the command line"] = clock() - start
+t = clock()
+import numba                       # before the items below wrap its dispatchers; a run imports it in the graph load
+spent["import Numba (a run's graph load imports it)"] = clock() - t
 
 depths = {}
 def timed(owner, attribute, label):
@@ -115,14 +125,15 @@ for package, items in parts.values():
         owner = getattr(m, cls) if cls else m
         if hasattr(owner, attribute):
             timed(owner, attribute, label)
-t = clock()
+t, t_all = clock(), time.process_time()
 with tempfile.TemporaryDirectory() as tmp:
     # no checkpoint before the end: they come every 30 s of wall time, which a loaded machine would reach
     result = run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
     spent["run (every block, the store, the executor)"] = clock() - t
+    spent["run: other threads (the store's I/O and encoders)"] = time.process_time() - t_all - (clock() - t)
 for name, seconds in result.timing_s.items():
     spent["block " + name] = seconds
-spent["whole process"] = clock()
+spent["whole process"] = time.process_time()
 print(json.dumps(spent))
 """
 
@@ -204,9 +215,11 @@ def main() -> None:
         print(f"  {label:58s}" + "".join(f" {v:11.2f}" for v in values) + f" {100 * values[0] / total:5.1f}%")
 
     row("whole process")
-    for k in ("import the command line", "load the graph (imports its blocks)", "compiled code's load (Numba cache)"):
+    for k in ("import the command line", "import Numba (a run's graph load imports it)",
+              "load the graph (imports its blocks)", "compiled code's load (Numba cache)"):
         row(k)
     row("run (every block, the store, the executor)")
+    row("run: other threads (the store's I/O and encoders)")
     for k in blocks:
         row("  " + k, k)
         tag = k.split("/")[-1]
