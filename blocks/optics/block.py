@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -104,10 +104,12 @@ class PointSourceOptics(Block):
                                      description="Hufnagel-Valley ground term A (1.7e-14 for HV5/7) [m^-2/3]")
         n_layers: int = Field(4, ge=1, le=32, description="Layers the Hufnagel-Valley profile is lumped into [1]")
         # off: bit for bit; 3 on the tracked pass: docs/optics.md, "Equivalent layers"
-        equivalent_layers: int | None = Field(
-            None, ge=1, le=32, description="Render the profile's screens as this many equivalent layers (summed "
-                                           "Cn^2 dh, 5/3-moment altitudes and winds: r0, theta0 and the winds' tau0 "
-                                           "kept; equivalent_layers); None: every layer [1]")
+        equivalent_layers: Annotated[int, Field(ge=1, le=32)] | Literal["auto"] | None = Field(
+            None, description="Render the profile's screens as this many equivalent layers (summed Cn^2 dh, "
+                              "5/3-moment altitudes and winds, each source's own winds: r0, theta0 and every "
+                              "source's tau0 kept; equivalent_layers); 'auto': the fewest that keep the "
+                              "scintillation's sum J h^(5/6) and sum J h^2 and the winds' sum J v^2 within 10 %; "
+                              "None: every layer [1]")
         ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
         wind_direction_deg: float = Field(0.0, ge=-360, le=360,
                                           description="Wind direction from the focal plane's +x toward +y at the first render "

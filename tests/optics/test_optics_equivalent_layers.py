@@ -10,7 +10,8 @@ import pytest
 
 from evsda.blocks.optics.atmosphere import Atmosphere, Layer
 from evsda.blocks.optics import PointSourceOptics
-from evsda.blocks.optics.equivalent_layers import best_groups, equivalent_layers, footprint_winds, group_cost
+from evsda.blocks.optics.equivalent_layers import (AUTO_TOLERANCE, auto_layers, best_groups, equivalent_layers,
+                                                   footprint_winds, group_cost)
 from evsda.blocks.ports import FocalPlane
 from evsda.graph import RunInfo
 from evsda.library import resolve
@@ -263,3 +264,35 @@ def test_an_imager_on_equivalent_layers_carries_each_source_at_its_own_winds():
     assert imager.source_flow("25544", t[1:2], start[None])[1].tolist() == [0.0]
     imager.atmosphere = full
     assert imager.source_flow("star", t, np.zeros((4, 2))) is None
+
+
+@pytest.mark.parametrize("profile, chosen", [(MEDIAN, 3), ("library:atmospheres/las_campanas.csv", 3),
+                                             ("library:atmospheres/mauna_kea.csv", 2)])
+def test_auto_takes_the_fewest_layers_that_keep_the_scintillation_and_image_motion_moments(profile, chosen):
+    # sum J h^(5/6), sum J h^2 (Roddier 1981; Dravins et al. 1997) and sum J v^2 (Tyler 1994), written out here,
+    # within AUTO_TOLERANCE with `chosen` groups and not with one fewer
+    full = Atmosphere.from_table(resolve(profile))
+
+    def moments(atmosphere):
+        cn2, altitude, wind = columns(atmosphere)
+        return np.array([np.sum(cn2 * altitude ** (5 / 6)), np.sum(cn2 * altitude**2),
+                         np.sum(cn2 * np.sum(wind**2, axis=1))])
+
+    def within(count):
+        return bool(np.all(np.abs(moments(equivalent_layers(full, count)) / moments(full) - 1) <= AUTO_TOLERANCE))
+    assert auto_layers(full) == chosen
+    assert within(chosen) and not within(chosen - 1)
+    assert len(equivalent_layers(full, "auto").layers) == chosen
+    one = Atmosphere((Layer(100.0, 1e-13, 5.0, 0.0),))
+    assert auto_layers(one) == 1 and equivalent_layers(one, "auto") is one
+
+
+def test_the_block_takes_auto():
+    params = {"atmosphere": "table", "profile_file": MEDIAN}
+    block = PointSourceOptics(**params, equivalent_layers="auto")
+    block.setup(RunInfo(seed=1))
+    block._ensure_imager(FocalPlane(1280, 720, 4.86e-6, 0.4), 550e-9)
+    assert len(block._imager.atmosphere.layers) == 3
+    for wrong in (0, 33, "all"):
+        with pytest.raises(ValueError):
+            PointSourceOptics.Params(**params, equivalent_layers=wrong)
