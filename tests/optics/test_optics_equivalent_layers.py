@@ -296,3 +296,64 @@ def test_the_block_takes_auto():
     for wrong in (0, 33, "all"):
         with pytest.raises(ValueError):
             PointSourceOptics.Params(**params, equivalent_layers=wrong)
+
+
+@pytest.mark.parametrize("threads", ["1", "3"])
+def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path, monkeypatch, threads):
+    # a satellite held on the detector by a mount rising at ~1 deg/s and a star streaking down it
+    # (tests/optics/test_optics_mount.py's scene), three windy layers as 2: each source's winds are those of its
+    # line of sight's rate, the same stamps however the run is cut into windows, on 1 or 3 threads and resumed
+    import copy
+
+    from evsda.blocks.ports import PointSources
+    from evsda.graph import Window
+    monkeypatch.setenv("EVSDA_THREADS", threads)
+    focal_plane, cadence_ns = FocalPlane(640, 480, 4.86e-6, 1.2), 1_000_000
+    turn = 3 * focal_plane.pixel_scale_rad / (cadence_ns * 1e-9)
+    (tmp_path / "windy.csv").write_text("altitude_m,cn2_dh_m13,wind_speed_m_s,wind_direction_deg\n"
+                                        "200,2e-13,6,0\n1500,5e-14,12,40\n9000,8e-14,30,100\n")
+    params = dict(aperture_m=0.25, obscuration=0.2, psf_path="pupil_fft", seed=5, atmosphere="table",
+                  profile_file=str(tmp_path / "windy.csv"), equivalent_layers=2, source_intervals=False)
+
+    def tracked(window):
+        t_ns = window.sample_times_ns(cadence_ns)
+        n_t, rise = len(t_ns), turn * t_ns * 1e-9
+        star_y = 239.5 - np.tan(-40.5 * focal_plane.pixel_scale_rad - rise) / focal_plane.pixel_scale_rad
+        return PointSources(focal_plane, 550e-9, t_ns, np.array(["25544", "HIP 1"]), np.array([0, 1], np.int8),
+                            np.stack([np.full(n_t, 320.0), np.full(n_t, 319.5)], axis=1),
+                            np.stack([np.full(n_t, 240.0), star_y], axis=1), np.full((n_t, 2), 3e5),
+                            np.full((n_t, 2), 3.0), np.array([[8e5, np.inf]] * n_t), np.deg2rad(45.0) - rise,
+                            np.full(n_t, 0.3), np.zeros(n_t))
+
+    def run(windows, block=None):
+        block = block or PointSourceOptics(**params)
+        block.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+        return block, np.concatenate([block.step(w, sources=[tracked(w)])["irradiance"].stamp_flux
+                                      for w in windows])
+
+    def windows_of(length_s):
+        return [Window.from_seconds(i * length_s, (i + 1) * length_s, index=i) for i in range(round(0.02 / length_s))]
+
+    block, whole = run(windows_of(0.02))
+    imager = block._imager
+    flows = {key.split(":")[-1]: flow for key, flow in imager.flows.items()}
+    # each source's winds are footprint_winds at its line of sight's rate over its first two render times: the
+    # satellite's ~sec z omega (sec 45 deg x 12 mrad/s), the star's ~0 (fixed in azimuth and elevation)
+    sources = tracked(windows_of(0.02)[0])
+    for column, name in enumerate(("25544", "HIP 1")):
+        start, first_sight, winds = flows[name]
+        sight = imager.sight(sources.x_px[:2, column], sources.y_px[:2, column], sources.zenith_angle_rad[:2],
+                             sources.boresight_azimuth_rad[:2], sources.field_rotation_rad[:2])
+        rate = (sight[1] - sight[0]) / 1e-3
+        assert start == 0.0 and np.hypot(*rate) == pytest.approx(0.0172 if column == 0 else 0.0, abs=1e-3)
+        np.testing.assert_allclose(winds, footprint_winds(imager.atmosphere, rate), rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(whole, run(windows_of(0.004))[1])
+    windows = windows_of(0.01)
+    first, _ = run(windows[:1])
+    state = copy.deepcopy(first.get_state())
+    assert len(state["optics_state"]["flows"]) == 2
+    resumed = PointSourceOptics(**params)
+    resumed.setup(RunInfo(duration_ns=windows[-1].stop_ns))
+    resumed.set_state(state)
+    tail = resumed.step(windows[1], sources=[tracked(windows[1])])["irradiance"].stamp_flux
+    np.testing.assert_array_equal(tail, whole[10:])
