@@ -123,16 +123,31 @@ def _rows(amplitude_t, cosine_t, sine_t, grid, scratch, twr, twi):
 def field_powers(amplitude_t, cosine_t, sine_t, grid, power, scratch, twr, twi):
     """One frame of :func:`rows` then :func:`column_powers`: ``power = |fft2(field, (80, 80))|^2`` (float32, 80 x 80
     flat) of the field ``amplitude (cosine + i sine)`` given transposed and flat (float32, 1600 each); ``grid``: float32
-    (6400,), the rows' spectra (40 rows of 80 complex64); ``scratch``: float32 (4, 6400). The same passes on the same
-    values as the two calls, so the same bits, for a caller that renders frame by frame in compiled code."""
+    (6400,), the rows' spectra (40 rows of 80 samples, planar: real parts then imaginary parts); ``scratch``: float32
+    (4, 6400). The same passes on the same values as the two calls, so the same bits, for a caller that renders frame
+    by frame in compiled code; each transform's radix-2 pass is made inside its radix-8 pass (:func:`_radix2_8`), and
+    the rows' spectra are kept planar for it (:func:`_lanes_to_planar_rows`)."""
     wide_vectors()
-    _radix2_field(amplitude_t, cosine_t, sine_t, scratch[0], scratch[1], twr, twi, 40)
-    _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 40)
+    _radix2_8(amplitude_t, cosine_t, sine_t, scratch[2], scratch[3], twr, twi, 40, True)
     _radix5(scratch[2], scratch[3], scratch[0], 40, 40, 1)
-    _lanes_to_rows(scratch[0], grid)
-    _radix2(grid, scratch[0], scratch[1], twr, twi, 80)
-    _radix8(scratch[0], scratch[1], scratch[2], scratch[3], twr, twi, 80)
+    _lanes_to_planar_rows(scratch[0], grid)
+    _radix2_8(grid, grid[:PLANE], grid[PLANE:], scratch[2], scratch[3], twr, twi, 80, False)
     _radix5_powers(scratch[2], scratch[3], power)
+
+
+#: floats in one plane (real or imaginary parts) of the rows' spectra: 40 rows of 80 samples
+PLANE = LENGTH * LENGTH // 2
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _lanes_to_planar_rows(lanes, grid):
+    """``grid[:PLANE]`` and ``grid[PLANE:]`` the real and imaginary parts of 40 rows of 80 samples (flat float32),
+    from ``lanes`` holding element ``m`` of row ``l`` at complex ``40 m + l`` (a copy: the same bits)."""
+    wide_vectors()
+    for l in range(40):
+        for m in range(LENGTH):
+            grid[l * LENGTH + m] = lanes[2 * (m * 40 + l)]
+            grid[PLANE + l * LENGTH + m] = lanes[2 * (m * 40 + l) + 1]
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -267,6 +282,114 @@ def _radix8(re, im, out_re, out_im, twr, twi, w):
                     out_re[d5 + l], out_im[d5 + l] = y[10] * w5r + y[11] * w5i, y[11] * w5r - y[10] * w5i
                     out_re[d3 + l], out_im[d3 + l] = y[12] * w3r + y[13] * w3i, y[13] * w3r - y[12] * w3i
                     out_re[d7 + l], out_im[d7 + l] = y[14] * w7r + y[15] * w7i, y[15] * w7r - y[14] * w7i
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _radix2_8(amplitude, re, im, out_re, out_im, twr, twi, w, field):
+    """:func:`_radix2` (or with ``field`` :func:`_radix2_field`) then :func:`_radix8` in one pass, from planar inputs:
+    ``w`` lanes of 40 samples, ``re``, ``im`` (40 x ``w`` flat float32; the padding's zeros not read), or with
+    ``field`` the field ``amplitude (re + i im)`` made as they are read; into planar ``out_re``, ``out_im`` (80 x ``w``
+    lanes). Each radix-2 output is made where the radix-8 butterfly reads it (each once), with the same operations
+    as :func:`_radix2`'s, so the same bits without the 80 x ``w`` intermediate written and read back (the
+    columns' two passes 1.65 against 2.91 us a frame, docs/speed.md, seventeenth session). ``w`` and ``field`` are
+    compile-time constants."""
+    numba.literally(w)
+    numba.literally(field)
+    wide_vectors()
+    zero = _F32(0.0)
+    for k in range(2):
+        for i in range(5):
+            # the radix-8 inputs i + 5 j + 40 k (j = 0..7) are radix-2 outputs: input r = i + 5 j as it is (k = 0),
+            # or its difference with the padding's zero times the conjugated twiddle exp(2 pi i r / 80) (k = 1; none
+            # for r = 0)
+            r0, r1, r2, r3, r4, r5, r6, r7 = (i * w, (i + 5) * w, (i + 10) * w, (i + 15) * w, (i + 20) * w,
+                                              (i + 25) * w, (i + 30) * w, (i + 35) * w)
+            u0r, u1r, u2r, u3r = twr[i], twr[i + 5], twr[i + 10], twr[i + 15]
+            u4r, u5r, u6r, u7r = twr[i + 20], twr[i + 25], twr[i + 30], twr[i + 35]
+            u0i, u1i, u2i, u3i = twi[i], twi[i + 5], twi[i + 10], twi[i + 15]
+            u4i, u5i, u6i, u7i = twi[i + 20], twi[i + 25], twi[i + 30], twi[i + 35]
+            d = _destinations(i, k, w)
+            t = _output_twiddles(i, twr, twi)
+            for l in range(w):
+                a0r, a0i = _sample(amplitude, re, im, r0 + l, field)
+                a1r, a1i = _sample(amplitude, re, im, r1 + l, field)
+                a2r, a2i = _sample(amplitude, re, im, r2 + l, field)
+                a3r, a3i = _sample(amplitude, re, im, r3 + l, field)
+                a4r, a4i = _sample(amplitude, re, im, r4 + l, field)
+                a5r, a5i = _sample(amplitude, re, im, r5 + l, field)
+                a6r, a6i = _sample(amplitude, re, im, r6 + l, field)
+                a7r, a7i = _sample(amplitude, re, im, r7 + l, field)
+                if k == 0:
+                    y = _butterfly8(a0r + zero, a0i + zero, a1r + zero, a1i + zero, a2r + zero, a2i + zero,
+                                    a3r + zero, a3i + zero, a4r + zero, a4i + zero, a5r + zero, a5i + zero,
+                                    a6r + zero, a6i + zero, a7r + zero, a7i + zero)
+                else:
+                    b0r, b0i = a0r - zero, a0i - zero
+                    if i > 0:
+                        b0r, b0i = _conjugate_twiddled(b0r, b0i, u0r, u0i)
+                    b1r, b1i = _conjugate_twiddled(a1r - zero, a1i - zero, u1r, u1i)
+                    b2r, b2i = _conjugate_twiddled(a2r - zero, a2i - zero, u2r, u2i)
+                    b3r, b3i = _conjugate_twiddled(a3r - zero, a3i - zero, u3r, u3i)
+                    b4r, b4i = _conjugate_twiddled(a4r - zero, a4i - zero, u4r, u4i)
+                    b5r, b5i = _conjugate_twiddled(a5r - zero, a5i - zero, u5r, u5i)
+                    b6r, b6i = _conjugate_twiddled(a6r - zero, a6i - zero, u6r, u6i)
+                    b7r, b7i = _conjugate_twiddled(a7r - zero, a7i - zero, u7r, u7i)
+                    y = _butterfly8(b0r, b0i, b1r, b1i, b2r, b2i, b3r, b3i, b4r, b4i, b5r, b5i, b6r, b6i, b7r, b7i)
+                _store8(y, out_re, out_im, d, l, t, i == 0)
+
+
+@numba.njit(inline="always")
+def _sample(amplitude, re, im, at, field):
+    """Input ``at`` of :func:`_radix2_8`: ``(re, im)``, or with ``field`` ``(re amplitude, im amplitude)`` in float32
+    (:func:`_radix2_field`'s products)."""
+    if field:
+        return re[at] * amplitude[at], im[at] * amplitude[at]
+    return re[at], im[at]
+
+
+@numba.njit(inline="always")
+def _conjugate_twiddled(dr, di, wr, wi):
+    """``(dr + i di)`` times the conjugate of ``wr + i wi``, as pocketfft's passes make it (nothing fused)."""
+    return dr * wr + di * wi, di * wr - dr * wi
+
+
+@numba.njit(inline="always")
+def _destinations(i, k, w):
+    """Where the radix-8 pass writes its butterfly's outputs 0, 4, 2, 6, 1, 5, 3, 7 (in that order) for ``i``, ``k``:
+    output u to (i + 5 (k + 2 u)) ``w``."""
+    return ((i + 5 * k) * w, (i + 5 * (k + 8)) * w, (i + 5 * (k + 4)) * w, (i + 5 * (k + 12)) * w,
+            (i + 5 * (k + 2)) * w, (i + 5 * (k + 10)) * w, (i + 5 * (k + 6)) * w, (i + 5 * (k + 14)) * w)
+
+
+@numba.njit(inline="always")
+def _output_twiddles(i, twr, twi):
+    """The radix-8 pass's twiddles for outputs 4, 2, 6, 1, 5, 3, 7 at ``i``: exp(2 pi i u l1 i / 80), (re, im) each."""
+    return (twr[8 * i], twi[8 * i], twr[4 * i], twi[4 * i], twr[12 * i], twi[12 * i], twr[2 * i], twi[2 * i],
+            twr[10 * i], twi[10 * i], twr[6 * i], twi[6 * i], twr[14 * i], twi[14 * i])
+
+
+@numba.njit(inline="always")
+def _store8(y, out_re, out_im, d, l, t, first):
+    """The radix-8 butterfly's outputs ``y`` (:func:`_butterfly8`'s order) of lane ``l`` to ``d``
+    (:func:`_destinations`), each but the first multiplied by its conjugated twiddle ``t`` (:func:`_output_twiddles`)
+    unless ``first`` (i = 0: none)."""
+    out_re[d[0] + l], out_im[d[0] + l] = y[0], y[1]
+    if first:
+        out_re[d[1] + l], out_im[d[1] + l] = y[2], y[3]
+        out_re[d[2] + l], out_im[d[2] + l] = y[4], y[5]
+        out_re[d[3] + l], out_im[d[3] + l] = y[6], y[7]
+        out_re[d[4] + l], out_im[d[4] + l] = y[8], y[9]
+        out_re[d[5] + l], out_im[d[5] + l] = y[10], y[11]
+        out_re[d[6] + l], out_im[d[6] + l] = y[12], y[13]
+        out_re[d[7] + l], out_im[d[7] + l] = y[14], y[15]
+    else:
+        out_re[d[1] + l], out_im[d[1] + l] = _conjugate_twiddled(y[2], y[3], t[0], t[1])
+        out_re[d[2] + l], out_im[d[2] + l] = _conjugate_twiddled(y[4], y[5], t[2], t[3])
+        out_re[d[3] + l], out_im[d[3] + l] = _conjugate_twiddled(y[6], y[7], t[4], t[5])
+        out_re[d[4] + l], out_im[d[4] + l] = _conjugate_twiddled(y[8], y[9], t[6], t[7])
+        out_re[d[5] + l], out_im[d[5] + l] = _conjugate_twiddled(y[10], y[11], t[8], t[9])
+        out_re[d[6] + l], out_im[d[6] + l] = _conjugate_twiddled(y[12], y[13], t[10], t[11])
+        out_re[d[7] + l], out_im[d[7] + l] = _conjugate_twiddled(y[14], y[15], t[12], t[13])
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

@@ -290,6 +290,16 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
             column_fft.rows(*(np.ascontiguousarray(a.transpose(0, 2, 1)) for a in (amplitude, cosine, sine)), grid,
                             scratch)
             np.testing.assert_array_equal(grid[:, :40].view(np.uint64), sfft.fft(field, n=80, axis=2).view(np.uint64))
+            # and both in one frame's call, each radix-2 pass inside its radix-8 pass, the rows' spectra planar
+            padded = np.zeros((5, 80, 80), np.complex64)
+            padded[:, :40] = sfft.fft(field, n=80, axis=2)
+            spectrum = sfft.fft(padded, axis=1)
+            rows_planar = np.full(80 * 80, np.nan, np.float32)
+            for f in range(5):
+                flat = [np.ascontiguousarray(a[min(f, len(a) - 1)].T).reshape(-1) for a in (amplitude, cosine, sine)]
+                column_fft.field_powers(*flat, rows_planar, power[f].reshape(-1), scratch, *column_fft.TWIDDLES)
+            np.testing.assert_array_equal(power.view(np.uint32),
+                                          (spectrum.real**2 + spectrum.imag**2).view(np.uint32))
     telescope = Telescope(0.2, 0.4)
     for n in (40, 39):
         delta = 0.2 / (n - 2)
