@@ -33,7 +33,9 @@ distance between pixel-integrated stamps of total flux ``F``).
   the reference adds the pupil path's (triangle inequality).
 
 :class:`PathChooser` makes these estimates once per bin of conditions (1 degree of zenith
-angle, 5 % of range; the pupil path's error on coarser bins) and keeps each choice, so a
+angle, 5 % of range; the pupil path's error on coarser bins, which with ``EVSDA_SHARED_FAR_PROBES=on``, off by
+default, a finite-range bin shares with the far one where its propagation is the far source's:
+:meth:`PathChooser._shares_far`) and keeps each choice, so a
 choice is a pure function of the bin and of the run's seed. The probes' results are also kept
 on disk across runs (:data:`PROBE_CACHE`, keyed by everything they read and this package's source):
 a run that meets the same inputs again reads the same numbers instead of measuring them.
@@ -60,6 +62,7 @@ streaking stars'), and each bin's estimate is taken at the bin's worst edge:
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import zlib
 from collections.abc import Callable
@@ -118,6 +121,34 @@ SEEN_BIN_RATIO = 2.0
 #: telescope, atmosphere, band, sampling, tolerance, seed, conditions: ``PathChooser._remembered``) and the
 #: source of this package (the code that computes them)
 PROBE_CACHE = ResultCache("optics-path-probes", [Path(__file__).parent], ("numpy", "scipy", "numba", "llvmlite"))
+#: ``EVSDA_SHARED_FAR_PROBES=on`` (off by default: the default's probes and bits as they are): a finite-range
+#: pupil-error bin whose scintillation term is within this fraction of the far bin's, at the same zenith-angle bin,
+#: takes the far bin's reference probes (:meth:`PathChooser._shares_far`) [1]
+SHARED_FAR_TOLERANCE = 0.05
+#: ... and whose source's defocus (telescope focused at infinity) is at most this rms over the pupil [rad]
+SHARED_FAR_DEFOCUS_RAD = 0.1
+
+
+def spherical_wave_ratio(layers, zenith_rad: float, range_m: float) -> float:
+    """The ratio [1] of the Rytov variance of a point source at slant range ``range_m`` [m] to that of a plane wave
+    through the same ``layers`` at zenith angle ``zenith_rad`` (rad): ``sum J z^(5/6) (1 - z/R)^(5/6) / sum J
+    z^(5/6)``, each layer's ``J = Cn^2 dh`` at slant distance ``z`` from the aperture (weak fluctuations, Andrews &
+    Phillips 2005, Laser Beam Propagation through Random Media, 2nd ed., Ch. 8: the spherical wave's
+    ``[z (1 - z/R)]^(5/6)`` against the plane wave's ``z^(5/6)``); 0 where a turbulent layer is not before the
+    source."""
+    cn2 = np.array([layer.cn2_dh for layer in layers])
+    slant = np.array([layer.altitude_m for layer in layers]) / np.cos(zenith_rad)
+    turbulent = (cn2 > 0) & (slant > 0)
+    cn2, slant = cn2[turbulent], slant[turbulent]
+    if not cn2.size or slant.max() >= range_m:
+        return 0.0 if cn2.size else 1.0
+    plane = cn2 * slant ** (5 / 6)
+    return float(np.sum(plane * (1.0 - slant / range_m) ** (5 / 6)) / np.sum(plane))
+
+
+def shared_far_probes() -> bool:
+    """Whether ``EVSDA_SHARED_FAR_PROBES`` says on (``on``, ``1``, ``yes``, ``true``; off when unset)."""
+    return os.environ.get("EVSDA_SHARED_FAR_PROBES", "").strip().lower() in ("on", "1", "yes", "true")
 
 
 @dataclass(frozen=True)
@@ -313,6 +344,8 @@ class PathChooser:
         self._estimates: dict[tuple, tuple[dict, dict]] = {}
         self._ahead: dict[tuple, Any] = {}       # probes made by probe_ahead, until their bins' choices take them
         self._scintillation: dict[tuple, float] = {}   # scintillation index of each pupil-error bin
+        self.shared_far = shared_far_probes()
+        self._shared_far: dict[tuple, bool] = {}        # whether a finite-range pupil-error bin takes the far one's
 
     def key(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> tuple:
         """The bin of these conditions (:func:`conditions_key`), with what the pixels see
@@ -776,22 +809,66 @@ class PathChooser:
     def _reference_bin(self, zenith_rad: float, range_m: float) -> tuple[tuple[int, int], dict, float] | None:
         """The pupil-error bin of these conditions, its probe's conditions (the bin's zenith angle [rad] and
         range [m], the scintillation term [1] there) and the scintillation index [1] it comes from; None without
-        turbulence."""
+        turbulence. With ``EVSDA_SHARED_FAR_PROBES=on``, a finite-range bin like the far one (:meth:`_shares_far`)
+        is the far bin."""
         imager = self.imager
         if not imager.turbulent(zenith_rad):
             return None
         z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
         r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
+        if r_bin >= 0 and self.shared_far and self._shares_far(z_bin, r_bin):
+            r_bin = -1
         key = (z_bin, r_bin)
         zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
         distance = FAR_RANGE_M if r_bin < 0 else 2.0 ** (r_bin + 0.5)
-        if key in self._scintillation:
-            sigma2 = self._scintillation[key]
-        else:
-            sigma2 = self._scintillation[key] = imager.atmosphere.scintillation_index(
-                imager.telescope.diameter_m, imager.wavelength, zenith, distance)
+        sigma2 = self._bin_scintillation(key, zenith, distance)
         return key, {"bin": list(key), "zenith_rad": zenith, "range_m": distance,
                      "scintillation": scintillation_error(sigma2)}, sigma2
+
+    def _bin_scintillation(self, key: tuple[int, int], zenith_rad: float, range_m: float) -> float:
+        """The aperture-averaged scintillation index [1] of pupil-error bin ``key`` at its probe's conditions, kept."""
+        if key not in self._scintillation:
+            imager = self.imager
+            self._scintillation[key] = imager.atmosphere.scintillation_index(
+                imager.telescope.diameter_m, imager.wavelength, zenith_rad, range_m)
+        return self._scintillation[key]
+
+    def _shares_far(self, z_bin: int, r_bin: int) -> bool:
+        """Whether finite-range pupil-error bin ``(z_bin, r_bin)`` takes the far bin's reference probes (the switch
+        ``EVSDA_SHARED_FAR_PROBES``, off by default): at its nearest range ``2^r_bin`` [m] and the bin's zenith angle,
+        within :data:`SHARED_FAR_TOLERANCE`,
+
+        * the diffraction between the layers and the aperture, which the pupil path drops, is the far source's: the
+          spherical wave's Rytov variance is the plane wave's (:func:`spherical_wave_ratio`), and the
+          aperture-averaged scintillation term (:func:`scintillation_error` of :meth:`.Atmosphere.scintillation_index`,
+          the pupil path's error floor) is the far bin's; and
+        * the source's defocus for a telescope focused at infinity, ``pi r^2 / (lambda R)`` (in both paths alike),
+          is at most :data:`SHARED_FAR_DEFOCUS_RAD` rms over the pupil (``c a^2 / sqrt(12)`` for a filled pupil of
+          radius ``a``, its largest for any obstruction: ``r^2`` is uniform over an annulus), a Strehl ratio
+          above 0.99 (Marechal: ``exp(-sigma^2)``; Born & Wolf 1999 Sec. 9.1).
+
+        Kept per bin; logged when shared."""
+        key = (z_bin, r_bin)
+        if key not in self._shared_far:
+            imager = self.imager
+            zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
+            nearest = 2.0**r_bin
+            ratio = spherical_wave_ratio(imager.atmosphere.layers, zenith, nearest)
+            shared = ratio >= 1.0 - SHARED_FAR_TOLERANCE
+            if shared:
+                far = scintillation_error(self._bin_scintillation((z_bin, -1), zenith, FAR_RANGE_M))
+                near = scintillation_error(imager.atmosphere.scintillation_index(
+                    imager.telescope.diameter_m, imager.wavelength, zenith, nearest))
+                radius = imager.telescope.diameter_m / 2
+                defocus = float(imager.defocus_curvature(np.array([nearest]))[0]) * radius**2 / np.sqrt(12.0)
+                shared = abs(near - far) <= SHARED_FAR_TOLERANCE * far and defocus <= SHARED_FAR_DEFOCUS_RAD
+            self._shared_far[key] = shared
+            if shared:
+                LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, ranges from %.3g m: the far bin's "
+                         "probes (EVSDA_SHARED_FAR_PROBES): Rytov variance %.3g of the far one's, scintillation term "
+                         "%.3g against %.3g far, defocus %.2g rad rms", imager.label, np.rad2deg(zenith), nearest,
+                         ratio, near, far, defocus)
+        return self._shared_far[key]
 
     def _reference_distances(self, key: tuple, zenith_rad: float, range_m: float,
                              scintillation: float) -> tuple[list[float], tuple[bool, str]]:
@@ -860,6 +937,7 @@ class PathChooser:
         self._estimates.clear()
         self._ahead.clear()
         self._scintillation.clear()
+        self._shared_far.clear()
 
 
 class _PairRun:
