@@ -64,8 +64,12 @@ seen, method, update, modes, calls = pickle.load(open(sys.argv[1], "rb"))
 class Imager:                                      # what the screens read of the pass's imager
     def __init__(self, seen):
         self.__dict__.update(seen)
+        self.flows = {}
     def source_seed(self, key, window):
         return self.seeds[key]
+    def source_flow(self, source, t_s, sight):     # the imager's own (equivalent layers' winds; None without them)
+        from evsda.blocks.optics.imaging import Imager as Real
+        return Real.source_flow(self, source, t_s, sight)
 
 def replay():
     path = pupil_path.PupilPath(Imager(seen), method, update, modes)

@@ -461,22 +461,21 @@ def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out, at
     start + count - 1`` [samples] into ``cos_out``, ``sin_out`` (K, .) from column ``at``, from ``p = stride h + l``: ``low_*[k, l]``
     at ``w l`` (tabled) and ``cos``, ``sin`` of ``w (stride h)`` by the angle-addition formulas (each value from its
     own ``h`` and ``l`` only, wherever it lies in the output: the cosine and sine of each ``h`` are libm's, as NumPy's
-    ``cos``, ``sin`` of the same double). ``h`` and ``l`` are counted along, not divided out per value."""
+    ``cos``, ``sin`` of the same double). One ``h`` at a time, its run of ``l`` in a loop of its own (vectorised)."""
     h0 = start // stride
     span = float(stride)
     for k in range(low_cos.shape[0]):
-        h, low = h0, start - stride * h0
-        phase = w[k] * (span * h)
-        ch, sh = math.cos(phase), math.sin(phase)
-        for i in range(count):
-            cl, sl = low_cos[k, low], low_sin[k, low]
-            cos_out[k, at + i] = ch * cl - sh * sl
-            sin_out[k, at + i] = sh * cl + ch * sl
-            low += 1
-            if low == stride and i + 1 < count:
-                low, h = 0, h + 1
-                phase = w[k] * (span * h)
-                ch, sh = math.cos(phase), math.sin(phase)
+        i, h, low = 0, h0, start - stride * h0
+        while i < count:
+            phase = w[k] * (span * h)
+            ch, sh = math.cos(phase), math.sin(phase)
+            run = min(stride - low, count - i)
+            cl, sl = low_cos[k, low:low + run], low_sin[k, low:low + run]
+            co, so = cos_out[k, at + i:at + i + run], sin_out[k, at + i:at + i + run]
+            for j in range(run):
+                co[j] = ch * cl[j] - sh * sl[j]
+                so[j] = sh * cl[j] + ch * sl[j]
+            i, h, low = i + run, h + 1, 0
 
 
 @jit
@@ -527,53 +526,94 @@ def read_spans(rows, cols, top, left, height, width, first, stop):
             stop[r] = max(stop[r], c1)
 
 
-@jit
-def _mode_row_weights(a, b, cos_y, sin_y, k, r):
-    """:func:`add_modes`' ``u = a cos y + b sin y`` and ``v = b cos y - a sin y`` of mode ``k`` in row ``r``."""
-    return a[k] * cos_y[k, r] + b[k] * sin_y[k, r], b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
+#: columns :func:`add_modes` makes at once: vectors of :data:`MODE_LANES` (one AVX-512 register, two AVX2 ones; each
+#: lane the same sum either way), :data:`MODE_VECTORS` of them with a sum each, so that the modes' additions in
+#: order (a chain of dependent adds per vector) overlap
+MODE_LANES, MODE_VECTORS = 8, 4
+MODE_COLUMNS = MODE_LANES * MODE_VECTORS
+
+
+def _masked_lanes(builder, fn_name, vector, arguments):
+    """A call of LLVM's ``llvm.masked.load`` / ``llvm.masked.store`` on ``vector``'s type (the 4-argument form, with
+    an alignment of 8 bytes; later LLVMs upgrade it)."""
+    i1s = ir.VectorType(ir.IntType(1), vector.count)
+    if fn_name == "load":
+        fnty = ir.FunctionType(vector, [vector.as_pointer(), ir.IntType(32), i1s, vector])
+    else:
+        fnty = ir.FunctionType(ir.VoidType(), [vector, vector.as_pointer(), ir.IntType(32), i1s])
+    function = cgutils.get_or_insert_function(builder.module, fnty, f"llvm.masked.{fn_name}.v{vector.count}f64.p0")
+    return builder.call(function, arguments)
+
+
+@intrinsic
+def _modes_added(typingctx, source, out, cos_x, sin_x, u, v, r, c, count):
+    """``out[r, c + i] = source[r, c + i] + t_i`` for the columns ``i < count`` (at most :data:`MODE_COLUMNS`), ``t_i
+    = (((0.0 + (u[0] cos_x[0, c + i] + v[0] sin_x[0, c + i])) + (u[1] cos_x[1, c + i] + ..)) + ..)`` over every mode
+    in order: :func:`add_modes`' sum, each lane the scalar expression (plain ``fmul`` and ``fadd``); the other
+    columns are neither read nor written (masked loads and stores)."""
+    _contiguous_doubles(source, out, cos_x, sin_x, u, v)
+
+    def codegen(context, builder, signature, args):
+        values, target, cosines, sines, us, vs, r, c, count = args
+        lanes = MODE_LANES
+        vector = ir.VectorType(ir.DoubleType(), lanes)
+        integers = ir.VectorType(ir.IntType(64), lanes)
+        counts = builder.shuffle_vector(
+            builder.insert_element(ir.Constant(integers, ir.Undefined), count, ir.Constant(ir.IntType(32), 0)),
+            ir.Constant(integers, ir.Undefined), ir.Constant(ir.VectorType(ir.IntType(32), lanes), [0] * lanes))
+        masks = [builder.icmp_signed("<", ir.Constant(integers, list(range(j * lanes, (j + 1) * lanes))), counts)
+                 for j in range(MODE_VECTORS)]
+        zeros, align = ir.Constant(vector, [0.0] * lanes), ir.Constant(ir.IntType(32), 8)
+
+        def lanes_of(position, array, row, j):
+            column = builder.add(c, c.type(j * lanes))
+            pointer = _lanes_at(context, builder, signature.args[position], array, [row, column], lanes)
+            return _masked_lanes(builder, "load", vector, [pointer, align, masks[j], zeros])
+
+        def scalar_of(position, array, k):
+            values = context.make_array(signature.args[position])(context, builder, array)
+            return builder.load(cgutils.get_item_pointer(context, builder, signature.args[position], values, [k],
+                                                         wraparound=False))
+        modes = builder.extract_value(context.make_array(signature.args[4])(context, builder, us).shape, 0)
+        totals = [cgutils.alloca_once_value(builder, zeros) for _ in range(MODE_VECTORS)]
+        with cgutils.for_range(builder, modes) as loop:
+            k = loop.index
+            uk, vk = _splat(builder, scalar_of(4, us, k), lanes), _splat(builder, scalar_of(5, vs, k), lanes)
+            for j, total in enumerate(totals):
+                term = builder.fadd(builder.fmul(uk, lanes_of(2, cosines, k, j)),
+                                    builder.fmul(vk, lanes_of(3, sines, k, j)))
+                builder.store(builder.fadd(builder.load(total), term), total)
+        for j, total in enumerate(totals):
+            summed = builder.fadd(lanes_of(0, values, r, j), builder.load(total))
+            column = builder.add(c, c.type(j * lanes))
+            _masked_lanes(builder, "store", vector, [summed, _lanes_at(context, builder, signature.args[1], target,
+                                                                       [r, column], lanes), align, masks[j]])
+        return context.get_dummy_value()
+    return types.void(source, out, cos_x, sin_x, u, v, r, c, count), codegen
 
 
 @jit
 def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
     """``out[r, c] = source[r, c] + sum_k a[k] cos(y_r + x_c) + b[k] sin(y_r + x_c)`` for ``first[r] <= c < stop[r]``
     (``out`` may be ``source``), from the cosines and sines of the modes' phases along y (K, H) and x (K, W)
-    [:mod:`.large_scales`].
+    [:mod:`.large_scales`]; all C-contiguous.
 
     With ``u = a cos y + b sin y`` and ``v = b cos y - a sin y`` each term is ``u cos x + v sin x``. No
-    reassociation: every value is the same sum in the same order (k ascending) wherever it lies in ``out``; four
-    modes are added in one pass over a row (the row's sums loaded and stored once per four terms, not per term).
+    reassociation: every value is the same sum in the same order (k ascending, from 0.0) wherever it lies in ``out``;
+    :data:`MODE_COLUMNS` columns of a row take every mode in one pass (:func:`_modes_added`: the sums stay in a
+    register, each column's terms loaded once).
     """
-    height = source.shape[0]
     modes = a.shape[0]
-    acc = np.empty(source.shape[1])
-    for r in range(height):
+    u, v = np.empty(modes), np.empty(modes)
+    for r in range(source.shape[0]):
         c0, c1 = first[r], stop[r]
         if c1 <= c0:
             continue
-        # on views from 0 (indices known non-negative: no wraparound test per value, so the loops vectorise)
-        m = c1 - c0
-        total = acc[:m]
-        total[:] = 0.0
-        for k in range(0, modes - modes % 4, 4):
-            u0, v0 = _mode_row_weights(a, b, cos_y, sin_y, k, r)
-            u1, v1 = _mode_row_weights(a, b, cos_y, sin_y, k + 1, r)
-            u2, v2 = _mode_row_weights(a, b, cos_y, sin_y, k + 2, r)
-            u3, v3 = _mode_row_weights(a, b, cos_y, sin_y, k + 3, r)
-            x0, s0, x1, s1 = cos_x[k, c0:c1], sin_x[k, c0:c1], cos_x[k + 1, c0:c1], sin_x[k + 1, c0:c1]
-            x2, s2, x3, s3 = cos_x[k + 2, c0:c1], sin_x[k + 2, c0:c1], cos_x[k + 3, c0:c1], sin_x[k + 3, c0:c1]
-            for c in range(m):
-                t = total[c] + (u0 * x0[c] + v0 * s0[c])
-                t = t + (u1 * x1[c] + v1 * s1[c])
-                t = t + (u2 * x2[c] + v2 * s2[c])
-                total[c] = t + (u3 * x3[c] + v3 * s3[c])
-        for k in range(modes - modes % 4, modes):
-            u, v = _mode_row_weights(a, b, cos_y, sin_y, k, r)
-            cx, sx = cos_x[k, c0:c1], sin_x[k, c0:c1]
-            for c in range(m):
-                total[c] += u * cx[c] + v * sx[c]
-        row, kept = out[r, c0:c1], source[r, c0:c1]
-        for c in range(m):
-            row[c] = kept[c] + total[c]
+        for k in range(modes):
+            u[k] = a[k] * cos_y[k, r] + b[k] * sin_y[k, r]
+            v[k] = b[k] * cos_y[k, r] - a[k] * sin_y[k, r]
+        for c in range(c0, c1, MODE_COLUMNS):
+            _modes_added(source, out, cos_x, sin_x, u, v, r, c, min(c1 - c, MODE_COLUMNS))
 
 
 @jit

@@ -74,18 +74,21 @@ def test_walked_screens_keep_the_large_scales():
     assert np.all(np.abs(per.mean(axis=0) - expected) < 3 * error), (per.mean(axis=0) / expected, error / expected)
 
 
-@pytest.mark.parametrize("modes", [20, 22])
-def test_add_modes_sums_each_value_mode_by_mode(modes):
-    # add_modes adds four modes in one pass over a row (and the rest one by one): each value is still the sum of the
-    # terms u cos x + v sin x in mode order from 0.0, then added to the coefficient, bit for bit
+@pytest.mark.parametrize("modes, width", [(20, 13), (22, 13), (20, 75), (3, 75)])
+def test_add_modes_sums_each_value_mode_by_mode(modes, width):
+    # add_modes adds every mode to 32 columns of a row at once (vectors of 8, masked at a span's end): each value is
+    # still the sum of the terms u cos x + v sin x in mode order from 0.0, then added to the coefficient, bit for bit;
+    # columns outside the spans are left as they were
     from evsda.blocks.optics.screen_kernels import add_modes
-    rng = np.random.default_rng(modes)
-    height, width = 5, 13
+    rng = np.random.default_rng(modes + width)
+    height = 5
     source = rng.standard_normal((height, width))
     cos_y, sin_y = rng.standard_normal((2, modes, height))
     cos_x, sin_x = rng.standard_normal((2, modes, width))
     a, b = rng.standard_normal((2, modes))
     first, stop = np.array([0, 3, 5, 7, 2]), np.array([13, 11, 5, 13, 9])
+    if width > 13:                          # spans of 1 to 3 vectors of 32, and ends at every lane
+        first, stop = np.array([0, 1, 40, 7, 2]), np.array([75, 34, 41, 70, 35])
     out = np.full((height, width), np.nan)
     add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop)
     expected = np.full((height, width), np.nan)
