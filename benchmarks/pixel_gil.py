@@ -15,7 +15,8 @@ this one in the same process, window by window, alternating which goes first, ch
 the same, and prints both blocks' CPU per window and their ratio (the host's drift cancels); the copy is kept in
 the temporary folder, one per checkout, so that its Numba cache serves the next run. ``--held`` prints,
 without cProfile, the block's CPU a window outside its compiled loops (the Python and NumPy that hold the GIL; the
-loops' calls timed each, their argument checks counted with them), with ``--against`` for both checkouts; run it
+loops' calls timed each, their argument checks counted with them), with ``--against`` for both checkouts and each
+compiled loop's CPU a window in both; run it
 with ``EVSDA_THREADS=1``, which keeps every call on the block's thread.
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2] [--inputs F] [--no-profile]
@@ -46,7 +47,7 @@ from evsda.graph.graphfile import load_graph
 
 GRAPH = Path(__file__).with_name("end_to_end.yaml")
 #: compiled kernels the block calls on its own thread, all ``nogil``
-KERNELS = ("select_pixels", "take_and_run", "take_ranges", "drive_rows", "own_changes", "under_stamps", "_adds_flux",
+KERNELS = ("select_pixels", "take_and_run", "drive_rows", "own_changes", "under_stamps", "_adds_flux",
            "_sum_stamps", "_summed_stamps", "window_changes", "time_ordered")
 
 
@@ -143,6 +144,11 @@ def side_by_side(pickled: bytes, inputs: list, against: Path, held: bool = False
         print(f"  outside the compiled loops (GIL held): {against} {np.median(other_held) * 1e3:.2f} ms -> this "
               f"{np.median(this_held) * 1e3:.2f} ms a window (medians); sums {other_held.sum():.3f} -> "
               f"{this_held.sum():.3f} s")
+        names = sorted(set(spent["this"]) | set(spent["against"]),
+                       key=lambda name: -spent["this"].get(name, 0) - spent["against"].get(name, 0))
+        print("  the compiled loops (ms a window, " + f"{against} -> this): " + ", ".join(
+            f"{name} {spent['against'].get(name, 0) * 1e-6 / this.size:.2f} -> "
+            f"{spent['this'].get(name, 0) * 1e-6 / this.size:.2f}" for name in names))
 
 
 def held_per_window(block, inputs: list) -> None:

@@ -62,15 +62,22 @@ _LOOK_BLOCK = 1024            # pixels scanned for those to look at before their
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
 def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end, base, end, y_high, y_low, para_high,
-                  envelope, leak_dt, dt, defer, refresh, first, stop):
-    """The pixels a window must process, in order, and whether each takes pending background changes.
+                  envelope, leak_dt, dt, defer, refresh, kept, offset, n_kept, change_first, change_counts, quiet_from,
+                  first, stop):
+    """The pixels a window must process, in order, and the changes each takes.
 
     A pixel is processed when it is due before ``n_end`` (``next_step``), has its own input
     changes (``changed``, sorted), or lies away from the stamps (not in ``touched``, sorted)
     with background changes it has not taken (``applied < end``) that could make it fire
     (:func:`_cannot_fire`; ``y_high``, ``y_low``, ``para_high``: :meth:`SharedChanges.suffix_bounds`).
     ``defer`` False takes every change to every pixel at once (the reference the tests compare with).
-    Returns ``(pixels, takes)``: ``takes`` marks those away from the stamps with pending changes.
+    Returns ``(pixels, lo, hi, quiet_lo)``, the changes :func:`take_and_run` gives each: a pixel away from the
+    stamps with pending changes takes its :meth:`SharedChanges.quiet_ranges` of the ``n_kept`` kept changes
+    placed at ``offset`` (the first ``kept`` from before this window), marked taken (``applied`` set to ``end``:
+    it takes them all in this window's run); ``changed[k]`` its own changes ``change_first[k]:change_first[k] +
+    change_counts[k]``, after the kept changes ``quiet_from[k]`` (-1: none) to the last but one taken quietly; the
+    others none. The ranges are made as each pixel is chosen, its ``applied`` read once (they were a second pass,
+    ``take_ranges``, reading it again scattered over the sensor).
 
     ``wake[p]`` is the earlier of ``next_step[p]`` and :func:`.pixel_loop.quiet_until` under
     ``envelope``, which holds every kept and later change: a pixel with ``wake[p] >= n_end`` and no
@@ -81,7 +88,7 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
     """
     n = min(stop, next_step.size)
     pixels = np.empty(max(n - first, 0), np.int64)
-    takes = np.empty(max(n - first, 0), np.bool_)
+    lo, hi, quiet_lo = np.empty_like(pixels), np.empty_like(pixels), np.empty_like(pixels)
     look = np.empty(_LOOK_BLOCK, np.int64)
     m, it, ic = 0, 0, 0
     while it < touched.size and touched[it] < first:
@@ -134,40 +141,19 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
                                                      count[p, STEP], y_high[j], y_low[j], para_high[j], n_end,
                                                      leak_dt, dt)
             if busy:
-                pixels[m] = p
-                takes[m] = behind
+                pixels[m], lo[m], hi[m], quiet_lo[m] = p, 0, 0, -1
+                if behind:
+                    pending = applied[p] - base
+                    if pending < kept - 1:        # quietly up to the last but one kept change
+                        lo[m], quiet_lo[m] = offset + kept - 1, pending
+                    else:
+                        lo[m] = offset + pending
+                    hi[m] = offset + n_kept
+                    applied[p] = end
+                if own:
+                    lo[m], hi[m], quiet_lo[m] = change_first[ic], change_first[ic] + change_counts[ic], quiet_from[ic]
                 m += 1
-    return pixels[:m].copy(), takes[:m].copy()
-
-
-@numba.njit(cache=True, error_model="numpy", nogil=True)
-def take_ranges(pixels, takes, applied, base, end, kept, offset, n_kept, changed, first, counts, quiet_from):
-    """The changes :func:`take_and_run` gives each of ``pixels`` (from :func:`select_pixels`), as
-    ``(lo, hi, quiet_lo)``: those that take pending background changes (``takes``) their
-    :meth:`SharedChanges.quiet_ranges` of the ``n_kept`` kept changes placed at ``offset`` (the first ``kept``
-    from before this window), marked taken (``applied`` set to ``end``: they take them all in this window's
-    run); ``changed[k]`` its own changes ``first[k]:first[k] + counts[k]``, after the kept changes
-    ``quiet_from[k]`` (-1: none) to the last but one taken quietly; the others none. One pass, compiled:
-    these were NumPy's gathers and scatters under the GIL."""
-    n = pixels.size
-    lo, hi, quiet_lo = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
-    k = 0
-    for i in range(n):
-        p = pixels[i]
-        lo[i], hi[i], quiet_lo[i] = 0, 0, -1
-        if takes[i]:
-            pending = applied[p] - base
-            if pending < kept - 1:                    # quietly up to the last but one kept change
-                lo[i], quiet_lo[i] = offset + kept - 1, pending
-            else:
-                lo[i] = offset + pending
-            hi[i] = offset + n_kept
-            applied[p] = end
-        while k < changed.size and changed[k] < p:
-            k += 1
-        if k < changed.size and changed[k] == p:
-            lo[i], hi[i], quiet_lo[i] = first[k], first[k] + counts[k], quiet_from[k]
-    return lo, hi, quiet_lo
+    return pixels[:m].copy(), lo[:m].copy(), hi[:m].copy(), quiet_lo[:m].copy()
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

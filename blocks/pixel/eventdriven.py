@@ -33,7 +33,7 @@ from evsda.graph.threads import parallel_map
 from .eventlog import EventLog
 from .initial import initial_pixels
 from .model import PixelModel
-from .deferred import SharedChanges, select_pixels, take_and_run, take_ranges
+from .deferred import SharedChanges, select_pixels, take_and_run
 from .dense_loop import run_dense_chunk
 from .drive_kernel import drive_constants, drive_rows
 from .own_changes import under_stamps, window_changes
@@ -149,12 +149,10 @@ class EventDrivenPixels:
         base, end = np.int64(s["shared_base"]), np.int64(history.end)
 
         def select(span):             # the pixels of span to process and their changes (marks those taking them)
-            pixels, takes = select_pixels(s["real"], s["count"], s["next"], self._wake, s["applied"], touched,
-                                          changed, np.int64(n_end), base, end, *suffix, self._envelope, leak_hz * dt,
-                                          dt, self.defer_background, refresh, *span)
-            return (pixels,) + take_ranges(pixels, takes, s["applied"], base, end, np.int64(kept),
-                                           np.int64(own_step.size), np.int64(s["shared_step"].size), changed, first,
-                                           counts, quiet_from)
+            return select_pixels(s["real"], s["count"], s["next"], self._wake, s["applied"], touched, changed,
+                                 np.int64(n_end), base, end, *suffix, self._envelope, leak_hz * dt, dt,
+                                 self.defer_background, refresh, np.int64(kept), np.int64(own_step.size),
+                                 np.int64(s["shared_step"].size), first, counts, quiet_from, *span)
 
         n, parts = s["next"].size, worker_threads()     # the sensor in parts, in threads: the same lists
         spans = [(np.int64(n * i // parts), np.int64(n * (i + 1) // parts)) for i in range(parts)]

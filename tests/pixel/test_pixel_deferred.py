@@ -95,14 +95,14 @@ def test_pixels_read_only_by_their_wake_step_are_those_the_bound_leaves_out(monk
     seen = {"windows": 0, "renewed": 0, "quiet": 0}
 
     def checked(real, count, next_step, wake, applied, touched, changed, n_end, *rest):
-        *bounds, defer, refresh, first, stop = rest
+        *bounds, defer, refresh, kept, offset, n_kept, change_first, change_counts, quiet_from, first, stop = rest
         if refresh:
             seen["renewed"] += 1
         else:
             seen["windows"] += 1
             seen["quiet"] = max(seen["quiet"], int(np.sum(wake[first:stop] >= n_end)))
-            full = select(real, count, next_step, wake.copy(), applied, touched, changed, n_end, *bounds, defer, True,
-                          first, stop)
+            full = select(real, count, next_step, wake.copy(), applied.copy(), touched, changed, n_end, *bounds, defer,
+                          True, kept, offset, n_kept, change_first, change_counts, quiet_from, first, stop)
         out = select(real, count, next_step, wake, applied, touched, changed, n_end, *rest)
         if not refresh:
             for a, b in zip(full, out):
