@@ -42,6 +42,7 @@ as it is, without the event detector (no P_d); pick its rows with ``--rows``.
         "3 equivalent layers, noise draw" --extra-draws h i j       # paired: star and track events' mean difference
     ... --duration 2 --plot '' --rows "noise draw" "3 equivalent layers" --extra-draws c d \
         --set telescope/optics.profile_file=library:atmospheres/las_campanas.csv       # another profile, every row
+    ... (the same) --equivalent auto      # the rows "3 equivalent layers..." at equivalent_layers: auto, so named
 """
 
 from __future__ import annotations
@@ -260,6 +261,9 @@ def main() -> None:
     parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
                         help="a setting of every row, the faithful one's too, as in FAITHFUL (repeatable), e.g. "
                              "telescope/optics.profile_file=library:atmospheres/las_campanas.csv")
+    parser.add_argument("--equivalent", default="3", metavar="N",
+                        help="equivalent_layers of the rows named '3 equivalent layers...' (an integer or 'auto'; "
+                             "the rows are named after it)")
     parser.add_argument("--extra-draws", nargs="*", default=[], metavar="SUFFIX",
                         help="more noise draws (new suffixes, e.g. h i j): rows 'noise draw SUFFIX' and '3 equivalent "
                              "layers, noise draw SUFFIX' each, after the chosen rows")
@@ -269,6 +273,7 @@ def main() -> None:
     main_graph, prefix = (GRAPH, "scene/") if wrapped else (scene_file, "")
     variants = [v for v in VARIANTS[:args.only] if not args.rows or v[0] in ("faithful", *args.rows)]
     variants += paired_draws((suffix, suffix) for suffix in args.extra_draws)
+    variants = [with_equivalent(name, change, args.equivalent) for name, change in variants]
     faithful_settings = {**FAITHFUL, **dict(item.split("=", 1) for item in args.settings)}
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; {main_graph.name}, "
           f"{args.duration:g} s simulated per run; faithful: {faithful_settings}")
@@ -294,24 +299,34 @@ def main() -> None:
                   f"star events {stats['stars']['total']:6d} ({e['star_events']:+6.1%}, per star "
                   f"{e['star_count_rms']:5.1%} RMS)  star centroid {e['star_centroid_px']:5.2f} px", flush=True)
     print(f"load average at the end: {os.getloadavg()[0]:.2f}")
-    paired_equivalent_layers(rows)
+    paired_equivalent_layers(rows, f"{args.equivalent} equivalent layers")
     if args.plot:
         pareto(rows, args.plot)
 
 
-def paired_equivalent_layers(rows) -> None:
-    """The star and track events of each row "3 equivalent layers[, DRAW]" against its every-layer twin on the same
-    draw ("faithful" or DRAW), paired: each pair's relative difference, their mean and standard error [%]."""
+def with_equivalent(name: str, change: dict, value: str) -> tuple[str, dict]:
+    """A row "3 equivalent layers..." (:data:`VARIANTS`) at ``equivalent_layers`` ``value`` (an integer or "auto"),
+    named after it; other rows as they are."""
+    if value == "3" or not name.startswith("3 equivalent layers"):
+        return name, change
+    return f"{value} equivalent layers" + name.removeprefix("3 equivalent layers"), {
+        **change, EQUIVALENT: int(value) if value.isdigit() else value}
+
+
+def paired_equivalent_layers(rows, prefix: str = "3 equivalent layers") -> None:
+    """The star and track events of each row "PREFIX[, DRAW]" (:func:`with_equivalent`) against its every-layer twin
+    on the same draw ("faithful" or DRAW), paired: each pair's relative difference, their mean and standard error
+    [%]."""
     counts = {name: stats for name, _, stats, _ in rows}
-    twins = {name: name.removeprefix("3 equivalent layers").removeprefix(", ") or "faithful" for name in counts
-             if name.startswith("3 equivalent layers")}
+    twins = {name: name.removeprefix(prefix).removeprefix(", ") or "faithful" for name in counts
+             if name.startswith(prefix)}
     pairs = [(counts[twin], counts[name]) for name, twin in twins.items() if twin in counts]
     if not pairs:
         return
     for label, key in (("star events", lambda s: s["stars"]["total"]), ("track events", lambda s: s["track"])):
         d = np.array([key(three) / max(key(every), 1) - 1 for every, three in pairs]) * 100
         spread = d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else np.nan
-        print(f"3 equivalent layers against every layer, {d.size} paired draws, {label}: mean {d.mean():+.2f} % "
+        print(f"{prefix} against every layer, {d.size} paired draws, {label}: mean {d.mean():+.2f} % "
               f"(standard error {spread:.2f}); each: " + " ".join(f"{x:+.1f}" for x in d))
 
 

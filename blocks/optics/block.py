@@ -107,8 +107,8 @@ class PointSourceOptics(Block):
         equivalent_layers: Annotated[int, Field(ge=1, le=32)] | Literal["auto"] | None = Field(
             None, description="Render the profile's screens as this many equivalent layers (summed Cn^2 dh, "
                               "5/3-moment altitudes and winds, each source's own winds: r0, theta0 and every "
-                              "source's tau0 kept; equivalent_layers); 'auto': the fewest that keep the "
-                              "scintillation's sum J h^(5/6) and sum J h^2 and the winds' sum J v^2 within 10 %; "
+                              "source's tau0 kept; equivalent_layers); 'auto': the fewest, at least 3, that keep "
+                              "the scintillation's sum J h^(5/6) and sum J h^2 and the winds' sum J v^2 within 10 %; "
                               "None: every layer [1]")
         ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
         wind_direction_deg: float = Field(0.0, ge=-360, le=360,

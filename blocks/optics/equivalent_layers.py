@@ -32,7 +32,8 @@ exactly** (at ``s' = 0`` the group wind above). Not kept: other altitude moments
 statistics such as the image motion's temporal spectrum (these weigh the layers' speeds by other powers).
 docs/optics.md, "Equivalent layers", gives this profile's figures.
 
-How many: ``equivalent_layers: auto`` (:func:`auto_layers`) takes the fewest groups that keep, besides the moments
+How many: ``equivalent_layers: auto`` (:func:`auto_layers`) takes the fewest groups, at least
+:data:`AUTO_FEWEST`, that keep, besides the moments
 above, each of three that no group keeps within :data:`AUTO_TOLERANCE` of the full profile's: the scintillation's
 altitude moments ``sum J h^(5/6)`` (small apertures: the Rytov variance, Roddier 1981; Andrews & Phillips 2005
 Eq. 12.38; the path probes' scintillation term reads the compressed profile) and ``sum J h^2`` (large apertures,
@@ -57,6 +58,9 @@ from .atmosphere import Atmosphere, Layer
 #: in 3 groups (the fewest within it) is off by +6.3 % (``sum J h^(5/6)``), -2.2 % and -2.1 %, and its tracked pass
 #: keeps every statistic of benchmarks/speed_vs_error.py within the every-layer noise floor (docs/speed.md)
 AUTO_TOLERANCE = 0.1
+#: and takes at least this many groups [1]: 3 kept the tracked pass within the every-layer noise floor on five
+#: profiles; mauna_kea in 2 (within the tolerance) scattered its stars' counts past it (docs/speed.md)
+AUTO_FEWEST = 3
 
 
 def moment(weights: np.ndarray, values: np.ndarray) -> float:
@@ -138,11 +142,11 @@ def kept_moments(atmosphere: Atmosphere) -> np.ndarray:
     return np.array([np.sum(cn2 * altitude ** (5 / 6)), np.sum(cn2 * altitude**2), np.sum(cn2 * speed**2)])
 
 
-def auto_layers(atmosphere: Atmosphere, tolerance: float = AUTO_TOLERANCE) -> int:
-    """The fewest equivalent layers whose :func:`kept_moments` are each within ``tolerance`` of ``atmosphere``'s
-    [1]; its own count where no fewer are."""
+def auto_layers(atmosphere: Atmosphere, tolerance: float = AUTO_TOLERANCE, fewest: int = AUTO_FEWEST) -> int:
+    """The fewest equivalent layers, ``fewest`` or more, whose :func:`kept_moments` are each within ``tolerance`` of
+    ``atmosphere``'s [1]; its own count where no fewer are."""
     full = kept_moments(atmosphere)
-    for count in range(1, len(atmosphere.layers)):
+    for count in range(fewest, len(atmosphere.layers)):
         if np.all(np.abs(kept_moments(equivalent_layers(atmosphere, count)) - full) <= tolerance * np.abs(full)):
             return count
     return len(atmosphere.layers)
