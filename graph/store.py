@@ -157,6 +157,10 @@ class RunStore:
         self._arrays: dict[str, zarr.Array] = {}
         self._checked = False       # a read-only store's structure has been checked
         self._truth_sources: dict[tuple[str, str], int] | None = None   # (block, source_id) -> source number
+        #: per block: its last window's source ids and their numbers (a block's sources are mostly the same every
+        #: window, whose numbers are then taken again instead of looked up one by one)
+        self._truth_ids: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._chunk_rows: dict[str, int] = {}        # per appendable array: its rows per chunk
         self._truth_cache: dict[str, np.ndarray] | None = None
         #: set_metrics' values not yet written: earlier calls' (merged, JSON form), the latest call's, units
         self._pending_metrics: tuple[dict, dict, dict] = ({}, {}, {})
@@ -322,7 +326,9 @@ class RunStore:
                 attrs: dict[str, Any] | None = None) -> None:
         """Queue ``data`` for appending to array ``key`` (written by :meth:`flush`); ``dims`` and ``attrs``
         name the array's dimensions and describe it when it is created."""
-        rows = self._array(key, data.dtype, chunk, data.shape[1:], dims, attrs).chunks[0]
+        rows = self._chunk_rows.get(key)
+        if rows is None:
+            rows = self._chunk_rows[key] = self._array(key, data.dtype, chunk, data.shape[1:], dims, attrs).chunks[0]
         self._pending.setdefault(key, []).append(data)
         self._lengths[key] = self._lengths.get(key, 0) + data.shape[0]
         self._pending_bytes += data.nbytes
@@ -539,8 +545,23 @@ class RunStore:
 
     def _append_truth_table(self, block: str, sources: dict[str, np.ndarray], rows: dict[str, np.ndarray],
                             attrs: dict[str, dict]) -> None:
-        numbering = self._truth_numbering()
         ids = np.asarray(sources["source_id"]).astype(str)
+        numbers, new = self._source_numbers(block, ids)
+        per_source = {name: np.asarray(values)[new] for name, values in sources.items()}
+        per_source["block"] = np.full(len(new), block)
+        attrs = {**attrs, "block": {"long_name": "block that rendered the source"}}
+        self.append_table("truth", per_source, "source", attrs, chunk_bytes=8 << 10)
+        self.append_table("truth", {**rows, "source_index": numbers[np.asarray(rows["source_index"], np.int64)]},
+                          "sample", attrs)
+        self._truth_cache = None
+
+    def _source_numbers(self, block: str, ids: np.ndarray) -> tuple[np.ndarray, list[int]]:
+        """The source numbers of ``block``'s sources ``ids`` (numbering those not seen before) and the positions of
+        the new ones; the block's last numbers again when ``ids`` are its last window's."""
+        last = self._truth_ids.get(block)
+        if last is not None and np.array_equal(last[0], ids):
+            return last[1], []
+        numbering = self._truth_numbering()
         numbers = np.empty(len(ids), np.int32)
         new = []
         for k, source_id in enumerate(ids):
@@ -549,13 +570,8 @@ class RunStore:
                 numbering[key] = len(numbering)
                 new.append(k)
             numbers[k] = numbering[key]
-        per_source = {name: np.asarray(values)[new] for name, values in sources.items()}
-        per_source["block"] = np.full(len(new), block)
-        attrs = {**attrs, "block": {"long_name": "block that rendered the source"}}
-        self.append_table("truth", per_source, "source", attrs, chunk_bytes=8 << 10)
-        self.append_table("truth", {**rows, "source_index": numbers[np.asarray(rows["source_index"], np.int64)]},
-                          "sample", attrs)
-        self._truth_cache = None
+        self._truth_ids[block] = (ids, numbers)
+        return numbers, new
 
     def _truth_numbering(self) -> dict[tuple[str, str], int]:
         """(block, source_id) -> source number, of the committed sources (read once) and those appended since."""

@@ -58,6 +58,28 @@ def test_rows_are_the_on_detector_samples_numbered_by_source(store):
     assert group["photon_flux"].attrs["units"] == "photon s^-1 m^-2"
 
 
+def test_sources_repeated_window_after_window_keep_their_numbers(tmp_path):
+    """A block's sources are mostly the same every window (the store then takes their last numbers again): the same
+    truth as numbering every source one by one each window (the last numbers dropped before each append)."""
+    windows = [(["25544", "HIP 7"], [0, 1]), (["25544", "HIP 7"], [0, 1]), (["99999", "25544", "HIP 7"], [0, 0, 1]),
+               (["25544", "HIP 7"], [0, 1]), (["25544", "HIP 7"], [0, 1])]
+    written = {}
+    for label in ("kept", "looked up"):
+        s = RunStore.create(tmp_path / f"{label}.zarr")
+        for k, (ids, kinds) in enumerate(windows):
+            if label == "looked up":
+                s._truth_ids.clear()
+            x = np.arange(2 * len(ids), dtype=float).reshape(2, len(ids)) + k
+            s.append_truth("optics", window_truth([2 * k, 2 * k + 1], ids, kinds, x))
+        s.commit(windows=len(windows), complete=True)
+        written[label] = RunStore.open(s.path).read_truth()
+    assert written["kept"]["source_id"].tolist() == written["looked up"]["source_id"].tolist()
+    for name, values in written["looked up"].items():
+        assert np.array_equal(written["kept"][name], values), name
+    group = RunStore.open(tmp_path / "kept.zarr").group["truth"]
+    assert group["source_id"][:].tolist() == ["25544", "HIP 7", "99999"]
+
+
 def test_export_writes_the_truth_beside_the_events_as_csv_and_hdf5(store, tmp_path, capsys):
     out = tmp_path / "events.h5"
     assert main(["export", str(store.path), "--format", "hdf5", "-o", str(out), "--truth"]) == 0
