@@ -158,15 +158,16 @@ def _grow(array, capacity):
 
 
 @jit
-def _canvas_index(side, top, left, n, r, c):
-    """Canvas (row, column) of the window's sample (r, c) seen with ``side`` on the right."""
+def _window_strides(side, top, left, n, width):
+    """Where the sample (r, c) of the window at canvas (``top``, ``left``), seen with ``side`` on the right, lies in a
+    C-ordered canvas ``width`` columns wide: the flat index ``start + r along + c across``."""
     if side == RIGHT:
-        return top + r, left + c
+        return top * width + left, width, 1
     if side == LEFT:
-        return top + r, left + n - 1 - c
+        return top * width + left + n - 1, width, -1
     if side == DOWN:
-        return top + c, left + r
-    return top + n - 1 - c, left + r
+        return top * width + left, 1, width
+    return (top + n - 1) * width + left, 1, -width
 
 
 @fast_jit
@@ -174,15 +175,17 @@ def extend_columns(canvas, tops, lefts, sides, a, b, stencil_rows, stencil_back,
     """One conditional column per step: window at canvas (``tops[i]``, ``lefts[i]``), grown on ``sides[i]``.
 
     ``a`` (n, n_stencil) and lower-triangular ``b`` (n, n) are :func:`.autoregressive.extension_operator`
-    for one column; ``noise`` holds ``n`` standard normal draws per step.
+    for one column; ``noise`` holds ``n`` standard normal draws per step; ``canvas`` is C-contiguous (its stencil
+    read and its new column written through flat indices, :func:`_window_strides`).
     """
     n_stencil = stencil_rows.shape[0]
     z = np.empty(n_stencil)
+    flat = canvas.reshape(-1)
+    width = canvas.shape[1]
     for op in range(sides.shape[0]):
-        top, left, s = tops[op], lefts[op], sides[op]
+        start, along, across = _window_strides(sides[op], tops[op], lefts[op], n, width)
         for i in range(n_stencil):
-            row, col = _canvas_index(s, top, left, n, stencil_rows[i], n - 1 - stencil_back[i])
-            z[i] = canvas[row, col]
+            z[i] = flat[start + stencil_rows[i] * along + (n - 1 - stencil_back[i]) * across]
         w = noise[op * n:(op + 1) * n]
         for r in range(n):
             acc = 0.0
@@ -190,8 +193,7 @@ def extend_columns(canvas, tops, lefts, sides, a, b, stencil_rows, stencil_back,
                 acc += a[r, i] * z[i]
             for j in range(r + 1):
                 acc += b[r, j] * w[j]
-            row, col = _canvas_index(s, top, left, n, r, n)
-            canvas[row, col] = acc
+            flat[start + r * along + n * across] = acc
 
 
 @intrinsic

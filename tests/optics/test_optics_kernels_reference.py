@@ -131,3 +131,40 @@ def test_taps_are_the_divided_taps():
         _taps_divided(u, 0.0, divided_index, divided)
         np.testing.assert_array_equal(index, divided_index)
         assert same_bits(weights, divided)
+
+
+def test_extensions_on_every_side_are_the_right_extension_of_the_turned_canvas():
+    # extend_columns reads and writes a window seen with its growing side on the right through flat indices
+    # (screen_kernels._window_strides): growing left, down or up must be growing right on the canvas flipped,
+    # transposed or both, bit for bit (the same stencil values in the same order, the same sums), and touch only the
+    # new columns; growing right matches the operator's own A z + B w to rounding
+    from evsda.blocks.optics.screen_kernels import DOWN, LEFT, RIGHT, UP, extend_columns
+    rng = np.random.default_rng(21)
+    n, n_stencil, steps = 6, 11, 4
+    a, b = rng.standard_normal((n, n_stencil)), np.tril(rng.standard_normal((n, n)))
+    stencil_rows, stencil_back = rng.integers(0, n, n_stencil), rng.integers(0, 5, n_stencil)
+    noise = rng.standard_normal(steps * n)
+    canvas = rng.standard_normal((23, 29))
+    height, width = canvas.shape
+    top, left = 8, 9
+    turned = {RIGHT: (lambda c: c, lambda t, l: (t, l)),
+              LEFT: (lambda c: c[:, ::-1], lambda t, l: (t, width - n - l)),
+              DOWN: (lambda c: c.T, lambda t, l: (l, t)),
+              UP: (lambda c: c.T[:, ::-1], lambda t, l: (l, height - n - t))}
+    # each side's windows step away from the start along its own direction (one column or row a step)
+    moves = {RIGHT: (0, 1), LEFT: (0, -1), DOWN: (1, 0), UP: (-1, 0)}
+    for side, (turn, place) in turned.items():
+        tops = np.array([top + moves[side][0] * k for k in range(steps)])
+        lefts = np.array([left + moves[side][1] * k for k in range(steps)])
+        grown = canvas.copy()
+        extend_columns(grown, tops, lefts, np.full(steps, side, np.int8), a, b, stencil_rows, stencil_back, noise, n)
+        right = np.array(turn(canvas), order="C")                  # a copy, also for RIGHT
+        at = np.array([place(t, l) for t, l in zip(tops, lefts)])
+        extend_columns(right, at[:, 0], at[:, 1], np.full(steps, RIGHT, np.int8), a, b, stencil_rows, stencil_back,
+                       noise, n)
+        assert same_bits(turn(grown), right), side
+        assert np.count_nonzero(grown != canvas) == steps * n, side
+        if side == RIGHT:
+            window = canvas[top:top + n, left:left + n]
+            expected = a @ window[stencil_rows, n - 1 - stencil_back] + b @ noise[:n]
+            np.testing.assert_allclose(grown[top:top + n, left + n], expected, rtol=1e-12, atol=1e-12)
