@@ -163,13 +163,13 @@ def _sincos_frames(phase_t, curvature, r2, ky, kx, x, cosine, sine):
 @numba.njit(nogil=True)
 def _row_frames(amplitude, cosine, sine, grid, scratch, twr, twi, frames):
     """The row FFTs of one field ``frames`` times (the field's product in the first pass, the last pass's
-    transposition into the grid's planar rows), as :func:`.column_fft.field_powers` makes them."""
+    transposition into the grid's real and imaginary rows), as :func:`.column_fft.field_powers` makes them."""
     column_fft.wide_vectors()
     flat_cosine, flat_sine = cosine.reshape(-1), sine.reshape(-1)
     for _ in range(frames):
-        column_fft._radix2_8(amplitude, flat_cosine, flat_sine, scratch[2], scratch[3], twr, twi, 40, True)
+        column_fft._radix2_8(amplitude, flat_cosine, flat_sine, scratch[2], scratch[3], twr, twi, 40, 40, True)
         column_fft._radix5(scratch[2], scratch[3], scratch[0], 40, 40, 1)
-        column_fft._lanes_to_planar_rows(scratch[0], grid)
+        column_fft._lanes_to_split_rows(scratch[0], grid)
 
 
 @numba.njit(nogil=True)
@@ -177,9 +177,8 @@ def _column_frames(grid, psf, scratch, twr, twi, frames):
     """The column FFTs with ``|.|^2`` of one grid ``frames`` times, as :func:`.column_fft.field_powers` makes them."""
     column_fft.wide_vectors()
     flat_psf = psf.reshape(-1)
-    plane = column_fft.PLANE
     for _ in range(frames):
-        column_fft._radix2_8(grid, grid[:plane], grid[plane:], scratch[2], scratch[3], twr, twi, 80, False)
+        column_fft._radix2_8(grid, grid, grid[80:], scratch[2], scratch[3], twr, twi, 80, 160, False)
         column_fft._radix5_powers(scratch[2], scratch[3], flat_psf)
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic
 
@@ -123,31 +124,77 @@ def _rows(amplitude_t, cosine_t, sine_t, grid, scratch, twr, twi):
 def field_powers(amplitude_t, cosine_t, sine_t, grid, power, scratch, twr, twi):
     """One frame of :func:`rows` then :func:`column_powers`: ``power = |fft2(field, (80, 80))|^2`` (float32, 80 x 80
     flat) of the field ``amplitude (cosine + i sine)`` given transposed and flat (float32, 1600 each); ``grid``: float32
-    (6400,), the rows' spectra (40 rows of 80 samples, planar: real parts then imaginary parts); ``scratch``: float32
-    (4, 6400). The same passes on the same values as the two calls, so the same bits, for a caller that renders frame
-    by frame in compiled code; each transform's radix-2 pass is made inside its radix-8 pass (:func:`_radix2_8`), and
-    the rows' spectra are kept planar for it (:func:`_lanes_to_planar_rows`)."""
+    (6400,), the rows' spectra (40 rows of 80 samples, each row's real parts then its imaginary parts); ``scratch``:
+    float32 (4, 6400). The same passes on the same values as the two calls, so the same bits, for a caller that
+    renders frame by frame in compiled code; each transform's radix-2 pass is made inside its radix-8 pass
+    (:func:`_radix2_8`), and the rows' spectra are transposed into real and imaginary rows for it
+    (:func:`_lanes_to_split_rows`)."""
     wide_vectors()
-    _radix2_8(amplitude_t, cosine_t, sine_t, scratch[2], scratch[3], twr, twi, 40, True)
+    _radix2_8(amplitude_t, cosine_t, sine_t, scratch[2], scratch[3], twr, twi, 40, 40, True)
     _radix5(scratch[2], scratch[3], scratch[0], 40, 40, 1)
-    _lanes_to_planar_rows(scratch[0], grid)
-    _radix2_8(grid, grid[:PLANE], grid[PLANE:], scratch[2], scratch[3], twr, twi, 80, False)
+    _lanes_to_split_rows(scratch[0], grid)
+    _radix2_8(grid, grid, grid[80:], scratch[2], scratch[3], twr, twi, 80, 160, False)      # rows 160 floats apart
     _radix5_powers(scratch[2], scratch[3], power)
 
 
-#: floats in one plane (real or imaginary parts) of the rows' spectra: 40 rows of 80 samples
-PLANE = LENGTH * LENGTH // 2
-
-
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _lanes_to_planar_rows(lanes, grid):
-    """``grid[:PLANE]`` and ``grid[PLANE:]`` the real and imaginary parts of 40 rows of 80 samples (flat float32),
-    from ``lanes`` holding element ``m`` of row ``l`` at complex ``40 m + l`` (a copy: the same bits)."""
+def _lanes_to_split_rows(lanes, grid):
+    """``grid`` (flat float32, 80 x 80): row ``2 l`` the real parts and row ``2 l + 1`` the imaginary parts of row
+    ``l`` of 80 samples, from ``lanes`` holding its element ``m`` at complex ``40 m + l`` (80 rows of 80 floats, whose
+    float ``c = 2 l + p`` is part ``p`` of row ``l``): the 80 x 80 floats transposed, 16 x 16 at a time in vector
+    registers (:func:`_transpose_16`; a copy: the same bits)."""
     wide_vectors()
-    for l in range(40):
-        for m in range(LENGTH):
-            grid[l * LENGTH + m] = lanes[2 * (m * 40 + l)]
-            grid[PLANE + l * LENGTH + m] = lanes[2 * (m * 40 + l) + 1]
+    for m in range(0, LENGTH, 16):
+        for c in range(0, LENGTH, 16):
+            _transpose_16(lanes, m * LENGTH + c, LENGTH, grid, c * LENGTH + m, LENGTH)
+
+
+def _swap_bit_masks() -> tuple[tuple[list[int], list[int]], ...]:
+    """For :func:`_transpose_16`: stage ``k``'s shuffles of rows ``r`` and ``r + 2^k`` (``r``'s bit k clear) of a
+    16 x 16 block, which swap bit k of the row and column indices (after the four stages, element (i, j) is (j, i)):
+    the first row takes columns with bit k clear from itself and the rest from the second row's column with it
+    cleared; the second row the rest. Indices 16-31 are the second row's."""
+    stages = []
+    for k in range(4):
+        bit = 1 << k
+        stages.append(([j if not j & bit else 16 + (j & ~bit) for j in range(16)],
+                       [j | bit if not j & bit else 16 + j for j in range(16)]))
+    return tuple(stages)
+
+
+_SWAP_BIT_MASKS = _swap_bit_masks()
+
+
+@intrinsic
+def _transpose_16(typingctx, source, source_start, source_stride, target, target_start, target_stride):
+    """``target[target_start + j target_stride + i] = source[source_start + i source_stride + j]`` for ``i, j < 16``
+    (float32 arrays, flat; the rows need not be aligned): 16 vector loads, four stages of 16 two-row shuffles
+    (:func:`_swap_bit_masks`) and 16 vector stores, in LLVM's IR (vectors of 16 floats: on a CPU without 512-bit
+    registers LLVM splits them). A copy: the same bits. ~0.6 against ~1.0 us for the 80 x 80 floats element by
+    element (docs/speed.md, seventeenth session)."""
+    def codegen(context, builder, signature, args):
+        vector = ir.VectorType(ir.FloatType(), 16)
+        indices = ir.VectorType(ir.IntType(32), 16)
+        (source_data, first, stride), (target_data, target_first, target_step) = (
+            (context.make_array(signature.args[a])(context, builder, args[a]).data, args[a + 1], args[a + 2])
+            for a in (0, 3))
+
+        def row(data, start, step, i):
+            at = builder.add(start, builder.mul(step, ir.Constant(step.type, i)))
+            return builder.bitcast(builder.gep(data, [at]), vector.as_pointer())
+
+        rows = [builder.load(row(source_data, first, stride, i), align=4) for i in range(16)]
+        for k, (low, high) in enumerate(_SWAP_BIT_MASKS):
+            swapped = list(rows)
+            for r in (r for r in range(16) if not r & (1 << k)):
+                a, b = rows[r], rows[r | 1 << k]
+                swapped[r] = builder.shuffle_vector(a, b, ir.Constant(indices, low))
+                swapped[r | 1 << k] = builder.shuffle_vector(a, b, ir.Constant(indices, high))
+            rows = swapped
+        for j, values in enumerate(rows):
+            builder.store(values, row(target_data, target_first, target_step, j), align=4)
+        return context.get_dummy_value()
+    return types.none(source, source_start, source_stride, target, target_start, target_stride), codegen
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -285,15 +332,17 @@ def _radix8(re, im, out_re, out_im, twr, twi, w):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _radix2_8(amplitude, re, im, out_re, out_im, twr, twi, w, field):
+def _radix2_8(amplitude, re, im, out_re, out_im, twr, twi, w, stride, field):
     """:func:`_radix2` (or with ``field`` :func:`_radix2_field`) then :func:`_radix8` in one pass, from planar inputs:
-    ``w`` lanes of 40 samples, ``re``, ``im`` (40 x ``w`` flat float32; the padding's zeros not read), or with
+    ``w`` lanes of 40 samples, ``re``, ``im`` (sample ``r`` of lane ``l`` at ``r stride + l``, flat float32; the
+    padding's zeros not read), or with
     ``field`` the field ``amplitude (re + i im)`` made as they are read; into planar ``out_re``, ``out_im`` (80 x ``w``
     lanes). Each radix-2 output is made where the radix-8 butterfly reads it (each once), with the same operations
     as :func:`_radix2`'s, so the same bits without the 80 x ``w`` intermediate written and read back (the
-    columns' two passes 1.65 against 2.91 us a frame, docs/speed.md, seventeenth session). ``w`` and ``field`` are
-    compile-time constants."""
+    columns' two passes 1.65 against 2.91 us a frame, docs/speed.md, seventeenth session). ``w``, ``stride`` and
+    ``field`` are compile-time constants."""
     numba.literally(w)
+    numba.literally(stride)
     numba.literally(field)
     wide_vectors()
     zero = _F32(0.0)
@@ -302,8 +351,8 @@ def _radix2_8(amplitude, re, im, out_re, out_im, twr, twi, w, field):
             # the radix-8 inputs i + 5 j + 40 k (j = 0..7) are radix-2 outputs: input r = i + 5 j as it is (k = 0),
             # or its difference with the padding's zero times the conjugated twiddle exp(2 pi i r / 80) (k = 1; none
             # for r = 0)
-            r0, r1, r2, r3, r4, r5, r6, r7 = (i * w, (i + 5) * w, (i + 10) * w, (i + 15) * w, (i + 20) * w,
-                                              (i + 25) * w, (i + 30) * w, (i + 35) * w)
+            r0, r1, r2, r3 = i * stride, (i + 5) * stride, (i + 10) * stride, (i + 15) * stride
+            r4, r5, r6, r7 = (i + 20) * stride, (i + 25) * stride, (i + 30) * stride, (i + 35) * stride
             u0r, u1r, u2r, u3r = twr[i], twr[i + 5], twr[i + 10], twr[i + 15]
             u4r, u5r, u6r, u7r = twr[i + 20], twr[i + 25], twr[i + 30], twr[i + 35]
             u0i, u1i, u2i, u3i = twi[i], twi[i + 5], twi[i + 10], twi[i + 15]

@@ -300,6 +300,12 @@ def test_compiled_column_transforms_are_pocketffts_bit_for_bit():
                 column_fft.field_powers(*flat, rows_planar, power[f].reshape(-1), scratch, *column_fft.TWIDDLES)
             np.testing.assert_array_equal(power.view(np.uint32),
                                           (spectrum.real**2 + spectrum.imag**2).view(np.uint32))
+    # the rows' spectra into real and imaginary rows, 16 x 16 floats at a time in vector registers: a transposition of
+    # the 80 x 80 floats, every bit pattern kept (NaNs' payloads, signed zeros)
+    lanes = rng.integers(0, 2**32, 6400, dtype=np.uint32).view(np.float32)
+    split = np.empty(6400, np.float32)
+    column_fft._lanes_to_split_rows(lanes, split)
+    np.testing.assert_array_equal(split.view(np.uint32).reshape(80, 80), lanes.view(np.uint32).reshape(80, 80).T)
     telescope = Telescope(0.2, 0.4)
     for n in (40, 39):
         delta = 0.2 / (n - 2)
