@@ -1,9 +1,10 @@
 """`EVSDA_SHARED_FAR_PROBES=on` (paths.PathChooser._shares_far, off by default): a finite-range pupil-error bin
-whose scintillation term is the far bin's within 5 % (and whose defocus is small) takes the far bin's reference
-probes; it changes no decision on the tracked pass's first window nor on the close call of these tests' conditions,
+whose propagation is the far source's within 5 % (Rytov variance, scintillation term; its defocus small) takes the
+far bin's reference probes; it changes no decision on the tracked pass's first window nor on the close call of these tests' conditions,
 and leaves the bins as they are when off."""
 
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,8 @@ from evsda.blocks.optics import paths
 from evsda.blocks.optics.block import PointSourceOptics
 from evsda.blocks.optics.paths import PathChooser
 from evsda.blocks.optics.telescope import Telescope
+from evsda.graph.executor import run_graph
+from evsda.graph.graphfile import load_graph
 
 from .test_optics_probe_ahead import WINDOW
 from .test_optics_probe_cache import RANGE_M, SEEN, ZENITH_RAD, make_imager
@@ -80,10 +83,6 @@ def test_a_bin_unlike_the_far_one_keeps_its_own_probes(monkeypatch):
 
 
 def test_the_tracked_pass_first_window_makes_the_same_choices(monkeypatch, tmp_path):
-    from evsda.graph.executor import run_graph
-    from evsda.graph.graphfile import load_graph
-    from pathlib import Path
-
     graph = Path(__file__).parents[2] / "benchmarks" / "end_to_end.yaml"
 
     def first_window(switch):
