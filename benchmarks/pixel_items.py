@@ -153,7 +153,10 @@ def main() -> None:
 
     def counted_select(real, count, next_step, wake, applied, touched, changed, n_end, *rest):
         first, stop = rest[-2:]
-        counts["awake"] = counts.get("awake", 0) + int(np.count_nonzero(wake[first:stop] < n_end))
+        envelope = rest[5]              # its last entry, where there are four: the wake codes' first step
+        wake_from = int(envelope[3]) if envelope.size > 3 else 0
+        counts["awake"] = counts.get("awake", 0) + int(np.count_nonzero(wake[first:stop].astype(np.int64) + wake_from
+                                                                        < n_end))
         start = time.thread_time_ns()
         out = select(real, count, next_step, wake, applied, touched, changed, n_end, *rest)
         spent["select_pixels"] = spent.get("select_pixels", 0) + time.thread_time_ns() - start

@@ -106,7 +106,7 @@ class DvsPixel(Block):
         return {"events": events}
 
     def footprint(self, run: RunInfo) -> Footprint:
-        """Memory per sensor pixel: the event-driven state (12 floats and 7 integers per pixel, a wake step) and its
+        """Memory per sensor pixel: the event-driven state (12 floats and 7 integers per pixel, a 4-byte wake code) and its
         start-up temporaries peak at 360 B/pixel (tracemalloc, 400 x 400 sensor); 400 B/pixel stated."""
         return Footprint(bytes_per_pixel=STATE_BYTES_PER_PIXEL)
 

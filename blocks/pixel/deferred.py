@@ -30,14 +30,19 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.cpython.unsafe.numbers import trailing_zeros
+from numba.extending import intrinsic
 
 from .comparator import ROUNDING_MARGIN, TOLERANCE
 from .crossing import power
 from .fastmath import _float_to_bits, wide_vectors
 from .own_sweep import drive_left, sweep_own
 from .pixel_loop import (_AHEAD, _LAZY, ACCEPT, C_LEAK, C_PARA, FLUX, L_, LOG_A, M_, NEVER, NOISE_SCALE, PARA,
-                         STEP, TH_OFF, TH_ON, Y, _advance, _fetch_item, _fetch_row, drifted, quiet_until,
-                         relaxed_by, run_pixels)
+                         STEP, TH_OFF, TH_ON, WAKE_SPAN, Y, _advance, _fetch_item, _fetch_row, drifted, quiet_until,
+                         relaxed_by, run_pixels, wake_code)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -58,6 +63,25 @@ def _cannot_fire(filtered, y, memorised, th_on, th_off, noise_scale, para, step,
 
 
 _LOOK_BLOCK = 1024            # pixels scanned for those to look at before their rows are read
+_LANES = 16                   # wake codes compared at once (:func:`_awake_mask`)
+
+
+@intrinsic
+def _awake_mask(typingctx, wake, start, limit):
+    """Bit ``b`` set where ``wake[start + b] < limit``, for ``b < 16`` (``wake`` 32-bit codes, ``limit`` within their
+    range): one vector load and compare (AVX-512: one ``vpcmpd`` into a mask register), not sixteen branches."""
+    def codegen(context, builder, signature, args):
+        values = context.make_array(signature.args[0])(context, builder, args[0])
+        pointer = cgutils.get_item_pointer(context, builder, signature.args[0], values, [args[1]], wraparound=False)
+        lanes = ir.VectorType(ir.IntType(32), _LANES)
+        loaded = builder.load(builder.bitcast(pointer, lanes.as_pointer()), align=4)
+        undefined = ir.Constant(lanes, ir.Undefined)
+        one = builder.insert_element(undefined, builder.trunc(args[2], ir.IntType(32)), ir.Constant(ir.IntType(32), 0))
+        limits = builder.shuffle_vector(one, undefined, ir.Constant(ir.VectorType(ir.IntType(32), _LANES),
+                                                                    [0] * _LANES))
+        below = builder.icmp_signed("<", loaded, limits)
+        return builder.zext(builder.bitcast(below, ir.IntType(_LANES)), ir.IntType(64))
+    return types.uint64(wake, start, limit), codegen
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # runs beside other blocks' steps (pipelined windows)
@@ -80,11 +104,13 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
     ``take_ranges``, reading it again scattered over the sensor).
 
     ``wake[p]`` is the earlier of ``next_step[p]`` and :func:`.pixel_loop.quiet_until` under
-    ``envelope``, which holds every kept and later change: a pixel with ``wake[p] >= n_end`` and no
-    own change is neither due nor able to fire, and only ``wake`` is read of it (8 bytes, not its
-    state rows). ``refresh`` sets ``wake`` of every pixel (a new envelope) and reads them all. The
-    pixels to look at are listed a block at a time, so that their rows are asked for ahead of use.
-    Only the pixels ``first .. stop - 1`` are looked at (ranges apart can run in threads).
+    ``envelope = (y_high, y_low, para_high, wake_from)``, which holds every kept and later change, kept as
+    :func:`.pixel_loop.wake_code` from ``wake_from``: a pixel whose wake step is ``n_end`` or later and has no
+    own change is neither due nor able to fire, and only ``wake`` is read of it (4 bytes, not its state rows),
+    sixteen codes compared at once (:func:`_awake_mask`). ``refresh`` sets ``wake`` of every pixel (a new
+    envelope) and reads them all, as does a window ending ``WAKE_SPAN`` or more after ``wake_from`` (the caller
+    renews the envelope first). The pixels to look at are listed a block at a time, so that their rows are asked
+    for ahead of use. Only the pixels ``first .. stop - 1`` are looked at (ranges apart can run in threads).
     """
     n = min(stop, next_step.size)
     pixels = np.empty(max(n - first, 0), np.int64)
@@ -96,24 +122,34 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
     while ic < changed.size and changed[ic] < first:
         ic += 1
     ic_scan = ic
-    skip = defer and not refresh
-    y_env_high, y_env_low, para_env_high = envelope[0], envelope[1], envelope[2]
+    y_env_high, y_env_low, para_env_high, wake_from = envelope[0], envelope[1], envelope[2], np.int64(envelope[3])
+    limit = n_end - wake_from                         # a wake code below it: awake before n_end
+    skip = defer and not refresh and abs(limit) < WAKE_SPAN
     for p0 in range(first, n, _LOOK_BLOCK):
         # the block's pixels to look at: those awake before n_end or with an own change (every pixel without skip)
         p1, k = min(n, p0 + _LOOK_BLOCK), 0
-        p = p0
-        while p < p1:
-            special = min(changed[ic_scan], p1) if skip and ic_scan < changed.size else p1
-            while p < special:
-                if not skip or wake[p] < n_end:
-                    look[k] = p
-                    k += 1
-                p += 1
-            if p < p1:                    # an own change
+        if not skip:
+            for p in range(p0, p1):
                 look[k] = p
                 k += 1
+        q = p0
+        while skip and q < p1:            # _LANES pixels at a time: those awake and those with an own change
+            width = min(_LANES, p1 - q)
+            mask = np.uint64(0)
+            if width == _LANES:
+                mask = _awake_mask(wake, q, limit)
+            else:
+                for b in range(width):
+                    if wake[q + b] < limit:
+                        mask |= np.uint64(1) << np.uint64(b)
+            while ic_scan < changed.size and changed[ic_scan] < q + width:
+                mask |= np.uint64(1) << np.uint64(changed[ic_scan] - q)
                 ic_scan += 1
-                p += 1
+            while mask != 0:              # in order, each once
+                look[k] = q + np.int64(trailing_zeros(mask))
+                k += 1
+                mask &= mask - np.uint64(1)
+            q += width
         for i in range(k):                # their rows asked for ahead (scattered: each waits on memory)
             if i + _AHEAD < k:
                 ahead = look[i + _AHEAD]
@@ -128,10 +164,10 @@ def select_pixels(real, count, next_step, wake, applied, touched, changed, n_end
                 ic += 1
             own = ic < changed.size and changed[ic] == p
             if refresh:
-                wake[p] = min(next_step[p], quiet_until(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON],
-                                                        real[p, TH_OFF], real[p, NOISE_SCALE], real[p, PARA],
-                                                        count[p, STEP], y_env_high, y_env_low, para_env_high, leak_dt,
-                                                        dt))
+                wake[p] = wake_code(min(next_step[p], quiet_until(real[p, L_], real[p, Y], real[p, M_], real[p, TH_ON],
+                                                                  real[p, TH_OFF], real[p, NOISE_SCALE], real[p, PARA],
+                                                                  count[p, STEP], y_env_high, y_env_low, para_env_high,
+                                                                  leak_dt, dt)), wake_from)
             busy = own or next_step[p] < n_end
             behind = (not under) and applied[p] < end
             if behind and not busy:

@@ -222,6 +222,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
     change_input = np.empty((max(n_samples, 2), n_real))
     one_pixel, no_change, changes = np.empty(1, np.int64), np.zeros(1, np.int64), np.empty(1, np.int64)
     unkept, no_envelope = np.empty(0, np.int64), np.empty(0)     # run_pixels keeps no schedule here (see below)
+    no_wake = np.empty(0, np.int32)
     #                                                            and is given no bound taken before
     n_events = _FIRST                                         # int64, not Literal[int](0): see _FIRST
     lost = 0.0
@@ -272,7 +273,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                         fs[F_NEW_LOG_A * TILE + i]
                     row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
                     one_pixel[0], changes[0] = pixel, 1 if last else 2
-                    n_events, n_done, lost = run_pixels(real, count, unkept, unkept, no_envelope, one_pixel, no_change,
+                    n_events, n_done, lost = run_pixels(real, count, unkept, no_wake, no_envelope, one_pixel, no_change,
                                                         changes, _ONE, change_step, change_input, n_end, leak_hz, dt,
                                                         large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
                                                         th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
@@ -303,7 +304,7 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
                             held = flux
             if leave < NEVER or min(c[CMP_NEXT], c[SHOT_NEXT], _settle_step(c[READY], c[OWED])) < n_end:
                 one_pixel[0], changes[0] = pixel, n_changes
-                n_events, n_done, lost = run_pixels(real, count, unkept, unkept, no_envelope, one_pixel, no_change,
+                n_events, n_done, lost = run_pixels(real, count, unkept, no_wake, no_envelope, one_pixel, no_change,
                                                     changes, NEVER, change_step, change_input, n_end, leak_hz, dt,
                                                     large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma,
                                                     th_floor, ev_step, ev_pixel, ev_pol, ev_cause, n_events, lost,

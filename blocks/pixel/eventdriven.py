@@ -47,6 +47,7 @@ _FIRST_CAPACITY = 1024                 # room for events per chunk at the first 
 #: and in the parasitic rate [relative]: wider envelopes are renewed less often but show fewer pixels quiet
 _ENVELOPE_Y, _ENVELOPE_PARA = 1e-3, 1e-2
 _PRUNE_EVERY = 8                       # windows between forgetting the background changes every pixel has taken
+_WAKE_RENEWED = 1 << 30                # steps after the wake codes' first step at which they are set again
 
 
 class EventDrivenPixels:
@@ -60,8 +61,8 @@ class EventDrivenPixels:
         self.s = state
         # each pixel's wake step (:func:`.deferred.select_pixels`) under the envelope (y_high, y_low, para_high) of
         # the background changes; derived from the state, not part of it: renewed from it when not fresh
-        self._wake = np.empty(state["real"].shape[0], np.int64)
-        self._envelope = np.array([-np.inf, np.inf, 0.0])
+        self._wake = np.empty(state["real"].shape[0], np.int32)      # as pixel_loop.wake_code from _envelope[3]
+        self._envelope = np.array([-np.inf, np.inf, 0.0, 0.0])
         self._fresh = False
         self._windows = 0
         self._slot = np.full(state["real"].shape[0], -1, np.int32)    # scratch of :func:`.own_changes.under_stamps`
@@ -141,9 +142,9 @@ class EventDrivenPixels:
             rows = self._inputs(background[shared])
             history.append(steps[shared], rows)
             self._fresh = self._fresh and self._holds(rows)
-        refresh = not self._fresh
+        refresh = not self._fresh or n_end - self._envelope[3] >= _WAKE_RENEWED
         if refresh:
-            self._renew_envelope()
+            self._renew_envelope(n_end)
         leak_hz, dt = self._constants[:2]
         suffix = history.suffix_bounds(Y, PARA)
         base, end = np.int64(s["shared_base"]), np.int64(history.end)
@@ -178,19 +179,21 @@ class EventDrivenPixels:
 
     def _holds(self, rows: np.ndarray) -> bool:
         """Whether the envelope holds the background changes ``rows`` (their ``Y`` and parasitic rates)."""
-        y_high, y_low, para_high = self._envelope
+        y_high, y_low, para_high = self._envelope[:3]
         return bool(np.all((rows[:, Y] <= y_high) & (rows[:, Y] >= y_low) & (rows[:, PARA] <= para_high)))
 
-    def _renew_envelope(self) -> None:
+    def _renew_envelope(self, n_end: int) -> None:
         """An envelope around the kept background changes (none: the empty one, which any change leaves), for
-        every pixel's wake to be set under it (:func:`.deferred.select_pixels` with ``refresh``)."""
+        every pixel's wake to be set under it (:func:`.deferred.select_pixels` with ``refresh``), its wake codes
+        from ``n_end`` (the envelope's last entry: :func:`.pixel_loop.wake_code`)."""
         rows = self.s["shared_input"]
         if rows.shape[0]:
             y_high, y_low = rows[:, Y].max(), rows[:, Y].min()
             room = _ENVELOPE_Y + (y_high - y_low)
-            self._envelope = np.array([y_high + room, y_low - room, rows[:, PARA].max() * (1.0 + _ENVELOPE_PARA)])
+            self._envelope = np.array([y_high + room, y_low - room, rows[:, PARA].max() * (1.0 + _ENVELOPE_PARA),
+                                       float(n_end)])
         else:
-            self._envelope = np.array([-np.inf, np.inf, 0.0])
+            self._envelope = np.array([-np.inf, np.inf, 0.0, float(n_end)])
         self._fresh = True
 
     def take_pending(self) -> None:

@@ -56,6 +56,7 @@ _LAZY, _EXACT = np.bool_(True), np.bool_(False)  # run_pixels may keep a bound a
 SIGNAL, LEAK, PARASITIC, SHOT = 0, 1, 2, 3       # event causes (EventCause)
 
 _AHEAD = 8                                       # pixels whose state rows are fetched ahead of their turn
+WAKE_SPAN = np.int64(2**31 - 1)                  # wake steps kept in 32 bits from a first step, saturated there
 jit = numba.njit(cache=True, error_model="numpy")
 inline = numba.njit(cache=True, error_model="numpy", inline="always")    # so that loops over pixels vectorise
 
@@ -330,6 +331,15 @@ def quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, 
     return step + 1 + steps
 
 
+@inline
+def wake_code(step, wake_from):
+    """A wake step as :func:`.deferred.select_pixels` keeps it: ``step - wake_from`` in 32 bits, saturated at
+    ``+-WAKE_SPAN`` (half the bytes to scan each window). A code saturated high stands for a step at least
+    ``wake_from + WAKE_SPAN``, one saturated low for a step before ``wake_from - WAKE_SPAN``: compared with a
+    window's end within ``WAKE_SPAN`` of ``wake_from`` both give the answer the step would."""
+    return np.int32(max(min(step - wake_from, WAKE_SPAN), -WAKE_SPAN))
+
+
 @jit
 def kept_schedule(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, leak_dt, dt, large):
     """The comparator schedule a pixel keeps at the end of its turn, with no input change ahead: the search's
@@ -386,8 +396,8 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
     A pixel stops after its change ``change_lo[i] + stop_after - 1`` and its comparator's schedule (up to
     the next change), its later events and changes left for another call (``stop_after`` beyond its
     changes: none left). Updates the state tables in place, ``next_step`` (each pixel's next event) and
-    ``wake`` (the earlier of it and :func:`quiet_until` under ``envelope = (y_high, y_low, para_high)``)
-    where they are not empty, and writes the events (step, pixel, polarity, cause) into the ``ev_*``
+    ``wake`` (the earlier of it and :func:`quiet_until` under ``envelope = (y_high, y_low, para_high,
+    wake_from)``, as :func:`wake_code` from ``wake_from``) where they are not empty, and writes the events (step, pixel, polarity, cause) into the ``ev_*``
     buffers from position ``n_events``; ``lost`` accumulates the events lost. Returns ``(events
     written, pixels done, lost)``: it stops before a pixel whose events would overflow the buffers,
     that pixel untouched.
@@ -529,7 +539,8 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         if next_step.size:
             next_step[pixel] = min(schedule_bound(cmp_next), shot_next, _settle_step(ready, owed))
             if wake.size:
-                wake[pixel] = min(next_step[pixel], quiet_until(filtered, y, memorised, th_on, th_off, noise_scale,
-                                                                para, step, envelope[0], envelope[1], envelope[2],
-                                                                leak_dt, dt))
+                wake[pixel] = wake_code(min(next_step[pixel], quiet_until(filtered, y, memorised, th_on, th_off,
+                                                                          noise_scale, para, step, envelope[0],
+                                                                          envelope[1], envelope[2], leak_dt, dt)),
+                                        np.int64(envelope[3]))
     return n_events, pixels.size, lost

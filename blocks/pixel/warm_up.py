@@ -28,14 +28,14 @@ _DEFERRED, _LOOP, _OWN, _SAMPLING = (f"evsda.blocks.pixel.{name}" for name in ("
 #: it calls (``run_pixels``, the sweep and ``drive_rows``, the searches, ``start_pixels``' schedule) it is ~4/5 of the
 #: compile, and each later one is independent of the others
 TASKS = (
-    (f"{_DEFERRED}:take_and_run", "f8[:, ::1], i8[:, ::1], i8[::1], i8[::1], f8[::1], i8[::1], i8[::1], i8, i8[::1], "
+    (f"{_DEFERRED}:take_and_run", "f8[:, ::1], i8[:, ::1], i8[::1], i4[::1], f8[::1], i8[::1], i8[::1], i8, i8[::1], "
                                   "f8[:, ::1], i8[::1], i8[::1], i8[::1], f8[:, ::1], i8, f8[::1], f8[::1], i8, f8, f8, "
                                   "b1, i8, f8, i8, b1, f8, f8, f8, f8, i8[::1], i8[::1], i1[::1], u1[::1]"),
     ("evsda.blocks.pixel.drive_kernel:drive_rows", "f8[::1], f8[::1], f8[:, ::1]"),
     (f"{_LOOP}:start_pixels", "f8[:, ::1], i8[:, ::1], i8[::1], f8[::1], f8[::1], f8[::1], f8[::1], f8[:, ::1], "
                               "f8[::1], i8, f8, f8, b1, i8, f8"),
     (f"{_SAMPLING}:_summed_stamps", "f8[:, :, :, ::1], i4[:, :, ::1], i8[::1], i8[::1], i8[::1], i8, i8"),
-    (f"{_DEFERRED}:select_pixels", "f8[:, ::1], i8[:, ::1], i8[::1], i8[::1], i8[::1], i8[::1], i8[::1], i8, i8, i8, "
+    (f"{_DEFERRED}:select_pixels", "f8[:, ::1], i8[:, ::1], i8[::1], i4[::1], i8[::1], i8[::1], i8[::1], i8, i8, i8, "
                                    "f8[::1], f8[::1], f8[::1], f8[::1], f8, f8, b1, b1, i8, i8, i8, i8[::1], i8[::1], "
                                    "i8[::1], i8, i8"),
     (f"{_OWN}:window_changes", "i8[::1], i8[::1], i8[::1], f8[::1], f8[:, ::1], i8[::1], i8, i8[::1], f8[:, ::1], f8, "

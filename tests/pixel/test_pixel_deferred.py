@@ -100,7 +100,8 @@ def test_pixels_read_only_by_their_wake_step_are_those_the_bound_leaves_out(monk
             seen["renewed"] += 1
         else:
             seen["windows"] += 1
-            seen["quiet"] = max(seen["quiet"], int(np.sum(wake[first:stop] >= n_end)))
+            wake_from = int(bounds[5][3])                                   # the envelope's: wake codes from it
+            seen["quiet"] = max(seen["quiet"], int(np.sum(wake[first:stop].astype(np.int64) + wake_from >= n_end)))
             full = select(real, count, next_step, wake.copy(), applied.copy(), touched, changed, n_end, *bounds, defer,
                           True, kept, offset, n_kept, change_first, change_counts, quiet_from, first, stop)
         out = select(real, count, next_step, wake, applied, touched, changed, n_end, *rest)
@@ -147,3 +148,42 @@ def test_changes_taken_together_are_those_taken_one_pixel_at_a_time(large, share
     np.testing.assert_array_equal(fast_real.view(np.int64), real.view(np.int64))
     np.testing.assert_array_equal(fast_count, count)
 
+
+
+def test_wake_codes_saturate_and_sixteen_compare_as_one_at_a_time():
+    # select_pixels keeps wake steps as 32-bit codes from a first step (pixel_loop.wake_code), saturated, and compares
+    # sixteen at once (deferred._awake_mask): the same answers as the steps themselves within the codes' span
+    import numba
+
+    from evsda.blocks.pixel.crossing import NEVER
+    from evsda.blocks.pixel.deferred import _awake_mask
+    from evsda.blocks.pixel.pixel_loop import WAKE_SPAN, wake_code
+
+    @numba.njit
+    def codes(steps, wake_from):
+        out = np.empty(steps.size, np.int32)
+        for i in range(steps.size):
+            out[i] = wake_code(steps[i], wake_from)
+        return out
+
+    @numba.njit
+    def masks(wake, limit):
+        out = np.empty(wake.size // 16, np.uint64)
+        for i in range(out.size):
+            out[i] = _awake_mask(wake, 16 * i, limit)
+        return out
+
+    rng = np.random.default_rng(3)
+    wake_from = np.int64(5_000_000_000)
+    steps = np.concatenate([wake_from + rng.integers(-2**33, 2**33, 4000), [NEVER, -NEVER, wake_from,
+                                                                           wake_from + WAKE_SPAN + 1]])
+    steps = np.concatenate([steps, wake_from + rng.integers(-50, 50, 4000)])[:8000]
+    wake = codes(steps, wake_from)
+    assert wake.max() == WAKE_SPAN and wake.min() == -WAKE_SPAN
+    for n_end in wake_from + np.array([-2**30, -7, 0, 3, 2**30, WAKE_SPAN - 1]):
+        awake = steps < n_end                                      # the steps' own answer
+        limit = n_end - wake_from
+        np.testing.assert_array_equal(wake.astype(np.int64) < limit, awake)
+        bits = masks(wake, limit)
+        expected = (awake.reshape(-1, 16) * (1 << np.arange(16))).sum(axis=1).astype(np.uint64)
+        np.testing.assert_array_equal(bits, expected)
