@@ -10,6 +10,7 @@ The errors the equivalent layers cost are ``benchmarks/speed_vs_error.py``'s row
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/equivalent_layers_pass.py [--layers 3 4] [--repeats 3]
     ... --graph examples/iss_pass.yaml --duration 4 --warm-duration 4        # the main job (store ce7d2360)
+    ... --layers auto --set telescope/optics.profile_file=library:atmospheres/mauna_kea.csv   # another profile
 """
 
 from __future__ import annotations
@@ -35,18 +36,23 @@ def main() -> None:
     parser.add_argument("--graph", type=Path, default=GRAPH, help="graph file (default: benchmarks/end_to_end.yaml)")
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run [s]")
     parser.add_argument("--repeats", type=int, default=3, help="rounds, each column once per round (medians)")
-    parser.add_argument("--layers", type=int, nargs="+", default=[3], help="equivalent layers of each column [1]")
+    parser.add_argument("--layers", nargs="+", default=["3"], help="equivalent layers of each column: integers or "
+                                                                      "'auto' [1]")
+    parser.add_argument("--set", dest="settings", action="append", default=[], metavar="KEY=VALUE",
+                        help="a setting of every column (repeatable), e.g. "
+                             "telescope/optics.profile_file=library:atmospheres/mauna_kea.csv")
     parser.add_argument("--warm-duration", type=float, default=0.1,
                         help="simulated seconds of the run that warms the compiled caches (a graph whose satellite "
                              "enters the field later needs longer, e.g. examples/iss_pass.yaml: 4) [s]")
     args = parser.parse_args()
-    columns = {"every layer": [], **{f"{n} equivalent layers": [f"{SETTING}={n}"] for n in args.layers}}
+    columns = {"every layer": args.settings,
+               **{f"{n} equivalent layers": [*args.settings, f"{SETTING}={n}"] for n in args.layers}}
     print(f"{os.cpu_count()} cores; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
           f"{args.graph.name}, {args.duration:g} s simulated, pipelined as by default")
     runs: dict[str, list[dict]] = {name: [] for name in columns}
     digests: dict[str, set] = {name: set() for name in columns}
     with tempfile.TemporaryDirectory() as tmp:
-        run_cli(args.warm_duration, Path(tmp) / "warm.zarr", graph=args.graph)          # the compiled caches
+        run_cli(args.warm_duration, Path(tmp) / "warm.zarr", args.settings, graph=args.graph)   # the compiled caches
         for repeat in range(args.repeats):
             for name, settings in columns.items():
                 store = Path(tmp) / "run.zarr"

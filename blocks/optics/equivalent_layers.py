@@ -153,9 +153,9 @@ def auto_layers(atmosphere: Atmosphere, tolerance: float = AUTO_TOLERANCE, fewes
 
 
 def equivalent_layers(atmosphere: Atmosphere, n_layers: int | str) -> Atmosphere:
-    """``atmosphere`` as ``n_layers`` equivalent layers (module docstring; ``"auto"``: :func:`auto_layers`'s count), each
-    with its members (:attr:`.Atmosphere.members`, which :func:`footprint_winds` reads); unchanged (the same object)
-    when it has that many layers or fewer."""
+    """``atmosphere`` as ``n_layers`` equivalent layers (module docstring; ``"auto"``: :func:`auto_layers`'s
+    count), each with its members (:attr:`.Atmosphere.members`, which :func:`footprint_winds` reads); unchanged (the
+    same object) when it has that many layers or fewer."""
     if n_layers == "auto":
         n_layers = auto_layers(atmosphere)
     if n_layers < 1:
