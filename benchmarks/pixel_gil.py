@@ -17,10 +17,12 @@ the temporary folder, one per checkout, so that its Numba cache serves the next 
 without cProfile, the block's CPU a window outside its compiled loops (the Python and NumPy that hold the GIL; the
 loops' calls timed each, their argument checks counted with them), with ``--against`` for both checkouts and each
 compiled loop's CPU a window in both; run it
-with ``EVSDA_THREADS=1``, which keeps every call on the block's thread.
+with ``EVSDA_THREADS=1``, which keeps every call on the block's thread. ``--threads N`` steps two copies of this
+checkout's block, on one thread and on N, alternately, and prints both CPU per window (the block's own threads'
+cost, with no other block beside it).
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pixel_gil.py [--duration 2] [--inputs F] [--no-profile]
-        [--against DIR] [--held]
+        [--against DIR] [--held] [--threads N]
 """
 
 from __future__ import annotations
@@ -151,6 +153,35 @@ def side_by_side(pickled: bytes, inputs: list, against: Path, held: bool = False
             f"{spent['this'].get(name, 0) * 1e-6 / this.size:.2f}" for name in names))
 
 
+def threads_side_by_side(pickled: bytes, inputs: list, threads: int) -> None:
+    """Steps two copies of this checkout's block alternately window by window over the same inputs, one on one
+    thread and one on ``threads`` (``EVSDA_THREADS`` set before each step), checks their events are the same and
+    prints the CPU per window of both (every thread of the process) and their ratio: what the block's own threads
+    cost, without another block beside it."""
+    blocks = {1: pickle.loads(pickled), threads: pickle.loads(pickled)}
+    window, irradiance = inputs[0]
+    for n, block in blocks.items():
+        os.environ["EVSDA_THREADS"] = str(n)
+        block.step(window, irradiance=irradiance)                # start-up and compiled loops' load, not timed
+    cpu: dict = {n: [] for n in blocks}
+    for i, (window, irradiance) in enumerate(inputs[1:]):
+        events = {}
+        for n in list(blocks) if i % 2 else list(blocks)[::-1]:
+            os.environ["EVSDA_THREADS"] = str(n)
+            start = time.process_time()
+            events[n] = blocks[n].step(window, irradiance=irradiance)["events"]
+            cpu[n].append(time.process_time() - start)
+        for field in ("t_ns", "x", "y", "p", "cause"):
+            if not np.array_equal(getattr(events[1], field), getattr(events[threads], field)):
+                raise SystemExit(f"window {i + 1}: the events' {field} differ between 1 and {threads} threads")
+    one, more = np.array(cpu[1]), np.array(cpu[threads])
+    print(f"pixel block, {one.size} windows after the first, alternated in one process (load "
+          f"{os.getloadavg()[0]:.1f}), the same events: 1 thread {np.median(one) * 1e3:.2f} ms -> {threads} threads "
+          f"{np.median(more) * 1e3:.2f} ms CPU a window (medians, every thread); sums {one.sum():.3f} -> "
+          f"{more.sum():.3f} s, ratio of sums {more.sum() / one.sum():.3f}, median of the windows' ratios "
+          f"{np.median(more / one):.3f}")
+
+
 def held_per_window(block, inputs: list) -> None:
     """Prints the block's CPU a window and the part outside its compiled loops (:func:`timed_loops`), the largest
     loops, and the events' digest."""
@@ -181,6 +212,7 @@ def main() -> None:
     parser.add_argument("--no-profile", action="store_true", help="CPU per window only, without cProfile")
     parser.add_argument("--against", type=Path, help="another checkout whose blocks/pixel steps beside this one")
     parser.add_argument("--held", action="store_true", help="CPU outside the compiled loops, without cProfile")
+    parser.add_argument("--threads", type=int, help="this block on 1 and on THREADS threads, alternated")
     args = parser.parse_args()
     if args.inputs is not None and args.inputs.exists():
         with open(args.inputs, "rb") as f:
@@ -190,6 +222,9 @@ def main() -> None:
         if args.inputs is not None:
             with open(args.inputs, "wb") as f:
                 pickle.dump((block, inputs), f, protocol=5)
+    if args.threads is not None:
+        threads_side_by_side(pickle.dumps(block, protocol=5), inputs, args.threads)
+        return
     if args.against is not None:
         side_by_side(pickle.dumps(block, protocol=5), inputs, args.against, args.held)
         return
