@@ -34,7 +34,9 @@ thread's CPU: the imager, the sampling, the window's samples), of the first wind
 first compiled code is among them, Numba's typing and target contexts, ~0.2 s of interpreter) and of all of the
 run's probes, Numba's cached loads (how many, and their threads' CPU in ``Cache._load_overload``) and the
 process's CPU, and whether every run gave the same choices and estimates (a digest of their ``repr``). ``--variant
-LABEL:VAR=VALUE`` adds this checkout with more environment, alternated (e.g. ``off:EVSDA_KEPT_SYMBOLS=off``).
+LABEL:VAR=VALUE`` adds this checkout with more environment, alternated (e.g. ``off:EVSDA_KEPT_SYMBOLS=off``); a
+setting whose name holds a ``.`` is a graph override instead (``--set``, e.g.
+``reference:telescope/optics.share_far_probes=false``).
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/path_probes.py --fresh [--against DIR] [--repeats 5]
         [--graph examples/iss_pass.yaml --duration 4] [--variant LABEL:VAR=VALUE[,VAR=VALUE]]
@@ -229,7 +231,7 @@ def kept(self, *args, **kwargs):
     return out
 
 PathChooser.probe_ahead, PointSourceOptics.step, caching.Cache._load_overload = timed, kept, loaded
-graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])
+graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}", *sys.argv[3:]])
 with tempfile.TemporaryDirectory() as tmp:
     run_graph(graph, tmp + "/run.zarr", overwrite=True, progress=False, checkpoint_every_s=1e9)
 made = repr([(sorted(c._choices.items()), sorted(c._pupil_errors.items()), sorted(c._estimates.items(), key=repr))
@@ -253,7 +255,9 @@ def fresh_runs(args) -> None:
 
     def run(tree):
         checkout, more = tree
-        return fresh(FRESH, {**env, **more}, (str(args.graph.resolve()), str(args.duration)), checkout)
+        sets = [f"{name}={value}" for name, value in more.items() if "." in name]
+        more_env = {name: value for name, value in more.items() if "." not in name}
+        return fresh(FRESH, {**env, **more_env}, (str(args.graph.resolve()), str(args.duration), *sets), checkout)
 
     def show(k, name, out, load):
         print(f"  run {k + 1} ({name}): the first optics step before its probes {1e3 * out['before'][0]:.1f} ms wall, "
@@ -294,7 +298,8 @@ def main() -> None:
     parser.add_argument("--graph", type=Path, default=GRAPH, help="with --fresh: the graph (default: the pass)")
     parser.add_argument("--duration", type=float, default=0.1, help="with --fresh: simulated seconds [s]")
     parser.add_argument("--variant", action="append", default=[], metavar="LABEL:VAR=VALUE[,VAR=VALUE]",
-                        help="with --fresh: this checkout with more environment, alternated (repeat for more)")
+                        help="with --fresh: this checkout with more environment (or, a name with a '.', a graph "
+                        "override), alternated (repeat for more)")
     args = parser.parse_args()
     if args.fresh:
         return fresh_runs(args)

@@ -90,6 +90,14 @@ class PointSourceOptics(Block):
         tolerance: float = Field(0.1, gt=0, lt=1,
                                  description="Largest expected fraction of a source's flux (a mean over the "
                                              "turbulence) a fast path may misplace [1]")
+        # on: the same choices and events on the tracked pass, the main job and every example, window 0's probes
+        # -23 % CPU (docs/optics.md, "The far bin's probes for a finite-range source")
+        share_far_probes: bool = Field(
+            True, description="A finite-range source's pupil-error bin takes the far bin's reference probes where, "
+                              "at its nearest range and within 5 %, the spherical wave's Rytov variance is the plane "
+                              "wave's and the aperture-averaged scintillation term is the far bin's, and its defocus "
+                              "(telescope focused at infinity) is at most 0.1 rad rms (paths); False: every range "
+                              "bin probed on its own [-]")
         focus: Literal["source", "infinity"] = Field(
             "source", description="Focus on the source (paper Eq. 4 collimation) or at infinity [-]")
         atmosphere: Literal["hufnagel_valley", "table", "none"] = Field(

@@ -128,7 +128,7 @@ class Imager:
         self.pixel_scale = focal_plane.pixel_scale_rad                 # [rad]
         self.boresight = np.array([(focal_plane.width_px - 1) / 2, (focal_plane.height_px - 1) / 2])  # [pixel]
         self.geometry: PupilGeometry | None = None
-        self.chooser = PathChooser(self, params.psf_path, pixels)
+        self.chooser = PathChooser(self, params.psf_path, pixels, params.share_far_probes)
         self.pupil = PupilPath(self, params.screen_method, params.screen_update, params.n_zernike_modes)
         self.reference = ReferencePath(self, params.grid_size)
         #: each path's renderer by name

@@ -33,8 +33,8 @@ distance between pixel-integrated stamps of total flux ``F``).
   the reference adds the pupil path's (triangle inequality).
 
 :class:`PathChooser` makes these estimates once per bin of conditions (1 degree of zenith
-angle, 5 % of range; the pupil path's error on coarser bins, which with ``EVSDA_SHARED_FAR_PROBES=on``, off by
-default, a finite-range bin shares with the far one where its propagation is the far source's:
+angle, 5 % of range; the pupil path's error on coarser bins, which, with the block's ``share_far_probes`` (on by
+default), a finite-range bin shares with the far one where its propagation is the far source's:
 :meth:`PathChooser._shares_far`) and keeps each choice, so a
 choice is a pure function of the bin and of the run's seed. The probes' results are also kept
 on disk across runs (:data:`PROBE_CACHE`, keyed by everything they read and this package's source):
@@ -62,7 +62,6 @@ streaking stars'), and each bin's estimate is taken at the bin's worst edge:
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import zlib
 from collections.abc import Callable
@@ -121,7 +120,7 @@ SEEN_BIN_RATIO = 2.0
 #: telescope, atmosphere, band, sampling, tolerance, seed, conditions: ``PathChooser._remembered``) and the
 #: source of this package (the code that computes them)
 PROBE_CACHE = ResultCache("optics-path-probes", [Path(__file__).parent], ("numpy", "scipy", "numba", "llvmlite"))
-#: ``EVSDA_SHARED_FAR_PROBES=on`` (off by default: the default's probes and bits as they are): a finite-range
+#: the block's ``share_far_probes`` (False: every range bin probed on its own, the reference): a finite-range
 #: pupil-error bin whose scintillation term is within this fraction of the far bin's, at the same zenith-angle bin,
 #: takes the far bin's reference probes (:meth:`PathChooser._shares_far`) [1]
 SHARED_FAR_TOLERANCE = 0.05
@@ -144,11 +143,6 @@ def spherical_wave_ratio(layers, zenith_rad: float, range_m: float) -> float:
         return 0.0 if cn2.size else 1.0
     plane = cn2 * slant ** (5 / 6)
     return float(np.sum(plane * (1.0 - slant / range_m) ** (5 / 6)) / np.sum(plane))
-
-
-def shared_far_probes() -> bool:
-    """Whether ``EVSDA_SHARED_FAR_PROBES`` says on (``on``, ``1``, ``yes``, ``true``; off when unset)."""
-    return os.environ.get("EVSDA_SHARED_FAR_PROBES", "").strip().lower() in ("on", "1", "yes", "true")
 
 
 @dataclass(frozen=True)
@@ -334,17 +328,18 @@ class PathChooser:
     """The path of each bin of conditions and the error estimates behind it, each made once and kept.
 
     Reads the telescope, atmosphere, sampling, renderers and paths of ``imager``;
-    ``forced_path`` is the block's ``psf_path`` (``auto``: the cheapest within ``imager.tolerance``).
+    ``forced_path`` is the block's ``psf_path`` (``auto``: the cheapest within ``imager.tolerance``);
+    ``share_far`` its ``share_far_probes`` (:meth:`_shares_far`).
     """
 
-    def __init__(self, imager: Imager, forced_path: str, pixels: PixelView | None = None):
+    def __init__(self, imager: Imager, forced_path: str, pixels: PixelView | None = None, share_far: bool = False):
         self.imager, self.forced_path, self.pixels = imager, forced_path, pixels
         self._choices: dict[tuple, PathChoice] = {}
         self._pupil_errors: dict[tuple, float] = {}
         self._estimates: dict[tuple, tuple[dict, dict]] = {}
         self._ahead: dict[tuple, Any] = {}       # probes made by probe_ahead, until their bins' choices take them
         self._scintillation: dict[tuple, float] = {}   # scintillation index of each pupil-error bin
-        self.shared_far = shared_far_probes()
+        self.share_far = bool(share_far)
         self._shared_far: dict[tuple, bool] = {}        # whether a finite-range pupil-error bin takes the far one's
 
     def key(self, zenith_rad: float, range_m: float, seen: tuple | None = None) -> tuple:
@@ -715,7 +710,8 @@ class PathChooser:
         and ``conditions`` (the bin's zenith angle and range, which with the seed name its random streams), the
         telescope, wavelength, atmosphere (every layer and the outer scale), pixel scale, sampling (the pupil
         and stamp grids, the layers' screens), the reference grid, tolerance, focus, the run's seed, whether
-        the detector's averaging is probed, and the probes' frame counts and bins."""
+        the detector's averaging is probed, whether finite-range bins share the far bin's probes (``share_far``),
+        and the probes' frame counts and bins."""
         ahead = self._ahead.pop(self._ahead_key(probe, conditions), None)
         made = compute if ahead is None else lambda: ahead
         return PROBE_CACHE.remember(self._cache_key(probe, conditions), made, encode, decode)
@@ -733,7 +729,7 @@ class PathChooser:
                "atmosphere": None if imager.atmosphere is None else asdict(imager.atmosphere),
                "pixel_scale_rad": imager.pixel_scale, "geometry": imager.geometry.state(),
                "grid_size": imager.reference.grid_size, "tolerance": imager.tolerance, "focus": imager.focus,
-               "seed": list(imager.seed), "averaging": self.pixels is not None,
+               "seed": list(imager.seed), "averaging": self.pixels is not None, "share_far": self.share_far,
                "frames": [PROBE_FRAMES, list(REFERENCE_PROBE_FRAMES), list(AVERAGED_GROUPS), AVERAGED_POSITIONS,
                           ACCEPT_STANDARD_ERRORS, REJECT_STANDARD_ERRORS, FUTILITY_STANDARD_ERRORS,
                           FUTILITY_FRAMES, PUPIL_ERROR_ZENITH_BIN_RAD]}
@@ -809,14 +805,13 @@ class PathChooser:
     def _reference_bin(self, zenith_rad: float, range_m: float) -> tuple[tuple[int, int], dict, float] | None:
         """The pupil-error bin of these conditions, its probe's conditions (the bin's zenith angle [rad] and
         range [m], the scintillation term [1] there) and the scintillation index [1] it comes from; None without
-        turbulence. With ``EVSDA_SHARED_FAR_PROBES=on``, a finite-range bin like the far one (:meth:`_shares_far`)
-        is the far bin."""
+        turbulence. With ``share_far``, a finite-range bin like the far one (:meth:`_shares_far`) is the far bin."""
         imager = self.imager
         if not imager.turbulent(zenith_rad):
             return None
         z_bin = int(np.floor(zenith_rad / PUPIL_ERROR_ZENITH_BIN_RAD))
         r_bin = -1 if not np.isfinite(range_m) or range_m >= FAR_RANGE_M else int(np.floor(np.log2(range_m)))
-        if r_bin >= 0 and self.shared_far and self._shares_far(z_bin, r_bin):
+        if r_bin >= 0 and self.share_far and self._shares_far(z_bin, r_bin):
             r_bin = -1
         key = (z_bin, r_bin)
         zenith = (z_bin + 0.5) * PUPIL_ERROR_ZENITH_BIN_RAD
@@ -834,9 +829,9 @@ class PathChooser:
         return self._scintillation[key]
 
     def _shares_far(self, z_bin: int, r_bin: int) -> bool:
-        """Whether finite-range pupil-error bin ``(z_bin, r_bin)`` takes the far bin's reference probes (the switch
-        ``EVSDA_SHARED_FAR_PROBES``, off by default): at its nearest range ``2^r_bin`` [m] and the bin's zenith angle,
-        within :data:`SHARED_FAR_TOLERANCE`,
+        """Whether finite-range pupil-error bin ``(z_bin, r_bin)`` takes the far bin's reference probes (with
+        ``share_far``, the block's ``share_far_probes``): at its nearest range ``2^r_bin`` [m] and the bin's zenith
+        angle, within :data:`SHARED_FAR_TOLERANCE`,
 
         * the diffraction between the layers and the aperture, which the pupil path drops, is the far source's: the
           spherical wave's Rytov variance is the plane wave's (:func:`spherical_wave_ratio`), and the
@@ -865,7 +860,7 @@ class PathChooser:
             self._shared_far[key] = shared
             if shared:
                 LOG.info("%s: pupil_fft vs reference at zenith angle %.0f deg, ranges from %.3g m: the far bin's "
-                         "probes (EVSDA_SHARED_FAR_PROBES): Rytov variance %.3g of the far one's, scintillation term "
+                         "probes (share_far_probes): Rytov variance %.3g of the far one's, scintillation term "
                          "%.3g against %.3g far, defocus %.2g rad rms", imager.label, np.rad2deg(zenith), nearest,
                          ratio, near, far, defocus)
         return self._shared_far[key]

@@ -19,13 +19,15 @@ WAVELENGTH = 550e-9
 #: scintillation term (index 0.016) 0.05
 ATMOSPHERE = Atmosphere.hufnagel_valley(2).scaled_to_r0(0.1)
 ZENITH_RAD, RANGE_M = np.deg2rad(20), 5e5
+#: the LEO bin's own probes (share_far_probes off: its bin would take the far one's, test_optics_shared_far_probes.py)
+PARAMS = PointSourceOptics.Params(share_far_probes=False)
 
 
 def probes(tolerance, seed, monkeypatch=None, threads="2"):
     """The chooser's pupil-error estimate (a PupilError) at ``tolerance``, the sampling of the default tolerance."""
     if monkeypatch is not None:
         monkeypatch.setenv("EVSDA_THREADS", threads)
-    imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PointSourceOptics.Params(),
+    imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PARAMS,
                     seed=(seed,))
     imager.ensure_geometry(ZENITH_RAD)
     imager.tolerance = tolerance
@@ -102,7 +104,7 @@ def test_curtailed_verdict_on_real_probes_at_every_tolerance():
     # the real probe's 24 frames (seed 3: the most frames of seeds 1-4), decided at every tolerance from below the
     # scintillation floor to twice their mean, the rejection's edge (mean - 3 SE on 24 frames) included: the
     # curtailed verdict is the full rule's at each, on fewer frames where the full rule takes more than the first
-    imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PointSourceOptics.Params(), seed=(3,))
+    imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PARAMS, seed=(3,))
     imager.ensure_geometry(ZENITH_RAD)
     key, conditions, _ = imager.chooser._reference_bin(ZENITH_RAD, RANGE_M)
     frames = []
@@ -145,7 +147,7 @@ def test_probe_pair_first_frame_is_a_frame_alone_and_the_second_its_twin():
     # the first frame of a pair is the probe frame made alone (same seed, bit for bit; the pair's fields are those
     # before the aperture, the field once times it); the second frame's screens are the imaginary halves of the
     # same draws (independence and statistics: test_optics_screens.py), not a draw of its own
-    imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PointSourceOptics.Params(), seed=(1,))
+    imager = Imager(Telescope(0.1, 0.0), FOCAL_PLANE, WAVELENGTH, ATMOSPHERE, PARAMS, seed=(1,))
     imager.ensure_geometry(ZENITH_RAD)
     reference = imager.reference
 

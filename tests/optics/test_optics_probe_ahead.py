@@ -27,12 +27,14 @@ def one_at_a_time(imager):
 
 
 @pytest.mark.parametrize("threads", ["1", "2"])
-def test_probes_made_ahead_give_the_choices_made_one_at_a_time(monkeypatch, threads):
-    expected = one_at_a_time(make_imager())
+@pytest.mark.parametrize("share", [False, True])
+def test_probes_made_ahead_give_the_choices_made_one_at_a_time(monkeypatch, threads, share):
+    expected = one_at_a_time(make_imager(share_far_probes=share))
     monkeypatch.setenv("EVSDA_THREADS", threads)
-    imager = make_imager()
+    imager = make_imager(share_far_probes=share)
     imager.chooser.probe_ahead(*WINDOW)
-    assert len(imager.chooser._ahead) == 4                    # two reference, two analytic probes
+    # two reference probes (one with share_far_probes: the LEO bin takes the far one's), two analytic ones
+    assert len(imager.chooser._ahead) == (3 if share else 4)
     with monkeypatch.context() as m:                           # the choices take them: no probe runs again
         for name in ("_reference_distances", "_pair_distances", "_analytic_distances"):
             m.setattr(PathChooser, name, lambda *a, **k: pytest.fail("a probe ran twice"))
