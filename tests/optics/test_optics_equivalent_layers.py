@@ -358,3 +358,21 @@ def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path,
     resumed.set_state(state)
     tail = resumed.step(windows[1], sources=[tracked(windows[1])])["irradiance"].stamp_flux
     np.testing.assert_array_equal(tail, whole[10:])
+
+
+def test_a_source_with_its_own_winds_holds_its_screens_for_its_window_over_its_speeds():
+    # hold_of: min over layers of n delta / |w| for a source with its own winds, at most MAX_HOLD_S; the common
+    # hold_ns otherwise (every layer: the profile's winds)
+    from types import SimpleNamespace
+
+    from evsda.blocks.optics.imaging import MAX_HOLD_S, Imager
+    imager = Imager.__new__(Imager)
+    imager.atmosphere = equivalent_layers(median_seeing(), 3)
+    imager.geometry = SimpleNamespace(layer_n=(64, 80, 96), layer_delta_m=(0.02, 0.03, 0.05))
+    imager._hold, imager.flows = (imager.geometry, 123), {}
+    assert imager.hold_of("star") == 123
+    winds = np.array([[3.0, 4.0], [0.0, -12.0], [0.0, 0.0]])              # 5, 12 and 0 m/s
+    imager.flows["25544"] = (0.0, np.zeros(2), winds)
+    assert imager.hold_of("25544") == round(min(64 * 0.02 / 5.0, 80 * 0.03 / 12.0, MAX_HOLD_S) * 1e9)
+    imager.flows["calm"] = (0.0, np.zeros(2), np.zeros((3, 2)))
+    assert imager.hold_of("calm") == round(MAX_HOLD_S * 1e9)
