@@ -18,11 +18,7 @@ Rules:
   one window fewer for each window recorded: the first steps carry the blocks' one-time set-ups (the pixels'
   first step, which builds every pixel's state from its first input, takes ~7 optics windows' wall on the tracked
   pass), and the optics' chain goes on beside it and while the pixels catch up (~0.65 optics windows' wall each)
-  instead of waiting; but until one of the blocks it feeds has begun, a block steps over its first window only,
-  so that the steps a block's first window waits for are not slowed by steps further ahead, which would take the
-  interpreter lock from them (on the tracked pass the satellite's and the sky's later windows ran beside the
-  stars' first step, which the optics' first step waits for; now they run beside the optics' first step, whose
-  probes leave the lock free);
+  instead of waiting;
 * the thread that finishes a step starts the steps this makes ready, itself running the same block's next step
   if ready, else the one furthest upstream (the next optics window, say, goes on at once on the thread that
   ended the previous one, or the pixels' step it waited for): no round trip through a scheduling thread, each of
@@ -163,8 +159,6 @@ class _State:
     def _horizon(self, name: str) -> int:
         """The last window ``name`` may step over now."""
         fed = self.p.downstream[name]
-        if fed and not any(d in self.busy or self.done[d] >= self.start for d in fed):
-            return self.start        # none of the blocks it feeds has begun: they wait for first windows only
         # a block's first step carries its one-time set-up (Numba's cache loads, its state from its first input),
         # several later steps' worth: the blocks feeding it go on one window further meanwhile, and
         # SETUP_WINDOWS_AHEAD further at the start, one fewer for each window recorded
@@ -179,29 +173,6 @@ class _State:
         held."""
         if self.stopped or self.crash is not None:
             return None
-        kept, began = None, True
-        while began:                  # a block that begins its first window lets the blocks feeding it go ahead
-            ready = self._ready()
-            if keep is not None and kept is None:
-                ready.sort(key=lambda task: task[0] != keep)      # stable: then in topological order
-            began = False
-            for name, k in ready:
-                while self.created < k:                              # each window's loaded values, in order
-                    self.created += 1
-                    self.values[self.created] = dict(self.loaded(self.created))
-                    self.produced[self.created] = {}
-                task = (name, k, self.p.gather(name, self.values[k]))
-                self.busy.add(name)
-                self.running += 1
-                began |= k == self.start
-                if keep is not None and kept is None:
-                    kept = task
-                else:
-                    self.pool.submit(self._work, task)
-        return kept
-
-    def _ready(self) -> list[tuple[str, int]]:
-        """The steps ``(block, window)`` whose dependencies are met, in topological order."""
         ready = []
         for name in self.p.order:
             k = self.done[name] + 1
@@ -211,7 +182,22 @@ class _State:
                 continue
             if all(self.done[u] >= k for u in self.p.upstream[name]) and self._may_start(k):
                 ready.append((name, k))
-        return ready
+        if keep is not None:
+            ready.sort(key=lambda task: task[0] != keep)          # stable: then in topological order
+        kept = None
+        for name, k in ready:
+            while self.created < k:                                  # each window's loaded values, in order
+                self.created += 1
+                self.values[self.created] = dict(self.loaded(self.created))
+                self.produced[self.created] = {}
+            task = (name, k, self.p.gather(name, self.values[k]))
+            self.busy.add(name)
+            self.running += 1
+            if keep is not None and kept is None:
+                kept = task
+            else:
+                self.pool.submit(self._work, task)
+        return kept
 
     def _work(self, task: tuple[str, int, dict] | None) -> None:
         """Run ``task``, then whatever it makes ready that this thread keeps, until nothing is left to keep."""

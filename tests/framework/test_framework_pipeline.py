@@ -45,7 +45,6 @@ class _Toy(Block):
     class Params(BlockParams):
         jitter_s: float = Field(0.0, ge=0, description="Longest random pause per step [s]")
         fail_at_window: int | None = Field(None, description="Raise a SceneError in this window")
-        first_pause_s: float = Field(0.0, ge=0, description="Pause in the first window [s]")
 
     state = ("total",)
 
@@ -56,7 +55,7 @@ class _Toy(Block):
     def _enter(self, window: Window) -> None:
         with LOG_LOCK:
             LOG.append((self.name, window.index, "start", time.perf_counter()))
-        time.sleep(JITTER.uniform(0.0, self.params.jitter_s) + (self.params.first_pause_s if window.index == 0 else 0))
+        time.sleep(JITTER.uniform(0.0, self.params.jitter_s))
         if window.index == self.params.fail_at_window:
             raise SceneError(f"{self.label} fails in window {window.index}")
 
@@ -158,22 +157,6 @@ def test_the_pipeline_overlaps_windows_and_keeps_each_blocks_order(tmp_path):
     ends = [t for name, k, what, t in LOG if what == "end"]
     starts = [t for name, k, what, t in LOG if what == "start"]
     assert all(s >= e for s, e in zip(starts[1:], ends[:-1]))          # one step at a time
-
-
-def test_a_block_waits_with_its_later_windows_until_a_block_it_feeds_begins(tmp_path):
-    """Two sources feed a sink; the slow one's first window holds the sink back, and the quick one steps over its
-    later windows only once the sink has begun (they would take the interpreter lock from the slow first window)."""
-    LOG.clear()
-    graph = {"evsda": 1, "name": "two_sources",
-             "run": {"start": "2024-01-01T00:00:00Z", "duration_s": 0.06, "window_s": 0.01, "seed": 3},
-             "blocks": {"quick": {"type": "pipe_source"},
-                        "slow": {"type": "pipe_source", "params": {"first_pause_s": 0.2}},
-                        "sink": {"type": "pipe_sink"}},
-             "connections": [{"from": "quick.out", "to": "sink.inp"}, {"from": "slow.out", "to": "sink.inp"}]}
-    pipelined = run(tmp_path, "pipelined", graph, pipeline=True)
-    spans = {(name, k, what): t for name, k, what, t in LOG}
-    assert spans[("quick", 1, "start")] >= spans[("slow", 0, "end")]
-    assert pipelined == run(tmp_path, "serial", graph, pipeline=False)
 
 
 def test_a_stopped_pipelined_run_resumes_to_the_serial_bytes(tmp_path):
