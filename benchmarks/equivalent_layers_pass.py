@@ -2,10 +2,11 @@
 
 Runs a graph (default: the tracked 10 s pass of benchmarks/end_to_end.yaml, whose ``median_seeing.csv`` has 7
 layers) with ``evsda run`` in fresh processes, pipelined as it runs by default, once per column and round,
-alternated: the graph as it is (every layer) and with ``telescope/optics.equivalent_layers`` set to each of
-``--layers`` (blocks/optics/equivalent_layers.py). Prints each column's median wall and CPU time (the run's
-process and its worker together), its ratio to the column as it is in each round, the load average around
-each run, and each column's store hash (the column as it is must keep today's: d18dee90 for the 10 s pass).
+alternated: the graph on every layer (``telescope/optics.equivalent_layers: null``) and with it set to each of
+``--layers`` (blocks/optics/equivalent_layers.py; ``auto`` is the default since the seventeenth session). Prints each column's median wall and CPU time (the run's
+process and its worker together), its ratio to the every-layer column in each round, the load average around
+each run, and each column's store hash (every layer keeps the hash from before the default: d18dee90 for the 10 s
+pass).
 The errors the equivalent layers cost are ``benchmarks/speed_vs_error.py``'s rows "3 equivalent layers"...
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/equivalent_layers_pass.py [--layers 3 4] [--repeats 3]
@@ -45,7 +46,7 @@ def main() -> None:
                         help="simulated seconds of the run that warms the compiled caches (a graph whose satellite "
                              "enters the field later needs longer, e.g. examples/iss_pass.yaml: 4) [s]")
     args = parser.parse_args()
-    columns = {"every layer": args.settings,
+    columns = {"every layer": [*args.settings, f"{SETTING}=null"],
                **{f"{n} equivalent layers": [*args.settings, f"{SETTING}={n}"] for n in args.layers}}
     print(f"{os.cpu_count()} cores; OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; "
           f"{args.graph.name}, {args.duration:g} s simulated, pipelined as by default")

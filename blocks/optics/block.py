@@ -111,9 +111,11 @@ class PointSourceOptics(Block):
         hv_ground_cn2: float = Field(1.7e-14, ge=0, le=1e-11,
                                      description="Hufnagel-Valley ground term A (1.7e-14 for HV5/7) [m^-2/3]")
         n_layers: int = Field(4, ge=1, le=32, description="Layers the Hufnagel-Valley profile is lumped into [1]")
-        # off: bit for bit; 3 on the tracked pass: docs/optics.md, "Equivalent layers"
+        # 'auto' by default (seventeenth session): 3 groups keep every benchmarks/speed_vs_error.py statistic within
+        # the every-layer noise floor on the five library profiles (tracked pass) and on the staring main job
+        # (docs/speed.md, docs/optics.md "Equivalent layers"); None renders every layer
         equivalent_layers: Annotated[int, Field(ge=1, le=32)] | Literal["auto"] | None = Field(
-            None, description="Render the profile's screens as this many equivalent layers (summed Cn^2 dh, "
+            "auto", description="Render the profile's screens as this many equivalent layers (summed Cn^2 dh, "
                               "5/3-moment altitudes and winds, each source's own winds: r0, theta0 and every "
                               "source's tau0 kept; equivalent_layers); 'auto': the fewest, at least 3, that keep "
                               "the scintillation's sum J h^(5/6) and sum J h^2 and the winds' sum J v^2 within 10 %; "

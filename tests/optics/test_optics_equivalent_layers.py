@@ -163,13 +163,15 @@ def test_a_profile_with_no_more_layers_is_returned_as_it_is():
 
 def test_the_block_renders_the_equivalent_layers_and_keeps_the_full_profile_for_its_render_intervals():
     params = {"atmosphere": "table", "profile_file": MEDIAN}
-    assert PointSourceOptics.Params(**params).equivalent_layers is None       # default: every layer, bit for bit
-    blocks = [PointSourceOptics(**params), PointSourceOptics(**params, equivalent_layers=3)]
+    assert PointSourceOptics.Params(**params).equivalent_layers == "auto"     # default; None: every layer
+    blocks = [PointSourceOptics(**params, equivalent_layers=None), PointSourceOptics(**params, equivalent_layers=3),
+              PointSourceOptics(**params)]
     for block in blocks:
         block.setup(RunInfo(seed=1))
         block._ensure_imager(FocalPlane(1280, 720, 4.86e-6, 0.4), 550e-9)
-    assert [len(block._imager.atmosphere.layers) for block in blocks] == [7, 3]
+    assert [len(block._imager.atmosphere.layers) for block in blocks] == [7, 3, 3]
     assert blocks[0]._imager.atmosphere == median_seeing()
+    assert blocks[2]._imager.atmosphere == blocks[1]._imager.atmosphere
     assert blocks[1]._intervals.layers[1].size == 7   # the render intervals' tau0 bound reads the full profile
 
 
@@ -196,7 +198,7 @@ def test_a_run_on_equivalent_layers_keeps_its_flux_and_does_not_depend_on_its_wi
     params = dict(aperture_m=0.25, obscuration=0.2, seed=4, psf_path="pupil_fft", render_rate_hz=1000.0)
     fewer = run(PointSourceOptics(**params, equivalent_layers=2), 0.04)
     np.testing.assert_array_equal(fewer, run(PointSourceOptics(**params, equivalent_layers=2), 0.01))
-    every = run(PointSourceOptics(**params), 0.04)
+    every = run(PointSourceOptics(**params, equivalent_layers=None), 0.04)
     assert not np.array_equal(fewer, every)
     frames = len(fewer)              # each frame's flux in its stamp: the same r0, within the screens' draws
     np.testing.assert_allclose(fewer.reshape(frames, -1).sum(axis=1), every.reshape(frames, -1).sum(axis=1),
