@@ -56,6 +56,9 @@ RING_RATIO = 3.0
 SECTORS = 4
 #: positions ``p = STRIDE h + l``: the modes' cosines are tabulated at ``l`` once and computed at ``STRIDE h`` per read
 STRIDE = 16
+#: whole strides ``STRIDE h`` whose modes' cosines and sines a walked screen keeps between reads, per axis (a read
+#: spans a few; :class:`.layer_screen.ModesPool`) [1]
+PHASOR_SLOTS = 16
 #: last word of a large-scale draw's seed (a screen's own draws end in a regeneration count, far below it)
 SEED_WORD = 0xFFFFFFFF
 
@@ -146,5 +149,5 @@ class LargeScales:
         """``cos``, ``sin`` of ``w[k] p`` (K, count) along ``axis`` (0: y, 1: x) at ``p = start ..``."""
         cos, sin = np.empty((2, len(self.a), count))
         mode_phasors(self.frequencies[axis], self.low[2 * axis], self.low[2 * axis + 1], start, count, STRIDE, cos, sin,
-                     0)
+                     0, np.full((PHASOR_SLOTS, 1 + 2 * len(self.a)), np.nan))
         return cos, sin

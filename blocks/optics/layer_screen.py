@@ -48,9 +48,9 @@ import numpy as np
 
 from .autoregressive import FULL_COLUMNS, extension_operator, first_columns, stencil_width
 from .fft_screens import fft_spline_corners
-from .large_scales import SEED_WORD, STRIDE, LargeScales, split_outer_scale
+from .large_scales import PHASOR_SLOTS, SEED_WORD, STRIDE, LargeScales, split_outer_scale
 from .normal_draws import _TABLES, _UNSCALED, SeededDraws, entropy_words, same_as_numpy, standard_normal
-from .screen_kernels import (MARGIN, RIGHT, extend_columns, plan_layers, read_spans,
+from .screen_kernels import (MARGIN, RIGHT, extend_in_stages, plan_layers, read_spans,
                              sample_grids_transposed, walk_segments)
 
 #: most conditional columns made on one canvas before it is read and started afresh (bounds its memory)
@@ -66,7 +66,7 @@ PREFILTER_HALF_WIDTH = 16
 _NO_OUTPUT = np.zeros((0, 1, 1))
 _EMPTY = np.zeros(0)
 _NO_OPERATOR = ((_EMPTY, _EMPTY, np.zeros(0, np.int64), np.zeros(0, np.int64)), np.zeros((0, 4), np.int64))
-_NO_MODES = ((_EMPTY, _EMPTY, _EMPTY), np.zeros((0, 3), np.int64))
+_NO_MODES = ((_EMPTY, _EMPTY, _EMPTY, _EMPTY), np.zeros((0, 4), np.int64))
 #: most sets of operators kept packed for :func:`walk_layers` (a few per source)
 PACKED_SETS = 512
 
@@ -124,6 +124,20 @@ def _fresh_stages(n: int, width: int) -> tuple[tuple[int, np.ndarray, np.ndarray
         stages.append((made, np.zeros_like(steps), steps - n, np.full(steps.shape, RIGHT, np.int8)))  # int8: the walks' sides
         made = stop
     return tuple(stages)
+
+
+@lru_cache(maxsize=16)
+def _fresh_plan(n: int, width: int, delta: float, L1: float) -> tuple:
+    """:func:`_fresh_stages` with each stage's operator, packed for :func:`.screen_kernels.extend_in_stages`:
+    the stages' bounds, their steps' rows, columns and sides concatenated, the operators' ``A``, ``B`` and stencils
+    packed and where each stage's start (``operator_at`` (stages, 4), its stencil's length last)."""
+    stages = _fresh_stages(n, width)
+    operators = tuple(extension_operator(n, 1, delta, L1, min(made, n)) for made, *_ in stages)
+    (a, b, stencil_rows, stencil_back), at = _packed(operators, lambda o: (o.A, o.B, o.stencil_rows, o.stencil_cols))
+    lengths = np.array([[len(o.stencil_rows)] for o in operators], np.int64)
+    bounds = np.cumsum([0] + [len(tops) for _, tops, _, _ in stages]).astype(np.int64)
+    tops, lefts, sides = (np.concatenate([stage[i] for stage in stages]) for i in (1, 2, 3))
+    return bounds, tops, lefts, sides, a, b, stencil_rows, stencil_back, np.hstack([at[:, :3], lengths])
 
 
 class LayerScreen:
@@ -225,10 +239,10 @@ class LayerScreen:
         # keeps the last n
         canvas[:, :FULL_COLUMNS] = (first_columns(n, self.delta, self.L1)
                                     @ noise[:FULL_COLUMNS * n]).reshape(FULL_COLUMNS, n).T
-        for made, tops, lefts, sides in _fresh_stages(n, width):
-            operator = extension_operator(n, 1, self.delta, self.L1, min(made, n))
-            extend_columns(canvas, tops, lefts, sides, operator.A, operator.B, operator.stencil_rows,
-                           operator.stencil_cols, noise[n * made:n * (made + len(tops))], n)
+        bounds, tops, lefts, sides, a, b, stencil_rows, stencil_back, operator_at = _fresh_plan(n, width, self.delta,
+                                                                                              self.L1)
+        extend_in_stages(canvas, bounds, tops, lefts, sides, a, b, stencil_rows, stencil_back, operator_at,
+                         noise[n * FULL_COLUMNS:], n)
         return np.ascontiguousarray(canvas[:, width - n:])
 
     # -- keeping footprints inside ------------------------------------------------------------
@@ -354,10 +368,11 @@ def _packed(objects: tuple, arrays_of) -> tuple[tuple[np.ndarray, ...], np.ndarr
 
 
 class ModesPool:
-    """Every walked screen's large-scale modes' tables (:class:`.large_scales.LargeScales`' ``low``, ``amplitudes`` and
-    ``frequencies``), each packed once into growing flat arrays when first walked: a walk passes their rows, not a
-    concatenation of its own (held sources are walked together in changing sets, so the sets of modes seldom
-    repeat). Kept by the modes' identities, with the modes (an identity is not reused while its entry lives); started
+    """Every walked screen's large-scale modes' tables (:class:`.large_scales.LargeScales`' ``low``, ``amplitudes``,
+    ``frequencies``; then ``phasors``, the cosines and sines at whole strides that the walks keep: 2 axes of
+    :data:`.large_scales.PHASOR_SLOTS` slots of 1 + 2 K values, NaN when packed), each packed once into growing flat
+    arrays when first walked: a walk passes their rows, not a concatenation of its own (held sources are walked
+    together in changing sets, so the sets of modes seldom repeat). Kept by the modes' identities, with the modes (an identity is not reused while its entry lives); started
     afresh, between walks, past ``limit`` values of ``low``."""
 
     def __init__(self, limit: int = 1 << 21):
@@ -365,8 +380,9 @@ class ModesPool:
         self.clear()
 
     def clear(self) -> None:
-        self.tables = (np.empty(1 << 12), np.empty(1 << 8), np.empty(1 << 8))    # low, amplitudes, frequencies
-        self.used = [0, 0, 0]
+        # low, amplitudes, frequencies, phasors
+        self.tables = (np.empty(1 << 12), np.empty(1 << 8), np.empty(1 << 8), np.empty(1 << 12))
+        self.used = [0, 0, 0, 0]
         self._rows: dict[int, tuple[LargeScales, list[int]]] = {}
 
     def make_room(self) -> None:
@@ -375,13 +391,14 @@ class ModesPool:
             self.clear()
 
     def row(self, modes: LargeScales) -> list[int]:
-        """Where ``modes``' ``low``, ``amplitudes`` and ``frequencies`` start in ``tables`` (packed when first
-        asked)."""
+        """Where ``modes``' ``low``, ``amplitudes``, ``frequencies`` and their ``phasors`` cache start in ``tables``
+        (packed when first asked)."""
         entry = self._rows.get(id(modes))
         if entry is None:
             at = []
             grown = list(self.tables)
-            for kind, part in enumerate((modes.low, modes.amplitudes, modes.frequencies)):
+            empty = np.full(2 * PHASOR_SLOTS * (1 + 2 * len(modes.a)), np.nan)
+            for kind, part in enumerate((modes.low, modes.amplitudes, modes.frequencies, empty)):
                 start, stop = self.used[kind], self.used[kind] + part.size
                 if stop > grown[kind].size:
                     bigger = np.empty(max(2 * grown[kind].size, stop))
@@ -507,13 +524,13 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     (a, b, stencil_rows, stencil_back), operator_at = (
         _packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows, o.stencil_cols)) if operators
         else _NO_OPERATOR)
-    (low, amplitudes, frequencies), mode_at = ((pool.tables, np.array(modes, np.int64)) if modes
-                                               else _NO_MODES)
+    (low, amplitudes, frequencies, phasors), mode_at = ((pool.tables, np.array(modes, np.int64)) if modes
+                                                         else _NO_MODES)
     windows, origins, states = np.concatenate(windows), np.array(origins, np.int64), np.array(states, np.uint64)
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
     bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
                         *_ZIGGURAT, a, b, stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight,
-                        out_t, outputs, assign, low, amplitudes, frequencies, mode_at, STRIDE)
+                        out_t, outputs, assign, low, amplitudes, frequencies, mode_at, STRIDE, phasors, PHASOR_SLOTS)
     for layer, s in last.items():
         n, at = rows_of[s][1], rows_of[s][7]
         screens[layer].coefficients = windows[at:at + n * n].reshape(n, n)

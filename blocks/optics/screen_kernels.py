@@ -196,6 +196,21 @@ def extend_columns(canvas, tops, lefts, sides, a, b, stencil_rows, stencil_back,
             flat[start + r * along + n * across] = acc
 
 
+@jit
+def extend_in_stages(canvas, bounds, tops, lefts, sides, a, b, stencil_rows, stencil_back, operator_at, noise, n):
+    """:func:`extend_columns` stage by stage in one call: stage ``s`` makes steps ``bounds[s] .. bounds[s + 1] - 1``
+    (windows at ``tops``, ``lefts``, grown on ``sides``; ``n`` draws a step from ``noise``, in order) with its own
+    operator, whose ``A`` (n, k), ``B`` (n, n) and stencil (k values) start at ``operator_at[s, 0:3]`` in the packed
+    ``a``, ``b`` and ``stencil_rows``, ``stencil_back`` (``k = operator_at[s, 3]``): the same calls on the same
+    values as one call a stage."""
+    for s in range(bounds.shape[0] - 1):
+        s0, s1 = bounds[s], bounds[s + 1]
+        a0, b0, st0, k = operator_at[s, 0], operator_at[s, 1], operator_at[s, 2], operator_at[s, 3]
+        extend_columns(canvas, tops[s0:s1], lefts[s0:s1], sides[s0:s1], a[a0:a0 + n * k].reshape((n, k)),
+                       b[b0:b0 + n * n].reshape((n, n)), stencil_rows[st0:st0 + k], stencil_back[st0:st0 + k],
+                       noise[n * s0:n * s1], n)
+
+
 @intrinsic
 def _fused_multiply_add(typingctx, a, b, c):
     """``a b + c`` rounded once (LLVM's ``llvm.fma.f64``: the FMA instruction, or libm's correctly rounded ``fma`` on
@@ -458,26 +473,35 @@ def sample_grids_transposed(coefficients, top, left, rows, cols, weight, first, 
 
 
 @jit
-def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out, at):
+def mode_phasors(w, low_cos, low_sin, start, count, stride, cos_out, sin_out, at, cache):
     """``cos`` and ``sin`` of each mode's phase ``w[k] p`` (``w`` [rad per sample]) at integer positions ``p = start ..
     start + count - 1`` [samples] into ``cos_out``, ``sin_out`` (K, .) from column ``at``, from ``p = stride h + l``: ``low_*[k, l]``
     at ``w l`` (tabled) and ``cos``, ``sin`` of ``w (stride h)`` by the angle-addition formulas (each value from its
     own ``h`` and ``l`` only, wherever it lies in the output: the cosine and sine of each ``h`` are libm's, as NumPy's
-    ``cos``, ``sin`` of the same double). One ``h`` at a time, its run of ``l`` in a loop of its own (vectorised)."""
+    ``cos``, ``sin`` of the same double). One ``h`` at a time, its run of ``l`` in a loop of its own (vectorised).
+    The cosines and sines of ``w (stride h)`` are kept between calls in ``cache`` (slots, 1 + 2 K), slot ``h mod
+    slots``: ``h`` (a double; NaN: none yet), then the K cosines and K sines; a slot holding another ``h`` is made
+    again (the same values: kept or made, the results are the same bits)."""
+    modes, slots = low_cos.shape[0], cache.shape[0]
     h0 = start // stride
     span = float(stride)
-    for k in range(low_cos.shape[0]):
-        i, h, low = 0, h0, start - stride * h0
-        while i < count:
-            phase = w[k] * (span * h)
-            ch, sh = math.cos(phase), math.sin(phase)
-            run = min(stride - low, count - i)
+    i, h, low = 0, h0, start - stride * h0
+    while i < count:
+        held = cache[h % slots]
+        if held[0] != float(h):
+            for k in range(modes):
+                phase = w[k] * (span * h)
+                held[1 + k], held[1 + modes + k] = math.cos(phase), math.sin(phase)
+            held[0] = float(h)
+        run = min(stride - low, count - i)
+        for k in range(modes):
+            ch, sh = held[1 + k], held[1 + modes + k]
             cl, sl = low_cos[k, low:low + run], low_sin[k, low:low + run]
             co, so = cos_out[k, at + i:at + i + run], sin_out[k, at + i:at + i + run]
             for j in range(run):
                 co[j] = ch * cl[j] - sh * sl[j]
                 so[j] = sh * cl[j] + ch * sl[j]
-            i, h, low = i + run, h + 1, 0
+        i, h, low = i + run, h + 1, 0
 
 
 @jit
@@ -621,7 +645,7 @@ def add_modes(source, out, cos_y, sin_y, cos_x, sin_x, a, b, first, stop):
 @jit
 def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, stencil_rows,
                   stencil_back, frame_ops, frame, rows, cols, weight, out_t, assign, low, frequencies, amplitudes,
-                  stride):
+                  stride, phasors):
     """Make and read a run of a walk's canvases (:func:`plan_layers`' operations ``edges[c] .. edges[c + 1] - 1``,
     no regeneration among them; with ``as_is``, the present window before them) in one call: each canvas holds the
     window (``window`` (n, n),
@@ -632,7 +656,8 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
     large-scale modes added where they read
     (:func:`read_spans`, :func:`add_modes`; their phasors by :func:`mode_phasors` from the angular frequencies
     ``frequencies`` (2, K) along y, x and the tables ``low`` (4, K, stride): cos, sin along y, then x; ``amplitudes``
-    (2, K), no modes when K = 0). An empty operation range is the window as it is.
+    (2, K), no modes when K = 0; the cosines and sines at whole strides kept between reads in ``phasors`` (2, slots,
+    1 + 2 K), y then x, :func:`mode_phasors`' caches). An empty operation range is the window as it is.
 
     The same arithmetic on the same arrays as making the canvases and reading them one call at a time. Returns the
     next frame to read, or -1 when a grid reaches outside its canvas.
@@ -684,8 +709,10 @@ def walk_canvases(window, origin, n, sides, before, edges, as_is, noise, a, b, s
                         c0, c1 = min(c0, first[r]), max(c1, end[r])
                 cos_y, sin_y = np.empty((modes, height)), np.empty((modes, height))
                 cos_x, sin_x = np.empty((modes, width)), np.empty((modes, width))
-                mode_phasors(frequencies[0], low[0], low[1], top + r0, max(r1 - r0, 0), stride, cos_y, sin_y, r0)
-                mode_phasors(frequencies[1], low[2], low[3], left + c0, max(c1 - c0, 0), stride, cos_x, sin_x, c0)
+                mode_phasors(frequencies[0], low[0], low[1], top + r0, max(r1 - r0, 0), stride, cos_y, sin_y, r0,
+                             phasors[0])
+                mode_phasors(frequencies[1], low[2], low[3], left + c0, max(c1 - c0, 0), stride, cos_x, sin_x, c0,
+                             phasors[1])
                 source = canvas
                 canvas = np.empty((height, width))
                 add_modes(source, canvas, cos_y, sin_y, cos_x, sin_x, amplitudes[0], amplitudes[1], first, end)
@@ -792,14 +819,15 @@ LAYOUT_COLUMNS = 14
 @jit
 def walk_segments(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
                   stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, layer_out, assign, low,
-                  amplitudes, frequencies, mode_at, stride):
+                  amplitudes, frequencies, mode_at, stride, phasors, slots):
     """Every segment of :func:`plan_layers` (a run of one layer's canvases, :func:`walk_canvases`) in one call, in
     order: each from its window (``windows`` packed, updated in place, its origin ``origins[s]`` too), reading that
     layer's frames (``rows[l]`` (F, ny), ``cols[l]``, ``weight[l]``: none when it has no frames) into its output
     ``out_t[layer_out[l]]`` (``out_t`` (outputs, F, nx, ny): one a line of sight), from where its layer's previous
     segment stopped; its operator, noise and the modes (:data:`LAYOUT_COLUMNS`) are
     views into the packed arrays (the operators' ``A``, ``B`` and stencil from ``operator_at``'s first three columns,
-    the modes' ``low``, ``amplitudes`` and ``frequencies`` from ``mode_at``'s). With ``draw``, each segment's noise is first drawn into ``noise`` from its
+    the modes' ``low``, ``amplitudes``, ``frequencies`` and their phasor caches ``phasors`` (2, ``slots``, 1 + 2 K;
+    :func:`mode_phasors`', kept between walks) from ``mode_at``'s). With ``draw``, each segment's noise is first drawn into ``noise`` from its
     screen's PCG64 state ``states[s]`` (:func:`.normal_draws._fill` with NumPy's ziggurat tables ``ki``, ``wi``,
     ``fi``; the state left as the draws leave it), else ``noise`` holds it. The reads of a layer with ``assign[l]``
     (its output's first layer) are written into its output (as if added to zeros: each layer reads every frame once),
@@ -810,12 +838,13 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
         layer, n, e0, e1, as_is = layout[s, 0], layout[s, 1], layout[s, 2], layout[s, 3], layout[s, 4] != 0
         op0, op1, w0, z0, z1 = layout[s, 5], layout[s, 6], layout[s, 7], layout[s, 8], layout[s, 9]
         operator, n_st, k, mode = layout[s, 10], layout[s, 11], layout[s, 12], layout[s, 13]
-        a0 = b0 = st0 = low0 = amp0 = freq0 = 0
+        a0 = b0 = st0 = low0 = amp0 = freq0 = ph0 = 0
         if operator >= 0:
             a0, b0, st0 = operator_at[operator, 0], operator_at[operator, 1], operator_at[operator, 2]
         if mode >= 0:
-            low0, amp0, freq0 = mode_at[mode, 0], mode_at[mode, 1], mode_at[mode, 2]
+            low0, amp0, freq0, ph0 = mode_at[mode, 0], mode_at[mode, 1], mode_at[mode, 2], mode_at[mode, 3]
         window = windows[w0:w0 + n * n].reshape((n, n))
+        held = slots if k else 0                # the modes' phasor caches' slots (none without modes)
         m = n if z1 > z0 else 0                 # the operator's rows (none when nothing is drawn)
         if draw and z1 > z0:
             _fill(states[s], noise[z0:z1], unscaled, False, ki, wi, fi)
@@ -826,7 +855,8 @@ def walk_segments(layout, windows, origins, sides, before, edges, noise, states,
                              assign[layer],
                              low[low0:low0 + 4 * k * stride].reshape((4, k, stride)),
                              frequencies[freq0:freq0 + 2 * k].reshape((2, k)),
-                             amplitudes[amp0:amp0 + 2 * k].reshape((2, k)), stride)
+                             amplitudes[amp0:amp0 + 2 * k].reshape((2, k)), stride,
+                             phasors[ph0:ph0 + 2 * held * (1 + 2 * k)].reshape((2, held, 1 + 2 * k)))
         if stop < 0:
             return s
         frame[layer] = stop

@@ -105,15 +105,32 @@ def test_add_modes_sums_each_value_mode_by_mode(modes, width):
 
 def test_mode_phasors_of_a_part_are_the_wholes_there():
     # a walk tabulates the modes' phasors of the rows and columns its frames read only (from column `at` of the
-    # tables): each value depends on its absolute position alone, so a part's are the whole range's, bit for bit
+    # tables): each value depends on its absolute position alone, so a part's are the whole range's, bit for bit;
+    # and the strides' cosines and sines kept in a cache between calls (a few slots: each made again and again as
+    # positions move on and come back) give the same bits as made afresh
     from evsda.blocks.optics.screen_kernels import mode_phasors
     modes = LargeScales(np.random.default_rng(5), DELTA, 25.0, 2.0)
     k = len(modes.a)
+
+    def fresh():
+        return np.full((2, k + k + 1), np.nan)
+
     whole, part = np.full((2, k, 90), np.nan), np.full((2, k, 90), np.nan)
-    mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], -37, 90, STRIDE, whole[0], whole[1], 0)
-    mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], -37 + 13, 50, STRIDE, part[0], part[1], 13)
+    mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], -37, 90, STRIDE, whole[0], whole[1], 0, fresh())
+    mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], -37 + 13, 50, STRIDE, part[0], part[1], 13,
+                 fresh())
     np.testing.assert_array_equal(part[:, :, 13:63], whole[:, :, 13:63])
     assert np.isnan(part[:, :, :13]).all() and np.isnan(part[:, :, 63:]).all()
+    kept = fresh()
+    for start, count in ((-37, 90), (100, 7), (-200, 40), (-37, 90), (5, 33), (-37, 90)):
+        again, reference = np.empty((2, k, count)), np.empty((2, k, count))
+        mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], start, count, STRIDE, again[0], again[1], 0,
+                     kept)
+        mode_phasors(modes.frequencies[1], modes.low[2], modes.low[3], start, count, STRIDE, reference[0],
+                     reference[1], 0, fresh())
+        assert again.tobytes() == reference.tobytes()
+        if count == 90:
+            assert again.tobytes() == whole.tobytes()
 
 
 def test_read_spans_are_the_columns_the_reads_touch():

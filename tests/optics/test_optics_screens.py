@@ -448,6 +448,26 @@ def test_lines_of_sight_walked_together_read_what_each_walked_alone_reads():
         start = path[..., -1, :]
 
 
+@pytest.mark.parametrize("n, delta", [(20, 0.025), (38, 0.0101), (7, 0.05), (64, 0.02), (128, 0.01)])
+def test_a_fresh_window_in_one_call_is_its_stages_one_by_one(n, delta):
+    # LayerScreen._fresh grows its canvas through every stage's operator in one compiled call (extend_in_stages); the
+    # reference: extend_columns called once a stage, with that stage's operator, bit for bit
+    from evsda.blocks.optics.autoregressive import FULL_COLUMNS, first_columns
+    from evsda.blocks.optics.layer_screen import BURN_IN, _fresh_stages
+    from evsda.blocks.optics.screen_kernels import extend_columns
+    screen = LayerScreen(n, delta, (3, n), L0=25.0)
+    width = n + BURN_IN * n
+    noise = np.random.default_rng(n).standard_normal(n * width)
+    canvas = np.empty((n, width))
+    canvas[:, :FULL_COLUMNS] = (first_columns(n, delta, screen.L1)
+                                @ noise[:FULL_COLUMNS * n]).reshape(FULL_COLUMNS, n).T
+    for made, tops, lefts, sides in _fresh_stages(n, width):
+        operator = extension_operator(n, 1, delta, screen.L1, min(made, n))
+        extend_columns(canvas, tops, lefts, sides, operator.A, operator.B, operator.stencil_rows,
+                       operator.stencil_cols, noise[n * made:n * (made + len(tops))], n)
+    assert screen._fresh(noise).tobytes() == np.ascontiguousarray(canvas[:, width - n:]).tobytes()
+
+
 def test_modes_pool_holds_each_screens_tables_as_packing_per_walk_does(monkeypatch):
     # the walks' ModesPool (each screen's large-scale modes packed once, rows handed out) against _packed (the
     # reference: a walk's modes concatenated afresh), bit for bit, across the pool's growth; then walks with a pool
