@@ -44,7 +44,7 @@ from .block import Block
 from .errors import UserError
 from .numba_loads import lazy_registries
 from .scipy_imports import lean_array_api
-from .threads import usable_cores
+from .threads import limit_blas, usable_cores
 
 if TYPE_CHECKING:
     from multiprocessing.connection import Connection
@@ -370,6 +370,8 @@ def _serve(conn: Connection) -> None:
             cls = getattr(cls, part)
         block = cls(pickle.loads(conn.recv_bytes()), name=name, seed=seed)
         lazy_registries()                               # the block's modules are imported (Numba, if it uses it)
+        limit_blas()           # again: a limit holds only the BLAS libraries loaded when it is set (threadpoolctl),
+        # and the block's modules load SciPy's own after main() set it; with more threads its products round otherwise
     except Exception as exc:                            # noqa: BLE001 -- reported; the caller runs the block
         conn.send(("start_failed", f"{type(exc).__name__}: {exc}"))
         return
@@ -422,7 +424,7 @@ def main(argv: list[str]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)        # the caller stops this worker (see the module docstring)
     from multiprocessing.connection import Connection
 
-    from .threads import keep_freed_memory, limit_blas, limit_malloc_arenas
+    from .threads import keep_freed_memory, limit_malloc_arenas
     limit_malloc_arenas()
     keep_freed_memory()
     conn = Connection(int(argv[0]))
