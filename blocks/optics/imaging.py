@@ -152,6 +152,8 @@ class Imager:
         #: on equivalent layers, each source's own frozen flow (:meth:`source_flow`): its first render time [s], its
         #: line of sight then (2,) [1] and, from its second render time on, its winds (L, 2) [m/s]
         self.flows: dict[str, tuple[float, np.ndarray, np.ndarray | None]] = {}
+        #: :meth:`hold_of` of each source with its own winds, and the geometry and winds it was worked out for
+        self._holds: dict[str, tuple[PupilGeometry, np.ndarray, int]] = {}
 
     # -- turbulence strength ----------------------------------------------------------------------
     def turbulent(self, zenith_rad: float) -> bool:
@@ -236,6 +238,7 @@ class Imager:
             held = [store.pop(source, None) for store in self._screen_stores()]
             self.last_seen_ns.pop(source, None)
             self.flows.pop(source, None)
+            self._holds.pop(source, None)
             if any(h is not None for h in held):
                 self.generations[source] = self.generations.get(source, 0) + 1
 
@@ -262,17 +265,23 @@ class Imager:
 
     def hold_of(self, source: str) -> int:
         """:attr:`hold_ns` for one source: with its own winds (:meth:`source_flow`), the screens' window over their
-        speeds, ``min over layers of n delta / |w|``, at most ``MAX_HOLD_S``."""
+        speeds, ``min over layers of n delta / |w|``, at most ``MAX_HOLD_S``; worked out once for its geometry and
+        winds (every window asks it of every held source)."""
         flow = self.flows.get(source)
         if flow is None or flow[2] is None or self.geometry is None:
             return self.hold_ns
+        kept = self._holds.get(source)
+        if kept is not None and kept[0] is self.geometry and kept[1] is flow[2]:
+            return kept[2]
         limit = MAX_HOLD_S
         for layer, wind, n, delta in zip(self.atmosphere.layers, flow[2], self.geometry.layer_n,
                                          self.geometry.layer_delta_m):
             speed = float(np.hypot(wind[0], wind[1]))
             if layer.cn2_dh > 0 and speed > 0:
                 limit = min(limit, n * delta / speed)
-        return int(round(limit * 1e9))
+        hold = int(round(limit * 1e9))
+        self._holds[source] = (self.geometry, flow[2], hold)
+        return hold
 
     def keeps(self, source: str, t_ns: int) -> bool:
         """Whether a source in view again at render time ``t_ns`` continues its held screens (:meth:`hold_of`)."""

@@ -371,7 +371,7 @@ def test_a_source_with_its_own_winds_holds_its_screens_for_its_window_over_its_s
     imager = Imager.__new__(Imager)
     imager.atmosphere = equivalent_layers(median_seeing(), 3)
     imager.geometry = SimpleNamespace(layer_n=(64, 80, 96), layer_delta_m=(0.02, 0.03, 0.05))
-    imager._hold, imager.flows = (imager.geometry, 123), {}
+    imager._hold, imager.flows, imager._holds = (imager.geometry, 123), {}, {}
     assert imager.hold_of("star") == 123
     winds = np.array([[3.0, 4.0], [0.0, -12.0], [0.0, 0.0]])              # 5, 12 and 0 m/s
     imager.flows["25544"] = (0.0, np.zeros(2), winds)
