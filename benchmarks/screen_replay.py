@@ -40,7 +40,7 @@ def kept(self, *args):
     if self not in owners:
         owners.append(self)
     if self is owners[0]:                         # the pass has one optics block
-        calls.append(copy.deepcopy(args))
+        calls.append(copy.deepcopy(args[:6]))      # the phases' arguments (not the stamps' that render_many adds)
     return phases(self, *args)
 pupil_path.PupilPath._phases = kept
 graph = load_graph(sys.argv[1], [f"run.duration_s={sys.argv[2]}"])

@@ -425,20 +425,21 @@ def _modes_pool() -> ModesPool:
 
 def accumulate_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
                       weight: np.ndarray, out_t: np.ndarray, fresh: bool = False,
-                      outputs: np.ndarray | None = None) -> None:
+                      outputs: np.ndarray | None = None, then: tuple | None = None):
     """:meth:`LayerScreen.accumulate` of each screen ``l`` in turn on its grids ``rows[l]`` (F, ny), ``cols[l]`` (F, nx)
     [delta] with ``weight[l]`` (F,) into one ``out_t`` (F, nx, ny): the same sums in the same order, bit for bit, in
     two compiled calls for all (:func:`walk_layers`). With ``fresh``, ``out_t`` is written as if it held zeros (it
     may be uninitialised: no zeroing pass over it). With ``outputs`` (L,), several lines of sight at once: ``out_t``
     is (S, F, nx, ny) and screen ``l`` adds to ``out_t[outputs[l]]`` (each output's sums, in the screens' order,
-    those of its screens walked alone)."""
-    walk_layers(screens, np.ascontiguousarray(rows, dtype=float), np.ascontiguousarray(cols, dtype=float),
-                np.ascontiguousarray(epochs, dtype=np.int64), (np.ascontiguousarray(weight, dtype=float), out_t),
-                fresh, outputs)
+    those of its screens walked alone). ``then``: :func:`walk_layers`' (its result returned)."""
+    return walk_layers(screens, np.ascontiguousarray(rows, dtype=float), np.ascontiguousarray(cols, dtype=float),
+                       np.ascontiguousarray(epochs, dtype=np.int64), (np.ascontiguousarray(weight, dtype=float), out_t),
+                       fresh, outputs, then)
 
 
 def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, epochs: np.ndarray,
-                reads: tuple | None = None, fresh: bool = False, outputs: np.ndarray | None = None) -> None:
+                reads: tuple | None = None, fresh: bool = False, outputs: np.ndarray | None = None,
+                then: tuple | None = None):
     """:meth:`LayerScreen.walk` of each screen ``l`` on ``rows[l]``, ``cols[l]`` (contiguous (L, F, .)) in turn.
 
     :func:`.screen_kernels.plan_layers` plans every walk from integers (regenerations, extensions, canvases); the
@@ -449,6 +450,11 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     ``out_t`` as if it held zeros). Each screen's draws, values and reads are those of its own walk: the screens
     share only the calls. ``outputs``: :func:`accumulate_layers`' (``out_t`` (S, F, nx, ny), each output's first
     layer written with ``fresh``).
+
+    ``then = (kernel, arguments)``: ``kernel(*walk_segments' arguments, *arguments)`` is called instead, a compiled
+    caller of :func:`.screen_kernels.walk_segments` that does more in the same call (:func:`.pupil_path.walk_and_stamp`)
+    and returns the first segment that read outside its canvas (-1: none) and a result, which this returns (None
+    when nothing was walked, or without ``then``).
     """
     weight, out_t = reads if reads is not None else (np.zeros((len(screens), 0)), _NO_OUTPUT)
     if outputs is None:                             # one output: out_t (F, nx, ny)
@@ -519,7 +525,7 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
     elif fresh and not layout:
         out_t[...] = 0.0
     if not layout:
-        return
+        return None
     rows_of, layout = layout, np.array(layout, np.int64)
     (a, b, stencil_rows, stencil_back), operator_at = (
         _packed(tuple(operators), lambda o: (o.A, o.B, o.stencil_rows, o.stencil_cols)) if operators
@@ -528,9 +534,10 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
                                                          else _NO_MODES)
     windows, origins, states = np.concatenate(windows), np.array(origins, np.int64), np.array(states, np.uint64)
     noise = np.concatenate(noises) if noises else np.empty(noise_at)
-    bad = walk_segments(layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED,
-                        *_ZIGGURAT, a, b, stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight,
-                        out_t, outputs, assign, low, amplitudes, frequencies, mode_at, STRIDE, phasors, PHASOR_SLOTS)
+    arguments = (layout, windows, origins, sides, before, edges, noise, states, compiled, _UNSCALED, *_ZIGGURAT, a, b,
+                 stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, outputs, assign, low,
+                 amplitudes, frequencies, mode_at, STRIDE, phasors, PHASOR_SLOTS)
+    bad, result = (walk_segments(*arguments), None) if then is None else then[0](*arguments, *then[1])
     for layer, s in last.items():
         n, at = rows_of[s][1], rows_of[s][7]
         screens[layer].coefficients = windows[at:at + n * n].reshape(n, n)
@@ -538,3 +545,4 @@ def walk_layers(screens: list[LayerScreen], rows: np.ndarray, cols: np.ndarray, 
         screens[layer]._words = states[s]
     if bad >= 0:
         raise ValueError("screen sampled outside its window")
+    return result

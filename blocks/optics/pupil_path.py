@@ -3,18 +3,22 @@
 The turbulent phase is the sum of every layer's screen along the straight line of sight
 (near-field / geometric-optics approximation, :mod:`.paths`): FFT screens with
 subharmonics (:mod:`.layer_screen`) or Karhunen-Loeve Zernike modes (:mod:`.modal_screen`),
-read on each layer's footprint under frozen flow (:mod:`.imaging`).
+read on each layer's footprint under frozen flow (:mod:`.imaging`). Where the renderer's frame path holds, a walk
+and its stamps are one compiled call (:func:`walk_and_stamp`): each source's frames are stamped as soon as its last
+layer has read them, while its phases are still in cache, with no interpreter between.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 
 from .layer_screen import LayerScreen, accumulate_layers
 from .modal_screen import ModalScreen, pupil_modes
-from .screen_kernels import layer_grids
+from .render import _stamp_frames
+from .screen_kernels import layer_grids, walk_segments
 
 if TYPE_CHECKING:
     from .imaging import Imager
@@ -94,11 +98,13 @@ class PupilPath:
                             np.array([float(g.layer_delta_m[i]) for i in chosen]))
         return self._layers
 
-    def _phases(self, sources: list[str], t_s, epochs, sight, zenith_rad, range_m) -> np.ndarray:
+    def _phases(self, sources: list[str], t_s, epochs, sight, zenith_rad, range_m, stamping: tuple | None = None):
         """:meth:`turbulent_phase` of several sources at the same times ``t_s`` (F,) (``epochs``: their screen
         epochs), ``sight`` (S, F, 2), ``zenith_rad`` and ``range_m`` (S, F): (S, F, n, n), transposed views; every
         source's layers in one walk (:func:`.accumulate_layers` with an output a source), each phase the same
-        numbers as the source's alone."""
+        numbers as the source's alone. With ``stamping`` (:meth:`.PupilRenderer.frame_arguments` of the S F frames,
+        source by source), the walk stamps them too (:func:`walk_and_stamp`); returns the phases and whether it
+        did."""
         g = self.imager.geometry
         chosen, altitude, wind, cn2, xp, spacing = self._layer_set()
         count, frames, layers = len(sources), len(t_s), len(chosen)
@@ -122,9 +128,11 @@ class PupilPath:
             layer_grids(altitude, winds, cn2, spacing, times, sight[k], cosine[k], range_m[k], turbulent[k], xp, k2,
                         rows[part], cols[part], weight[part])
         phase_t = np.empty((count, frames, g.n_pupil, g.n_pupil))   # written by each first layer's reads: no zeroing
-        accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True,     # each layer in turn, one walk
-                          outputs=np.repeat(np.arange(count, dtype=np.int64), layers))
-        return phase_t.transpose(0, 1, 3, 2)
+        stamped = accumulate_layers(screens, rows, cols, epochs, weight, phase_t, fresh=True,     # one walk
+                                    outputs=np.repeat(np.arange(count, dtype=np.int64), layers),
+                                    then=None if stamping is None else (walk_and_stamp, stamping))
+        phase = phase_t.transpose(0, 1, 3, 2)
+        return phase if stamping is None else (phase, stamped is True)
 
     def _modal_phase(self, source, t_s, sight, zenith_rad, range_m, epochs) -> np.ndarray:
         """Phase [rad] (F, n, n) from modal screens (:mod:`.modal_screen`): Zernike modes over each footprint."""
@@ -144,6 +152,9 @@ class PupilPath:
         return (coefficients @ self.pupil_modes).reshape(len(t_s), g.n_pupil, g.n_pupil)
 
     def render(self, source, t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
+        if self.batches():                  # a walk and its stamps in one call (the same numbers as below)
+            return self.render_many([source], t_s, np.asarray(sight)[None], np.asarray(zenith_rad)[None],
+                                    np.asarray(range_m)[None], np.asarray(offset)[None])[0]
         phase = self.turbulent_phase(source, t_s, sight, zenith_rad, range_m)
         return self.imager.pupil_renderer.stamps(self.imager.pupil_amplitude, phase, offset,
                                                  self.imager.defocus_curvature(range_m))
@@ -155,13 +166,21 @@ class PupilPath:
     def render_many(self, sources: list[str], t_s, sight, zenith_rad, range_m, offset) -> np.ndarray:
         """:meth:`render` of several sources at the same times ``t_s`` (F,) (``sight``, ``offset`` (S, F, 2),
         ``zenith_rad``, ``range_m`` (S, F)): stamps (S, F, M, M), each source's those of its own call, in one walk of
-        every source's screens and one :meth:`.PupilRenderer.stamps` call (:meth:`batches` must hold)."""
+        every source's screens and one :meth:`.PupilRenderer.stamps` call (:meth:`batches` must hold), both in one
+        compiled call where the renderer's frame path holds (:func:`walk_and_stamp`)."""
         count, frames = zenith_rad.shape
-        phase = self._phases(sources, t_s, self.imager.epochs_of(t_s), sight, zenith_rad, range_m)
-        g = self.imager.geometry
-        stamps = self.imager.pupil_renderer.stamps(
-            self.imager.pupil_amplitude, phase.reshape(count * frames, g.n_pupil, g.n_pupil),
-            offset.reshape(count * frames, 2), self.imager.defocus_curvature(range_m.reshape(-1)))
+        g, renderer = self.imager.geometry, self.imager.pupil_renderer
+        size = renderer.sampler.size
+        amplitude, offset = self.imager.pupil_amplitude, offset.reshape(count * frames, 2)
+        curvature = self.imager.defocus_curvature(range_m.reshape(-1))
+        stamps = np.empty((count * frames, size, size))
+        stamping = renderer.frame_arguments(amplitude, offset, curvature, stamps)
+        phase = self._phases(sources, t_s, self.imager.epochs_of(t_s), sight, zenith_rad, range_m, stamping)
+        if stamping is not None:
+            phase, stamped = phase
+            if stamped:
+                return stamps.reshape(count, frames, size, size)
+        stamps = renderer.stamps(amplitude, phase.reshape(count * frames, g.n_pupil, g.n_pupil), offset, curvature)
         return stamps.reshape(count, frames, *stamps.shape[1:])
 
     # -- checkpoint -------------------------------------------------------------------------------
@@ -176,3 +195,53 @@ class PupilPath:
             screens = self._layer_screens(key)
             for screen, s in zip(screens, states):
                 screen.set_state(s)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def walk_and_stamp(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
+                   stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, layer_out, assign,
+                   low, amplitudes, frequencies, mode_at, stride, phasors, slots, curvature, r2, ky, kx, x, amplitude_t,
+                   b_psf, b_t, factor, area, stamps, cosine, sine, grid, psf, half, image, scratch, twr, twi):
+    """:func:`.screen_kernels.walk_segments` (its arguments first: the phases ``out_t`` (S, F, nx, ny), one output a
+    source) and :func:`.render._stamp_frames` of every output's F frames (the rest:
+    :meth:`.PupilRenderer.frame_arguments` of the S F frames, output by output, into ``stamps`` (S F, M, M)) in one
+    call: each output stamped as soon as its
+    last segment is walked (a layer's segments are consecutive and all of one output), so its phases are still in
+    cache; outputs no segment reads (their zeros) at the end. The same walk and the same stamps, frame by frame, as the
+    two calls one after the other. Returns the first segment that read outside its canvas (-1: none; then nothing
+    more is made) and whether every frame was stamped (False once a frame's tilted phase is beyond the compiled sine's
+    range: the caller then takes :meth:`.PupilRenderer.stamps`)."""
+    outputs, frames = out_t.shape[0], out_t.shape[1]
+    last = np.full(outputs, -1, np.int64)
+    for s in range(layout.shape[0]):
+        last[layer_out[layout[s, 0]]] = s
+    stamped, s0 = True, 0
+    for s in range(layout.shape[0]):
+        k = layer_out[layout[s, 0]]
+        if last[k] != s:
+            continue
+        bad = walk_segments(layout[s0:s + 1], windows, origins[s0:s + 1], sides, before, edges, noise,
+                            states[s0:s + 1], draw, unscaled, ki, wi, fi, a, b, stencil_rows, stencil_back, operator_at,
+                            frame_ops, rows, cols, weight, out_t, layer_out, assign, low, amplitudes, frequencies,
+                            mode_at, stride, phasors, slots)
+        if bad >= 0:
+            return s0 + bad, False
+        s0 = s + 1
+        stamped = stamped and _stamp_output(k, frames, out_t, curvature, r2, ky, kx, x, amplitude_t, b_psf, b_t,
+                                            factor, area, stamps, cosine, sine, grid, psf, half, image, scratch, twr,
+                                            twi)
+    for k in range(outputs):
+        if last[k] < 0:
+            stamped = stamped and _stamp_output(k, frames, out_t, curvature, r2, ky, kx, x, amplitude_t, b_psf, b_t,
+                                                factor, area, stamps, cosine, sine, grid, psf, half, image, scratch,
+                                                twr, twi)
+    return -1, stamped
+
+
+@numba.njit(error_model="numpy", nogil=True)
+def _stamp_output(k, frames, out_t, curvature, r2, ky, kx, x, amplitude_t, b_psf, b_t, factor, area, stamps, cosine,
+                  sine, grid, psf, half, image, scratch, twr, twi):
+    """:func:`.render._stamp_frames` of output ``k``'s ``frames`` frames (:func:`walk_and_stamp`'s arguments)."""
+    f = slice(k * frames, (k + 1) * frames)
+    return _stamp_frames(out_t[k], curvature[f], r2, ky[f], kx[f], x, amplitude_t, b_psf, b_t, factor, area,
+                         stamps[f], cosine, sine, grid, psf, half, image, scratch, twr, twi)

@@ -211,24 +211,17 @@ class PupilRenderer:
         The defocus and the sub-pixel offset's tilt are added to the phase before ``exp(i phase)`` (one
         complex field, no separate tilt products), written straight into the padded spectra's buffer.
         """
-        real = self.b.dtype
-        amplitude, phase = amplitude.astype(real), np.asarray(phase, dtype=float)
-        curvature = np.zeros(len(phase)) if curvature_rad_m2 is None else np.asarray(curvature_rad_m2, dtype=float)
-        theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
-        k = 2 * np.pi / self.wavelength
-        ky, kx = k * theta[:, 1], k * theta[:, 0]
+        phase = np.asarray(phase, dtype=float)
+        amplitude, curvature, ky, kx = self._inputs(amplitude, offset_px, curvature_rad_m2, len(phase))
         out = np.empty((len(phase), self.sampler.size, self.sampler.size))
         if self._rows:
             # transposed (x, y) for the compiled row transforms: the screens' sum as it is made (no copy then) and the
             # amplitude
             phase_t = np.ascontiguousarray(phase.transpose(0, 2, 1))
-            amplitude_t = np.ascontiguousarray(amplitude.T[None] if amplitude.ndim == 2
-                                               else amplitude.transpose(0, 2, 1))
+            amplitude_t = _transposed(amplitude)
             # every frame from its phase to its stamp in one compiled call, unless a tilted phase is beyond the
             # compiled sine's range (or NaN): then block by block below
-            if self._frames and _stamp_frames(phase_t, curvature, self.r2, ky, kx, self.x, amplitude_t, self.b,
-                                              self.b_t, (self.delta**2 / self.wavelength) ** 2, float(self.area), out,
-                                              *self._frame_buffers(), *column_fft.TWIDDLES):
+            if self._frames and _stamp_frames(phase_t, *self._frame_arguments(amplitude_t, curvature, ky, kx, out)):
                 return out
         for block in _chunks(len(phase), PHASE_FRAMES):
             cosine, sine, image = self._per_frame(block.stop - block.start)
@@ -256,6 +249,33 @@ class PupilRenderer:
                 self._integrate(grid, *rest, image[sl], rows_done=self._rows)
             self._scale(image, out[block])
         return out
+
+    def _inputs(self, amplitude: np.ndarray, offset_px: np.ndarray, curvature_rad_m2: np.ndarray | None,
+                frames: int) -> tuple[np.ndarray, ...]:
+        """:meth:`stamps`' inputs as its steps take them: the amplitude in the renderer's precision, the defocus
+        curvature (F,) [rad m^-2] (zeros if None) and the offsets' tilts ``ky``, ``kx`` (F,) [rad m^-1]."""
+        curvature = np.zeros(frames) if curvature_rad_m2 is None else np.asarray(curvature_rad_m2, dtype=float)
+        theta = np.asarray(offset_px, dtype=float) * self.sampler.pixel_scale_rad
+        k = 2 * np.pi / self.wavelength
+        return amplitude.astype(self.b.dtype), curvature, k * theta[:, 1], k * theta[:, 0]
+
+    def _frame_arguments(self, amplitude_t, curvature, ky, kx, out) -> tuple:
+        """:func:`_stamp_frames`' arguments after the phase: the frames' inputs, the renderer's constants, ``out``
+        (F, M, M), this thread's buffers and the twiddles."""
+        return (curvature, self.r2, ky, kx, self.x, amplitude_t, self.b, self.b_t,
+                (self.delta**2 / self.wavelength) ** 2, float(self.area), out, *self._frame_buffers(),
+                *column_fft.TWIDDLES)
+
+    def frame_arguments(self, amplitude: np.ndarray, offset_px: np.ndarray, curvature_rad_m2: np.ndarray,
+                        out: np.ndarray) -> tuple | None:
+        """:func:`_stamp_frames`' arguments after the phase for :meth:`stamps` of (F,) frames into ``out`` (F, M, M),
+        for a compiled caller that makes the phases itself (:func:`.pupil_path.walk_and_stamp`); None where the
+        frame path is not this renderer's or ``amplitude`` is not one (n, n) for all frames; the rest as
+        :meth:`stamps`'."""
+        if not self._frames or amplitude.ndim != 2:
+            return None
+        amplitude, curvature, ky, kx = self._inputs(amplitude, offset_px, curvature_rad_m2, len(out))
+        return self._frame_arguments(_transposed(amplitude), curvature, ky, kx, out)
 
     def stamps_from_field(self, field: np.ndarray, offset_px: np.ndarray) -> np.ndarray:
         """Pixel energy fractions ``(F, M, M)`` from complex pupil fields (F, n, n) [incident amplitude 1]."""
@@ -315,6 +335,12 @@ PHASE_FRAMES = 8 * STAMP_CHUNK
 #: byte alignment of the renderer's buffers: a cache line, so that the compiled passes' vector loads and stores never
 #: straddle two (numpy aligns to 16 bytes only; :func:`_stamp_frames` took ~16 instead of ~12 us a PSF on such buffers)
 ALIGNMENT = 64
+
+
+def _transposed(amplitude: np.ndarray) -> np.ndarray:
+    """A pupil amplitude (n, n) or (F, n, n) as the frame path reads it: (1 or F, n, n) transposed (x, y),
+    contiguous."""
+    return np.ascontiguousarray(amplitude.T[None] if amplitude.ndim == 2 else amplitude.transpose(0, 2, 1))
 
 
 def aligned_empty(shape, dtype) -> np.ndarray:
