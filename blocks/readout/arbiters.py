@@ -220,9 +220,9 @@ class RowScanArbiter(_ScanningArbiter):
 
     def _latch(self, k_t, x, y, fp):
         c = self.params.row_cycles
-        v0 = -floor_div(-k_t, c)                            # first visit at or after the trigger
+        v0 = k_t if c == 1 else -floor_div(-k_t, c)         # first visit at or after the trigger
         visit = v0 + floor_mod(y.astype(np.int64) - v0, fp.height_px)
-        return visit, visit * c, x.astype(np.int64)
+        return visit, visit if c == 1 else visit * c, x.astype(np.int64)
 
 
 class ColumnBurstArbiter(_ScanningArbiter):

@@ -25,6 +25,17 @@ def floor_div(a, d):
     return np.floor_divide(a, d)
 
 
+def _quotient(a, d):
+    """``a // d`` of integers ``a``: one integer where every element of ``a`` has the same quotient (a window's times
+    all in one second, a window's ticks all in one second of ticks), else the array of quotients (the same
+    integers either way; the one integer spares the products and sums with the array)."""
+    if a.ndim == 1 and a.size > 1:
+        low = a.min() // d
+        if low == a.max() // d:
+            return low
+    return floor_div(a, d)
+
+
 def floor_mod(a, d):
     """``a % d`` (the sign of ``d``) as ``a - (a // d) d``: the same integers, without NumPy's slow remainder."""
     return a - floor_div(a, d) * d
@@ -35,7 +46,7 @@ def ceil_tick(t_ns, clock_hz: int):
     t = np.asarray(t_ns, dtype=np.int64)
     if NS_PER_S % clock_hz == 0:                        # whole-nanosecond period
         return -floor_div(-t, np.int64(NS_PER_S // clock_hz))
-    q = floor_div(t, NS_PER_S)
+    q = _quotient(t, NS_PER_S)
     return q * np.int64(clock_hz) + floor_div((t - q * NS_PER_S) * np.int64(clock_hz) + (NS_PER_S - 1), NS_PER_S)
 
 
@@ -44,5 +55,5 @@ def tick_ns(k, clock_hz: int):
     k = np.asarray(k, dtype=np.int64)
     if NS_PER_S % clock_hz == 0:
         return k * np.int64(NS_PER_S // clock_hz)
-    q = floor_div(k, np.int64(clock_hz))
+    q = _quotient(k, np.int64(clock_hz))
     return q * NS_PER_S + floor_div((k - q * np.int64(clock_hz)) * NS_PER_S, np.int64(clock_hz))

@@ -242,8 +242,9 @@ class EventMetrics(Block):
         if c["recorded"]:
             values["readout_delay_mean_s"] = c["delay_sum_ns"] / c["recorded"] / NS_PER_S
             values["readout_delay_max_s"] = c["delay_max_ns"] / NS_PER_S
+            cum = np.cumsum(self.delays)
             for q in (50, 90, 99, 99.9):
-                values[f"readout_delay_p{q:g}_s".replace(".", "_")] = self.delay_percentile(q) / NS_PER_S
+                values[f"readout_delay_p{q:g}_s".replace(".", "_")] = self.delay_percentile(q, cum) / NS_PER_S
             units.update({name: "s" for name in values if name.startswith("readout_delay")})
         if self.image is not None and duration_s > 0:
             sums = self._track_sums()
@@ -262,13 +263,14 @@ class EventMetrics(Block):
                              track_snr="1")
         return Metrics(values, units)
 
-    def delay_percentile(self, q: float) -> float:
-        """The ``q``-th percentile of the readout delay from the histogram [ns] (log-interpolated in its bin)."""
-        total = int(self.delays.sum())
+    def delay_percentile(self, q: float, cum: np.ndarray | None = None) -> float:
+        """The ``q``-th percentile of the readout delay from the histogram [ns] (log-interpolated in its bin);
+        ``cum``: the histogram's cumulative sum, when the caller has it."""
+        cum = np.cumsum(self.delays) if cum is None else cum
+        total = int(cum[-1])
         if total == 0:
             return float("nan")
         rank = q / 100 * total
-        cum = np.cumsum(self.delays)
         b = int(np.searchsorted(cum, rank, side="left"))
         if b == 0:
             return 0.0

@@ -106,29 +106,34 @@ class KnotGrid:
     def values(self, k: np.ndarray) -> tuple[np.ndarray, ...]:
         """The function's values at knot indices ``k`` (any shape of integers)."""
         k = np.asarray(k, dtype=np.int64)
-        # one knot interval (the usual window): its one index without np.unique's sort
-        wanted = k.reshape(-1)[:1] if k.size and k.min() == k.max() else np.unique(k)
-        cache = self._cache       # one grid may serve blocks on several threads: read and fill this dict only
-        found = {int(i): cache.get(int(i)) for i in wanted}
-        missing = [i for i, row in found.items() if row is None]
-        if missing:
-            if len(cache) + len(missing) > self._max_cached:
-                self._cache = cache = {}
-            t = skyfield_time(self.epoch, np.array(missing, dtype=np.int64) * self.step_ns)
-            try:
-                results = self._evaluate(t)
-            except EphemerisRangeError:
-                raise SceneError(f"the scene needs the Sun, the Moon or the Earth's motion from JPL DE421, which "
-                                 f"covers 1899-07-29 to 2053-10-09 UTC; the run asks for {t[0].utc_iso()} to "
-                                 f"{t[-1].utc_iso()}. Move the run's start inside DE421's span") from None
-            for j, index in enumerate(missing):
-                found[index] = cache[index] = tuple(r[j] for r in results)
-        if wanted.size == 1:      # one knot interval (the usual window): its values repeated
-            row, position = found[int(wanted[0])], np.zeros(k.shape, np.intp)
-            return tuple(value[None][position] for value in row)
-        rows = [found[int(i)] for i in wanted]
+        if k.size and k.min() == k.max():         # one knot interval (the usual window): its values repeated
+            (row,) = self._rows([int(k.flat[0])])
+            position = np.zeros(k.shape, np.intp)
+            return tuple(value[None][position] for value in row)       # (a gather keeps each value's layout)
+        wanted = np.unique(k)
+        rows = self._rows(wanted.tolist())
         position = np.searchsorted(wanted, k)
         return tuple(np.stack([row[m] for row in rows])[position] for m in range(len(rows[0])))
+
+    def _rows(self, indices: list[int]) -> list[tuple]:
+        """The values at each knot of ``indices``, evaluated together for the knots not kept yet."""
+        cache = self._cache       # one grid may serve blocks on several threads: read and fill this dict only
+        rows = [cache.get(i) for i in indices]
+        missing = [i for i, row in zip(indices, rows) if row is None]
+        if not missing:
+            return rows
+        if len(cache) + len(missing) > self._max_cached:
+            self._cache = cache = {}
+        t = skyfield_time(self.epoch, np.array(missing, dtype=np.int64) * self.step_ns)
+        try:
+            results = self._evaluate(t)
+        except EphemerisRangeError:
+            raise SceneError(f"the scene needs the Sun, the Moon or the Earth's motion from JPL DE421, which "
+                             f"covers 1899-07-29 to 2053-10-09 UTC; the run asks for {t[0].utc_iso()} to "
+                             f"{t[-1].utc_iso()}. Move the run's start inside DE421's span") from None
+        made = {index: tuple(r[j] for r in results) for j, index in enumerate(missing)}
+        cache.update(made)
+        return [row if row is not None else made[i] for i, row in zip(indices, rows)]
 
 
 class Track:

@@ -180,7 +180,7 @@ class StarField(Block):
             on_detector = (x >= -0.5 - margin) & (x < focal_plane.width_px - 0.5 + margin)
             on_detector &= y >= -0.5 - margin
             on_detector &= y < focal_plane.height_px - 0.5 + margin
-        for k0 in np.unique(k):
+        for k0 in _distinct(k):
             # above the horizon (or clear of the Earth) at both knots around these samples
             visible = (self._knot_photometry(int(k0))[0] > 0) & (self._knot_photometry(int(k0) + 1)[0] > 0)
             on_detector[k == k0] &= visible
@@ -204,10 +204,14 @@ class StarField(Block):
 
     def _between_knots(self, k, w, knot_values, member: int) -> np.ndarray:
         """``[n_t, n_stars]`` linear interpolation between knots of a per-star quantity."""
+        knots = _distinct(k)
+        if len(knots) == 1:         # one knot interval (the usual window): every row
+            v0, v1 = knot_values(knots[0])[member], knot_values(knots[0] + 1)[member]
+            return v0 + w[:, None] * (v1 - v0)
         out = np.empty((len(k), len(self._stars)))
-        for k0 in np.unique(k):
+        for k0 in knots:
             rows = np.flatnonzero(k == k0)
-            v0, v1 = knot_values(int(k0))[member], knot_values(int(k0) + 1)[member]
+            v0, v1 = knot_values(k0)[member], knot_values(k0 + 1)[member]
             out[rows] = v0 + w[rows, None] * (v1 - v0)
         return out
 
@@ -267,7 +271,7 @@ class StarField(Block):
         half_w, half_h = projection.half_extent_rad(fp)
         margin = (self.params.margin_px + 1.0) * fp.pixel_scale_rad
         turning_rate = self._pointing.moving_rate_bound_rad_s()
-        for k0 in np.unique(k):
+        for k0 in _distinct(k):
             in_interval = np.flatnonzero(k == k0)
             s0 = self._places.values(np.array([k0]))[0][0]
             ds = self._places.values(np.array([k0 + 1]))[0][0] - s0
@@ -292,6 +296,14 @@ class StarField(Block):
         """Tangent-plane coordinates of places ``s0 + w ds`` in frames ``axes`` ``[3, m, 3]``."""
         dots = axes @ s0.T + w[:, None] * (axes @ ds.T)
         return projection.tangent_plane(dots[0], dots[1], dots[2])
+
+
+def _distinct(k: np.ndarray) -> list[int]:
+    """The distinct knot indices in ``k``, ascending (one, without a sort, where all are the same: the usual
+    window)."""
+    if k.size and k.min() == k.max():
+        return [int(k.flat[0])]
+    return [int(k0) for k0 in np.unique(k)]
 
 
 def _catalog_of(drawn: dict) -> StarCatalog:

@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 
 from evsda.blocks.ports import Events, FocalPlane, TriggeredEvents
 from evsda.blocks.readout import ColumnBurstArbiter, IdealReadout, RowScanArbiter
+from evsda.blocks.readout.clock import ceil_tick, tick_ns
 from evsda.blocks.readout.output_fifo import NEVER, run_fifo
-from evsda.graph import ParameterError, RunInfo, Window
+from evsda.graph import NS_PER_S, ParameterError, RunInfo, Window
 
 
 def triggered(fp, t, x, y, p=None, cause=None):
@@ -188,6 +189,20 @@ def test_row_scan_matches_tick_by_tick_reference(seed, depth, row_cycles, bus_cy
     got = sorted(zip(cat["t_trigger_ns"].tolist(), cat["x"].tolist(), cat["y"].tolist(), cat["t_readout_ns"].tolist()))
     want = sorted((int(t[i]), int(x[i]), int(y[i]), ref[i]) for i in order if i in ref)
     assert got == want
+
+
+# -- the clock's conversions against Python's integers -------------------------------------------------
+@settings(max_examples=60, deadline=None)
+@given(start=st.integers(-3 * 10**9, 10**12), span=st.sampled_from([0, 1, 10**8, 10**9, 3 * 10**9]),
+       n=st.integers(1, 50), clock=st.sampled_from([1_066_000_000, 100_000_000, 999_999_937, 5_000_000_000]),
+       seed=st.integers(0, 1000))
+def test_clock_conversions_match_python_integers(start, span, n, clock, seed):
+    """Times within one second (one quotient for all: clock._quotient) and across seconds give the exact ticks."""
+    t = np.sort(start + np.random.default_rng(seed).integers(0, span + 1, n))
+    ticks = ceil_tick(t, clock)
+    assert ticks.tolist() == [-(-v * clock // NS_PER_S) for v in t.tolist()]
+    assert tick_ns(ticks, clock).tolist() == [k * NS_PER_S // clock for k in ticks.tolist()]
+    assert int(ceil_tick(t[0], clock)) == -(-int(t[0]) * clock // NS_PER_S)        # a scalar
 
 
 # -- the FIFO against a plain event-by-event queue ---------------------------------------------------

@@ -1,6 +1,7 @@
 """Star field: apparent places against Skyfield, sidereal drift, star counts, windows and resume."""
 
 from datetime import timedelta
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -193,3 +194,17 @@ def test_the_catalogue_read_column_by_column_is_the_line_by_line_reading(tmp_pat
     for change in (b"|\t6.53|", b"| 6|53|", b"| 6.5x|"):   # a control character, a separator more, no number
         variant = text.replace(b"| 6.53|", change, 1)
         assert len(variant) == len(text) and catalog._fixed_layout(variant) is None, change
+
+
+def test_a_window_in_one_knot_interval_interpolates_as_one_across_two():
+    """The photometry between knots: a window inside one knot interval (its rows at once) gives each sample the
+    bytes the general loop (one knot interval after the other) gives it."""
+    rng = np.random.default_rng(3)
+    knots = {k: (None, rng.uniform(1e3, 1e6, 7), rng.uniform(2, 12, 7)) for k in (4, 5, 6)}
+    field = SimpleNamespace(_stars=np.zeros(7))
+    k_one, w_one = np.full(40, 5), rng.uniform(0, 1, 40)
+    k_two, w_two = np.append(k_one, 4), np.append(w_one, 0.5)          # the same samples and one before them
+    for member in (1, 2):
+        one = StarField._between_knots(field, k_one, w_one, knots.__getitem__, member)
+        two = StarField._between_knots(field, k_two, w_two, knots.__getitem__, member)
+        assert one.tobytes() == two[:40].tobytes()
