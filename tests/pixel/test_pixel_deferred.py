@@ -187,3 +187,29 @@ def test_wake_codes_saturate_and_sixteen_compare_as_one_at_a_time():
         bits = masks(wake, limit)
         expected = (awake.reshape(-1, 16) * (1 << np.arange(16))).sum(axis=1).astype(np.uint64)
         np.testing.assert_array_equal(bits, expected)
+
+
+def test_state_tables_start_on_a_cache_line_and_a_restored_state_steps_alike(monkeypatch):
+    # eventdriven._line_aligned: the tables start on a cache line; a state whose tables do not (a restored one) is
+    # copied to tables that do when an engine takes it, and steps to the same events
+    monkeypatch.setenv("EVSDA_THREADS", "1")
+    blocks = [DvsPixel(seed=11, **NOISY) for _ in range(2)]
+    windows = [Window.from_seconds(i * 0.03, (i + 1) * 0.03, index=i) for i in range(6)]
+    for block in blocks:
+        block.setup(RunInfo(duration_ns=round(0.18 * 1e9)))
+        for window in windows[:3]:
+            block.step(window, irradiance=irradiance(window))
+    assert all(block.pixels[key].ctypes.data % 64 == 0 for block in blocks for key in ("real", "count"))
+    for key in ("real", "count"):                                 # 8 bytes past a line, as a restored state may be
+        table = blocks[1].pixels[key]
+        raw = np.empty(table.nbytes + 72, np.uint8)
+        start = -raw.ctypes.data % 64 + 8
+        moved = raw[start:start + table.nbytes].view(table.dtype).reshape(table.shape)
+        moved[...] = table
+        blocks[1].pixels[key] = moved
+    blocks[1].set_state(blocks[1].get_state())
+    for window in windows[3:]:
+        first, second = (block.step(window, irradiance=irradiance(window))["events"] for block in blocks)
+        for name in ("t_ns", "x", "y", "p", "cause"):
+            np.testing.assert_array_equal(getattr(first, name), getattr(second, name))
+    assert all(blocks[1].pixels[key].ctypes.data % 64 == 0 for key in ("real", "count"))
