@@ -64,7 +64,7 @@ seen, method, update, modes, calls = pickle.load(open(sys.argv[1], "rb"))
 class Imager:                                      # what the screens read of the pass's imager
     def __init__(self, seen):
         self.__dict__.update(seen)
-        self.flows = {}
+        self.flows, self.follow_sight_rate = {}, False
     def source_seed(self, key, window):
         return self.seeds[key]
     def source_flow(self, source, t_s, sight):     # the imager's own (equivalent layers' winds; None without them)

@@ -27,9 +27,11 @@ it for every ``s'``). So each source gets its own winds (:func:`footprint_winds`
 screens, :mod:`.pupil_path`): for the source's ``s'``, group ``g``'s footprint moves at ``u_g`` with
 ``J_g |u_g|^(5/3) = sum_i J_i |u_i|^(5/3)`` over its members, in the direction of ``sum_i J_i |u_i|^(5/3)
 u_i / |u_i|``, i.e. at the wind ``w_g = h_g s' - u_g``: **every source's ``D(tau)`` and ``tau0`` are kept
-exactly** (at ``s' = 0`` the group wind above). Not kept: other altitude moments (the scintillation's
-``sum J h^(5/6)`` and ``sum J h^2``, Roddier 1981), the outer scale's cut at long lags, and aperture-filtered
-statistics such as the image motion's temporal spectrum (these weigh the layers' speeds by other powers).
+exactly** (at ``s' = 0`` the group wind above), at the ``s'`` of its first two render times, or with the
+optics' ``follow_sight_rate`` at each render time's (:func:`follow_drift`: a long pass's ``s'`` changes). Not
+kept: other altitude moments (the scintillation's ``sum J h^(5/6)`` and ``sum J h^2``, Roddier 1981), the outer
+scale's cut at long lags, and aperture-filtered statistics such as the image motion's temporal spectrum (these weigh
+the layers' speeds by other powers).
 docs/optics.md, "Equivalent layers", gives this profile's figures.
 
 How many: ``equivalent_layers: auto`` (:func:`auto_layers`) takes the fewest groups, at least
@@ -48,8 +50,10 @@ group's: the cost adds over groups, so dynamic programming over the split points
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
+import numba
 import numpy as np
 
 from .atmosphere import Atmosphere, Layer
@@ -61,6 +65,8 @@ AUTO_TOLERANCE = 0.1
 #: and takes at least this many groups [1]: 3 kept the tracked pass within the every-layer noise floor on five
 #: profiles; mauna_kea in 2 (within the tolerance) scattered its stars' counts past it (docs/speed.md)
 AUTO_FEWEST = 3
+
+jit = numba.njit(cache=True, error_model="numpy", nogil=True)
 
 
 def moment(weights: np.ndarray, values: np.ndarray) -> float:
@@ -104,6 +110,71 @@ def footprint_winds(atmosphere: Atmosphere, sight_rate) -> np.ndarray:
         footprint = moment(cn2, speed) * toward / norm if norm > 0 else np.zeros(2)
         winds[g] = layer.altitude_m * rate - footprint
     return winds
+
+
+def member_columns(atmosphere: Atmosphere) -> tuple[np.ndarray, ...]:
+    """An equivalent ``atmosphere``'s groups and members as :func:`follow_drift` reads them: each group's altitude
+    (G,) [m], where its members start and end in the members' columns (G + 1,) and the members' altitudes (M,) [m],
+    ``J`` (M,) [m^(1/3)] and winds (M, 2) [m/s]."""
+    members = [member for group in atmosphere.members for member in group]
+    return (np.array([layer.altitude_m for layer in atmosphere.layers]),
+            np.cumsum([0, *(len(group) for group in atmosphere.members)]).astype(np.int64),
+            np.array([member.altitude_m for member in members]), np.array([member.cn2_dh for member in members]),
+            np.ascontiguousarray([member.wind_m_s for member in members], dtype=float).reshape(len(members), 2))
+
+
+@jit
+def follow_drift(group_altitude, first, altitude, cn2, wind, t_s, sight, last_t, last_sight, drift, winds, out):
+    """Each group's footprint drift (G, F, 2) [m] into ``out`` for a source followed at its line of sight's rate
+    (``follow_sight_rate``): its footprint sits at ``h_g sight - drift_g``, and from one render time to the next
+    the drift grows by ``w_g dt``, ``w_g`` :func:`footprint_winds`' winds for the secant rate
+    ``s' = (sight_k - sight_(k-1)) / dt`` (0 where not finite), so that each step moves the footprint by
+    ``u_g dt`` with ``J_g |u_g|^(5/3) = sum_i J_i |h_i s' - v_i|^(5/3)`` (module docstring; Fried 1966; Roddier
+    1981) at every render time, not only at the first two.
+
+    ``group_altitude``, ``first``, ``altitude``, ``cn2``, ``wind``: :func:`member_columns`; ``t_s`` (F,) [s] and
+    ``sight`` (F, 2) [1] these render times' lines of sight; ``last_t`` [s], ``last_sight`` (2,), ``drift`` (G, 2)
+    and ``winds`` (G, 2) the source's state at its last render time, advanced in place (a frame at or before it
+    is extrapolated with its winds and advances nothing). Frame by frame in order, so the same numbers however the
+    render times are cut into calls. Returns the last render time and the frames that advanced it."""
+    advanced = 0
+    for f in range(t_s.shape[0]):
+        dt = t_s[f] - last_t
+        if dt > 0:
+            rx, ry = (sight[f, 0] - last_sight[0]) / dt, (sight[f, 1] - last_sight[1]) / dt
+            rx, ry = rx if math.isfinite(rx) else 0.0, ry if math.isfinite(ry) else 0.0
+            for g in range(group_altitude.shape[0]):
+                total, weights, moment, pull_x, pull_y, strongest = 0.0, 0.0, 0.0, 0.0, 0.0, first[g]
+                for m in range(first[g], first[g + 1]):
+                    total += cn2[m]
+                    if cn2[m] > cn2[strongest]:
+                        strongest = m
+                unweighted = not total > 0
+                for m in range(first[g], first[g + 1]):
+                    ux, uy = altitude[m] * rx - wind[m, 0], altitude[m] * ry - wind[m, 1]
+                    speed = math.hypot(ux, uy)
+                    two_thirds = speed ** (2 / 3)                   # and |u|^(5/3) = |u| |u|^(2/3): one power
+                    weight = 1.0 if unweighted else cn2[m]
+                    weights += weight
+                    moment += weight * (speed * two_thirds)
+                    pull_x += cn2[m] * two_thirds * ux
+                    pull_y += cn2[m] * two_thirds * uy
+                if pull_x == 0.0 and pull_y == 0.0:
+                    pull_x = altitude[strongest] * rx - wind[strongest, 0]
+                    pull_y = altitude[strongest] * ry - wind[strongest, 1]
+                norm = math.hypot(pull_x, pull_y)
+                speed = (moment / weights) ** (3 / 5)
+                fx, fy = (speed * pull_x / norm, speed * pull_y / norm) if norm > 0 else (0.0, 0.0)
+                winds[g, 0], winds[g, 1] = group_altitude[g] * rx - fx, group_altitude[g] * ry - fy
+                drift[g, 0] += winds[g, 0] * dt
+                drift[g, 1] += winds[g, 1] * dt
+                out[g, f, 0], out[g, f, 1] = drift[g, 0], drift[g, 1]
+            last_t, last_sight[0], last_sight[1] = t_s[f], sight[f, 0], sight[f, 1]
+            advanced += 1
+        else:
+            for g in range(group_altitude.shape[0]):
+                out[g, f, 0], out[g, f, 1] = drift[g, 0] + winds[g, 0] * dt, drift[g, 1] + winds[g, 1] * dt
+    return last_t, advanced
 
 
 def group_cost(altitude: np.ndarray, cn2: np.ndarray) -> float:

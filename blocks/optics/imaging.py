@@ -26,7 +26,8 @@ footprint across each layer at ``L omega`` (77 m/s at ``L`` = 4.4 km for 1 deg/s
 footprints, fixed in azimuth and elevation but for the sidereal rate, move with the wind
 only. Each source sees its own screens: sources a few arcseconds apart are already beyond
 the isoplanatic angle (``theta0 ~ 7 urad`` for HV5/7). On equivalent layers each source's footprints also move at
-its own winds, which keep its footprints' speed moment (:meth:`Imager.source_flow`, :mod:`.equivalent_layers`).
+its own winds, which keep its footprints' speed moment (:meth:`Imager.source_flow`, :mod:`.equivalent_layers`), fixed at
+its first two render times or, with ``follow_sight_rate``, those of its line of sight's rate at each render time.
 
 The pieces, one module each: the sampling (:mod:`.sizing`), the path choice and its error
 estimates (:mod:`.paths`), and the paths, ``airy`` and ``long_exposure``
@@ -48,7 +49,7 @@ from evsda.blocks.ports import FocalPlane
 
 from .analytic_path import AnalyticPath
 from .atmosphere import Atmosphere
-from .equivalent_layers import footprint_winds
+from .equivalent_layers import follow_drift, footprint_winds, member_columns
 from .paths import ANALYTIC_PATHS, PATHS, PathChooser
 from .pupil_path import PupilPath, layer_columns
 from .reference_path import ReferencePath
@@ -152,6 +153,12 @@ class Imager:
         #: on equivalent layers, each source's own frozen flow (:meth:`source_flow`): its first render time [s], its
         #: line of sight then (2,) [1] and, from its second render time on, its winds (L, 2) [m/s]
         self.flows: dict[str, tuple[float, np.ndarray, np.ndarray | None]] = {}
+        #: with ``follow_sight_rate`` (:meth:`source_flow`) instead: each source's last render time [s], its line of
+        #: sight then (2,) [1], its footprints' drift (L, 2) [m] and, from its second render time on, its winds then
+        #: (L, 2) [m/s]
+        self.follow_sight_rate = bool(params.follow_sight_rate)
+        self.drifts: dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray | None]] = {}
+        self._members: tuple | None = None              # member_columns of the atmosphere, made at first use
         #: :meth:`hold_of` of each source with its own winds, and the geometry and winds it was worked out for
         self._holds: dict[str, tuple[PupilGeometry, np.ndarray, int]] = {}
 
@@ -238,6 +245,7 @@ class Imager:
             held = [store.pop(source, None) for store in self._screen_stores()]
             self.last_seen_ns.pop(source, None)
             self.flows.pop(source, None)
+            self.drifts.pop(source, None)
             self._holds.pop(source, None)
             if any(h is not None for h in held):
                 self.generations[source] = self.generations.get(source, 0) + 1
@@ -263,24 +271,33 @@ class Imager:
             self._hold = (self.geometry, hold)
         return hold
 
+    def own_winds(self, source: str) -> np.ndarray | None:
+        """A source's own winds (L, 2) [m/s] (:meth:`source_flow`): fixed at its first two render times, or with
+        ``follow_sight_rate`` those of its last render time; None before its second render time or without them."""
+        drifting = self.drifts.get(source)
+        if drifting is not None:
+            return drifting[3]
+        flow = self.flows.get(source)
+        return None if flow is None else flow[2]
+
     def hold_of(self, source: str) -> int:
-        """:attr:`hold_ns` for one source: with its own winds (:meth:`source_flow`), the screens' window over their
+        """:attr:`hold_ns` for one source: with its own winds (:meth:`own_winds`), the screens' window over their
         speeds, ``min over layers of n delta / |w|``, at most ``MAX_HOLD_S``; worked out once for its geometry and
         winds (every window asks it of every held source)."""
-        flow = self.flows.get(source)
-        if flow is None or flow[2] is None or self.geometry is None:
+        winds = self.own_winds(source)
+        if winds is None or self.geometry is None:
             return self.hold_ns
         kept = self._holds.get(source)
-        if kept is not None and kept[0] is self.geometry and kept[1] is flow[2]:
+        if kept is not None and kept[0] is self.geometry and kept[1] is winds:
             return kept[2]
         limit = MAX_HOLD_S
-        for layer, wind, n, delta in zip(self.atmosphere.layers, flow[2], self.geometry.layer_n,
+        for layer, wind, n, delta in zip(self.atmosphere.layers, winds, self.geometry.layer_n,
                                          self.geometry.layer_delta_m):
             speed = float(np.hypot(wind[0], wind[1]))
             if layer.cn2_dh > 0 and speed > 0:
                 limit = min(limit, n * delta / speed)
         hold = int(round(limit * 1e9))
-        self._holds[source] = (self.geometry, flow[2], hold)
+        self._holds[source] = (self.geometry, winds, hold)
         return hold
 
     def keeps(self, source: str, t_ns: int) -> bool:
@@ -386,9 +403,11 @@ class Imager:
         scale = np.where(finite, 1.0 - slant / np.where(finite, range_m, 1.0), 1.0)
         return centre, scale
 
-    def source_flow(self, source: str, t_s: np.ndarray, sight: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def source_flow(self, source: str, t_s: np.ndarray,
+                    sight: np.ndarray) -> tuple[np.ndarray, np.ndarray | None] | None:
         """A source's own winds (L, 2) [m/s] and the times (F,) [s] they carry its footprints over, on equivalent
-        layers (:attr:`.Atmosphere.members`; None on a profile's own layers, whose winds serve every source).
+        layers (:attr:`.Atmosphere.members`; None on a profile's own layers, whose winds serve every source); with
+        ``follow_sight_rate``, its footprints' drifts (L, F, 2) [m] and None (:meth:`source_drift`).
 
         Its footprints sit at ``h sight - w (t - t0)``: ``w`` from :func:`.footprint_winds` for the rate ``s'`` of its
         line of sight between its first render time ``t0`` and its second (``sight`` (F, 2) at ``t_s`` (F,), these
@@ -397,6 +416,8 @@ class Imager:
         until they are known). Kept with the screens (:meth:`forget`)."""
         if self.atmosphere is None or self.atmosphere.members is None:
             return None
+        if self.follow_sight_rate:
+            return self.source_drift(source, t_s, sight), None
         flow = self.flows.get(source)
         if flow is None:
             flow = self.flows[source] = (float(t_s[0]), np.array(sight[0], dtype=float), None)
@@ -411,6 +432,32 @@ class Imager:
         if winds is None:
             winds = np.zeros((len(self.atmosphere.layers), 2))
         return winds, np.asarray(t_s, dtype=float) - start
+
+    def source_drift(self, source: str, t_s: np.ndarray, sight: np.ndarray) -> np.ndarray:
+        """With ``follow_sight_rate``: a source's footprints' drifts (L, F, 2) [m] at render times ``t_s`` (F,) [s]
+        along ``sight`` (F, 2): its footprints sit at ``h sight - drift``, the drift zero at its first render time
+        and growing by ``w(s') dt`` from each render time to the next, ``w(s')`` :func:`.footprint_winds`' for the
+        line of sight's rate ``s'`` between them (:func:`.follow_drift`), so that its footprints' ``sum J
+        |u|^(5/3)`` is the full profile's at every render time (fixed winds keep it at the first ``s'`` only:
+        ~1 % off over a 3-minute tracked pass, docs/optics.md). Advanced render time by render time and kept with
+        the screens (:meth:`forget`, checkpoints), so the same however the run is cut into windows."""
+        if self._members is None:
+            self._members = member_columns(self.atmosphere)
+        t_s = np.ascontiguousarray(t_s, dtype=float)
+        sight = np.ascontiguousarray(sight, dtype=float)
+        held = self.drifts.get(source)
+        count = len(self.atmosphere.layers)
+        if not len(t_s):
+            return np.empty((count, 0, 2))
+        if held is None:
+            held = (float(t_s[0]), sight[0].copy(), np.zeros((count, 2)), None)
+        last_t, last_sight, drift, winds = held
+        last_sight, drift = last_sight.copy(), drift.copy()           # a checkpoint taken before keeps its numbers
+        now = np.zeros((count, 2)) if winds is None else winds.copy()
+        out = np.empty((count, len(t_s), 2))
+        last_t, advanced = follow_drift(*self._members, t_s, sight, last_t, last_sight, drift, now, out)
+        self.drifts[source] = (float(last_t), last_sight, drift, now if winds is not None or advanced else None)
+        return out
 
     # -- rendering --------------------------------------------------------------------------------
     def _paths(self, source: str, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None,
@@ -520,6 +567,10 @@ class Imager:
             "last_seen_ns": dict(self.last_seen_ns),
             **({"flows": {source: [start, first_sight.tolist(), None if winds is None else winds.tolist()]
                           for source, (start, first_sight, winds) in self.flows.items()}} if self.flows else {}),
+            **({"drifts": {source: [last_t, last_sight.tolist(), drift.tolist(),
+                                    None if winds is None else winds.tolist()]
+                           for source, (last_t, last_sight, drift, winds) in self.drifts.items()}}
+               if self.drifts else {}),
         }
 
     def set_state(self, state: dict) -> None:
@@ -536,6 +587,9 @@ class Imager:
         self.flows = {str(k): (float(start), np.array(first_sight, dtype=float),
                                None if winds is None else np.array(winds, dtype=float))
                       for k, (start, first_sight, winds) in (state.get("flows") or {}).items()}
+        self.drifts = {str(k): (float(last_t), np.array(last_sight, dtype=float), np.array(drift, dtype=float),
+                                None if winds is None else np.array(winds, dtype=float))
+                       for k, (last_t, last_sight, drift, winds) in (state.get("drifts") or {}).items()}
         self.pupil.modal_screens = {}
         self.pupil.set_state(state.get("screens") or {})
         self.reference.set_state(state.get("reference_screens") or {})

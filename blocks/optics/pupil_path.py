@@ -18,7 +18,7 @@ import numpy as np
 from .layer_screen import LayerScreen, accumulate_layers
 from .modal_screen import ModalScreen, pupil_modes
 from .render import _stamp_frames
-from .screen_kernels import layer_grids, walk_segments
+from .screen_kernels import layer_grids, layer_grids_drifting, walk_segments
 
 if TYPE_CHECKING:
     from .imaging import Imager
@@ -124,6 +124,10 @@ class PupilPath:
             screens += [every[i] for i in chosen]
             part = slice(k * layers, (k + 1) * layers)
             flow = self.imager.source_flow(source, t_s, sight[k])      # equivalent layers: the source's own winds
+            if flow is not None and flow[1] is None:                    # follow_sight_rate: its footprints' drifts
+                layer_grids_drifting(altitude, np.ascontiguousarray(flow[0][chosen]), cn2, spacing, sight[k],
+                                     cosine[k], range_m[k], turbulent[k], xp, k2, rows[part], cols[part], weight[part])
+                continue
             winds, times = (wind, t_s) if flow is None else (np.ascontiguousarray(flow[0][chosen]), flow[1])
             layer_grids(altitude, winds, cn2, spacing, times, sight[k], cosine[k], range_m[k], turbulent[k], xp, k2,
                         rows[part], cols[part], weight[part])

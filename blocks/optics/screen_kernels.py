@@ -888,3 +888,22 @@ def layer_grids(altitude, wind, cn2_dh, delta, t_s, sight, cos_zenith, range_m, 
                 rows[layer, f, i] = (cy + s * xp[i]) / d
                 cols[layer, f, i] = (cx + s * xp[i]) / d
             weight[layer, f] = math.sqrt(0.423 * k2 / cos_zenith[f] * j) if turbulent[f] else 0.0
+
+
+@jit
+def layer_grids_drifting(altitude, drift, cn2_dh, delta, sight, cos_zenith, range_m, turbulent, xp, k2, rows, cols,
+                         weight):
+    """:func:`layer_grids` for footprints that drift frame by frame (``follow_sight_rate``,
+    :meth:`.Imager.source_drift`): the footprint's centre ``altitude sight - drift[l, f]`` [m] (``drift`` (L, F, 2))
+    instead of ``altitude sight - wind t``; the rest the same arithmetic."""
+    for layer in range(altitude.shape[0]):
+        h, d, j = altitude[layer], delta[layer], cn2_dh[layer]
+        for f in range(sight.shape[0]):
+            r = range_m[f]
+            s = 1.0 - h / cos_zenith[f] / r if math.isfinite(r) else 1.0
+            cx = h * sight[f, 0] - drift[layer, f, 0]
+            cy = h * sight[f, 1] - drift[layer, f, 1]
+            for i in range(xp.shape[0]):
+                rows[layer, f, i] = (cy + s * xp[i]) / d
+                cols[layer, f, i] = (cx + s * xp[i]) / d
+            weight[layer, f] = math.sqrt(0.423 * k2 / cos_zenith[f] * j) if turbulent[f] else 0.0

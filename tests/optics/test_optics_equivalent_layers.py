@@ -243,7 +243,7 @@ def test_an_imager_on_equivalent_layers_carries_each_source_at_its_own_winds():
     full = median_seeing()
     fewer = equivalent_layers(full, 3)
     imager = Imager.__new__(Imager)
-    imager.atmosphere, imager.flows = fewer, {}
+    imager.atmosphere, imager.flows, imager.follow_sight_rate, imager.drifts = fewer, {}, False, {}
     t = np.array([0.25, 0.251, 0.252, 0.26])
     start = np.array([3e-4, -2e-4])
     for source, rate in (("25544", PASS_SIGHT_RATE), ("star", np.zeros(2))):
@@ -266,6 +266,82 @@ def test_an_imager_on_equivalent_layers_carries_each_source_at_its_own_winds():
     assert imager.source_flow("25544", t[1:2], start[None])[1].tolist() == [0.0]
     imager.atmosphere = full
     assert imager.source_flow("star", t, np.zeros((4, 2))) is None
+
+
+def long_pass_sight(t: np.ndarray) -> np.ndarray:
+    """A line of sight (F, 2) [1] whose rate turns through 90 deg and grows tenfold over ``t`` [s], 0.003 -> 0.03 1/s
+    (a tracked LEO pass's |s'| changes 2.2-fold between 10 deg elevation and culmination at 41 deg on the ISS's pass
+    of benchmarks/equivalent_layers_long_pass.yaml, more on a higher pass)."""
+    phase = (t - t[0]) / (t[-1] - t[0])
+    speed, turn = 0.003 + 0.027 * phase**2, np.pi / 2 * phase
+    rate = speed[:, None] * np.stack([np.cos(turn), -np.sin(turn)], axis=1)
+    return np.array([0.01, 0.002]) + np.concatenate([np.zeros((1, 2)), np.cumsum(rate[1:] * np.diff(t)[:, None],
+                                                                                 axis=0)])
+
+
+def follower(atmosphere: Atmosphere):
+    from evsda.blocks.optics.imaging import Imager
+    imager = Imager.__new__(Imager)
+    imager.atmosphere, imager.flows, imager.drifts, imager._members = atmosphere, {}, {}, None
+    imager.follow_sight_rate = True
+    return imager
+
+
+@pytest.mark.parametrize("profile", [MEDIAN, "library:atmospheres/las_campanas.csv"])
+@pytest.mark.parametrize("n_layers", [3, 4])
+def test_following_the_sight_rate_keeps_the_moment_at_every_render_time_of_a_long_pass(profile, n_layers):
+    # follow_sight_rate: at every render time of a 3-minute pass whose s' changes tenfold, the source's winds give its
+    # footprints sum J |h s' - w|^(5/3) of the full profile to 1e-12 at the secant rate since the render time before,
+    # and its drifts grow by w dt; fixed winds drift away from it (~1 % over the ISS's pass, docs/optics.md)
+    full = Atmosphere.from_table(resolve(profile))
+    fewer = equivalent_layers(full, n_layers)
+    cn2, altitude, _ = columns(fewer)
+    t = np.arange(0.0, 180.0, 0.01) + 12.5
+    sight = long_pass_sight(t)
+    imager = follower(fewer)
+    drift = imager.source_flow("25544", t[:1], sight[:1])[0]
+    assert imager.own_winds("25544") is None and not drift.any()
+    worst, before = 0.0, drift[:, 0]
+    for k in range(1, len(t)):
+        drift, times = imager.source_flow("25544", t[k:k + 1], sight[k:k + 1])
+        winds, rate = imager.own_winds("25544"), (sight[k] - sight[k - 1]) / (t[k] - t[k - 1])
+        assert times is None
+        worst = max(worst, abs(footprint_moment(cn2, altitude, winds, rate) / footprint_moment(*columns(full), rate)
+                               - 1))
+        np.testing.assert_allclose(drift[:, 0], before + winds * (t[k] - t[k - 1]), rtol=0, atol=1e-9)
+        before = drift[:, 0]
+    assert worst < 1e-12
+    # the winds fixed at the first two render times drift away from it
+    fixed = footprint_winds(fewer, (sight[1] - sight[0]) / (t[1] - t[0]))
+    rates = np.diff(sight, axis=0) / np.diff(t)[:, None]
+    assert max(abs(footprint_moment(cn2, altitude, fixed, rate) / footprint_moment(*columns(full), rate) - 1)
+               for rate in rates[::100]) > 1e-3
+
+
+def test_following_the_sight_rate_gives_the_same_drifts_however_the_render_times_are_cut():
+    # the drift is advanced render time by render time: one call, windows of every length and a checkpoint between
+    # give the same bytes; a render time at or before the last one is extrapolated with its winds, advancing nothing
+    import copy
+    fewer = equivalent_layers(median_seeing(), 3)
+    t = np.arange(0.0, 20.0, 0.004)
+    sight = long_pass_sight(t)
+    whole = follower(fewer).source_flow("25544", t, sight)[0]
+    for length in (1, 7, 250, 1001):
+        imager = follower(fewer)
+        cut = [imager.source_flow("25544", t[i:i + length], sight[i:i + length])[0]
+               for i in range(0, len(t), length)]
+        np.testing.assert_array_equal(np.concatenate(cut, axis=1), whole)
+    imager = follower(fewer)
+    first = imager.source_flow("25544", t[:2000], sight[:2000])[0]
+    drifts = copy.deepcopy(imager.drifts)
+    again = imager.source_flow("25544", t[1990:1995], sight[1990:1995])[0]
+    np.testing.assert_allclose(again, first[:, 1999:] + imager.own_winds("25544")[:, None] * (t[1990:1995] - t[1999])
+                               [:, None], rtol=0, atol=1e-9)
+    assert all(np.array_equal(a, b) for a, b in zip(imager.drifts["25544"][1:], drifts["25544"][1:]))
+    resumed = follower(fewer)
+    resumed.drifts = {k: (v[0], *(np.array(a.tolist()) for a in v[1:])) for k, v in drifts.items()}
+    np.testing.assert_array_equal(np.concatenate([first, resumed.source_flow("25544", t[2000:], sight[2000:])[0]],
+                                                 axis=1), whole)
 
 
 @pytest.mark.parametrize("profile, chosen, fewest", [(MEDIAN, 3, 3), ("library:atmospheres/las_campanas.csv", 3, 3),
@@ -301,11 +377,13 @@ def test_the_block_takes_auto():
             PointSourceOptics.Params(**params, equivalent_layers=wrong)
 
 
+@pytest.mark.parametrize("follow", [False, True])
 @pytest.mark.parametrize("threads", ["1", "3"])
-def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path, monkeypatch, threads):
+def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path, monkeypatch, threads, follow):
     # a satellite held on the detector by a mount rising at ~1 deg/s and a star streaking down it
     # (tests/optics/test_optics_mount.py's scene), three windy layers as 2: each source's winds are those of its
-    # line of sight's rate, the same stamps however the run is cut into windows, on 1 or 3 threads and resumed
+    # line of sight's rate (at its first two render times, or at each with follow_sight_rate), the same stamps
+    # however the run is cut into windows, on 1 or 3 threads and resumed
     import copy
 
     from evsda.blocks.ports import PointSources
@@ -316,7 +394,8 @@ def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path,
     (tmp_path / "windy.csv").write_text("altitude_m,cn2_dh_m13,wind_speed_m_s,wind_direction_deg\n"
                                         "200,2e-13,6,0\n1500,5e-14,12,40\n9000,8e-14,30,100\n")
     params = dict(aperture_m=0.25, obscuration=0.2, psf_path="pupil_fft", seed=5, atmosphere="table",
-                  profile_file=str(tmp_path / "windy.csv"), equivalent_layers=2, source_intervals=False)
+                  profile_file=str(tmp_path / "windy.csv"), equivalent_layers=2, source_intervals=False,
+                  follow_sight_rate=follow)
 
     def tracked(window):
         t_ns = window.sample_times_ns(cadence_ns)
@@ -340,10 +419,11 @@ def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path,
     block, whole = run(windows_of(0.02))
     imager = block._imager
     flows = {key.split(":")[-1]: flow for key, flow in imager.flows.items()}
+    assert len(imager.drifts if follow else flows) == 2 and not (imager.flows if follow else imager.drifts)
     # each source's winds are footprint_winds at its line of sight's rate over its first two render times: the
     # satellite's ~sec z omega (sec 45 deg x 12 mrad/s), the star's ~0 (fixed in azimuth and elevation)
     sources = tracked(windows_of(0.02)[0])
-    for column, name in enumerate(("25544", "HIP 1")):
+    for column, name in enumerate(("25544", "HIP 1") if not follow else ()):
         start, first_sight, winds = flows[name]
         sight = imager.sight(sources.x_px[:2, column], sources.y_px[:2, column], sources.zenith_angle_rad[:2],
                              sources.boresight_azimuth_rad[:2], sources.field_rotation_rad[:2])
@@ -354,7 +434,7 @@ def test_each_sources_winds_do_not_depend_on_windows_threads_or_resume(tmp_path,
     windows = windows_of(0.01)
     first, _ = run(windows[:1])
     state = copy.deepcopy(first.get_state())
-    assert len(state["optics_state"]["flows"]) == 2
+    assert len(state["optics_state"]["drifts" if follow else "flows"]) == 2
     resumed = PointSourceOptics(**params)
     resumed.setup(RunInfo(duration_ns=windows[-1].stop_ns))
     resumed.set_state(state)
@@ -371,10 +451,15 @@ def test_a_source_with_its_own_winds_holds_its_screens_for_its_window_over_its_s
     imager = Imager.__new__(Imager)
     imager.atmosphere = equivalent_layers(median_seeing(), 3)
     imager.geometry = SimpleNamespace(layer_n=(64, 80, 96), layer_delta_m=(0.02, 0.03, 0.05))
-    imager._hold, imager.flows, imager._holds = (imager.geometry, 123), {}, {}
+    imager._hold, imager.flows, imager._holds, imager.drifts = (imager.geometry, 123), {}, {}, {}
     assert imager.hold_of("star") == 123
     winds = np.array([[3.0, 4.0], [0.0, -12.0], [0.0, 0.0]])              # 5, 12 and 0 m/s
     imager.flows["25544"] = (0.0, np.zeros(2), winds)
     assert imager.hold_of("25544") == round(min(64 * 0.02 / 5.0, 80 * 0.03 / 12.0, MAX_HOLD_S) * 1e9)
     imager.flows["calm"] = (0.0, np.zeros(2), np.zeros((3, 2)))
     assert imager.hold_of("calm") == round(MAX_HOLD_S * 1e9)
+    # following its line of sight's rate: its winds at its last render time; none yet after its first
+    imager.drifts["followed"] = (0.5, np.zeros(2), np.zeros((3, 2)), winds[::-1].copy())
+    assert imager.hold_of("followed") == round(min(96 * 0.05 / 5.0, 80 * 0.03 / 12.0, MAX_HOLD_S) * 1e9)
+    imager.drifts["new"] = (0.5, np.zeros(2), np.zeros((3, 2)), None)
+    assert imager.hold_of("new") == 123
