@@ -5,7 +5,7 @@ the interpreter lock for most of their steps, and in a pipelined run that Python
 chain's. Their CPU is a few milliseconds a window, too little to resolve in whole runs on a loaded host. This
 benchmark runs the pass once, one step at a time on one thread, keeping every input each small block was given,
 then steps fresh copies of those blocks over the same inputs ``--rounds`` times, in the run's order (the scene
-models the blocks share and the star catalogue built afresh each round, as a run builds them), and prints each block's thread CPU a
+models the blocks share, the star catalogue and the spectra's tables built afresh each round, as a run builds them), and prints each block's thread CPU a
 window (window 0, with its one-time set-up, apart; medians over the rounds).
 
 ``--against DIR`` steps DIR's ``blocks/scene`` and ``blocks/readout`` too (imported here as packages of their own,
@@ -157,6 +157,8 @@ def main() -> None:
     scene = ["evsda.blocks.scene"] + [others["scene"].__name__ for others in trees.values() if others]
     models = [importlib.import_module(f"{package}.pointing") for package in scene]
     catalogues = [importlib.import_module(f"{package}.catalog").load_hipparcos for package in scene]
+    tables = [cached for package in scene for cached in vars(importlib.import_module(f"{package}.spectra")).values()
+              if hasattr(cached, "cache_clear")]       # the spectra's tables (the stars' band factors, ...)
     kinds = args.beside.split(",")
     if not set(kinds) <= set(BESIDE):
         raise SystemExit(f"--beside: of {', '.join(BESIDE)}")
@@ -169,6 +171,8 @@ def main() -> None:
             for module, catalogue in zip(models, catalogues):
                 module._SHARED_MODELS.clear()           # the scene's models, and the star catalogue, read afresh
                 catalogue.cache_clear()
+            for cached in tables:                       # and the spectra's tables made again, as a run makes them
+                cached.cache_clear()
             blocks = {tree: fresh_blocks(args.graph, args.duration, others) for tree, others in trees.items()}
             spent = {tree: {name: [0.0, 0.0] for name in SMALL} for tree in trees}
             load = os.getloadavg()[0]

