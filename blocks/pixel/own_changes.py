@@ -29,9 +29,9 @@ def own_changes(held, background, row_of, sample, flux, lead):
     for i in range(n):
         start[i + 1] += start[i]
     fill = start[:-1].copy()
-    order = np.empty(m, np.int64)
-    for e in range(m):
-        order[fill[row_of[e]]] = e
+    samples, fluxes = np.empty_like(sample), np.empty_like(flux)     # the entries' samples and fluxes in that order,
+    for e in range(m):                                               # read in turn below (not gathered through it)
+        samples[fill[row_of[e]]], fluxes[fill[row_of[e]]] = sample[e], flux[e]
         fill[row_of[e]] += 1
     n_background = 0                                 # a pixel's value changes only at sample 0, at a change
     for k in range(1, k_max):                        # of the background, at its entries and after them
@@ -59,9 +59,9 @@ def own_changes(held, background, row_of, sample, flux, lead):
         k, b = 0, 0
         while k < k_max:                             # only the samples where the value can change (above)
             value = background[k]
-            entries = e < e_end and sample[order[e]] == k
-            while e < e_end and sample[order[e]] == k:
-                value = value + flux[order[e]]
+            entries = e < e_end and samples[e] == k
+            while e < e_end and samples[e] == k:
+                value = value + fluxes[e]
                 e += 1
             if value != previous:
                 rows[out], columns[out], values[out] = i, k, value
@@ -69,7 +69,7 @@ def own_changes(held, background, row_of, sample, flux, lead):
             previous = value
             while moves[b] <= k:
                 b += 1
-            following = min(moves[b], sample[order[e]] if e < e_end else k_max)
+            following = min(moves[b], samples[e] if e < e_end else k_max)
             k = k + 1 if entries else following      # elsewhere the value is the background's, unchanged
         off[i] = k_max > 0 and value != background[k_max - 1]
     return rows[:out].copy(), columns[:out].copy(), values[:out].copy(), off
