@@ -8,13 +8,17 @@ as a finished run does. Each replay's CPU is read per thread: the replaying thre
 records each window), Zarr's I/O thread (``zarr_io``: the event loop that runs Zarr's coroutines: metadata, the
 codec pipeline's orchestration), the event loop's workers (``asyncio``: Blosc, CRC-32C, file writes; read from ``/proc`` in clock ticks, the replaying
 thread from its own clock) and the rest
-(the store's flush threads, which end with each flush). Zarr is imported before the replays; ``--import`` times its
+(the store's flush threads, which end with each flush: since the eighteenth session, when the store is written
+without Zarr, they compress and write the chunks). Zarr is imported before the replays; ``--import`` times its
 import in ``--rounds`` fresh processes that first import what a run has imported by then (NumPy, Numba, SciPy,
-pydantic, networkx), the store's first-window cost in a run.
+pydantic, networkx), the store's first-window cost in a run until the eighteenth session; since then a run imports only the codecs
+that :mod:`evsda.graph.store_files` uses (timed beside it).
 
 ``--against DIR`` replays into DIR's ``graph/store.py`` too (imported as a module of this checkout's ``evsda.graph``,
 so the two share the framework's other modules), alternated round by round; the stores' digests (every array and
-the metric and focal-plane attributes, as ``tests/test_examples_identical.py`` hashes them) must agree.
+the metric and focal-plane attributes, as ``tests/test_examples_identical.py`` hashes them) must agree, and so must
+every file of the two stores, byte for byte (the metadata documents included; the store written without Zarr,
+eighteenth session, against one Zarr wrote).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/framework_store.py [--duration 10] [--rounds 5] [--against /work/h-audit]
         [--import]
@@ -48,11 +52,11 @@ RECORDED = ("append_events", "append_truth", "append_product", "set_metrics", "s
 THREADS = ("MainThread", "zarr_io", "asyncio")
 
 IMPORT = r"""
-import time
+import sys, time
 import numpy, numba, scipy.special, pydantic, networkx
-from evsda.graph import store
+from evsda.graph import store, store_files
 t = time.process_time()
-store._zarr()
+store._zarr() if sys.argv[1] == "zarr" else store_files._codecs()
 print(time.process_time() - t)
 """
 
@@ -113,8 +117,9 @@ def thread_cpu() -> Counter:
     return spent
 
 
-def replay(module, created: dict, calls: list, digest: bool = False) -> dict:
-    """One replay into a fresh store of ``module``: process CPU, each thread group's CPU [s], and the digest."""
+def replay(module, created: dict, calls: list, digest: bool = False, files: dict | None = None) -> dict:
+    """One replay into a fresh store of ``module``: process CPU, each thread group's CPU [s], and the digest;
+    each file's bytes into ``files`` (by path in the store) if given."""
     with tempfile.TemporaryDirectory() as folder:
         path = f"{folder}/run.zarr"
         before, process, own = thread_cpu(), time.process_time(), time.thread_time()
@@ -131,12 +136,15 @@ def replay(module, created: dict, calls: list, digest: bool = False) -> dict:
         spent["other"] = spent["process"] - sum(spent[key] for key in THREADS)
         if digest:
             spent["digest"] = store_digest(Path(path))[:8]
+        if files is not None:
+            files.update({str(p.relative_to(path)): p.read_bytes() for p in Path(path).rglob("*") if p.is_file()})
         return spent
 
 
-def import_cpu(rounds: int) -> list[float]:
-    """Zarr's import (the store's codecs made) in fresh processes after a run's other imports [s CPU]."""
-    return [float(subprocess.run([sys.executable, "-c", IMPORT], capture_output=True, text=True,
+def import_cpu(rounds: int, what: str) -> list[float]:
+    """Zarr's import (``what`` "zarr") or the codecs that store_files imports at a store's first chunk ("codecs"),
+    in fresh processes after a run's other imports [s CPU]."""
+    return [float(subprocess.run([sys.executable, "-c", IMPORT, what], capture_output=True, text=True,
                                  check=True).stdout.split()[-1]) for _ in range(rounds)]
 
 
@@ -147,7 +155,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5, help="replays of the captured calls (and fresh imports)")
     parser.add_argument("--against", type=Path, help="another checkout: its graph/store.py replayed alternately")
     parser.add_argument("--import", dest="imports", action="store_true",
-                        help="also time Zarr's import in fresh processes")
+                        help="also time Zarr's import and store_files' codecs' in fresh processes")
     args = parser.parse_args()
     created, calls = captured(args.graph, args.duration)
     counts = Counter(name for name, _, _ in calls)
@@ -156,9 +164,16 @@ def main() -> None:
     if args.against is not None:
         trees[str(args.against)] = other_store(args.against)
     store._zarr()
-    digests = {tree: replay(module, created, calls, digest=True)["digest"] for tree, module in trees.items()}
+    files = {tree: {} for tree in trees}
+    digests = {tree: replay(module, created, calls, digest=True, files=files[tree])["digest"]
+               for tree, module in trees.items()}
     print("store digests: " + ", ".join(f"{tree} {d}" for tree, d in digests.items())
           + ("" if len(set(digests.values())) == 1 else "  DIFFER"))
+    if len(trees) > 1:
+        first, second = files.values()
+        differ = sorted(k for k in first.keys() | second.keys() if first.get(k) != second.get(k))
+        print(f"store files: {len(first)} and {len(second)}, "
+              + ("every file's bytes the same" if not differ else f"{len(differ)} DIFFER: {', '.join(differ[:5])}"))
     spent = {tree: [] for tree in trees}
     for r in range(args.rounds):
         order = list(trees) if r % 2 == 0 else list(trees)[::-1]
@@ -173,9 +188,10 @@ def main() -> None:
         med = {k: statistics.median(s[k] for s in spent[tree]) for k in ("process", *THREADS, "other")}
         print(f"  {tree:28s} {med['process']:8.3f} " + " ".join(f"{med[k]:10.3f}" for k in (*THREADS, "other")))
     if args.imports:
-        seconds = import_cpu(args.rounds)
-        print(f"Zarr's import after a run's other imports: {statistics.median(seconds):.3f} s CPU "
-              f"(median of {args.rounds} fresh processes; {min(seconds):.3f}-{max(seconds):.3f})")
+        for what, label in (("zarr", "Zarr's import"), ("codecs", "store_files' codecs (numcodecs, google-crc32c)")):
+            seconds = import_cpu(args.rounds, what)
+            print(f"{label} after a run's other imports: {statistics.median(seconds):.3f} s CPU "
+                  f"(median of {args.rounds} fresh processes; {min(seconds):.3f}-{max(seconds):.3f})")
 
 
 if __name__ == "__main__":

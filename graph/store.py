@@ -22,8 +22,12 @@ Layout (every array carries Zarr 3 ``dimension_names`` and its units in ``attrs[
                                             last committed one is kept
     .evsda-lock     while a run writes: its pid and host (see :mod:`evsda.graph.lock`)
 
-Crash safety: zarr >= 3.1.3 writes every chunk and metadata document atomically
-(temporary file + rename), but ``append`` resizes an array before its data lands.
+Writing: a run writes its store without Zarr (:mod:`evsda.graph.store_files`: the groups' and appended arrays'
+documents and chunks, every file byte for byte as Zarr 3.1 writes it, so no Zarr import and no Zarr I/O thread in a
+run); Zarr reads the store, truncates it on resume, and writes and drops checkpoints.
+
+Crash safety: every chunk and metadata document is written atomically (temporary file + rename, as
+zarr >= 3.1.3 does too), but an append resizes an array before its data lands.
 So appended arrays are never trusted beyond the lengths recorded in
 ``attrs["committed"]``, which is written last, after the data and the checkpoint of
 a window. On resume every array is truncated back to its committed length and the
@@ -59,6 +63,7 @@ from .errors import StoreError
 from .files import os_reason
 from .lock import LOCK_NAME, describe_holder, read_holder
 from .ports import EVENT_STREAM, PORT_TYPES, PortValue, from_json, jsonable
+from .store_files import ZARR_JSON, ArrayFiles, GroupFiles, writes
 
 if TYPE_CHECKING:
     import zarr
@@ -71,44 +76,26 @@ FLUSH_BYTES = 64 << 20
 #: whole chunks are written once this many bytes of them are pending (the tracked pass's 62 MB of events then
 #: compress while the run goes on, in the cores' idle time, not all in the run's tail)
 WHOLE_CHUNK_BYTES = EVENT_CHUNK_BYTES
-_CODECS = ("COMPRESSOR", "NUMERIC_CODECS", "STRING_CODECS", "CHECKPOINT_CODECS")
 
 
 def _zarr():
-    """Zarr, imported where a store is first opened or made: ~0.15 s of CPU that a command which writes no store
-    (``evsda --version``, ``blocks``, ``schema``) does without, and that a run spends after its first window, beside
-    the optics of the next ones, not before its first step."""
+    """Zarr, imported where a store is first read, resumed or checkpointed: ~0.15 s of CPU that a run which only
+    writes its store (:mod:`evsda.graph.store_files` writes Zarr's files without it) does without."""
     import zarr
 
-    if "COMPRESSOR" not in globals():
-        from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
-
-        #: fast, multithreaded compression: bit-shuffled LZ4 suits sorted timestamps and small integers
-        compressor = BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle")
-        #: codecs of numeric arrays, of string arrays and of checkpoints; the CRC-32C comes last, over the stored
-        #: bytes
-        globals().update(COMPRESSOR=compressor, NUMERIC_CODECS=(compressor, Crc32cCodec()),
-                         STRING_CODECS=(ZstdCodec(level=3), Crc32cCodec()),
-                         CHECKPOINT_CODECS=(BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc32cCodec()))
     return zarr
 
 
-def _codecs(name: str) -> tuple:
-    """One of the codec chains (:data:`_CODECS`), as the module holds it now."""
-    _zarr()
-    return globals()[name]
+def _checkpoint_codecs() -> list:
+    """The checkpoints' codec chain: LZ4 at level 1 without shuffling (the archive's bytes), then the CRC-32C."""
+    from zarr.codecs import BloscCodec, Crc32cCodec
 
-
-def __getattr__(name: str):
-    """The codec chains (``COMPRESSOR``, ``NUMERIC_CODECS``, ``STRING_CODECS``, ``CHECKPOINT_CODECS``), made with
-    Zarr on first use."""
-    if name in _CODECS:
-        return _codecs(name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return [BloscCodec(cname="lz4", clevel=1, shuffle="noshuffle"), Crc32cCodec()]
 
 
 CHECKPOINT_CHUNK_BYTES = 1 << 24   # checkpoint archives are written and read in chunks of this size
-#: every chunk is written, even one of zeros, so that a missing chunk file means damage
+#: every chunk is written, even one of zeros, so that a missing chunk file means damage (store_files writes every
+#: chunk too)
 ARRAY_CONFIG = {"write_empty_chunks": True}
 FORMAT = "evsda-run/1"
 
@@ -145,16 +132,20 @@ class StoreStatus:
 class RunStore:
     """A run store on disk. Create with :meth:`create`, open with :meth:`open`."""
 
-    def __init__(self, group: zarr.Group, path: Path, writable: bool):
-        self.group = group
+    def __init__(self, path: Path, writable: bool, group: zarr.Group | None = None,
+                 groups: GroupFiles | None = None):
         self.path = path
         self.writable = writable
+        #: the groups' attributes, read and written here (Zarr's group is opened only to read arrays)
+        self._groups = groups or GroupFiles(path)
+        self._group = group
+        self._group_version = self._groups.version
         self._lengths: dict[str, int] = dict(self._committed().get("lengths", {}))
         self._written: dict[str, int] = dict(self._lengths)
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
         self._whole_bytes: dict[str, int] = {}      # per array: bytes pending in whole chunks
-        self._arrays: dict[str, zarr.Array] = {}
+        self._arrays: dict[str, ArrayFiles] = {}        # appendable arrays, written by store_files
         self._checked = False       # a read-only store's structure has been checked
         self._truth_sources: dict[tuple[str, str], int] | None = None   # (block, source_id) -> source number
         #: per block: its last window's source ids and their numbers (a block's sources are mostly the same every
@@ -177,12 +168,12 @@ class RunStore:
                                  f"or --resume to continue the run it holds")
             check_replaceable(path)
             _clear(path)
+        groups = GroupFiles(path)
         try:
-            group = _zarr().create_group(str(path), zarr_format=3, attributes={
-                "format": FORMAT, **(attrs or {}), "committed": {"windows": 0, "lengths": {}}})
+            groups.create_root({"format": FORMAT, **(attrs or {}), "committed": {"windows": 0, "lengths": {}}})
         except OSError as exc:
             raise StoreError(f"cannot create run store {path}: {os_reason(exc)}") from None
-        return cls(group, path, writable=True)
+        return cls(path, writable=True, groups=groups)
 
     @classmethod
     def open(cls, path: str | Path, mode: str = "r") -> "RunStore":
@@ -198,21 +189,40 @@ class RunStore:
             raise StoreError(f"cannot open run store {path}: {os_reason(exc)}") from None
         except Exception as exc:  # zarr raises several kinds for a damaged store
             raise StoreError(f"{path} is not a readable evsda run store ({type(exc).__name__})") from None
-        store = cls(group, path, writable=mode != "r")
+        store = cls(path, writable=mode != "r", group=group)
         if store.writable:
             store._truncate_to_commit()
         return store
 
+    @property
+    def group(self) -> zarr.Group:
+        """The store as a Zarr group (opened at first use, and again once this store has written a group's
+        attributes since: a Zarr group keeps the attributes it read)."""
+        if self._group is None or self._group_version != self._groups.version:
+            try:
+                self._group = _zarr().open_group(str(self.path), mode="r+" if self.writable else "r", zarr_format=3)
+            except OSError as exc:
+                raise StoreError(f"cannot open run store {self.path}: {os_reason(exc)}") from None
+            self._group_version = self._groups.version
+        return self._group
+
     # -- attributes ---------------------------------------------------------------------
     @property
     def attrs(self) -> dict[str, Any]:
-        return dict(self.group.attrs)
+        return dict(self._groups.attributes(""))
 
     def set_attrs(self, **values) -> None:
-        self.group.attrs.update(values)
+        self._groups.update("", values)
+
+    def _group_attrs(self, group: str) -> dict[str, Any]:
+        """The attributes of ``group`` ({} when there is no such group)."""
+        try:
+            return self._groups.attributes(group)
+        except KeyError:
+            return {}
 
     def _committed(self) -> dict[str, Any]:
-        return dict(self.group.attrs.get("committed", {"windows": 0, "lengths": {}}))
+        return dict(self._groups.attributes("").get("committed", {"windows": 0, "lengths": {}}))
 
     @property
     def committed_windows(self) -> int:
@@ -224,13 +234,13 @@ class RunStore:
         record = self._committed()
         if "complete" in record:
             return bool(record["complete"])
-        n_windows = self.group.attrs.get("n_windows")       # stores written before the flag existed
+        n_windows = self.attrs.get("n_windows")       # stores written before the flag existed
         return n_windows is None or self.committed_windows >= int(n_windows)
 
     def status(self) -> StoreStatus:
         """Complete or not, resumable or not, who writes it now, and any damage found without reading
         the data (arrays shorter than committed, missing chunks); :meth:`verify` also reads every chunk."""
-        n_windows = self.group.attrs.get("n_windows")
+        n_windows = self.attrs.get("n_windows")
         holder = read_holder(self.path)
         return StoreStatus(self.path, self.committed_windows, None if n_windows is None else int(n_windows),
                            self.complete, bool(self._committed().get("checkpoint")),
@@ -307,18 +317,21 @@ class RunStore:
 
     # -- appendable arrays -----------------------------------------------------------------
     def _array(self, key: str, dtype: np.dtype, chunk: int, trailing: tuple[int, ...] = (),
-               dims: tuple[str, ...] | None = None, attrs: dict[str, Any] | None = None) -> zarr.Array:
+               dims: tuple[str, ...] | None = None, attrs: dict[str, Any] | None = None) -> ArrayFiles:
+        """The appendable array ``key``: the one on disk, or a new one of ``dtype`` in chunks of ``chunk`` rows."""
         array = self._arrays.get(key)
         if array is None:
-            if key in self.group:
-                array = self.group[key].with_config(ARRAY_CONFIG)
+            folder = self.path / key
+            leaf = key.rsplit("/", 1)[-1]
+            dims = dims or (f"{leaf}_index", *(f"{leaf}_axis{i}" for i in range(1, 1 + len(trailing))))
+            if (folder / ZARR_JSON).is_file():
+                array = ArrayFiles.open(folder) if writes(dtype) else _ZarrAppendable(self.group[key])
+            elif writes(dtype):
+                self._groups.require(key.rsplit("/", 1)[0] if "/" in key else "")
+                array = ArrayFiles.create(folder, dtype, (0, *trailing), (chunk, *trailing), list(dims),
+                                          dict(attrs or {}))
             else:
-                codecs = _codecs("NUMERIC_CODECS" if dtype.kind in "biuf" else "STRING_CODECS")
-                leaf = key.rsplit("/", 1)[-1]
-                dims = dims or (f"{leaf}_index", *(f"{leaf}_axis{i}" for i in range(1, 1 + len(trailing))))
-                array = self.group.create_array(key, shape=(0, *trailing), chunks=(chunk, *trailing), dtype=dtype,
-                                                compressors=list(codecs), config=ARRAY_CONFIG,
-                                                dimension_names=list(dims), attributes=dict(attrs or {}))
+                array = _ZarrAppendable.create(self.group, key, dtype, (chunk, *trailing), list(dims), attrs or {})
             self._arrays[key] = array
         return array
 
@@ -347,7 +360,7 @@ class RunStore:
 
         With ``whole_chunks_only`` (appends past :data:`FLUSH_BYTES`) each array writes up to its
         last chunk boundary and keeps the rest queued, so no chunk is compressed twice; the
-        arrays are written concurrently (Zarr's codecs release the GIL).
+        arrays are written concurrently (Blosc and Zstandard release the GIL).
         """
         jobs, remaining = [], {}
         for key, parts in self._pending.items():
@@ -388,12 +401,11 @@ class RunStore:
 
     def _set_attr_once(self, group: str, name: str, make) -> None:
         """Set attribute ``name`` of ``group`` to ``make()`` unless it has one; each (group, name) is looked up on
-        disk once per store object (a Zarr group's attributes cost milliseconds to read, and appends come every window)."""
+        disk once per store object (appends come every window)."""
         if (group, name) in self._attrs_set:
             return
-        attrs = self.group[group].attrs
-        if name not in attrs:
-            attrs[name] = make()
+        if name not in self._group_attrs(group):
+            self._groups.update(group, {name: make()})
         self._attrs_set.add((group, name))
 
     # -- events -----------------------------------------------------------------------------
@@ -445,9 +457,10 @@ class RunStore:
 
     @property
     def focal_plane(self):
-        if "events" not in self.group or "focal_plane" not in self.group["events"].attrs:
+        attrs = self._group_attrs("events")
+        if "focal_plane" not in attrs:
             return None
-        return event_stream_type().geometry_type().from_arrays({}, dict(self.group["events"].attrs["focal_plane"]))
+        return event_stream_type().geometry_type().from_arrays({}, dict(attrs["focal_plane"]))
 
     def iter_events(self, chunk_size: int = EVENT_CHUNK, start: int = 0, stop: int | None = None
                     ) -> Iterator[dict[str, np.ndarray]]:
@@ -500,7 +513,7 @@ class RunStore:
         if not self.has_product(block, port):
             raise StoreError(f"{self.path} holds no products of {block}.{port}")
         self.check_readable()
-        value_type = port_type(self.group[base].attrs["type"])
+        value_type = port_type(self._group_attrs(base)["type"])
         documents = self.group[f"{base}/_attrs"]
         n = min(self._lengths.get(f"{base}/_attrs", 0), documents.shape[0])
         stop = n if stop is None else min(stop, n)
@@ -520,14 +533,12 @@ class RunStore:
         return shapes, offsets
 
     def product_hash(self, block: str) -> str | None:
-        key = f"products/{block}"
-        return self.group[key].attrs.get("upstream_hash") if key in self.group else None
+        return self._group_attrs(f"products/{block}").get("upstream_hash")
 
     def set_product_hash(self, block: str, digest: str) -> None:
         if self.product_hash(block) == digest:
             return
-        group = self.group.require_group(f"products/{block}")
-        group.attrs["upstream_hash"] = digest
+        self._groups.update(f"products/{block}", {"upstream_hash": digest})
 
     # -- ground truth ---------------------------------------------------------------------------
     def append_truth(self, block: str, value: PortValue) -> None:
@@ -622,9 +633,9 @@ class RunStore:
         state = {name: values[keep] for name, values in rows.items()
                  if name not in ("source_id", "kind", "block", "source_index")}
         self._append_truth_table(block, sources, {**state, "source_index": source}, other.truth_attrs())
-        focal_plane = other.group["truth"].attrs.get("focal_plane")
-        if focal_plane is not None and "focal_plane" not in self.group["truth"].attrs:
-            self.group["truth"].attrs["focal_plane"] = focal_plane
+        focal_plane = other._group_attrs("truth").get("focal_plane")
+        if focal_plane is not None and "focal_plane" not in self._group_attrs("truth"):
+            self._groups.update("truth", {"focal_plane": focal_plane})
 
     # -- metrics ------------------------------------------------------------------------------
     def set_metrics(self, values: dict[str, Any], units: dict[str, str]) -> None:
@@ -643,10 +654,10 @@ class RunStore:
         if not earlier and not values and not units:
             return
         self._pending_metrics = ({}, {}, {})
-        group = self.group.require_group("metrics")
-        merged_values = {**group.attrs.get("values", {}), **earlier, **values}
-        merged_units = {**group.attrs.get("units", {}), **units}
-        group.attrs.update({"values": jsonable(merged_values), "units": merged_units})
+        stored = self._group_attrs("metrics")
+        merged_values = {**stored.get("values", {}), **earlier, **values}
+        merged_units = {**stored.get("units", {}), **units}
+        self._groups.update("metrics", {"values": jsonable(merged_values), "units": merged_units})
         names = [k for k, v in merged_values.items() if isinstance(v, (int, float, np.number, type(None)))]
         numbers = np.array([np.nan if merged_values[k] is None else float(merged_values[k]) for k in names], np.float64)
         columns = {"metric": (np.array(names, dtype=np.dtypes.StringDType()), {"long_name": "metric name"}),
@@ -654,22 +665,20 @@ class RunStore:
                    "unit": (np.array([merged_units.get(k, "") for k in names], dtype=np.dtypes.StringDType()),
                             {"long_name": "unit of each metric"})}
         for name, (data, attrs) in columns.items():
-            codecs = _codecs("NUMERIC_CODECS" if data.dtype.kind == "f" else "STRING_CODECS")
-            array = group.create_array(name, shape=data.shape, chunks=(max(1, data.size),), dtype=data.dtype,
-                                       compressors=list(codecs), config=ARRAY_CONFIG, overwrite=True,
-                                       dimension_names=["metric"], attributes=attrs)
+            array = ArrayFiles.create(self.path / "metrics" / name, data.dtype, data.shape, (max(1, data.size),),
+                                      ["metric"], attrs)
             if data.size:
-                array[...] = data
+                array.write(0, data)
 
     @property
     def metrics(self) -> dict[str, Any]:
         """The recorded metrics (those not yet committed included)."""
-        stored = dict(self.group["metrics"].attrs.get("values", {})) if "metrics" in self.group else {}
+        stored = dict(self._group_attrs("metrics").get("values", {}))
         return {**stored, **self._pending_metrics[0], **jsonable(self._pending_metrics[1])}
 
     @property
     def metric_units(self) -> dict[str, str]:
-        stored = dict(self.group["metrics"].attrs.get("units", {})) if "metrics" in self.group else {}
+        stored = dict(self._group_attrs("metrics").get("units", {}))
         return {**stored, **self._pending_metrics[2]}
 
     # -- checkpoints and commits ---------------------------------------------------------------
@@ -687,7 +696,7 @@ class RunStore:
         skeleton = {block: _encode_state(state, arrays) for block, state in states.items()}
         group = self.group.require_group("checkpoint")
         array = group.create_array(name, shape=(0,), dtype=np.uint8, chunks=(CHECKPOINT_CHUNK_BYTES,),
-                                   compressors=list(_codecs("CHECKPOINT_CODECS")), overwrite=True, config=ARRAY_CONFIG,
+                                   compressors=_checkpoint_codecs(), overwrite=True, config=ARRAY_CONFIG,
                                    dimension_names=[f"{name}_byte"], attributes={"units": "byte"})
         with _ChunkedWriter(array, CHECKPOINT_CHUNK_BYTES) as stream:
             np.savez(stream, **arrays)
@@ -738,7 +747,7 @@ class RunStore:
             record["checkpoint"] = None
         if complete is not None:
             record["complete"] = bool(complete)
-        self.group.attrs["committed"] = record
+        self._groups.update("", {"committed": record})
         if old and old != record["checkpoint"] and "checkpoint" in self.group and old in self.group["checkpoint"]:
             del self.group["checkpoint"][old]
 
@@ -757,11 +766,43 @@ def _field_attrs(name: str, port_unit: str) -> dict[str, str]:
     return attrs
 
 
-def _write_slice(job: tuple[zarr.Array, int, int, np.ndarray]) -> None:
+class _ZarrAppendable:
+    """An appendable array of a kind :mod:`evsda.graph.store_files` does not write (:data:`~evsda.graph.store_files.KINDS`),
+    written by Zarr with the numeric codec chain, as :class:`~evsda.graph.store_files.ArrayFiles` is written."""
+
+    def __init__(self, array: zarr.Array):
+        self.array = array.with_config(ARRAY_CONFIG)
+        self.chunks = self.array.chunks
+
+    @classmethod
+    def create(cls, group: zarr.Group, key: str, dtype: np.dtype, chunks: tuple[int, ...], dims: list[str],
+               attrs: dict[str, Any]) -> "_ZarrAppendable":
+        from zarr.codecs import BloscCodec, Crc32cCodec
+
+        codecs = [BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle"), Crc32cCodec()]
+        return cls(group.create_array(key, shape=(0, *chunks[1:]), chunks=chunks, dtype=dtype, compressors=codecs,
+                                      config=ARRAY_CONFIG, dimension_names=dims, attributes=dict(attrs)))
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.array.shape
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.array.dtype
+
+    def resize(self, rows: int) -> None:
+        self.array.resize((rows, *self.array.shape[1:]))
+
+    def write(self, start: int, data: np.ndarray) -> None:
+        self.array[start:start + data.shape[0]] = data
+
+
+def _write_slice(job: tuple[ArrayFiles, int, int, np.ndarray]) -> None:
     array, start, stop, data = job
     if array.shape[0] != stop:
-        array.resize((stop, *array.shape[1:]))
-    array[start:stop] = data.astype(array.dtype, copy=False)
+        array.resize(stop)
+    array.write(start, data.astype(array.dtype, copy=False))
 
 
 def is_run_store(path: str | Path) -> bool:

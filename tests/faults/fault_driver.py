@@ -1,12 +1,13 @@
-"""Runs ``evsda`` with a fault injected into the Zarr store's writes (used by the fault tests).
+"""Runs ``evsda`` with a fault injected into the run store's writes (used by the fault tests).
 
     python fault_driver.py PATTERN N MODE -- evsda arguments...
 
 The N-th write (1-based) of a store key matching the regular expression PATTERN triggers
-the fault. Modes:
+the fault, counting the writes of :mod:`evsda.graph.store_files` (the store's documents and appended
+chunks) and of Zarr (checkpoints) together. Modes:
 
 * ``kill-before``: SIGKILL before the write;
-* ``kill-partial``: leave half the bytes in the temporary file Zarr writes first, then SIGKILL
+* ``kill-partial``: leave half the bytes in the temporary file written first, then SIGKILL
   (a kill in the middle of writing that key);
 * ``kill-after``: SIGKILL right after the write;
 * ``enospc``: raise ``OSError(ENOSPC)`` from this write and from every later one (a disk
@@ -23,20 +24,21 @@ import sys
 
 import zarr.storage._local as local
 
+from evsda.graph import store_files
+
 
 def install(pattern: str, nth: int, mode: str) -> None:
-    original = local._put
     seen = {"count": 0, "full": False}
     regex = re.compile(pattern)
 
-    def _put(path, value, exclusive=False):
+    def faulty(path, data: bytes | None, write):
+        """``write()`` (the write of ``data`` to ``path``; None: a create-if-absent no-op), or the fault."""
         key = str(path)
         if seen["full"]:
             raise OSError(errno.ENOSPC, "No space left on device", key)
-        if regex.search(key) and not (exclusive and path.exists()):    # not a create-if-absent no-op
+        if data is not None and regex.search(key):
             seen["count"] += 1
             if seen["count"] == nth:
-                data = bytes(value.as_buffer_like())
                 if mode == "kill-before":
                     os.kill(os.getpid(), signal.SIGKILL)
                 if mode in ("kill-partial", "enospc"):
@@ -46,12 +48,21 @@ def install(pattern: str, nth: int, mode: str) -> None:
                         os.kill(os.getpid(), signal.SIGKILL)
                     seen["full"] = True
                     raise OSError(errno.ENOSPC, "No space left on device", key)
-                result = original(path, value, exclusive=exclusive)
+                result = write()
                 os.kill(os.getpid(), signal.SIGKILL)
                 return result
-        return original(path, value, exclusive=exclusive)
+        return write()
 
-    local._put = _put
+    zarr_put, own_put = local._put, store_files.put
+
+    def zarr_write(path, value, exclusive=False):
+        data = None if exclusive and path.exists() else bytes(value.as_buffer_like())
+        return faulty(path, data, lambda: zarr_put(path, value, exclusive=exclusive))
+
+    def own_write(path, data):
+        return faulty(path, bytes(data), lambda: own_put(path, data))
+
+    local._put, store_files.put = zarr_write, own_write
 
 
 if __name__ == "__main__":
