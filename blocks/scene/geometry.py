@@ -61,19 +61,38 @@ class Recent:
 
     def __init__(self, size: int = 32):
         self._size = size
-        self._entries: list[tuple[tuple, object]] = []
+        self._entries: list[tuple[tuple, np.ndarray, object]] = []        # (key, times, result)
 
     def get(self, t: np.ndarray, compute: Callable[[np.ndarray], object]):
-        """``compute(t)``, or its result for equal ``t`` kept from an earlier call."""
+        """``compute(t)``, or its result for equal ``t`` kept from an earlier call, or the rows of a kept result
+        whose times hold ``t`` as a run of consecutive samples (each model here works sample by sample, so those
+        rows are what ``compute(t)`` makes: a block that samples several windows at once serves the others)."""
         key = (t.shape, t.tobytes())
-        for kept, result in self._entries:
+        for kept, _, result in self._entries:
             if kept == key:
                 return result
-        result = compute(t)
-        for array in (result if isinstance(result, tuple) else (result,)):
-            array.flags.writeable = False
-        self._entries = [(key, result), *self._entries[: self._size - 1]]
+        result = self._rows_within(t)
+        if result is None:
+            result = compute(t)
+            for array in (result if isinstance(result, tuple) else (result,)):
+                array.flags.writeable = False
+        times = t.copy()
+        times.flags.writeable = False
+        self._entries = [(key, times, result), *self._entries[: self._size - 1]]
         return result
+
+    def _rows_within(self, t: np.ndarray):
+        """The rows of a kept result whose times hold ``t`` as consecutive samples, or None."""
+        if t.ndim != 1 or not t.size:
+            return None
+        first, last = t[0], t[-1]
+        for _, times, result in self._entries:
+            if times.ndim == 1 and times.size > t.size and times[0] <= first and last <= times[-1]:
+                start = int(np.searchsorted(times, first))
+                rows = slice(start, start + t.size)
+                if times[rows].tobytes() == t.tobytes():
+                    return tuple(a[rows] for a in result) if isinstance(result, tuple) else result[rows]
+        return None
 
 
 def hermite(t0_s: np.ndarray, h_s: float, p0, v0, p1, v1, t_s: np.ndarray):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Literal
 
@@ -19,9 +20,12 @@ from . import facets, radiometry, spectra
 from .passes import PassReport, find_passes, require_pass
 from .pointing import check_sampling, fingerprint
 from .reflectors import FacetReflector, attitude_law
-from .view import Reflector, SatelliteView
+from .view import Reflector, SatelliteView, ViewSamples
 
 log = logging.getLogger(__name__)
+
+#: windows whose samples the satellite block takes in one call of its view (:meth:`Satellite._sampled`)
+WINDOWS_AHEAD = 5
 
 
 class Satellite(Block):
@@ -130,6 +134,7 @@ class Satellite(Block):
         self._view_key = None
         self.passes: PassReport | None = None
         self.reflector = self._reflector()
+        self._ahead: tuple[SatelliteView, ViewSamples] | None = None     # samples of the next windows (_sampled)
 
     def _reflector(self) -> Reflector | FacetReflector:
         """The sphere or fixed plate of Eq. 1-2, or a facet model turned by the attitude law."""
@@ -182,6 +187,25 @@ class Satellite(Block):
         start, stop = self.run_span_ns(window)
         return find_passes(view, start, stop, resolution_ns=self.cadence_ns)
 
+    def _sampled(self, view: SatelliteView, window: Window, t_ns: np.ndarray) -> ViewSamples:
+        """``view.sample(t_ns)``, the samples of :data:`WINDOWS_AHEAD` windows taken at once and kept for the next.
+
+        Every sample is worked out on its own (elementwise and row by row: the results do not depend on which
+        samples are taken together, as a run cut into other windows shows), so the kept rows are the rows a
+        window's own call makes; a call costs mostly its ~80 NumPy calls' overhead (one window's 100 samples
+        ~1.3 ms, five windows' ~2.2 ms). The scene's other blocks find the pointing frames of these times kept
+        (:class:`.geometry.Recent`). A facet model's attitude is sampled window by window as before."""
+        kept = self._ahead
+        if kept is not None and kept[0] is view and len(t_ns) and (rows := _rows_of(kept[1].t_ns, t_ns)) is not None:
+            return _sliced(kept[1], rows)
+        if not isinstance(self.reflector, Reflector) or not len(t_ns):
+            return view.sample(t_ns)
+        stop = min(window.stop_ns + (WINDOWS_AHEAD - 1) * window.duration_ns, self.run_span_ns(window)[1])
+        ahead = Window(window.index, window.start_ns, max(stop, window.stop_ns), window.epoch)
+        samples = view.sample(ahead.sample_times_ns(self.cadence_ns))
+        self._ahead = (view, samples)
+        return _sliced(samples, _rows_of(samples.t_ns, t_ns))
+
     def step(self, window: Window, orbit: Orbit, observer: Observer, pointing: Pointing,
              focal_plane: FocalPlane) -> dict:
         view = self.view(window, orbit, observer, pointing, focal_plane)
@@ -195,7 +219,7 @@ class Satellite(Block):
             for item in self.passes.passes:
                 log.info("%s: %s observable %s", who, orbit.name, item)
         t_ns = window.sample_times_ns(self.cadence_ns)
-        s = view.sample(t_ns)
+        s = self._sampled(view, window, t_ns)
         hidden = ~s.observable
         x, y = s.x_px.copy(), s.y_px.copy()
         x[hidden] = np.nan
@@ -207,3 +231,15 @@ class Satellite(Block):
             x_px=x[:, None], y_px=y[:, None], photon_flux=s.photon_flux[:, None], magnitude=s.magnitude[:, None],
             range_m=s.range_m[:, None], zenith_angle_rad=s.zenith_angle_rad,
             boresight_azimuth_rad=s.boresight_azimuth_rad, field_rotation_rad=s.field_rotation_rad)}
+
+
+def _rows_of(kept_t: np.ndarray, t_ns: np.ndarray) -> slice | None:
+    """The rows of the sample times ``kept_t`` that are ``t_ns`` (a run of them), or None."""
+    first = int(np.searchsorted(kept_t, t_ns[0]))
+    rows = slice(first, first + len(t_ns))
+    return rows if kept_t[rows].tobytes() == np.asarray(t_ns, kept_t.dtype).tobytes() else None
+
+
+def _sliced(samples: ViewSamples, rows: slice) -> ViewSamples:
+    """``samples`` at ``rows``, each array a copy of its own."""
+    return ViewSamples(**{f.name: getattr(samples, f.name)[rows].copy() for f in dataclasses.fields(samples)})

@@ -119,3 +119,23 @@ def test_skyfield_data_folder_without_its_expiry_check(monkeypatch):
 
     monkeypatch.setattr(skyfield_data, "get_skyfield_data_path", checked)
     assert loader.__wrapped__().path_to("de421.bsp") == os.path.join(data_folder(), "de421.bsp")
+
+
+def test_kept_rows_of_a_longer_call_are_a_call_of_their_own(iss, graz, pass_start):
+    """A model asked for times that a kept result holds as consecutive samples gives those rows: the bytes a
+    call for those times alone makes (apparent places, states, the rotation, the horizon axes)."""
+    t_ns = np.arange(3_000, 3_500, dtype=np.float64) * 1e6                       # 0.5 s at 1 ms
+    part = t_ns[137:262]
+    shared = ObserverModel(graz, pass_start, KNOT_NS)
+    track = satellite_track(pass_start, KNOT_NS, iss.line1, iss.line2)
+    apparent_position(track, shared, t_ns)
+    shared.enu(t_ns)
+    alone = ObserverModel(graz, pass_start, KNOT_NS)
+    fresh_track = satellite_track(pass_start, KNOT_NS, iss.line1, iss.line2)
+    pairs = [(apparent_position(track, shared, part), apparent_position(fresh_track, alone, part)),
+             (track.state(part), fresh_track.state(part)), (shared.state(part), alone.state(part)),
+             (shared.rotation.matrices(part), alone.rotation.matrices(part)), (shared.enu(part), alone.enu(part))]
+    for kept, own in pairs:
+        for a, b in zip(*(v if isinstance(v, tuple) else (v,) for v in (kept, own))):
+            assert a.tobytes() == b.tobytes() and not a.flags.writeable
+    assert track.state(part)[0].base is not None         # served from the longer call's rows, not computed again

@@ -9,6 +9,7 @@ from evsda.blocks.ports import FocalPlane
 from evsda.blocks.ports.scene import GROUND, Observer, Pointing
 from evsda.blocks.scene.geometry import NS_PER_S
 from evsda.blocks.scene.passes import find_passes
+from evsda.blocks.scene import pointing, satellite
 from evsda.blocks.scene.satellite import Satellite
 from evsda.blocks.scene.view import Reflector, SatelliteView
 from evsda.graph import RunInfo, SceneError, Window
@@ -61,6 +62,24 @@ def test_results_do_not_depend_on_the_windows(iss, graz, gen4, quickstart_pointi
     for name in ("t_ns", "x_px", "y_px", "photon_flux", "magnitude", "range_m", "zenith_angle_rad"):
         np.testing.assert_array_equal(np.concatenate([getattr(w, name) for w in many]), getattr(one, name))
     assert np.isfinite(one.x_px).sum() > 400 and one.t_ns[1] - one.t_ns[0] == 1_000_000
+
+
+def test_windows_sampled_ahead_are_the_windows_sampled_one_by_one(iss, graz, gen4, quickstart_pointing, pass_start,
+                                                                     monkeypatch):
+    """The satellite block samples five windows at a time (satellite.WINDOWS_AHEAD) and keeps the rest: the same
+    bytes as each window's own call, with the run's end inside a batch."""
+    scene = dict(orbit=iss, observer=graz, pointing=quickstart_pointing, focal_plane=gen4)
+    start = pass_start + timedelta(seconds=2.6)
+    pointing._SHARED_MODELS.clear()           # the scene's models made afresh for each run: nothing kept between
+    ahead = run_block(Satellite(), scene, start, 0.73, 0.1)
+    monkeypatch.setattr(satellite, "WINDOWS_AHEAD", 1)
+    pointing._SHARED_MODELS.clear()
+    one_by_one = run_block(Satellite(), scene, start, 0.73, 0.1)
+    assert np.isfinite(one_by_one[3].x_px).sum() > 50
+    for a, b in zip(ahead, one_by_one, strict=True):
+        for name in ("t_ns", "x_px", "y_px", "photon_flux", "magnitude", "range_m", "zenith_angle_rad",
+                     "boresight_azimuth_rad", "field_rotation_rad"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes()
 
 
 def test_geo_stare(tle):
