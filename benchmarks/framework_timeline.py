@@ -22,7 +22,9 @@ machine's (``/proc/stat``) every ``--sample-ms``. It prints:
   other blocks' together: steps and their loops' items on other threads; and the CPU outside the steps: the
   imports, the store, the pipeline's threads), ``kslices`` (thousands of times the run's threads were put on a
   core: how often their work was interleaved), ``kmigrations`` (thousands of times they were moved to another core,
-  read every tenth sample), the wall with one core or none busy, the optics' gaps, when the
+  read every tenth sample), ``kvoluntary`` and ``kinvoluntary`` (thousands of times they left a core to wait, for the
+  interpreter lock say, and were taken off one still runnable), the wall with one core or none busy, the optics' gaps,
+  when the
   graph was loaded and the pixels' first step started, and the wall after the optics' last step (the tail, the
   finish and the exit).
 
@@ -33,7 +35,11 @@ apart from how much slower each thread runs on this host when two of them run at
 
 ``TIMELINE_SWITCH_INTERVAL_S`` in a variant's environment sets the child's ``sys.setswitchinterval`` (CPython's
 default 0.005 s: how long a thread that wants the interpreter lock waits before the holder is asked to hand it
-over), e.g. ``--variant si20:TIMELINE_SWITCH_INTERVAL_S=0.02``.
+over), e.g. ``--variant si20:TIMELINE_SWITCH_INTERVAL_S=0.02``; ``TIMELINE_PIN=0`` runs that variant's child on
+those cores only (set ``EVSDA_THREADS`` beside it to plan for both: ``--variant pin0:TIMELINE_PIN=0,EVSDA_THREADS=2``,
+pinned against free in the same minutes); ``TIMELINE_BATCH=1`` makes every thread of the child a ``SCHED_BATCH`` one
+(Linux: a woken thread waits for the running one's turn to end instead of taking its core). ``--blocks`` adds each
+block's CPU to the one line a run.
 
 ``--trace out.json`` writes the spans and the cores-busy counter in Chrome's trace format (open it in
 https://ui.perfetto.dev). ``--against OTHER`` runs another checkout's ``evsda`` (its own ``.venv``) too,
@@ -63,6 +69,10 @@ import json, os, sys, threading, time
 T0 = time.monotonic()
 if os.environ.get("TIMELINE_SWITCH_INTERVAL_S"):           # a variant: the interpreter lock's hand-over interval
     sys.setswitchinterval(float(os.environ["TIMELINE_SWITCH_INTERVAL_S"]))
+if os.environ.get("TIMELINE_PIN"):                         # a variant: every thread on these cores
+    os.sched_setaffinity(0, {int(c) for c in os.environ["TIMELINE_PIN"].split(",")})
+if os.environ.get("TIMELINE_BATCH"):                       # a variant: every thread SCHED_BATCH (no wake-up preemption)
+    os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
 import evsda.graph.cli as cli
 from evsda.graph import executor as ex, threads as th
 T_IMPORTED = time.monotonic()
@@ -146,6 +156,8 @@ sys.exit(status)
 '''
 
 CLOCK_TICK_S = 1 / os.sysconf("SC_CLK_TCK")
+#: ``--blocks``: each block's CPU in the one line a run
+BLOCKS_IN_LINE = False
 
 
 def _per_thread(pid: int, read) -> dict[int, object]:
@@ -175,15 +187,22 @@ def _schedstat(pid: int) -> dict[int, tuple[int, int, int]]:
     return _per_thread(pid, read)
 
 
-def _migrations(pid: int) -> dict[int, int]:
-    """Each thread of ``pid``: the times the scheduler moved it to another core (``se.nr_migrations`` of
-    ``/proc/PID/task/TID/sched``; empty where the kernel does not show it)."""
-    def read(task: str) -> int | None:
+#: the counts of ``/proc/PID/task/TID/sched`` read for each thread
+SCHED_COUNTS = ("se.nr_migrations", "nr_voluntary_switches", "nr_involuntary_switches")
+
+
+def _sched_counts(pid: int) -> dict[int, tuple[int, ...]]:
+    """Each thread of ``pid``: the times the scheduler moved it to another core, the times it left a core waiting
+    (a lock, a condition, I/O) and the times it was taken off one still runnable (:data:`SCHED_COUNTS` of
+    ``/proc/PID/task/TID/sched``; empty where the kernel does not show them)."""
+    def read(task: str) -> tuple[int, ...] | None:
+        counts = {}
         with open(f"{task}/sched") as f:
             for line in f:
-                if line.startswith("se.nr_migrations"):
-                    return int(line.split(":")[1])
-        return None
+                key, _, value = line.partition(":")
+                if key.strip() in SCHED_COUNTS:
+                    counts[key.strip()] = int(float(value))
+        return tuple(counts[k] for k in SCHED_COUNTS) if len(counts) == len(SCHED_COUNTS) else None
     return _per_thread(pid, read)
 
 
@@ -213,7 +232,7 @@ def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s
             break
         last.update(_schedstat(child.pid))                  # a thread that ended keeps its last reading
         if len(samples) % 10 == 0:
-            moved.update(_migrations(child.pid))
+            moved.update(_sched_counts(child.pid))
         samples.append((time.monotonic(), dict(last), _machine_busy()))
         time.sleep(sample_s)
     end = time.monotonic()
@@ -225,7 +244,7 @@ def sample_run(python: Path, graph: Path, duration: float, store: Path, sample_s
     data = json.loads(spans_path.read_text())
     spans_path.unlink()
     data.update(start=start, stop=end, samples=samples, peak_mb=usage.ru_maxrss / 1024,
-                migrations=sum(moved.values()))
+                sched_counts={tid: list(c) for tid, c in moved.items()})
     return data
 
 
@@ -299,7 +318,8 @@ def report(data: dict, cores: int, label: str) -> dict:
     by_thread = defaultdict(list)
     for s in spans:
         by_thread[s[0]].append(s)
-    print("  thread                 blocks (steps / items)                           on core  queued  in step off core")
+    print("  thread                 blocks (steps / items)                           on core  queued  in step off core"
+          "  switches: waited / taken off")
     blocked = 0.0
     for tid, (on, q, _) in sorted(last.items(), key=lambda kv: -kv[1][0]):
         own = by_thread.get(tid, [])
@@ -317,7 +337,8 @@ def report(data: dict, cores: int, label: str) -> dict:
         if steps:
             blocked += max(0.0, off - q / 1e9)
         if on / 1e9 >= 0.01:
-            print(f"  {name[:22]:22s} {top[:48]:48s} {on / 1e9:7.2f} {q / 1e9:7.2f}  {off:7.2f}")
+            _, waited, taken = data["sched_counts"].get(tid, (0, 0, 0))
+            print(f"  {name[:22]:22s} {top[:48]:48s} {on / 1e9:7.2f} {q / 1e9:7.2f}  {off:7.2f}  {waited:7d} / {taken:d}")
 
     print("  block            steps  wall in steps  CPU in steps  CPU of its items (all threads)")
     blocks = defaultdict(lambda: [0, 0.0, 0.0, 0.0])
@@ -361,11 +382,14 @@ def report(data: dict, cores: int, label: str) -> dict:
             "optics_cpu_s": optics_cpu, "pixel_cpu_s": pixel_cpu,
             "other_blocks_cpu_s": sum(by_block.values()) - optics_cpu - pixel_cpu,
             "outside_steps_cpu_s": cpu - sum(by_block.values()), "kslices": slices / 1e3,
-            "kmigrations": data["migrations"] / 1e3,
+            **{f"k{name}": sum(c[i] for c in data["sched_counts"].values()) / 1e3
+               for i, name in enumerate(("migrations", "voluntary", "involuntary"))},
             "one_or_none_s": levels[0] + levels[1], "optics_gaps_s": total_gap, "blocked_s": blocked,
             "loaded_s": marks["graph load (block imports)"][1] - data["start"],
             "pixels_start_s": marks["window 0 until the pixels start"][1] - data["start"],
-            "after_optics_s": data["stop"] - marks["tail: after the optics' last step"][0]}
+            "after_optics_s": data["stop"] - marks["tail: after the optics' last step"][0],
+            **({f"cpu_{name.rsplit('/', 1)[-1]}": c for name, c in sorted(by_block.items(), key=lambda kv: -kv[1])}
+               if BLOCKS_IN_LINE else {})}
 
 
 def block_cpu(spans: list) -> dict[str, float]:
@@ -410,8 +434,11 @@ def main() -> None:
     parser.add_argument("--pin", metavar="CPUS", help="run on these cores only, e.g. 0 or 0,1, planning for every "
                                                       "core (EVSDA_THREADS = the machine's cores unless set)")
     parser.add_argument("--quiet", action="store_true", help="print only one line a run and the medians")
+    parser.add_argument("--blocks", action="store_true", help="each block's CPU in the one line a run too")
     parser.add_argument("--trace", type=Path, help="write the last run's spans here (Chrome trace format)")
     args = parser.parse_args()
+    global BLOCKS_IN_LINE
+    BLOCKS_IN_LINE = args.blocks
     pipeline = {"EVSDA_PIPELINE": "0" if args.serial else "1"}
     pin = None if args.pin is None else {int(cpu) for cpu in args.pin.split(",")}
     if pin is not None:
