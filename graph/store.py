@@ -51,7 +51,7 @@ import re
 import shutil
 import warnings
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -145,6 +145,8 @@ class RunStore:
         self._pending: dict[str, list[np.ndarray]] = {}
         self._pending_bytes = 0
         self._whole_bytes: dict[str, int] = {}      # per array: bytes pending in whole chunks
+        self._writer: ThreadPoolExecutor | None = None      # the thread that writes whole chunks behind the appends
+        self._behind: list[Future] = []             # its batches not yet known to be written
         self._arrays: dict[str, ArrayFiles] = {}        # appendable arrays, written by store_files
         self._checked = False       # a read-only store's structure has been checked
         self._truth_sources: dict[tuple[str, str], int] | None = None   # (block, source_id) -> source number
@@ -359,27 +361,51 @@ class RunStore:
         """Write queued appends to disk (durable only after :meth:`commit`).
 
         With ``whole_chunks_only`` (appends past :data:`FLUSH_BYTES`) each array writes up to its
-        last chunk boundary and keeps the rest queued, so no chunk is compressed twice; the
-        arrays are written concurrently (Blosc and Zstandard release the GIL).
+        last chunk boundary and keeps the rest queued, so no chunk is compressed twice, and the
+        writing goes on in the background (:meth:`_write_behind`) while the caller records the next
+        windows; otherwise this returns once everything queued is on disk. The arrays are written
+        concurrently (Blosc and Zstandard release the GIL).
         """
         jobs, remaining = [], {}
         for key, parts in self._pending.items():
             array = self._arrays[key]
             start = self._written.get(key, 0)
-            data = parts[0] if len(parts) == 1 else np.concatenate(parts)
-            stop = start + data.shape[0]
+            stop = start + sum(part.shape[0] for part in parts)
             if whole_chunks_only:
                 stop = max(start, stop - stop % array.chunks[0])
-            if stop - start < data.shape[0]:
-                remaining[key] = [data[stop - start:]]
+            head, tail = _split_rows(parts, stop - start)
+            if tail:
+                remaining[key] = tail
             if stop > start:
-                jobs.append((array, start, stop, data[: stop - start]))
+                jobs.append((array, start, stop, head))
                 self._written[key] = stop
         self._pending = remaining
-        self._pending_bytes = sum(parts[0].nbytes for parts in remaining.values())
+        self._pending_bytes = sum(part.nbytes for parts in remaining.values() for part in parts)
         self._whole_bytes.clear()
-        with ThreadPoolExecutor(max(1, len(jobs))) as pool:
-            list(pool.map(_write_slice, jobs))
+        if jobs:
+            self._write_behind(jobs)
+        if not whole_chunks_only:
+            self._settle()
+
+    def _write_behind(self, jobs: list) -> None:
+        """Write ``jobs`` on the store's writing thread, after the jobs handed to it before (an array's slices land
+        in order); at most one earlier batch is left unfinished, so what waits in memory stays bounded."""
+        while len(self._behind) > 1:
+            self._behind.pop(0).result()
+        if self._writer is None:
+            self._writer = ThreadPoolExecutor(1, thread_name_prefix="evsda-store")
+        self._behind.append(self._writer.submit(_write_slices, jobs))
+
+    def _settle(self) -> None:
+        """Wait for the writes handed to the writing thread (raising the first error of theirs), then let it go."""
+        behind, self._behind = self._behind, []
+        try:
+            for job in behind:
+                job.result()
+        finally:
+            if self._writer is not None and not self._behind:
+                self._writer.shutdown(wait=False)
+                self._writer = None
 
     def _truncate_to_commit(self) -> None:
         """Cut every appendable array back to its committed length (see the module docstring)."""
@@ -798,8 +824,29 @@ class _ZarrAppendable:
         self.array[start:start + data.shape[0]] = data
 
 
-def _write_slice(job: tuple[ArrayFiles, int, int, np.ndarray]) -> None:
-    array, start, stop, data = job
+def _split_rows(parts: list[np.ndarray], rows: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """``parts`` (arrays of rows, in order) cut after their first ``rows`` rows: (the parts before, the parts after)."""
+    head = []
+    for k, part in enumerate(parts):
+        if rows >= part.shape[0]:
+            head.append(part)
+            rows -= part.shape[0]
+            continue
+        if rows:
+            head.append(part[:rows])
+        return head, [part[rows:], *parts[k + 1:]]
+    return head, []
+
+
+def _write_slices(jobs: list[tuple[ArrayFiles, int, int, list[np.ndarray]]]) -> None:
+    """Write each job's rows (one job an array), the arrays concurrently."""
+    with ThreadPoolExecutor(len(jobs)) as pool:
+        list(pool.map(_write_slice, jobs))
+
+
+def _write_slice(job: tuple[ArrayFiles, int, int, list[np.ndarray]]) -> None:
+    array, start, stop, parts = job
+    data = parts[0] if len(parts) == 1 else np.concatenate(parts)
     if array.shape[0] != stop:
         array.resize(stop)
     array.write(start, data.astype(array.dtype, copy=False))

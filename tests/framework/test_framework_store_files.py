@@ -161,3 +161,40 @@ def test_an_array_of_another_kind_is_left_to_zarr(tmp_path):
     again = RunStore.open(tmp_path / "run.zarr").read_table("table")
     np.testing.assert_array_equal(again["z"], np.tile(rows["z"], 2))
     np.testing.assert_array_equal(again["t_ns"], np.tile(rows["t_ns"], 2))
+
+
+def appended_store(path: Path) -> RunStore:
+    store = RunStore.create(path, attrs={"n_windows": 30})
+    rng = np.random.default_rng(3)
+    for window in range(30):
+        rows = int(rng.integers(0, 50))
+        names = np.array([f"n{k}" for k in range(rows)], dtype=str)
+        store.append_table("truth", {"t_ns": rng.integers(0, 10**9, rows), "name": names}, "sample", chunk_bytes=64)
+        if window % 7 == 6:
+            store.commit(windows=window + 1)
+    store.commit(windows=30, complete=True)
+    return store
+
+
+def test_chunks_written_behind_the_appends_are_the_chunks_written_at_once(tmp_path, monkeypatch):
+    """Whole chunks written on the store's writing thread while the appends go on land as if written in turn."""
+    from evsda.graph import store as module
+
+    monkeypatch.setattr(module, "WHOLE_CHUNK_BYTES", 64)
+    behind = appended_store(tmp_path / "behind.zarr")
+    monkeypatch.setattr(RunStore, "_write_behind", lambda self, jobs: module._write_slices(jobs))
+    at_once = appended_store(tmp_path / "at_once.zarr")
+    assert files(behind.path) == files(at_once.path)
+    assert behind._writer is None and not behind._behind
+
+
+def test_an_error_writing_behind_is_raised_by_the_next_commit(tmp_path, monkeypatch):
+    from evsda.graph import store as module
+
+    monkeypatch.setattr(module, "WHOLE_CHUNK_BYTES", 8)
+    store = RunStore.create(tmp_path / "run.zarr")
+    monkeypatch.setattr(ArrayFiles, "write", lambda *args: (_ for _ in ()).throw(OSError(28, "No space left")))
+    store.append_table("truth", {"t_ns": np.arange(100)}, "sample", chunk_bytes=64)
+    with pytest.raises(OSError, match="No space left"):
+        store.commit(windows=1)
+    assert store.committed_windows == 0
