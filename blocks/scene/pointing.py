@@ -77,6 +77,7 @@ class PointingModel:
         self.pointing = pointing
         self.observer = observer
         self._recent = Recent()       # shared by the scene's blocks (shared_models), a window or two apart
+        self._recent_angles = Recent()
         if pointing.mode == TRACK:
             if not (pointing.target_line1 and pointing.target_line2):
                 raise ParameterError("pointing: mode 'track' needs a target orbit (connect a tle_source to its "
@@ -190,6 +191,16 @@ class PointingModel:
         (b1,) = self.field.values(k + 1)
         w = ((t_ns - k * step) / step)[:, None]
         return unit((1 - w) * b0 + w * b1)
+
+    def boresight_angles(self, t_ns) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The boresight's zenith angle, its azimuth and the field rotation at ``t_ns`` [rad] (:meth:`zenith_angle`
+        and :meth:`horizon` of the frame at those times; read-only arrays, kept like the frame for the scene's
+        other blocks)."""
+        return self._recent_angles.get(np.atleast_1d(np.asarray(t_ns, dtype=np.float64)), self._boresight_angles)
+
+    def _boresight_angles(self, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        b, _, u = self.frame(t_ns)
+        return (self.zenith_angle(t_ns, b), *self.horizon(t_ns, b, u))
 
     def horizon(self, t_ns, b: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The boresight's azimuth (from north through east) and the field rotation [rad] at

@@ -186,14 +186,13 @@ class StarField(Block):
             on_detector[k == k0] &= visible
         np.putmask(x, ~on_detector, np.nan)
         np.putmask(y, ~on_detector, np.nan)
-        b, _, u = self._pointing.frame(t_ns)
-        azimuth, rotation = self._pointing.horizon(t_ns, b, u)
+        zenith, azimuth, rotation = (angle.copy() for angle in self._pointing.boresight_angles(t_ns))
         n = len(stars)
         return {"sources": PointSources(
             focal_plane=focal_plane, wavelength_m=spectra.effective_wavelength_m(focal_plane.spectral_response),
             t_ns=t_ns, source_id=stars.name,
             kind=np.full(n, SourceKind.STAR, dtype=np.int8), x_px=x, y_px=y, photon_flux=flux, magnitude=mag,
-            range_m=np.full((len(t_ns), n), np.inf), zenith_angle_rad=self._pointing.zenith_angle(t_ns, b),
+            range_m=np.full((len(t_ns), n), np.inf), zenith_angle_rad=zenith,
             boresight_azimuth_rad=azimuth, field_rotation_rad=rotation)}
 
     def _knot_weights(self, t_ns) -> tuple[np.ndarray, np.ndarray]:

@@ -136,8 +136,8 @@ class SatelliteView:
         to_sun = unit(r_sun - r_sat)
         to_observer = unit(r_obs - r_sat)
         phase = np.arccos(np.clip(np.einsum("ij,ij->i", to_sun, to_observer), -1.0, 1.0))
-        zenith_boresight = self.pointing_model.zenith_angle(t, b)
-        azimuth_boresight, field_rotation = self.pointing_model.horizon(t, b, u)
+        zenith_boresight, azimuth_boresight, field_rotation = (angle.copy() for angle in
+                                                               self.pointing_model.boresight_angles(t))
         if isinstance(self.reflector, FacetReflector):
             # the attitude at the emission time: light leaves the body range/c before it arrives
             reflectance = self.reflector.reflectance_m2_sr(t - range_m / C_M_PER_S * NS_PER_S, r_sat, v_sat, to_sun,

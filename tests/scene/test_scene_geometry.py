@@ -139,3 +139,24 @@ def test_kept_rows_of_a_longer_call_are_a_call_of_their_own(iss, graz, pass_star
         for a, b in zip(*(v if isinstance(v, tuple) else (v,) for v in (kept, own))):
             assert a.tobytes() == b.tobytes() and not a.flags.writeable
     assert track.state(part)[0].base is not None         # served from the longer call's rows, not computed again
+
+
+@pytest.mark.parametrize("observer", ["graz", "space"])
+def test_boresight_angles_are_the_frames_zenith_angle_and_horizon(iss, graz, tle, pass_start, observer):
+    """PointingModel.boresight_angles (kept for the scene's blocks) holds the bytes of zenith_angle and horizon
+    of the frame at the same times."""
+    from evsda.blocks.ports.scene import Pointing
+    from evsda.blocks.scene.pointing import PointingModel
+
+    starlink = tle("starlink-2434.tle")
+    site = graz if observer == "graz" else Observer(name=starlink.name, kind=SPACE, line1=starlink.line1,
+                                                    line2=starlink.line2)
+    pointing = Pointing(mode="track", target_line1=iss.line1, target_line2=iss.line2, roll_deg=10.0)
+    t_ns = np.arange(2_000, 2_300, dtype=np.float64) * 1e6
+    model = PointingModel(pointing, ObserverModel(site, pass_start, KNOT_NS), pass_start, KNOT_NS)
+    zenith, azimuth, rotation = model.boresight_angles(t_ns)
+    b, _, u = PointingModel(pointing, ObserverModel(site, pass_start, KNOT_NS), pass_start, KNOT_NS).frame(t_ns)
+    other = PointingModel(pointing, ObserverModel(site, pass_start, KNOT_NS), pass_start, KNOT_NS)
+    assert zenith.tobytes() == other.zenith_angle(t_ns, b).tobytes()
+    assert b"".join(a.tobytes() for a in (azimuth, rotation)) == b"".join(a.tobytes() for a in other.horizon(t_ns, b, u))
+    assert model.boresight_angles(t_ns[50:90])[2].tobytes() == rotation[50:90].tobytes()
