@@ -13,8 +13,12 @@ cache name, one file per key. ``EVSDA_CACHE=off`` (or ``evsda run --no-cache``) 
   none, and concurrent writers of one key (sweep workers) write the same bytes.
 * An entry that cannot be read, is not JSON or holds another key is a miss; a write that fails (read-only
   or full disk) is skipped. Neither stops the run.
-* Bounded: after a write, the folder's oldest entries (by last use: a hit touches its file) are deleted
-  while it holds more than :data:`MAX_BYTES`. The folders can be deleted at any time.
+* Bounded: once a folder holds more than :data:`MAX_BYTES`, its oldest entries (by last use: a hit touches its
+  file) are deleted until it holds :data:`PRUNED_FRACTION` of that. A process lists the folder at its first
+  write there and again only once what it found plus what it wrote since passes the bound (listing it at every
+  write cost 54 ms a write at 4 400 entries): entries other processes write in between are counted at the next
+  listing, so concurrent writers can hold the folder above the bound until then. The folders can be deleted
+  at any time.
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ import os
 import platform
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterable
 from functools import lru_cache
@@ -38,8 +43,13 @@ from .errors import UserError
 LOG = logging.getLogger("evsda.cache")
 #: the most bytes of entries one cache keeps (its oldest entries go first) [byte]
 MAX_BYTES = 32 * 2**20
+#: share of the bound a folder is pruned down to, so that the next listing is a quarter of the bound away
+PRUNED_FRACTION = 0.75
 #: age after which a temporary file is taken as left by a process killed while writing [s]
 STALE_TEMPORARY_S = 3600.0
+#: bytes of entries each cache folder held at this process's last listing of it, plus what it wrote there since
+_FOLDER_BYTES: dict[Path, int] = {}
+_FOLDER_BYTES_LOCK = threading.Lock()
 #: values of ``EVSDA_CACHE`` that switch caches off and on
 OFF, ON = ("off", "0", "no", "false"), ("on", "1", "yes", "true", "")
 
@@ -162,12 +172,28 @@ class ResultCache:
         except OSError as exc:
             LOG.debug("cache %s: entry %s not written (%s)", self.name, name, exc)
             return
-        self.prune(folder)
+        self._counted(folder, len(data.encode("utf-8")))
+
+    @classmethod
+    def _counted(cls, folder: Path, written: int) -> None:
+        """Count ``written`` bytes into ``folder``'s tally; :meth:`prune` it (a listing) at its first write in
+        this process and whenever the tally passes :data:`MAX_BYTES`."""
+        with _FOLDER_BYTES_LOCK:
+            held = _FOLDER_BYTES.get(folder)
+            if held is not None and held + written <= MAX_BYTES:
+                _FOLDER_BYTES[folder] = held + written
+                return
+        left = cls.prune(folder)
+        with _FOLDER_BYTES_LOCK:
+            _FOLDER_BYTES[folder] = left
 
     @staticmethod
-    def prune(folder: Path, max_bytes: int = MAX_BYTES) -> None:
-        """Delete the least recently used entries while the folder holds more than ``max_bytes``, and temporary
-        files older than :data:`STALE_TEMPORARY_S` (left by a process killed while writing)."""
+    def prune(folder: Path, max_bytes: int | None = None) -> int:
+        """If the folder holds more than ``max_bytes`` (default :data:`MAX_BYTES`), delete its least recently used
+        entries until it holds :data:`PRUNED_FRACTION` of that; delete temporary files older than
+        :data:`STALE_TEMPORARY_S` (left by a process killed while writing). Returns the bytes of entries left
+        [byte]."""
+        max_bytes = MAX_BYTES if max_bytes is None else max_bytes
         entries, now = [], time.time()
         for path in folder.glob("*/*"):
             try:
@@ -179,14 +205,17 @@ class ResultCache:
             if path.suffix == ".json":
                 entries.append((stat.st_mtime, stat.st_size, path))
         total = sum(size for _, size, _ in entries)
+        if total <= max_bytes:
+            return total
         for _, size, path in sorted(entries, key=lambda e: e[0]):
-            if total <= max_bytes:
+            if total <= PRUNED_FRACTION * max_bytes:
                 break
             try:
                 path.unlink()
             except OSError:
                 pass
             total -= size
+        return total
 
     def remember(self, key: Any, compute: Callable[[], Any], encode: Callable[[Any], Any] = lambda v: v,
                  decode: Callable[[Any], Any] = lambda v: v) -> Any:

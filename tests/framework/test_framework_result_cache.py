@@ -107,13 +107,36 @@ def test_the_least_recently_used_entries_go_beyond_the_bound(cache, tmp_path):
     for age, path in enumerate(paths):               # entry k last used k * 10 s ago, in name order
         os.utime(path, (1e9 - 10 * age, 1e9 - 10 * age))
     size = paths[0].stat().st_size
-    ResultCache.prune(tmp_path / "cache" / "test", max_bytes=3 * size)
+    ResultCache.prune(tmp_path / "cache" / "test", max_bytes=6 * size)          # within the bound: none goes
+    assert sorted((tmp_path / "cache").rglob("*.json")) == paths
+    ResultCache.prune(tmp_path / "cache" / "test", max_bytes=4 * size)          # beyond it: down to 3/4 of it
     assert sorted((tmp_path / "cache").rglob("*.json")) == paths[:3]
     stale = paths[0].parent / ".stale.tmp"
     stale.write_text("half")
     os.utime(stale, (0, 0))
     ResultCache.prune(tmp_path / "cache" / "test")
     assert not stale.exists()
+
+
+def test_a_process_lists_the_folder_at_its_first_write_and_once_past_the_bound(cache, monkeypatch, tmp_path):
+    """The bound without a listing at every write: the first write lists (and prunes), later ones count their bytes
+    until the tally passes MAX_BYTES, and that write prunes the folder to 3/4 of it."""
+    import evsda.graph.result_cache as result_cache
+    listings = []
+    prune = ResultCache.prune
+    monkeypatch.setattr(ResultCache, "prune", staticmethod(lambda folder: listings.append(folder) or prune(folder)))
+    counted(cache, 0, "x" * 1000)
+    size = next((tmp_path / "cache").rglob("*.json")).stat().st_size
+    monkeypatch.setattr(result_cache, "MAX_BYTES", 4 * size)
+    for i in range(1, 4):
+        counted(cache, i, "x" * 1000)
+    assert len(listings) == 1                       # the first write only: 4 entries are within the bound
+    counted(cache, 4, "x" * 1000)
+    assert len(listings) == 2                       # the fifth passed it: pruned to 3 entries (3/4 of the bound)
+    assert len(list((tmp_path / "cache").rglob("*.json"))) == 3
+    counted(cache, 5, "x" * 1000)
+    assert len(listings) == 2                       # the sixth fits again without a listing
+    assert len(list((tmp_path / "cache").rglob("*.json"))) == 4
 
 
 def _hammer(args):
