@@ -41,6 +41,11 @@ pinned against free in the same minutes); ``TIMELINE_BATCH=1`` makes every threa
 (Linux: a woken thread waits for the running one's turn to end instead of taking its core). ``--blocks`` adds each
 block's CPU to the one line a run.
 
+``--concurrency`` fits, over every run, each block-window's CPU against the share of its wall during which two of
+the run's threads were on the two cores at once and the share during which one ran beside another process (each
+block-window against its own mean over the runs, so only the same work is compared): with ``--variant
+pin0:TIMELINE_PIN=0,EVSDA_THREADS=2`` on a quiet machine, what running at once costs. Noisy: 10 runs or more.
+
 ``--trace out.json`` writes the spans and the cores-busy counter in Chrome's trace format (open it in
 https://ui.perfetto.dev). ``--against OTHER`` runs another checkout's ``evsda`` (its own ``.venv``) too,
 alternated. Run it with the probe cache off, as the benchmarks do:
@@ -51,7 +56,9 @@ alternated. Run it with the probe cache off, as the benchmarks do:
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -407,6 +414,78 @@ def block_cpu(spans: list) -> dict[str, float]:
     return dict(cpu)
 
 
+def unit_concurrency(data: dict, first_window: int = 2) -> dict[tuple[str, int], tuple[float, float, float]]:
+    """Each block's work over each window from ``first_window`` on (the first ones carry set-ups and compiles),
+    ``(block, window)``: its CPU [s] (its step and its loops' items on other threads, as :func:`block_cpu` counts
+    them) and, weighted by its spans' CPU, the share of its spans' wall during which two of the run's threads were on
+    the two cores at once and the share during which one of the run's threads ran beside another process (from the
+    samples: ``max(0, ours - 1)`` and ``max(0, min(ours, 1) + others - 1)`` cores an interval)."""
+    intervals = []
+    for (t0, a, m0), (t1, b, m1) in zip(data["samples"], data["samples"][1:]):
+        if t1 > t0:
+            ours = sum(b[tid][0] - a.get(tid, (0, 0, 0))[0] for tid in b) / 1e9 / (t1 - t0)
+            others = max(0.0, (m1 - m0) / (t1 - t0) - ours)
+            intervals.append((t0, t1, max(0.0, ours - 1), max(0.0, min(ours, 1.0) + others - 1)))
+    starts = [i[0] for i in intervals]
+    step_thread = {(s[2], s[3]): s[0] for s in data["spans"] if s[1] == "step"}
+    units = defaultdict(lambda: [0.0, 0.0, 0.0])
+    for tid, kind, label, window, a, b, c0, c1 in data["spans"]:
+        if kind not in ("step", "item") or not label or window < first_window or b <= a:
+            continue
+        if kind == "item" and step_thread.get((label, window)) == tid:
+            continue                                       # inside its step's span already
+        both, beside, seen = 0.0, 0.0, 0.0
+        for t0, t1, two_ours, ours_and_other in intervals[max(0, bisect.bisect_right(starts, a) - 1):]:
+            if t0 >= b:
+                break
+            overlap = min(b, t1) - max(a, t0)
+            if overlap > 0:
+                both += overlap * two_ours
+                beside += overlap * ours_and_other
+                seen += overlap
+        if seen > 0:
+            unit = units[(label, window)]
+            unit[0] += c1 - c0
+            unit[1] += (c1 - c0) * both / seen
+            unit[2] += (c1 - c0) * beside / seen
+    return {key: (c, o / c, m / c) for key, (c, o, m) in units.items() if c > 0}
+
+
+def fit_concurrency(runs: list[dict], smallest_s: float = 0.002) -> None:
+    """Print, pooled over the runs, how a block-window's CPU grows with the run's other threads on a core meanwhile
+    and with the other processes' busy cores: log CPU against both, each unit against its own mean over the runs
+    (so only the same work is compared), weighted by the unit's CPU, per block and for all."""
+    keys = set.intersection(*(set(r) for r in runs))
+    rows = defaultdict(list)
+    for key in keys:
+        values = [r[key] for r in runs]
+        mean_cpu = statistics.fmean(v[0] for v in values)
+        if mean_cpu < smallest_s:
+            continue
+        logs = [math.log(v[0]) for v in values]
+        means = [statistics.fmean(x) for x in (logs, [v[1] for v in values], [v[2] for v in values])]
+        for lg, (_, ours, machine) in zip(logs, values):
+            rows[key[0]].append((mean_cpu, lg - means[0], ours - means[1], machine - means[2]))
+    rows["all"] = [row for block in list(rows) for row in rows[block]]
+    print(f"\nCPU of the same block-window against concurrency, {len(runs)} runs (weighted least squares, no intercept):")
+    print("  block              units  two of ours at once (all the span)  ours beside another process (all the span)")
+    for block, data in sorted(rows.items(), key=lambda kv: -sum(r[0] for r in kv[1])):
+        w = [r[0] for r in data]
+        sxx = sum(wi * r[2] ** 2 for wi, r in zip(w, data))
+        syy = sum(wi * r[3] ** 2 for wi, r in zip(w, data))
+        sxy = sum(wi * r[2] * r[3] for wi, r in zip(w, data))
+        sx = sum(wi * r[2] * r[1] for wi, r in zip(w, data))
+        sy = sum(wi * r[3] * r[1] for wi, r in zip(w, data))
+        det = sxx * syy - sxy ** 2
+        if det <= 0 or len(data) < 10:
+            continue
+        b_ours, b_machine = (syy * sx - sxy * sy) / det, (sxx * sy - sxy * sx) / det
+        residual = sum(wi * (r[1] - b_ours * r[2] - b_machine * r[3]) ** 2 for wi, r in zip(w, data)) / sum(w)
+        scale = residual * sum(w) / max(1, len(data) - 2)
+        print(f"  {block[:18]:18s} {len(data):6d}  {math.expm1(b_ours) * 100:+7.1f} % (+- {math.sqrt(scale * syy / det) * 100:4.1f})"
+              f"                {math.expm1(b_machine) * 100:+7.1f} % (+- {math.sqrt(scale * sxx / det) * 100:4.1f})")
+
+
 def write_trace(data: dict, path: Path, cores: int) -> None:
     """The spans and the cores-busy counter in Chrome's trace format [us]."""
     t0 = data["start"]
@@ -435,6 +514,9 @@ def main() -> None:
                                                       "core (EVSDA_THREADS = the machine's cores unless set)")
     parser.add_argument("--quiet", action="store_true", help="print only one line a run and the medians")
     parser.add_argument("--blocks", action="store_true", help="each block's CPU in the one line a run too")
+    parser.add_argument("--concurrency", action="store_true",
+                        help="at the end, fit each block-window's CPU against the run's other threads on a core and the "
+                             "other processes' busy cores meanwhile (pooled over every run of every variant)")
     parser.add_argument("--trace", type=Path, help="write the last run's spans here (Chrome trace format)")
     args = parser.parse_args()
     global BLOCKS_IN_LINE
@@ -454,6 +536,7 @@ def main() -> None:
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}; load {os.getloadavg()[0]:.2f}"
           + ("" if pin is None else f"; pinned to cores {sorted(pin)}, EVSDA_THREADS={pipeline['EVSDA_THREADS']}"))
     headline = defaultdict(list)
+    concurrency = []
     with tempfile.TemporaryDirectory() as tmp:
         for repeat in range(args.repeats):
             for label, (python, env) in runs.items():
@@ -472,12 +555,16 @@ def main() -> None:
                 else:
                     figures = report(data, args.cores, title)
                 headline[label].append(figures)
+                if args.concurrency:
+                    concurrency.append(unit_concurrency(data))
                 if args.trace is not None:
                     write_trace(data, args.trace, args.cores)
     if args.repeats > 1 or len(runs) > 1:
         print("\nmedians (queued_s: the run's threads waiting for a core that another process held):")
         for label, rows in headline.items():
             print(f"  {label:30s} " + ", ".join(f"{k} {statistics.median(r[k] for r in rows):.2f}" for k in rows[0]))
+    if len(concurrency) > 2:
+        fit_concurrency(concurrency)
 
 
 if __name__ == "__main__":
