@@ -486,8 +486,9 @@ class PathChooser:
 
     def _made(self, probe: str, conditions: dict) -> bool:
         """Whether a probe's result is already at hand: made ahead, or kept across runs (:meth:`_remembered`)."""
-        return (self._ahead_key(probe, conditions) in self._ahead
-                or PROBE_CACHE.get(self._cache_key(probe, conditions))[0])
+        if self._ahead_key(probe, conditions) in self._ahead:
+            return True
+        return PROBE_CACHE.folder() is not None and PROBE_CACHE.get(self._cache_key(probe, conditions))[0]
 
     def _measure(self, runs: list[_PairRun], analytic: list[list[tuple[float, float]]]) -> dict[tuple, Any]:
         """The reference frame pairs of ``runs`` until each one's verdict, and the analytic-path probes of
@@ -689,14 +690,19 @@ class PathChooser:
             # falls as the frames at one position are averaged (a pixel's share of a PSF depends on where it sits)
             means = {name: np.zeros(len(AVERAGED_GROUPS)) for name in ANALYTIC_PATHS}
             positions = offsets[:AVERAGED_POSITIONS]
-            held = {name: imager.path_named[name].stamps(imager.path_named[name].renderer(zenith_rad), positions)
-                    for name in ANALYTIC_PATHS}                   # each position's analytic stamp
+            held = np.stack([imager.path_named[name].stamps(imager.path_named[name].renderer(zenith_rad), positions)
+                             for name in ANALYTIC_PATHS])         # each path's stamp at each position
+            ends = np.cumsum([0, *(PROBE_FRAMES // k for k in AVERAGED_GROUPS)])
+            grouped = np.empty((ends[-1], *pupil.shape[1:]), pupil.dtype)   # every group's means, one after another
             for p, offset in enumerate(positions):
                 still = np.broadcast_to(offset, offsets.shape)
                 pupil = imager.pupil_renderer.stamps(imager.pupil_amplitude, phase, still)
-                grouped = [pupil.reshape(-1, k, *pupil.shape[1:]).mean(axis=1) for k in AVERAGED_GROUPS]
-                for name in ANALYTIC_PATHS:
-                    means[name] += [float(total_variation(group, held[name][p], flux).mean()) for group in grouped]
+                for k, start, stop in zip(AVERAGED_GROUPS, ends[:-1], ends[1:]):
+                    np.mean(pupil.reshape(-1, k, *pupil.shape[1:]), axis=1, out=grouped[start:stop])
+                # each path's distance from each mean: the sums of total_variation one frame at a time
+                distance = total_variation(grouped, held[:, p, None], flux)
+                for i, name in enumerate(ANALYTIC_PATHS):
+                    means[name] += [float(distance[i, start:stop].mean()) for start, stop in zip(ends[:-1], ends[1:])]
             for name in ANALYTIC_PATHS:
                 fits[name] = fit_averaged(np.array(AVERAGED_GROUPS), means[name] / AVERAGED_POSITIONS)
         return distances, fits
@@ -711,9 +717,12 @@ class PathChooser:
         telescope, wavelength, atmosphere (every layer and the outer scale), pixel scale, sampling (the pupil
         and stamp grids, the layers' screens), the reference grid, tolerance, focus, the run's seed, whether
         the detector's averaging is probed, whether finite-range bins share the far bin's probes (``share_far``),
-        and the probes' frame counts and bins."""
+        and the probes' frame counts and bins. With the cache off (``EVSDA_CACHE=off``) the key is not made (~1 ms
+        of the interpreter each: the dataclasses' copies)."""
         ahead = self._ahead.pop(self._ahead_key(probe, conditions), None)
         made = compute if ahead is None else lambda: ahead
+        if PROBE_CACHE.folder() is None:
+            return made()
         return PROBE_CACHE.remember(self._cache_key(probe, conditions), made, encode, decode)
 
     @staticmethod
