@@ -40,8 +40,10 @@ from pydantic import Field
 from evsda.blocks.ports import Events, EventCause, Metrics, PointSources, SourceKind, TriggeredEvents
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
 
+from .metric_counts import SATELLITE_MARK, SOURCE_MARK, bin_delays, count_causes, count_recorded
+
 DELAY_DECADES = 14            # delays from 1 ns to 1e14 ns (~28 h) [decade]
-SOURCE_BIT, SATELLITE_BIT = 1, 2
+SOURCE_BIT, SATELLITE_BIT = SOURCE_MARK, SATELLITE_MARK
 
 
 class EventMetrics(Block):
@@ -108,20 +110,12 @@ class EventMetrics(Block):
         c["recorded"] += len(events)
         c["dropped"] += int(events.n_dropped)
         c["duration_ns"] += window.duration_ns
-        by_cause = np.bincount(triggered.cause, minlength=len(EventCause))[: len(EventCause)]
-        c["triggered_by_cause"] = [a + int(b) for a, b in zip(c["triggered_by_cause"], by_cause)]
-        by_cause = np.bincount(events.cause, minlength=len(EventCause))[: len(EventCause)]
-        c["recorded_by_cause"] = [a + int(b) for a, b in zip(c["recorded_by_cause"], by_cause)]
+        if len(triggered):
+            by_cause = np.zeros(len(EventCause), np.int64)
+            count_causes(triggered.cause, by_cause)
+            c["triggered_by_cause"] = [a + int(b) for a, b in zip(c["triggered_by_cause"], by_cause)]
         if len(events):
-            index = events.y.astype(np.int64) * fp.width_px + events.x.astype(np.int64)
-            sums = self._track_sums()
-            np.add.at(self.image.reshape(-1), index, 1)
-            marks = self.tracks.reshape(-1)[index]
-            sums["events"] += index.size
-            sums["source_events"] += int(np.count_nonzero(marks & SOURCE_BIT))
-            sums["satellite_events"] += int(np.count_nonzero(marks & SATELLITE_BIT))
-            self._delays(events.t_readout_ns - events.t_trigger_ns)
-            c["out_of_order"] += self._out_of_order(events.t_readout_ns, events.t_trigger_ns)
+            self._count_recorded(events)
         if sources is not None:
             self._mark_tracks(sources)
         return {"metrics": self.summary(with_tracks=sources is not None)}
@@ -129,40 +123,37 @@ class EventMetrics(Block):
     def finish(self) -> dict:
         return {"metrics": self.summary(with_tracks=self.tracks is not None and bool(self.tracks.any()))}
 
-    def _delays(self, delay_ns: np.ndarray) -> None:
-        c = self.counts
-        c["delay_sum_ns"] += float(np.sum(delay_ns, dtype=np.float64))
-        c["delay_max_ns"] = max(c["delay_max_ns"], int(delay_ns.max()))
+    def _count_recorded(self, events: Events) -> None:
+        """A window's recorded events counted in one compiled pass (:func:`.metric_counts.count_recorded`): the
+        frame's counts and the track sums, causes, delays and ordering errors."""
+        c, o, fp = self.counts, self.order, events.focal_plane
+        sums = self._track_sums()
+        by_cause = np.zeros(len(EventCause), np.int64)
+        order = np.array([o["last_t_a"], o["max_before_last"], o["max_all"]], np.int64)
+        delay_ns = np.empty(len(events), np.int64)
+        (near_source, near_satellite, out_of_order, largest, positive, total, magnitude,
+         outside) = count_recorded(self.image.reshape(-1), self.tracks.reshape(-1), fp.width_px, fp.height_px,
+                                   events.x, events.y, events.t_readout_ns, events.t_trigger_ns, events.cause,
+                                   by_cause, order, delay_ns)
+        if outside >= 0:
+            raise IndexError(f"event {outside} at ({events.x[outside]}, {events.y[outside]}) is outside the "
+                             f"{fp.width_px} x {fp.height_px} focal plane")
+        c["recorded_by_cause"] = [a + int(b) for a, b in zip(c["recorded_by_cause"], by_cause)]
+        sums["events"] += len(events)
+        sums["source_events"] += near_source
+        sums["satellite_events"] += near_satellite
+        c["out_of_order"] += out_of_order
+        o["last_t_a"], o["max_before_last"], o["max_all"] = (int(v) for v in order)
+        # integers below 2**53 add exactly in any order: their sum is NumPy's pairwise float64 sum
+        exact = 0 <= magnitude < 2 ** 53
+        c["delay_sum_ns"] += float(total) if exact else float(np.sum(delay_ns, dtype=np.float64))
+        c["delay_max_ns"] = max(c["delay_max_ns"], int(largest))
         k = self.params.bins_per_decade
-        positive = delay_ns > 0
-        if positive.all():
-            bins = 1 + np.floor(np.log10(delay_ns) * k).astype(np.int64)
+        if positive == delay_ns.size:
+            bin_delays(np.log10(delay_ns), k, self.delays)
         else:
-            bins = np.zeros(delay_ns.size, np.int64)
-            bins[positive] = 1 + np.floor(np.log10(delay_ns[positive]) * k).astype(np.int64)
-        self.delays += np.bincount(np.minimum(bins, self.delays.size - 1), minlength=self.delays.size)
-
-    def _out_of_order(self, t_a: np.ndarray, t_t: np.ndarray) -> int:
-        """Events whose trigger time is before that of an event recorded strictly earlier."""
-        o = self.order
-        new_group = np.empty(t_a.size, bool)
-        new_group[0] = t_a[0] != o["last_t_a"]
-        np.not_equal(t_a[1:], t_a[:-1], out=new_group[1:])
-        running = np.maximum.accumulate(t_t)
-        if new_group.all():        # every event read out at a tick of its own (a row scan's bus): shift by one
-            before = np.empty(t_a.size, np.int64)
-            before[0] = np.iinfo(np.int64).min
-            before[1:] = running[:-1]
-            np.maximum(before, o["max_all"], out=before)
-        else:
-            start = np.maximum.accumulate(np.where(new_group, np.arange(t_a.size), 0))
-            before = np.where(start > 0, running[np.maximum(start - 1, 0)], np.iinfo(np.int64).min)
-            carried = np.where(~new_group[0] & (start == 0), o["max_before_last"], o["max_all"])
-            before = np.maximum(before, carried)
-        o["max_before_last"] = int(before[-1])
-        o["max_all"] = max(o["max_all"], int(running[-1]))
-        o["last_t_a"] = int(t_a[-1])
-        return int(np.count_nonzero(t_t < before))
+            self.delays[0] += delay_ns.size - positive
+            bin_delays(np.log10(delay_ns[delay_ns > 0]), k, self.delays)
 
     def _mark_tracks(self, sources: PointSources) -> None:
         """Rasterise each source's path (straight between samples, 0.5 pixel steps) into ``tracks``."""

@@ -1,0 +1,101 @@
+"""The metrics block's per-window counts in compiled passes that leave the interpreter lock (issue 13).
+
+:func:`count_recorded` counts a window's recorded events in one call: each event's pixel counted into the frame
+and tested against the track marks (:func:`count_pixels`), their causes (:func:`count_causes`), their readout
+delays ``t_a - t_t`` kept (with their maximum, the number of positive ones, their integer sum and the sum of their
+magnitudes) and the events recorded out of trigger order counted (:func:`count_delays`). :func:`bin_delays` adds
+the delays' logarithmic bins, from NumPy's ``log10`` (left to NumPy: a compiled logarithm need not round alike).
+Every result is an integer, the same as the NumPy expressions they replace (``np.add.at``, ``np.bincount``,
+running maxima; tests/readout/test_readout_metric_counts.py keeps those as the reference and compares).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+SOURCE_MARK, SATELLITE_MARK = 1, 2       # the track bits of metrics.SOURCE_BIT, metrics.SATELLITE_BIT
+INT64_MIN = np.iinfo(np.int64).min
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def count_recorded(image, tracks, width, height, x, y, t_a, t_t, cause, by_cause, order, delays):
+    """A window's recorded events counted: their pixels (:func:`count_pixels`), causes (:func:`count_causes`),
+    delays and ordering errors (:func:`count_delays`), in one call.
+
+    ``image`` (int64) and ``tracks`` (uint8): the frame's flat counts and track marks, counted into;
+    ``by_cause`` (int64 [n_causes]): events per cause added (causes past its end not counted);
+    ``order`` (int64 [3]): the readout time of the last event, the trigger-time maximum before its readout
+    tick and over every event so far, carried from window to window and updated; ``delays`` (int64 [n]):
+    filled with ``t_a - t_t`` [ns]. Returns (events near a source, near a satellite, recorded out of trigger
+    order, the largest delay, positive delays, the delays' sum, the sum of their magnitudes, the first event
+    outside the frame or -1: then nothing is counted)."""
+    near_source, near_satellite, outside = count_pixels(image, tracks, width, height, x, y)
+    if outside >= 0:
+        return 0, 0, 0, 0, 0, 0, 0, outside
+    count_causes(cause, by_cause)
+    out_of_order, largest, positive, total, magnitude = count_delays(t_a, t_t, order, delays)
+    return near_source, near_satellite, out_of_order, largest, positive, total, magnitude, -1
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def count_pixels(image, tracks, width, height, x, y):
+    """Add each event to its pixel's count in ``image`` and count the events on pixels marked near a source
+    and near a satellite in ``tracks``. Returns (near a source, near a satellite, the first event outside the
+    frame or -1: then nothing is counted)."""
+    for i in range(x.size):
+        if np.int64(x[i]) >= width or np.int64(y[i]) >= height:
+            return 0, 0, i
+    near_source = near_satellite = 0
+    for i in range(x.size):
+        pixel = np.int64(y[i]) * width + np.int64(x[i])
+        image[pixel] += 1
+        mark = tracks[pixel]
+        near_source += (mark & SOURCE_MARK) != 0
+        near_satellite += (mark & SATELLITE_MARK) != 0
+    return near_source, near_satellite, -1
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def count_delays(t_a, t_t, order, delays):
+    """The readout delays ``t_a - t_t`` into ``delays`` and the events recorded out of trigger order (an
+    event whose trigger time is before that of an event recorded at an earlier readout tick; ``order`` as in
+    :func:`count_recorded`). Returns (out of order, the largest delay, positive delays, their sum, the sum of
+    their magnitudes)."""
+    out_of_order = positive = total = magnitude = 0
+    largest = INT64_MIN
+    last_t_a, max_before, max_all = order[0], order[1], order[2]
+    for i in range(t_a.size):
+        delay = t_a[i] - t_t[i]
+        delays[i] = delay
+        largest = max(largest, delay)
+        positive += delay > 0
+        total += delay
+        magnitude += abs(delay)
+        if t_a[i] != last_t_a:          # a new readout tick: every event before it was recorded strictly earlier
+            max_before = max_all
+            last_t_a = t_a[i]
+        out_of_order += t_t[i] < max_before
+        max_all = max(max_all, t_t[i])
+    order[0], order[1], order[2] = last_t_a, max_before, max_all
+    return out_of_order, largest, positive, total, magnitude
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def count_causes(cause, by_cause):
+    """Add the events of each cause to ``by_cause`` (int64 [n_causes]; causes past its end not counted): one
+    pass a cause (compares that vectorise, against one increment after another of the same few counters)."""
+    for c in range(by_cause.size):
+        n = 0
+        for i in range(cause.size):
+            n += cause[i] == c
+        by_cause[c] += n
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def bin_delays(log10_delay, bins_per_decade, histogram):
+    """Add each delay's bin ``1 + floor(log10(delay) * bins_per_decade)`` (the last bin for any above it) to
+    ``histogram`` (int64), from the delays' ``log10`` as NumPy works them out (positive delays only)."""
+    last = histogram.size - 1
+    for i in range(log10_delay.size):
+        histogram[min(1 + np.int64(np.floor(log10_delay[i] * bins_per_decade)), last)] += 1
