@@ -23,7 +23,8 @@ Rules:
   if ready, else the one furthest upstream (the next optics window, say, goes on at once on the thread that
   ended the previous one, or the pixels' step it waited for): no round trip through a scheduling thread, each of
   whose wake-ups waits for the interpreter lock;
-* windows are handed back in order, to the calling thread, which records them (one thread writes the store);
+* windows are handed back in order, to the calling thread, which records them (one thread writes the store); it is
+  woken when the oldest window is complete or nothing runs, not at every step's end;
 * a commit is a barrier: before the first step of window ``k + 1`` starts, the pipeline asks whether the
   blocks' state after window ``k`` is to be committed; if so, nothing of ``k + 1`` starts until ``k`` is handed
   back and its commit made, so every block's state is then its state after ``k``, as in the serial loop;
@@ -131,7 +132,7 @@ class _State:
     def next_window(self) -> tuple[Window, list[tuple[str, dict]], bool]:
         """The oldest window once complete, with its commit decision (its values are dropped); or the error."""
         with self.lock:
-            while not all(done >= self.next_out for done in self.done.values()):
+            while not self._oldest_complete():
                 if self.crash is not None:
                     raise self.crash
                 if not self.running:
@@ -146,6 +147,10 @@ class _State:
             del self.values[k]
             self.next_out += 1
         return self.run.window(k), [entries[i] for i in sorted(entries)], commit
+
+    def _oldest_complete(self) -> bool:
+        """Every block has finished the oldest window not yet handed back."""
+        return all(done >= self.next_out for done in self.done.values())
 
     def _may_start(self, k: int) -> bool:
         """Window ``k`` may start: no window before it is still to be committed (asked in order, once each)."""
@@ -214,7 +219,8 @@ class _State:
                 with self.lock:
                     self._harvest(name, k, outputs, error)
                     task = self.launch(keep=name)
-                    self.lock.notify_all()
+                    if not self.running or self._oldest_complete():
+                        self.lock.notify_all()         # the calling thread waits for nothing else (next_window)
         except BaseException as exc:                   # noqa: BLE001 -- a bug here: the calling thread raises it
             with self.lock:
                 self.crash = exc
