@@ -5,6 +5,7 @@ and tested against the track marks (:func:`count_pixels`), their causes (:func:`
 delays ``t_a - t_t`` kept (with their maximum, the number of positive ones, their integer sum and the sum of their
 magnitudes) and the events recorded out of trigger order counted (:func:`count_delays`). :func:`bin_delays` adds
 the delays' logarithmic bins, from NumPy's ``log10`` (left to NumPy: a compiled logarithm need not round alike).
+:func:`mark_paths` marks the sources' paths (the track) on the frame.
 Every result is an integer, the same as the NumPy expressions they replace (``np.add.at``, ``np.bincount``,
 running maxima; tests/readout/test_readout_metric_counts.py keeps those as the reference and compares).
 """
@@ -99,3 +100,54 @@ def bin_delays(log10_delay, bins_per_decade, histogram):
     last = histogram.size - 1
     for i in range(log10_delay.size):
         histogram[min(1 + np.int64(np.floor(log10_delay[i] * bins_per_decade)), last)] += 1
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def mark_paths(seen, satellite, box, radius_sq, step_px, tracks, image, added):
+    """Mark every source's path in ``tracks`` (uint8 [height, width]): ``SOURCE_MARK`` on every pixel whose
+    centre is within ``sqrt(radius_sq)`` of a point of the path, ``SATELLITE_MARK`` too for a satellite.
+
+    ``seen``: float64 [n_t, n_src, 2] the sources' (x, y) samples [pixel], NaN in both where not seen; the path
+    is straight between consecutive seen samples, a point every ``step_px`` or less (:func:`path_points`, as
+    :func:`.metrics.densify`); ``satellite``: bool [n_src]; ``box``: int64 [n_box, 2] offsets from
+    ``floor(point)`` covering the disc; ``added`` (int64 [4]): the pixels newly marked near a source, the recorded
+    events (``image``) on them, and the same for a satellite, added to."""
+    height, width = tracks.shape
+    for s in range(seen.shape[1]):
+        bit = SOURCE_MARK | (SATELLITE_MARK if satellite[s] else 0)
+        for point in path_points(seen[:, s], step_px):
+            fx, fy = np.int64(np.floor(point[0])), np.int64(np.floor(point[1]))
+            for k in range(box.shape[0]):
+                px, py = fx + box[k, 0], fy + box[k, 1]
+                dx, dy = px - point[0], py - point[1]
+                if dx * dx + dy * dy <= radius_sq and 0 <= px < width and 0 <= py < height:
+                    mark = tracks[py, px]
+                    if mark & SOURCE_MARK == 0:
+                        added[0] += 1
+                        added[1] += image[py, px]
+                    if bit & SATELLITE_MARK and mark & SATELLITE_MARK == 0:
+                        added[2] += 1
+                        added[3] += image[py, px]
+                    tracks[py, px] = mark | bit
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def path_points(xy, step_px):
+    """Points every ``step_px`` or less along the straight segments between consecutive finite samples of
+    ``xy`` [n, 2], then the samples themselves: the points of :func:`.metrics.densify`, the same arithmetic
+    (``a + (b - a) * (j / n)``), in another order."""
+    finite = np.empty(xy.shape[0], np.bool_)
+    for i in range(xy.shape[0]):
+        finite[i] = np.isfinite(xy[i, 0]) and np.isfinite(xy[i, 1])
+    points = []
+    for i in range(xy.shape[0] - 1):
+        if finite[i] and finite[i + 1]:
+            ax, ay, bx, by = xy[i, 0], xy[i, 1], xy[i + 1, 0], xy[i + 1, 1]
+            n = max(1, np.int64(np.ceil(max(abs(bx - ax), abs(by - ay)) / step_px)))
+            for j in range(n):
+                frac = j / n
+                points.append((ax + (bx - ax) * frac, ay + (by - ay) * frac))
+    for i in range(xy.shape[0]):
+        if finite[i]:
+            points.append((xy[i, 0], xy[i, 1]))
+    return points

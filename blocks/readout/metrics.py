@@ -40,10 +40,11 @@ from pydantic import Field
 from evsda.blocks.ports import Events, EventCause, Metrics, PointSources, SourceKind, TriggeredEvents
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, Window
 
-from .metric_counts import SATELLITE_MARK, SOURCE_MARK, bin_delays, count_causes, count_recorded
+from .metric_counts import SATELLITE_MARK, SOURCE_MARK, bin_delays, count_causes, count_recorded, mark_paths
 
 DELAY_DECADES = 14            # delays from 1 ns to 1e14 ns (~28 h) [decade]
 SOURCE_BIT, SATELLITE_BIT = SOURCE_MARK, SATELLITE_MARK
+PATH_STEP_PX = 0.5           # a source's path drawn as points this far apart at most [pixel]
 
 
 class EventMetrics(Block):
@@ -164,44 +165,11 @@ class EventMetrics(Block):
             return
         seen = np.where(np.isfinite(xy).all(axis=-1, keepdims=True), xy, np.nan)
         self.last_xy = seen[-1].copy()          # NaN if the source was lost: the next window starts afresh
-        for s in np.flatnonzero(np.isfinite(seen[..., 0]).any(axis=0)):      # the sources seen in this window
-            bit = SOURCE_BIT | (SATELLITE_BIT if sources.kind[s] == SourceKind.SATELLITE else 0)
-            points = densify(seen[:, s])
-            if points.size:
-                self._stamp(distinct_points(points), bit)
-
-    def _stamp(self, points: np.ndarray, bit: int) -> None:
-        """Set ``bit`` on every pixel whose centre is within ``track_radius_px`` of one of ``points``.
-
-        The pixels near the points are marked on a boolean raster of their bounding box (a path's box is
-        small: one window's stretch), or listed and deduplicated where the box would be much larger."""
-        h, w = self.tracks.shape
-        r = self.params.track_radius_px
-        px = np.floor(points[:, 0]).astype(np.int64)[:, None] + self._box[:, 0]      # [n_points, n_box]
-        py = np.floor(points[:, 1]).astype(np.int64)[:, None] + self._box[:, 1]
-        dx, dy = px - points[:, :1], py - points[:, 1:]
-        near = dx * dx + dy * dy <= r * r
-        near &= (px >= 0) & (px < w) & (py >= 0) & (py < h)
-        px, py = px[near], py[near]
-        if not px.size:
-            return
-        x0, y0 = int(px.min()), int(py.min())
-        shape = (int(py.max()) + 1 - y0, int(px.max()) + 1 - x0)
-        sums = self._track_sums()
-        if shape[0] * shape[1] > 4 * px.size:
-            index = np.unique(py * w + px)
-            tracks, image = self.tracks.reshape(-1), self.image.reshape(-1)
-        else:
-            index = np.zeros(shape, bool)
-            index[py - y0, px - x0] = True
-            tracks, image = self.tracks[y0:y0 + shape[0], x0:x0 + shape[1]], self.image[y0:y0 + shape[0],
-                                                                                         x0:x0 + shape[1]]
-        for mark, name in ((SOURCE_BIT, "source"), (SATELLITE_BIT, "satellite")):
-            if bit & mark:
-                new = (tracks[index] & mark) == 0
-                sums[f"{name}_pixels"] += int(np.count_nonzero(new))
-                sums[f"{name}_events"] += int(image[index][new].sum())
-        tracks[index] |= np.uint8(bit)
+        sums, added = self._track_sums(), np.zeros(4, np.int64)
+        mark_paths(seen, sources.kind == SourceKind.SATELLITE, self._box, self.params.track_radius_px * self.params.track_radius_px,
+                   PATH_STEP_PX, self.tracks, self.image, added)
+        for name, value in zip(("source_pixels", "source_events", "satellite_pixels", "satellite_events"), added):
+            sums[name] += int(value)
 
     # -- the figures ----------------------------------------------------------------------------------
     def summary(self, with_tracks: bool) -> Metrics:
@@ -282,21 +250,7 @@ def _box_offsets(radius: float) -> np.ndarray:
     return np.stack([dx.ravel(), dy.ravel()], axis=-1).astype(np.int64)
 
 
-#: np.unique's hash table, unsorted (NumPy >= 2.3): ~15 against ~100 us for a window's points
-_UNSORTED = {"sorted": False} if np.lib.NumpyVersion(np.__version__) >= "2.3.0" else {}
-
-
-def distinct_points(points: np.ndarray) -> np.ndarray:
-    """The distinct rows of ``points`` [n, 2], in any order.
-
-    A slow source repeats its points: a tracked satellite's ~200 points a window (its samples and the points
-    between them) are ~35 distinct values. The marks are the union over the points, so each is stamped once.
-    """
-    pairs = np.ascontiguousarray(points, dtype=np.float64).view(np.complex128).ravel()
-    return np.unique(pairs, **_UNSORTED).view(np.float64).reshape(-1, 2)
-
-
-def densify(xy: np.ndarray, step_px: float = 0.5) -> np.ndarray:
+def densify(xy: np.ndarray, step_px: float = PATH_STEP_PX) -> np.ndarray:
     """Points every ``step_px`` along the straight segments between consecutive finite samples."""
     finite = np.isfinite(xy).all(axis=1)
     pts = xy[finite]

@@ -229,24 +229,3 @@ def test_state_round_trip_with_tracks_continues_identically():
     np.add.at(counts, (y, x), 1)
     assert final["track_events"] == counts[tube].sum() > 0
     assert final["background_pixels"] == (~tube).sum()
-
-
-def test_a_slow_sources_repeated_points_are_stamped_once_with_the_same_marks():
-    """The track marks and the running sums are the same whether every densified point is stamped or only the
-    distinct ones (a tracked satellite repeats its points: ~200 a window, ~35 distinct)."""
-    from evsda.blocks.readout.metrics import densify, distinct_points
-
-    rng = np.random.default_rng(3)
-    path = np.repeat(np.array([[10.3, 20.7], [10.3, 20.7], [11.9, 21.2], [30.25, 5.5]]), [40, 30, 30, 1], axis=0)
-    points = densify(path + rng.choice([0.0, 1e-11], size=path.shape))
-    assert distinct_points(points).shape[0] < points.shape[0] / 4
-    assert sorted(map(tuple, distinct_points(points))) == sorted(set(map(tuple, points)))
-    image, blocks = rng.integers(0, 3, (FP.height_px, FP.width_px)), []
-    for stamped in (points, distinct_points(points)):
-        m = EventMetrics(track_radius_px=2.5)
-        m.image = image.copy()
-        m.tracks = np.zeros(m.image.shape, np.uint8)
-        m._stamp(stamped, 3)
-        blocks.append(m)
-    assert np.array_equal(blocks[0].tracks, blocks[1].tracks) and blocks[0].tracks.any()
-    assert blocks[0]._track_sums() == blocks[1]._track_sums()
