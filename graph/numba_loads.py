@@ -16,6 +16,18 @@ code runs, so every result is the same. Its loads name their cache folder to :mo
 library's defined names there (:func:`.numba_symbols.kept_symbols`). It applies only on the Numba versions checked,
 only where ``load_overload``'s source is Numba's as checked, and only for Numba's CPU target;
 ``EVSDA_LAZY_REGISTRIES=off`` leaves Numba as it is.
+
+Each loaded function also brings the environments of the Numba implementations compiled into it (``np.sum``'s in
+``numba.np.arraymath``, ...), rebuilt by ``numba.core.environment._rebuild_env`` with their module's globals: it
+imports the module, and a run's loads import six of Numba's not imported otherwise (``numba.np.arraymath``,
+``arrayobj``, ``linalg``, ``npyimpl``, ``numba.cpython.numbers``, ``numba.misc.literal``: 24 modules with what they
+import, ~0.1 s CPU on the interpreter lock at the first load). Nopython code never reads an environment's globals
+(only object mode's lowering does; its constants are the environment's ``consts``), and none of these modules adds a
+symbol that machine code calls. :func:`lazy_registries` therefore gives the environment of a Numba module not yet
+imported a stand-in namespace holding its name (what ``Environment.__reduce__`` and ``can_cache`` read) instead of
+importing it: the same machine code and constants. A later compile in the process imports the modules itself (its
+refresh). Only on the Numba versions checked and where ``_rebuild_env``'s source is Numba's as checked;
+``EVSDA_LAZY_ENVIRONMENTS=off`` imports them as Numba does.
 """
 
 from __future__ import annotations
@@ -42,6 +54,21 @@ _NUMBAS_LOAD = '''    def load_overload(self, sig, target_context):
         # None returned if the `with` block swallows an exception
 '''
 
+#: ``numba.core.environment._rebuild_env``'s source in the versions checked
+_NUMBAS_REBUILD_ENV = '''def _rebuild_env(modname, consts, env_name):
+    env = lookup_environment(env_name)
+    if env is not None:
+        return env
+
+    mod = importlib.import_module(modname)
+    env = Environment(mod.__dict__)
+    env.consts[:] = consts
+    env.env_name = env_name
+    # Cache loaded object
+    Environment._memo[env_name] = env
+    return env
+'''
+
 _lazy: bool | None = None           # None: not tried; True: loads refresh nothing; False: Numba's loads
 
 
@@ -53,6 +80,7 @@ def lazy_registries() -> bool:
     global _lazy
     if _lazy is None and "numba" in sys.modules:
         _lazy = attempted_edit(_edit_load, "Numba's cached loads left as they are")
+        attempted_edit(_edit_environments, "Numba's environments rebuilt as Numba does")
         one_pass_symbols()                          # and read each loaded module's symbols in one pass
         kept_symbols()                              # or keep them beside the cache, the bitcode parsed to link
     return bool(_lazy)
@@ -79,6 +107,36 @@ def _edit_load() -> bool:
     load_overload.__doc__ = numbas.__doc__
     load_overload.__qualname__ = numbas.__qualname__
     caching.Cache.load_overload = load_overload
+    return True
+
+
+def _edit_environments() -> bool:
+    """Rebuild a loaded environment of a Numba module not yet imported without importing it (module docstring)."""
+    import numba
+    from numba.core import environment
+
+    if numba.__version__ not in _CHECKED or switched_off("EVSDA_LAZY_ENVIRONMENTS"):
+        return False
+    numbas = environment._rebuild_env
+    if inspect.getsource(numbas) != _NUMBAS_REBUILD_ENV:
+        return False
+
+    def _rebuild_env(modname, consts, env_name):
+        if modname in sys.modules or not modname.startswith("numba."):
+            return numbas(modname, consts, env_name)
+        env = environment.lookup_environment(env_name)
+        if env is not None:
+            return env
+        env = environment.Environment({"__name__": modname})       # the stand-in for the module's globals
+        env.consts[:] = consts
+        env.env_name = env_name
+        environment.Environment._memo[env_name] = env
+        return env
+
+    # pickled by reference as Numba's (an environment's reducer names it): a cache written here loads anywhere as
+    # Numba's own would, through whichever function is installed there
+    _rebuild_env.__module__, _rebuild_env.__qualname__ = numbas.__module__, numbas.__qualname__
+    environment._rebuild_env = _rebuild_env
     return True
 
 

@@ -56,3 +56,46 @@ def test_cached_loads_skip_the_registries_and_give_the_same_results(fresh_numba,
     assert compiled["values"][0] == [0.0, 0.5, 1.0, 1.5, 2.0] and compiled["values"][2] == "negative"
     assert loaded["lazy"] and not numbas["lazy"]
     assert not loaded["refreshed"] and numbas["refreshed"]
+
+
+ENVIRONMENTS = textwrap.dedent("""
+    import numpy as np
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def fills(n):                          # environments of numba.np.arrayobj (np.empty), arraymath (sum, any)
+        out = np.empty((n, 2))
+        for i in range(n):
+            out[i, 0] = 0.5 * i
+            out[i, 1] = 0.0
+        return out.sum() + np.any(out > 1.0)
+""")
+
+ENVIRONMENTS_SCRIPT = textwrap.dedent("""
+    import json, sys
+    import environment_kernels as k
+    from evsda.graph import numba_loads
+    numba_loads.lazy_registries()
+    import numpy as np
+    values = [k.fills(5)]
+    imported = "numba.np.arrayobj" in sys.modules      # by the environments' rebuild
+    import numba
+
+    @numba.njit
+    def fresh(x):                          # a compile after the stand-in environments: its refresh imports them
+        return np.mean(x) + np.sum(x)
+
+    values += [fresh(np.arange(4.0)), k.fills(7)]
+    print(json.dumps({"values": values, "imported": imported, "loaded": sum(k.fills.stats.cache_hits.values())}))
+""")
+
+
+def test_loaded_environments_of_numba_modules_import_none_and_give_the_same_results(fresh_numba, tmp_path):
+    run = fresh_numba(ENVIRONMENTS_SCRIPT, "EVSDA_LAZY_ENVIRONMENTS")
+    (tmp_path / "environment_kernels.py").write_text(ENVIRONMENTS)
+    compiled = run()                            # an empty cache: compiled here (its compile imports the modules)
+    loaded = run()                              # loaded: arrayobj's environments rebuilt without importing it
+    numbas = run(EVSDA_LAZY_ENVIRONMENTS="off")  # loaded as Numba does
+    assert compiled["loaded"] == 0 and loaded["loaded"] == numbas["loaded"] == 1
+    assert compiled["values"] == loaded["values"] == numbas["values"] == [6.0, 7.5, 11.5]
+    assert compiled["imported"] and not loaded["imported"] and numbas["imported"]
