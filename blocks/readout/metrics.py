@@ -34,6 +34,8 @@ from :meth:`finish`; all units are in :attr:`Metrics.units`.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from pydantic import Field
 
@@ -190,37 +192,28 @@ class EventMetrics(Block):
             "out_of_order_fraction": _ratio(c["out_of_order"], c["recorded"]),
             "duration_s": duration_s,
         }
-        units = {name: "event" for name in values if name.startswith("events_")}
-        units.update({name: "1" for name in ("ratio_recorded_to_expected", "loss_fraction_pixel",
-                                             "loss_fraction_readout", "loss_to_recorded", "out_of_order_fraction")})
-        units["duration_s"] = "s"
-        for cause in EventCause:
-            values[f"events_triggered_{cause.name.lower()}"] = c["triggered_by_cause"][cause]
-            values[f"events_recorded_{cause.name.lower()}"] = c["recorded_by_cause"][cause]
-            units[f"events_triggered_{cause.name.lower()}"] = units[f"events_recorded_{cause.name.lower()}"] = "event"
+        for cause, triggered, recorded in CAUSE_NAMES:
+            values[triggered] = c["triggered_by_cause"][cause]
+            values[recorded] = c["recorded_by_cause"][cause]
         if c["recorded"]:
             values["readout_delay_mean_s"] = c["delay_sum_ns"] / c["recorded"] / NS_PER_S
             values["readout_delay_max_s"] = c["delay_max_ns"] / NS_PER_S
             cum = np.cumsum(self.delays)
-            for q in (50, 90, 99, 99.9):
-                values[f"readout_delay_p{q:g}_s".replace(".", "_")] = self.delay_percentile(q, cum) / NS_PER_S
-            units.update({name: "s" for name in values if name.startswith("readout_delay")})
+            for q, name in PERCENTILE_NAMES:
+                values[name] = self.delay_percentile(q, cum) / NS_PER_S
         if self.image is not None and duration_s > 0:
             sums = self._track_sums()
             n_bg = self.image.size - (sums["source_pixels"] if with_tracks else 0)
             rate = _ratio(sums["events"] - (sums["source_events"] if with_tracks else 0), n_bg * duration_s)
             values["background_rate_hz_per_pixel"] = rate
             values["background_pixels"] = n_bg
-            units.update(background_rate_hz_per_pixel="Hz pixel^-1", background_pixels="pixel")
             if with_tracks:
                 n_track, track_pixels = sums["satellite_events"], sums["satellite_pixels"]
                 expected_bg = rate * track_pixels * duration_s
                 values.update(track_pixels=track_pixels, track_events=n_track,
                               track_background_events=expected_bg,
                               track_snr=(n_track - expected_bg) / np.sqrt(n_track) if n_track else 0.0)
-                units.update(track_pixels="pixel", track_events="event", track_background_events="event",
-                             track_snr="1")
-        return Metrics(values, units)
+        return Metrics(values, dict(_units(tuple(values))))
 
     def delay_percentile(self, q: float, cum: np.ndarray | None = None) -> float:
         """The ``q``-th percentile of the readout delay from the histogram [ns] (log-interpolated in its bin);
@@ -237,6 +230,25 @@ class EventMetrics(Block):
         below = cum[b - 1]
         frac = (rank - below) / self.delays[b] if self.delays[b] else 0.0
         return float(10 ** ((b - 1 + frac) / k))
+
+
+#: (cause, its triggered events' name, its recorded events' name) of every EventCause
+CAUSE_NAMES = tuple((cause, f"events_triggered_{cause.name.lower()}", f"events_recorded_{cause.name.lower()}")
+                    for cause in EventCause)
+#: the readout delay's percentiles (q [%], name)
+PERCENTILE_NAMES = tuple((q, f"readout_delay_p{q:g}_s".replace(".", "_")) for q in (50, 90, 99, 99.9))
+#: the unit of every figure of :meth:`EventMetrics.summary` but the ``events_*`` and ``readout_delay_*`` ones
+UNITS = {**dict.fromkeys(("ratio_recorded_to_expected", "loss_fraction_pixel", "loss_fraction_readout",
+                          "loss_to_recorded", "out_of_order_fraction", "track_snr"), "1"),
+         "duration_s": "s", "background_rate_hz_per_pixel": "Hz pixel^-1", "background_pixels": "pixel",
+         "track_pixels": "pixel", "track_events": "event", "track_background_events": "event"}
+
+
+@functools.lru_cache(maxsize=16)
+def _units(names: tuple[str, ...]) -> dict[str, str]:
+    """The units of a summary's figures, in their order (made once for each set of figures)."""
+    return {name: "event" if name.startswith("events_") else "s" if name.startswith("readout_delay")
+            else UNITS[name] for name in names}
 
 
 def _ratio(a, b) -> float:
