@@ -135,20 +135,3 @@ def _key_order(step, pixel, polarity, cause, n_pixels, keys, order, other_keys, 
         keys, other_keys = other_keys, keys
         order, other_order = other_order, order
     return keys, order, first, pixel_bits, payload
-    digit = -(-(bits - low) // passes)
-    mask = (1 << digit) - 1
-    start = np.empty((1 << digit) + 1, np.int64)
-    for shift in range(low, low + passes * digit, digit):
-        for d in range(start.size):
-            start[d] = 0
-        for i in range(n):
-            start[((keys[i] >> shift) & mask) + 1] += 1
-        for d in range(1 << digit):
-            start[d + 1] += start[d]
-        for i in range(n):
-            d = (keys[i] >> shift) & mask
-            other_keys[start[d]], other_order[start[d]] = keys[i], order[i]
-            start[d] += 1
-        keys, other_keys = other_keys, keys
-        order, other_order = other_order, order
-    return order
