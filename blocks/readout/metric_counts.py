@@ -14,9 +14,29 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 SOURCE_MARK, SATELLITE_MARK = 1, 2       # the track bits of metrics.SOURCE_BIT, metrics.SATELLITE_BIT
 INT64_MIN = np.iinfo(np.int64).min
+FETCH_AHEAD = 16                         # events whose pixels are fetched ahead of their turn (alone: 16 ~0.7x of 0)
+
+
+@intrinsic
+def _fetch_for_write(typingctx, array, index):
+    """Ask the CPU to bring ``array[index]`` (one dimension) into its caches to be written (LLVM's ``prefetch``;
+    no effect on results)."""
+    def codegen(context, builder, signature, args):
+        values = context.make_array(signature.args[0])(context, builder, args[0])
+        pointer = cgutils.get_item_pointer(context, builder, signature.args[0], values, [args[1]], wraparound=False)
+        byte_pointer, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
+        prefetch = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [byte_pointer, i32,
+                                                                                                 i32, i32]),
+                                                  "llvm.prefetch.p0i8")
+        builder.call(prefetch, [builder.bitcast(pointer, byte_pointer), i32(1), i32(3), i32(1)])
+        return context.get_dummy_value()
+    return types.void(array, index), codegen
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -42,13 +62,17 @@ def count_recorded(image, tracks, width, height, x, y, t_a, t_t, cause, by_cause
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def count_pixels(image, tracks, width, height, x, y):
     """Add each event to its pixel's count in ``image`` and count the events on pixels marked near a source
-    and near a satellite in ``tracks``. Returns (near a source, near a satellite, the first event outside the
+    and near a satellite in ``tracks`` (the pixels ``FETCH_AHEAD`` events on asked for ahead). Returns (near a source, near a satellite, the first event outside the
     frame or -1: then nothing is counted)."""
     for i in range(x.size):
         if np.int64(x[i]) >= width or np.int64(y[i]) >= height:
             return 0, 0, i
     near_source = near_satellite = 0
     for i in range(x.size):
+        if i + FETCH_AHEAD < x.size:          # the frame is megabytes, the events' pixels scattered over it
+            ahead = np.int64(y[i + FETCH_AHEAD]) * width + np.int64(x[i + FETCH_AHEAD])
+            _fetch_for_write(image, ahead)
+            _fetch_for_write(tracks, ahead)
         pixel = np.int64(y[i]) * width + np.int64(x[i])
         image[pixel] += 1
         mark = tracks[pixel]
