@@ -121,7 +121,7 @@ class PointSourceOptics(Block):
                               "the scintillation's sum J h^(5/6) and sum J h^2 and the winds' sum J v^2 within 10 %; "
                               "None: every layer [1]")
         follow_sight_rate: bool = Field(
-            False, description="On equivalent layers, move each source's footprints at the winds of its line of "
+            True, description="On equivalent layers, move each source's footprints at the winds of its line of "
                                "sight's rate at each render time (its tau0 the full profile's all along a long "
                                "pass), not at those of its first two render times [1]")
         ground_wind_m_s: float = Field(5.0, ge=0, le=100, description="Ground wind of the Bufton profile [m/s]")
