@@ -96,76 +96,96 @@ def footprint_winds(atmosphere: Atmosphere, sight_rate) -> np.ndarray:
     (:attr:`.Atmosphere.members` set) for its line of sight crossing them at ``sight_rate`` ``s'`` (2,) [1/s] per
     metre of altitude: each group's ``w_g = h_g s' - u_g``, ``|u_g|`` the ``J``-weighted 5/3-moment of its members'
     footprint speeds ``|h_i s' - v_i|`` and its direction that of ``sum_i J_i |u_i|^(5/3) u_i / |u_i|`` (module
-    docstring; the members' strongest layer's where that sum vanishes)."""
+    docstring; the members' strongest layer's where that sum vanishes): :func:`group_winds`, which
+    :func:`follow_drift` calls at every render time."""
     rate = np.asarray(sight_rate, dtype=float)
     winds = np.empty((len(atmosphere.layers), 2))
-    for g, (layer, members) in enumerate(zip(atmosphere.layers, atmosphere.members)):
-        cn2 = np.array([member.cn2_dh for member in members])
-        moving = np.array([member.altitude_m * rate - member.wind_m_s for member in members])    # u_i (M, 2)
-        speed = np.hypot(moving[:, 0], moving[:, 1])
-        pull = np.sum((cn2 * speed ** (2 / 3))[:, None] * moving, axis=0)     # sum J |u|^(5/3) u / |u|
-        strongest = moving[np.argmax(cn2)]
-        toward = pull if np.any(pull) else strongest
-        norm = np.hypot(toward[0], toward[1])
-        footprint = moment(cn2, speed) * toward / norm if norm > 0 else np.zeros(2)
-        winds[g] = layer.altitude_m * rate - footprint
+    group_winds(*member_columns(atmosphere), float(rate[0]), float(rate[1]), winds)
     return winds
 
 
 def member_columns(atmosphere: Atmosphere) -> tuple[np.ndarray, ...]:
-    """An equivalent ``atmosphere``'s groups and members as :func:`follow_drift` reads them: each group's altitude
-    (G,) [m], where its members start and end in the members' columns (G + 1,) and the members' altitudes (M,) [m],
-    ``J`` (M,) [m^(1/3)] and winds (M, 2) [m/s]."""
+    """An equivalent ``atmosphere``'s groups and members as :func:`group_winds` reads them: each group's altitude
+    (G,) [m], where its members start and end in the members' columns (G + 1,), the members' altitudes (M,) [m],
+    ``J`` (M,) [m^(1/3)] and winds (M, 2) [m/s], and what is fixed per group (:func:`group_weights`)."""
     members = [member for group in atmosphere.members for member in group]
-    return (np.array([layer.altitude_m for layer in atmosphere.layers]),
-            np.cumsum([0, *(len(group) for group in atmosphere.members)]).astype(np.int64),
-            np.array([member.altitude_m for member in members]), np.array([member.cn2_dh for member in members]),
-            np.ascontiguousarray([member.wind_m_s for member in members], dtype=float).reshape(len(members), 2))
+    first = np.cumsum([0, *(len(group) for group in atmosphere.members)]).astype(np.int64)
+    cn2 = np.array([member.cn2_dh for member in members])
+    return (np.array([layer.altitude_m for layer in atmosphere.layers]), first,
+            np.array([member.altitude_m for member in members]), cn2,
+            np.ascontiguousarray([member.wind_m_s for member in members], dtype=float).reshape(len(members), 2),
+            *group_weights(first, cn2))
 
 
 @jit
-def follow_drift(group_altitude, first, altitude, cn2, wind, t_s, sight, last_t, last_sight, drift, winds, out):
+def group_weights(first, cn2):
+    """What :func:`group_winds` needs of each group whatever the line of sight: its members' weights (M,)
+    [m^(1/3)] in the 5/3-moment of their footprint speeds, their ``J`` (1 each where the group's ``J`` do not sum
+    above zero: the unweighted moment, as :func:`moment`), the weights' sum (G,) added in the members' order, and
+    its strongest member (G,), the first of the largest ``J``, whose footprint sets the direction where the
+    members' pull vanishes."""
+    groups = first.shape[0] - 1
+    weight, weights, strongest = np.empty_like(cn2), np.zeros(groups), first[:-1].copy()
+    for g in range(groups):
+        total = 0.0
+        for m in range(first[g], first[g + 1]):
+            total += cn2[m]
+            if cn2[m] > cn2[strongest[g]]:
+                strongest[g] = m
+        for m in range(first[g], first[g + 1]):
+            weight[m] = cn2[m] if total > 0 else 1.0
+            weights[g] += weight[m]
+    return weight, weights, strongest
+
+
+@jit
+def group_winds(group_altitude, first, altitude, cn2, wind, weight, weights, strongest, rx, ry, winds):
+    """Each group's wind ``w_g = h_g s' - u_g`` into ``winds`` (G, 2) [m/s] for the line of sight's rate ``s' =
+    (rx, ry)`` [1/s] (:func:`footprint_winds`): ``|u_g| = (sum_i J_i |u_i|^(5/3) / J_g)^(3/5)`` over its members'
+    footprint velocities ``u_i = h_i s' - v_i``, in the direction of ``sum_i J_i |u_i|^(2/3) u_i`` (its strongest
+    member's ``u_i`` where that vanishes; no motion where that is zero too). Columns: :func:`member_columns`.
+    ``|u|^(5/3)`` is taken as ``|u| |u|^(2/3)``, one power for both sums; the sums add the members in order."""
+    for g in range(group_altitude.shape[0]):
+        moment, pull_x, pull_y = 0.0, 0.0, 0.0
+        for m in range(first[g], first[g + 1]):
+            ux, uy = altitude[m] * rx - wind[m, 0], altitude[m] * ry - wind[m, 1]
+            speed = math.hypot(ux, uy)
+            two_thirds = speed ** (2 / 3)
+            moment += weight[m] * (speed * two_thirds)
+            pull_x += cn2[m] * two_thirds * ux
+            pull_y += cn2[m] * two_thirds * uy
+        if pull_x == 0.0 and pull_y == 0.0:
+            pull_x = altitude[strongest[g]] * rx - wind[strongest[g], 0]
+            pull_y = altitude[strongest[g]] * ry - wind[strongest[g], 1]
+        norm = math.hypot(pull_x, pull_y)
+        speed = (moment / weights[g]) ** (3 / 5)
+        fx, fy = (speed * pull_x / norm, speed * pull_y / norm) if norm > 0 else (0.0, 0.0)
+        winds[g, 0], winds[g, 1] = group_altitude[g] * rx - fx, group_altitude[g] * ry - fy
+
+
+@jit
+def follow_drift(group_altitude, first, altitude, cn2, wind, weight, weights, strongest, t_s, sight, last_t,
+                 last_sight, drift, winds, out):
     """Each group's footprint drift (G, F, 2) [m] into ``out`` for a source followed at its line of sight's rate
     (``follow_sight_rate``): its footprint sits at ``h_g sight - drift_g``, and from one render time to the next
-    the drift grows by ``w_g dt``, ``w_g`` :func:`footprint_winds`' winds for the secant rate
+    the drift grows by ``w_g dt``, ``w_g`` :func:`group_winds` for the secant rate
     ``s' = (sight_k - sight_(k-1)) / dt`` (0 where not finite), so that each step moves the footprint by
     ``u_g dt`` with ``J_g |u_g|^(5/3) = sum_i J_i |h_i s' - v_i|^(5/3)`` (module docstring; Fried 1966; Roddier
     1981) at every render time, not only at the first two.
 
-    ``group_altitude``, ``first``, ``altitude``, ``cn2``, ``wind``: :func:`member_columns`; ``t_s`` (F,) [s] and
-    ``sight`` (F, 2) [1] these render times' lines of sight; ``last_t`` [s], ``last_sight`` (2,), ``drift`` (G, 2)
-    and ``winds`` (G, 2) the source's state at its last render time, advanced in place (a frame at or before it
-    is extrapolated with its winds and advances nothing). Frame by frame in order, so the same numbers however the
-    render times are cut into calls. Returns the last render time and the frames that advanced it."""
+    ``group_altitude`` ... ``strongest``: :func:`member_columns`; ``t_s`` (F,) [s] and ``sight`` (F, 2) [1] these
+    render times' lines of sight; ``last_t`` [s], ``last_sight`` (2,), ``drift`` (G, 2) and ``winds`` (G, 2) the
+    source's state at its last render time, advanced in place (a frame at or before it is extrapolated with its
+    winds and advances nothing). Frame by frame in order, so the same numbers however the render times are cut
+    into calls. Returns the last render time and the frames that advanced it."""
     advanced = 0
     for f in range(t_s.shape[0]):
         dt = t_s[f] - last_t
         if dt > 0:
             rx, ry = (sight[f, 0] - last_sight[0]) / dt, (sight[f, 1] - last_sight[1]) / dt
             rx, ry = rx if math.isfinite(rx) else 0.0, ry if math.isfinite(ry) else 0.0
+            group_winds(group_altitude, first, altitude, cn2, wind, weight, weights, strongest, rx, ry, winds)
             for g in range(group_altitude.shape[0]):
-                total, weights, moment, pull_x, pull_y, strongest = 0.0, 0.0, 0.0, 0.0, 0.0, first[g]
-                for m in range(first[g], first[g + 1]):
-                    total += cn2[m]
-                    if cn2[m] > cn2[strongest]:
-                        strongest = m
-                unweighted = not total > 0
-                for m in range(first[g], first[g + 1]):
-                    ux, uy = altitude[m] * rx - wind[m, 0], altitude[m] * ry - wind[m, 1]
-                    speed = math.hypot(ux, uy)
-                    two_thirds = speed ** (2 / 3)                   # and |u|^(5/3) = |u| |u|^(2/3): one power
-                    weight = 1.0 if unweighted else cn2[m]
-                    weights += weight
-                    moment += weight * (speed * two_thirds)
-                    pull_x += cn2[m] * two_thirds * ux
-                    pull_y += cn2[m] * two_thirds * uy
-                if pull_x == 0.0 and pull_y == 0.0:
-                    pull_x = altitude[strongest] * rx - wind[strongest, 0]
-                    pull_y = altitude[strongest] * ry - wind[strongest, 1]
-                norm = math.hypot(pull_x, pull_y)
-                speed = (moment / weights) ** (3 / 5)
-                fx, fy = (speed * pull_x / norm, speed * pull_y / norm) if norm > 0 else (0.0, 0.0)
-                winds[g, 0], winds[g, 1] = group_altitude[g] * rx - fx, group_altitude[g] * ry - fy
                 drift[g, 0] += winds[g, 0] * dt
                 drift[g, 1] += winds[g, 1] * dt
                 out[g, f, 0], out[g, f, 1] = drift[g, 0], drift[g, 1]

@@ -463,3 +463,125 @@ def test_a_source_with_its_own_winds_holds_its_screens_for_its_window_over_its_s
     assert imager.hold_of("followed") == round(min(96 * 0.05 / 5.0, 80 * 0.03 / 12.0, MAX_HOLD_S) * 1e9)
     imager.drifts["new"] = (0.5, np.zeros(2), np.zeros((3, 2)), None)
     assert imager.hold_of("new") == 123
+
+
+def footprint_winds_in_numpy(atmosphere: Atmosphere, sight_rate) -> np.ndarray:
+    """The reference of :func:`.group_winds`: the groups' winds as footprint_winds wrote them in numpy before
+    (seventeenth session): ``|u|^(5/3)`` as numpy's power of 5/3 and the sums as numpy adds them."""
+    from evsda.blocks.optics.equivalent_layers import moment
+    rate = np.asarray(sight_rate, dtype=float)
+    winds = np.empty((len(atmosphere.layers), 2))
+    for g, (layer, members) in enumerate(zip(atmosphere.layers, atmosphere.members)):
+        cn2 = np.array([member.cn2_dh for member in members])
+        moving = np.array([member.altitude_m * rate - member.wind_m_s for member in members])    # u_i (M, 2)
+        speed = np.hypot(moving[:, 0], moving[:, 1])
+        pull = np.sum((cn2 * speed ** (2 / 3))[:, None] * moving, axis=0)     # sum J |u|^(5/3) u / |u|
+        toward = pull if np.any(pull) else moving[np.argmax(cn2)]
+        norm = np.hypot(toward[0], toward[1])
+        footprint = moment(cn2, speed) * toward / norm if norm > 0 else np.zeros(2)
+        winds[g] = layer.altitude_m * rate - footprint
+    return winds
+
+
+def follow_drift_in_order(atmosphere: Atmosphere, t_s, sight, last_t, last_sight, winds):
+    """The reference of :func:`.follow_drift`: its loop as the eighteenth session wrote it (each group's ``J`` sum
+    and strongest member found again at every render time), in plain Python floats with libm's ``hypot`` and
+    ``pow``; the drifts (G, F, 2) [m] from zero, the last render time and the winds of the last advance."""
+    drift, winds, last_sight, out = np.zeros((len(atmosphere.layers), 2)), winds.copy(), list(last_sight), []
+    for t, (x, y) in zip(t_s.tolist(), sight.tolist()):
+        dt = t - last_t
+        if not dt > 0:
+            out.append(drift + winds * dt)
+            continue
+        rx, ry = (x - last_sight[0]) / dt, (y - last_sight[1]) / dt
+        rx, ry = rx if np.isfinite(rx) else 0.0, ry if np.isfinite(ry) else 0.0
+        for g, (layer, members) in enumerate(zip(atmosphere.layers, atmosphere.members)):
+            cn2 = [member.cn2_dh for member in members]
+            total, strongest = 0.0, 0
+            for m, j in enumerate(cn2):
+                total += j
+                strongest = m if j > cn2[strongest] else strongest
+            weights, moment, pull_x, pull_y = 0.0, 0.0, 0.0, 0.0
+            for j, member in zip(cn2, members):
+                ux, uy = member.altitude_m * rx - float(member.wind_m_s[0]), member.altitude_m * ry - float(
+                    member.wind_m_s[1])
+                speed = float(np.hypot(ux, uy))
+                two_thirds = speed ** (2 / 3)
+                weight = j if total > 0 else 1.0
+                weights += weight
+                moment += weight * (speed * two_thirds)
+                pull_x += j * two_thirds * ux
+                pull_y += j * two_thirds * uy
+            if pull_x == 0.0 and pull_y == 0.0:
+                pull_x = members[strongest].altitude_m * rx - float(members[strongest].wind_m_s[0])
+                pull_y = members[strongest].altitude_m * ry - float(members[strongest].wind_m_s[1])
+            norm = float(np.hypot(pull_x, pull_y))
+            speed = (moment / weights) ** (3 / 5)
+            fx, fy = (speed * pull_x / norm, speed * pull_y / norm) if norm > 0 else (0.0, 0.0)
+            winds[g] = layer.altitude_m * rx - fx, layer.altitude_m * ry - fy
+        drift = drift + winds * dt
+        out.append(drift)
+        last_t, last_sight = t, [x, y]
+    return np.stack(out, axis=1), last_t, winds
+
+
+def calm_groups() -> Atmosphere:
+    """Five layers grouped as 2 and 3 (by hand: the best split would set the calm layers apart), the upper group
+    without turbulence, so its 5/3-moments are unweighted."""
+    from evsda.blocks.optics.equivalent_layers import equivalent_layer
+    members = ((Layer(100.0, 2e-13, 5.0, 0.3), Layer(900.0, 5e-14, 9.0, 1.1)),
+               (Layer(4000.0, 0.0, 14.0, 2.0), Layer(8000.0, 0.0, 30.0, -0.4), Layer(15000.0, 0.0, 8.0, 0.9)))
+    return Atmosphere(tuple(equivalent_layer(group) for group in members), members=members)
+
+
+def test_group_weights_are_fixed_per_group():
+    # each member's weight is its J (1 where its group's J sum to zero: the unweighted moment), the sum of a group's
+    # weights added in order, and its strongest member the first of its largest J
+    from evsda.blocks.optics.equivalent_layers import member_columns
+    fewer = calm_groups()
+    first, cn2, weight, weights, strongest = (member_columns(fewer)[k] for k in (1, 3, 5, 6, 7))
+    assert first.tolist() == [0, 2, 5] and strongest.tolist() == [0, 2]
+    np.testing.assert_array_equal(weight, [2e-13, 5e-14, 1.0, 1.0, 1.0])
+    assert weights.tolist() == [0.0 + 2e-13 + 5e-14, 3.0]
+    tied = equivalent_layers(Atmosphere((Layer(10.0, 1e-14, 3.0, 0.0), Layer(20.0, 4e-14, 3.0, 0.0),
+                                         Layer(30.0, 4e-14, 3.0, 0.0), Layer(9000.0, 1e-14, 3.0, 0.0))), 2)
+    assert member_columns(tied)[7].tolist() == [1, 3]
+
+
+@pytest.mark.parametrize("profile", [MEDIAN, "library:atmospheres/las_campanas.csv",
+                                     "library:atmospheres/mauna_kea.csv", None])
+@pytest.mark.parametrize("n_layers", [1, 2, 3, 4])
+def test_footprint_winds_are_the_numpy_formulas_to_rounding(profile, n_layers):
+    # group_winds against footprint_winds' former numpy: the same winds but for rounding (|u| |u|^(2/3) in place of
+    # numpy's |u|^(5/3), which on AVX-512 is SVML's power, and the sums' order): within 1e-13 of the speeds at play
+    fewer = calm_groups() if profile is None else equivalent_layers(Atmosphere.from_table(resolve(profile)),
+                                                                   n_layers)
+    full = Atmosphere(tuple(member for group in fewer.members for member in group))
+    cn2, altitude, wind = columns(full)
+    rest = wind[-1] / altitude[-1]                               # the top member's footprint at rest in its air
+    rng = np.random.default_rng(n_layers)
+    for rate in (PASS_SIGHT_RATE, np.zeros(2), np.array([0.0, 1.7e-4]), PASS_SIGHT_RATE * 1e4, rest,
+                 *rng.normal(0.0, 0.01, (20, 2))):
+        scale = np.max(altitude) * np.hypot(*rate) + np.max(np.hypot(*wind.T))               # [m/s]
+        np.testing.assert_allclose(footprint_winds(fewer, rate), footprint_winds_in_numpy(fewer, rate), rtol=0,
+                                   atol=1e-13 * scale)
+
+
+@pytest.mark.parametrize("profile", [MEDIAN, "library:atmospheres/mauna_kea.csv", None])
+def test_follow_drift_is_its_former_loop_bit_for_bit(profile):
+    # the per-group sums hoisted out of the render times change no bit of the drifts or the winds, over a pass
+    # whose s' grows tenfold, with a render time repeated (extrapolated, advancing nothing) and one going back
+    fewer = calm_groups() if profile is None else equivalent_layers(Atmosphere.from_table(resolve(profile)), 3)
+    t = np.arange(0.0, 20.0, 0.01) + 3.0
+    sight = long_pass_sight(t)
+    t[[700, 1400]], sight[[700, 1400]] = t[[699, 1300]], sight[[699, 1300]]
+    imager = follower(fewer)
+    drift = imager.source_flow("25544", t, sight)[0]
+    expected, last_t, winds = follow_drift_in_order(fewer, t, sight, t[0], sight[0], np.zeros((len(fewer.layers),
+                                                                                                2)))
+    np.testing.assert_array_equal(drift, expected)
+    np.testing.assert_array_equal(imager.own_winds("25544"), winds)
+    assert imager.drifts["25544"][0] == last_t
+    # and follow_drift's winds are footprint_winds' for the secant rate, bit for bit: one function for both
+    rate = (sight[-1] - sight[-2]) / (t[-1] - t[-2])
+    np.testing.assert_array_equal(imager.own_winds("25544"), footprint_winds(fewer, rate))
