@@ -117,24 +117,21 @@ def member_columns(atmosphere: Atmosphere) -> tuple[np.ndarray, ...]:
             *group_weights(first, cn2))
 
 
-@jit
-def group_weights(first, cn2):
+def group_weights(first: np.ndarray, cn2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What :func:`group_winds` needs of each group whatever the line of sight: its members' weights (M,)
     [m^(1/3)] in the 5/3-moment of their footprint speeds, their ``J`` (1 each where the group's ``J`` do not sum
-    above zero: the unweighted moment, as :func:`moment`), the weights' sum (G,) added in the members' order, and
-    its strongest member (G,), the first of the largest ``J``, whose footprint sets the direction where the
-    members' pull vanishes."""
-    groups = first.shape[0] - 1
-    weight, weights, strongest = np.empty_like(cn2), np.zeros(groups), first[:-1].copy()
-    for g in range(groups):
+    above zero: the unweighted moment, as :func:`moment`), the weights' sum (G,) added in the members' order (their
+    count where unweighted), and its strongest member (G,), the first of the largest ``J``, whose footprint sets the
+    direction where the members' pull vanishes. Once per atmosphere, so in Python, whose floats add as the compiled
+    code's."""
+    weight, weights, strongest = np.empty_like(cn2), np.zeros(len(first) - 1), first[:-1].copy()
+    for g, (start, end) in enumerate(zip(first[:-1].tolist(), first[1:].tolist())):
+        group = cn2[start:end].tolist()
         total = 0.0
-        for m in range(first[g], first[g + 1]):
-            total += cn2[m]
-            if cn2[m] > cn2[strongest[g]]:
-                strongest[g] = m
-        for m in range(first[g], first[g + 1]):
-            weight[m] = cn2[m] if total > 0 else 1.0
-            weights[g] += weight[m]
+        for j in group:
+            total += j
+        strongest[g] += group.index(max(group))
+        weight[start:end], weights[g] = (group, total) if total > 0 else (1.0, end - start)
     return weight, weights, strongest
 
 
