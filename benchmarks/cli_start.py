@@ -6,6 +6,8 @@ Prints, for each ``evsda`` executable given (default: the one beside this Python
 * ``evsda --version`` (the command-line entry: the framework and every contributed command),
 * ``evsda run`` of a one-block graph (a ground site, 0.1 s),
 * ``evsda schema --check`` (imports every block to build the schemas; run in the executable's checkout),
+* ``evsda validate`` of the tracked pass (``benchmarks/end_to_end.yaml``: the command line and the graph's load,
+  what a run of the pass does before its first step but the run's set-up),
 
 medians of ``--repeats`` runs, the executables alternated run by run so that a changing load falls on
 all of them alike, and the load average beside them. The test suite starts ~100 such processes.
@@ -19,7 +21,7 @@ SciPy, Skyfield, loading the graph (our block modules, the YAML, the checks), th
 compiled from source at every start) and with compiled bytecode (``PYTHONPYCACHEPREFIX``, filled by one unmeasured
 run first: what an installed package starts with).
 
-    python benchmarks/cli_start.py [--repeats 5] [EVSDA ...]
+    python benchmarks/cli_start.py [--repeats 5] [--command NAME ...] [EVSDA ...]
     python benchmarks/cli_start.py --parts benchmarks/end_to_end.yaml [--repeats 5]
 """
 
@@ -119,6 +121,8 @@ def main() -> None:
     parser.add_argument("evsda", nargs="*", default=[str(Path(sys.executable).with_name("evsda"))],
                         help="evsda executables to compare (default: the one beside this Python)")
     parser.add_argument("--repeats", type=int, default=5, help="runs of each command per executable (default 5)")
+    parser.add_argument("--command", action="append", default=[], metavar="NAME",
+                        help="time only this command (repeatable): --version, run, schema --check, validate pass")
     parser.add_argument("--parts", type=Path, metavar="GRAPH",
                         help="split the start of a run of GRAPH instead (this checkout; see the module's docstring)")
     args = parser.parse_args()
@@ -131,7 +135,9 @@ def main() -> None:
         graph.write_text(GRAPH)
         commands = {"--version": lambda exe, i: [exe, "--version"],
                     "run": lambda exe, i: [exe, "-q", "run", str(graph), "-o", str(Path(tmp) / f"r{i}.zarr")],
-                    "schema --check": lambda exe, i: [exe, "schema", "--check"]}
+                    "schema --check": lambda exe, i: [exe, "schema", "--check"],
+                    "validate pass": lambda exe, i: [exe, "validate", "benchmarks/end_to_end.yaml"]}
+        commands = {name: argv for name, argv in commands.items() if not args.command or name in args.command}
         checkouts = {exe: checkout_of(exe) for exe in args.evsda}
         cpu = {(exe, name): [] for exe in args.evsda for name in commands}
         loads = [os.getloadavg()[0]]
@@ -146,7 +152,7 @@ def main() -> None:
     print(f"CPU seconds of a fresh evsda process, medians of {args.repeats} (alternated); "
           f"load average {min(loads):.1f}-{max(loads):.1f}")
     for exe in args.evsda:
-        figures = ", ".join(f"{name} {statistics.median(cpu[exe, name]):.2f} s" for name in commands)
+        figures = ", ".join(f"{name} {statistics.median(cpu[exe, name]):.3f} s" for name in commands)
         print(f"  {checkouts[exe]}: {figures}")
 
 

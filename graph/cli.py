@@ -31,7 +31,6 @@ from .report import describe_block, describe_store, list_blocks, run_summary, st
 from .result_cache import cache_root
 from .scipy_imports import lean_array_api
 from .store import RunStore
-from .sweep import MAX_POINTS, SAMPLING, parse_limits, read_grid, run_sweep
 from .threads import limit_blas
 
 
@@ -109,6 +108,8 @@ def cmd_info(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    from .sweep import parse_limits, read_grid, run_sweep
+
     grid = read_grid(args.grid, args.vary)
     out = Path(args.output) if args.output else Path(f"{Path(args.graph).stem}_sweep")
     report = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr))
@@ -187,6 +188,8 @@ def _graph_args(p: argparse.ArgumentParser) -> None:
 
 
 def _limit_arg(p: argparse.ArgumentParser, sweep: bool = False) -> None:
+    if sweep:
+        from .sweep import MAX_POINTS
     defaults = Limits()
     p.add_argument("--limit", action="append", default=[], metavar="NAME=VALUE",
                    help=f"raise a size limit checked before any work (repeatable): windows "
@@ -229,6 +232,8 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 
 def _configure_sweep(p: argparse.ArgumentParser) -> None:
+    from .sweep import SAMPLING
+
     _graph_args(p)
     _limit_arg(p, sweep=True)
     _cache_arg(p)
@@ -293,7 +298,9 @@ BUILT_IN_COMMANDS = (
 )
 
 
-def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
+def build_parser(extra: list[Command], only: str | None = None) -> argparse.ArgumentParser:
+    """The ``evsda`` parser with the built-in commands and ``extra``; ``only``: the one command's parser, as when
+    the command line names a built-in command (:func:`_parser_for`)."""
     common = _common_options()
     parser = argparse.ArgumentParser(prog="evsda", parents=[common],
                                      description="Event-based sensor simulator for space domain awareness.")
@@ -301,6 +308,8 @@ def build_parser(extra: list[Command]) -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     commands = [*BUILT_IN_COMMANDS, *((c.name, c.help, c.configure, c.run) for c in extra)]
     for name, help_text, configure, func in commands:
+        if only is not None and name != only:
+            continue
         p = subparsers.add_parser(name, parents=[common], help=help_text)
         configure(p)
         p.set_defaults(func=func)
@@ -411,9 +420,34 @@ def _skip_exit_collection() -> None:
     gc.freeze()
 
 
+#: the options accepted before the command (:func:`_common_options`)
+_COMMON_FLAGS = ("-v", "--verbose", "-q", "--quiet")
+
+
+def _named_built_in(argv: list[str]) -> str | None:
+    """The built-in command that ``argv`` names (its first argument after -v/-q), or None: no command, another
+    option first (``--help``, ``--version``), a contributed command or a mistake."""
+    for arg in argv:
+        if arg not in _COMMON_FLAGS:
+            return arg if any(arg == name for name, *_ in BUILT_IN_COMMANDS) else None
+    return None
+
+
+def _parser_for(argv: list[str]) -> argparse.ArgumentParser:
+    """The parser of this command line. A built-in command (``evsda run ...``) gets only its own parser: the
+    contributed commands' modules (the blocks' plotting and export commands, ~12 ms of CPU at every start) and
+    the other commands' set-up (the sweep's module) are not needed to parse it: it parses, helps and fails as
+    with every command's parser. Anything else (``evsda --help``, a contributed command, a mistake) gets
+    every command's parser, as argparse's listing and suggestions need."""
+    named = _named_built_in(argv)
+    if named is None:
+        return build_parser(contributed_commands())
+    return build_parser([], only=named)
+
+
 def _main(argv: list[str] | None) -> int:
     try:
-        parser = build_parser(contributed_commands())
+        parser = _parser_for(sys.argv[1:] if argv is None else argv)
     except UserError as exc:
         print(f"evsda: error: {exc}", file=sys.stderr)
         return 2
