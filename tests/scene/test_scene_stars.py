@@ -196,6 +196,40 @@ def test_the_catalogue_read_column_by_column_is_the_line_by_line_reading(tmp_pat
         assert len(variant) == len(text) and catalog._fixed_layout(variant) is None, change
 
 
+def test_plain_decimals_are_read_as_pythons_float_reads_them():
+    """``catalog._decimals`` reads a column of fixed-width texts with NumPy: where it reads a row, the bits are
+    ``float``'s (signed zeros, points first or last, 15 digits); what it leaves (blanks, exponents, underscores,
+    signs or blanks inside, two points, 16 digits, other characters) ``float`` may read or refuse."""
+    import random
+
+    from evsda.blocks.scene import catalog
+
+    rng = random.Random(13)
+    texts = [b" -0.00", b"+0.0", b"5.", b".5", b"123456789012345", b"1234567890.12345", b"0.000000000000001",
+             b"1234567890123456", b"1e3", b"1_0", b"- 1", b"1 2", b"1.2.3", b"+-1", b"1-", b".", b"-", b"", b"nan",
+             b"\t1"]
+    for _ in range(20_000):
+        digits = "".join(rng.choice("0123456789") for _ in range(rng.randint(0, 16)))
+        cut = rng.randint(0, len(digits))
+        body = rng.choice(["", "-", "+"]) + digits[:cut] + rng.choice(["", "."]) + digits[cut:]
+        texts.append((" " * rng.randint(0, 3) + body + " " * rng.randint(0, 2)).encode())
+    texts += ["".join(rng.choice("0123456789 .-+e_x") for _ in range(rng.randint(1, 12))).encode()
+              for _ in range(5_000)]
+    width = max(map(len, texts))
+    field = np.frombuffer(b"".join(t.rjust(width) if k % 2 else t.ljust(width) for k, t in enumerate(texts)),
+                          np.uint8).reshape(-1, width)
+    values, read = catalog._decimals(field)
+    for text, value, was_read in zip(texts, values.tolist(), read.tolist()):
+        plain = text.strip(b" ")
+        plain = plain[1:] if plain[:1] in (b"+", b"-") else plain
+        expected = (0 < sum(c in b"0123456789" for c in plain) <= 15 and plain.count(b".") <= 1
+                    and not plain.strip(b"0123456789."))
+        assert was_read == expected, text
+        if was_read:
+            assert np.float64(value).tobytes() == np.float64(float(text)).tobytes(), text
+    assert read.sum() > 15_000
+
+
 def test_a_window_in_one_knot_interval_interpolates_as_one_across_two():
     """The photometry between knots: a window inside one knot interval (its rows at once) gives each sample the
     bytes the general loop (one knot interval after the other) gives it."""
