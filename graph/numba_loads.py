@@ -28,12 +28,20 @@ imported a stand-in namespace holding its name (what ``Environment.__reduce__`` 
 importing it: the same machine code and constants. A later compile in the process imports the modules itself (its
 refresh). Only on the Numba versions checked and where ``_rebuild_env``'s source is Numba's as checked;
 ``EVSDA_LAZY_ENVIRONMENTS=off`` imports them as Numba does.
+
+What a lazy load does need first, Numba's runtime, :func:`lazy_registries` starts setting up at once on a thread of
+its own (:func:`_runtime_ahead`): that set-up compiles the runtime's functions with LLVM (~17 ms CPU, three quarters
+of it in llvmlite's calls, which release the interpreter lock), at the first compiled call otherwise, in window 0
+on the run's critical path. Started with the run (``run_graph``), it runs beside the run's set-up and first steps,
+on the other core; the first load waits for it (Numba's compiler lock, which the set-up holds) or, where it failed,
+sets the runtime up itself and meets the error. ``EVSDA_RUNTIME_AHEAD=off`` leaves it to the first load.
 """
 
 from __future__ import annotations
 
 import inspect
 import sys
+import threading
 
 from .compile_ahead import attempted_edit, switched_off
 from .numba_symbols import kept_symbols, names_beside, one_pass_symbols
@@ -83,6 +91,8 @@ def lazy_registries() -> bool:
         attempted_edit(_edit_environments, "Numba's environments rebuilt as Numba does")
         one_pass_symbols()                          # and read each loaded module's symbols in one pass
         kept_symbols()                              # or keep them beside the cache, the bitcode parsed to link
+        if _lazy and not switched_off("EVSDA_RUNTIME_AHEAD"):
+            _runtime_ahead()
     return bool(_lazy)
 
 
@@ -138,6 +148,21 @@ def _edit_environments() -> bool:
     _rebuild_env.__module__, _rebuild_env.__qualname__ = numbas.__module__, numbas.__qualname__
     environment._rebuild_env = _rebuild_env
     return True
+
+
+def _runtime_ahead() -> None:
+    """Set Numba's runtime up on a thread of its own (the module docstring). Not a daemon: the interpreter's exit
+    waits for it rather than unloading LLVM under a call."""
+
+    def set_up():
+        try:
+            from numba.core.registry import cpu_target
+
+            _runtime(cpu_target.target_context)
+        except Exception:       # noqa: BLE001 -- not set up: the first load sets it up itself and meets the error
+            pass
+
+    threading.Thread(target=set_up, name="evsda-numba-runtime").start()
 
 
 def _runtime(target_context) -> None:

@@ -99,3 +99,31 @@ def test_loaded_environments_of_numba_modules_import_none_and_give_the_same_resu
     assert compiled["loaded"] == 0 and loaded["loaded"] == numbas["loaded"] == 1
     assert compiled["values"] == loaded["values"] == numbas["values"] == [6.0, 7.5, 11.5]
     assert compiled["imported"] and not loaded["imported"] and numbas["imported"]
+
+
+RUNTIME_SCRIPT = textwrap.dedent("""
+    import json, threading
+    import loads_kernels as k
+    from numba.core.runtime import nrt
+    from evsda.graph import numba_loads
+    numba_loads.lazy_registries()
+    ahead = [t for t in threading.enumerate() if t.name == "evsda-numba-runtime"]
+    for thread in ahead:
+        thread.join()
+    set_up = nrt.rtsys._init                   # before any compiled call
+    values = [k.allocates(5).tolist(), k.hashes("abc", 7)]
+    print(json.dumps({"ahead": len(ahead), "set_up": set_up, "values": values,
+                      "loaded": sum(sum(f.stats.cache_hits.values()) for f in (k.allocates, k.hashes))}))
+""")
+
+
+def test_the_runtime_is_set_up_ahead_of_the_first_load(fresh_numba, tmp_path):
+    run = fresh_numba(RUNTIME_SCRIPT, "EVSDA_RUNTIME_AHEAD")
+    (tmp_path / "loads_kernels.py").write_text(MODULE)
+    compiled = run()                            # an empty cache: compiled here
+    ahead = run()                               # loaded, the runtime set up on its own thread first
+    at_first_load = run(EVSDA_RUNTIME_AHEAD="off")
+    assert ahead["ahead"] == 1 and ahead["set_up"]
+    assert at_first_load["ahead"] == 0 and not at_first_load["set_up"]
+    assert ahead["loaded"] == at_first_load["loaded"] == 2
+    assert compiled["values"] == ahead["values"] == at_first_load["values"]
