@@ -84,6 +84,7 @@ class StarField(Block):
         self._key = None
         self._stars: StarCatalog | None = None
         self._photometry_cache: dict[int, tuple] = {}
+        self._interval_kept: tuple[int, np.ndarray, np.ndarray] | None = None    # (k, places at k, change to k + 1)
 
     @property
     def cadence_ns(self) -> int:
@@ -115,6 +116,7 @@ class StarField(Block):
         self._places = KnotGrid(window.epoch, knot_ns, lambda t: (np.stack(
             [unit(sky_observer.at(t[i]).observe(star).apparent().xyz.m.T) for i in range(len(t))]),))
         self._photometry_cache = {}
+        self._interval_kept = None
         self._key = key
         log.info("%s '%s': %d stars swept by the field (%d from the catalogue)", self.type_name, self.name,
                  len(self._stars), int(np.sum(near[: len(bright)])))
@@ -180,10 +182,14 @@ class StarField(Block):
             on_detector = (x >= -0.5 - margin) & (x < focal_plane.width_px - 0.5 + margin)
             on_detector &= y >= -0.5 - margin
             on_detector &= y < focal_plane.height_px - 0.5 + margin
-        for k0 in _distinct(k):
+        knots = _distinct(k)
+        for k0 in knots:
             # above the horizon (or clear of the Earth) at both knots around these samples
-            visible = (self._knot_photometry(int(k0))[0] > 0) & (self._knot_photometry(int(k0) + 1)[0] > 0)
-            on_detector[k == k0] &= visible
+            visible = (self._knot_photometry(k0)[0] > 0) & (self._knot_photometry(k0 + 1)[0] > 0)
+            if len(knots) == 1:         # every sample (the usual window): no mask of rows
+                on_detector &= visible
+            else:
+                on_detector[k == k0] &= visible
         np.putmask(x, ~on_detector, np.nan)
         np.putmask(y, ~on_detector, np.nan)
         zenith, azimuth, rotation = (angle.copy() for angle in self._pointing.boresight_angles(t_ns))
@@ -272,8 +278,7 @@ class StarField(Block):
         turning_rate = self._pointing.moving_rate_bound_rad_s()
         for k0 in _distinct(k):
             in_interval = np.flatnonzero(k == k0)
-            s0 = self._places.values(np.array([k0]))[0][0]
-            ds = self._places.values(np.array([k0 + 1]))[0][0] - s0
+            s0, ds = self._interval(k0)
             for first in range(0, len(in_interval), CHUNK):
                 rows = in_interval[first:first + CHUNK]
                 probe = rows[[0, len(rows) // 2, -1]]
@@ -289,6 +294,20 @@ class StarField(Block):
                     x[rows[:, None], cols] = xs
                     y[rows[:, None], cols] = ys
         return x, y
+
+    def _interval(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The stars' apparent places at knot ``k`` and their change to knot ``k + 1``, ``[n_stars, 3]``, kept for
+        the last interval asked (a window's samples lie in one knot interval, the next windows' mostly in the same:
+        100 windows of 0.1 s at the default 10 s knots). The kept arrays are the ones made at its first ask, layout
+        included (the places are kept transposed, and the layout chooses BLAS's kernel in :meth:`_tangent`)."""
+        kept = self._interval_kept
+        if kept is None or kept[0] != k:
+            s0 = self._places.values(np.array([k]))[0][0]
+            ds = self._places.values(np.array([k + 1]))[0][0] - s0
+            for array in (s0, ds):
+                array.flags.writeable = False
+            kept = self._interval_kept = (k, s0, ds)
+        return kept[1], kept[2]
 
     @staticmethod
     def _tangent(axes, w, s0, ds):

@@ -132,6 +132,22 @@ def test_windows_and_resume_give_identical_output(graz, gen4, quickstart_pointin
     np.testing.assert_array_equal(parts[-1].source_id, reference.source_id)
 
 
+def test_the_kept_knot_interval_gives_each_window_its_own_asks(graz, gen4, quickstart_pointing, pass_start):
+    """The places at a window's knot and their change to the next are kept from the window before (the same
+    arrays, layout included); windows inside one knot interval and across two give the bytes a block that asks
+    the knot grid afresh every window gives."""
+    scene = dict(observer=graz, pointing=quickstart_pointing, focal_plane=gen4)
+    kept, afresh = (started(StarField(faint_limit_mag=11.0, knot_step_s=0.25, name="stars"), pass_start, 0.6, 0.1)
+                    for _ in range(2))
+    for window in kept.run.windows():                      # windows 2 and 4 cross the knots at 0.25 s and 0.5 s
+        a = kept.step(window, **scene)["sources"]
+        afresh._interval_kept = None
+        b = afresh.step(window, **scene)["sources"]
+        for name in ("x_px", "y_px", "photon_flux", "magnitude"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (window.index, name)
+    assert np.isfinite(a.x_px).any()
+
+
 def test_a_star_catalogue_with_a_field_that_is_no_number_is_one_clear_error(tmp_path):
     """A record with a non-numeric magnitude was a ValueError traceback in the first window of a run."""
     from evsda.blocks.scene.catalog import load_hipparcos
