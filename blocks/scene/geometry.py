@@ -42,6 +42,14 @@ def unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
+def consecutive_rows(kept_t: np.ndarray, t_ns: np.ndarray) -> slice | None:
+    """The rows of the ascending sample times ``kept_t`` that are ``t_ns`` (a run of consecutive ones, compared
+    as bytes in ``kept_t``'s type), or None."""
+    first = int(np.searchsorted(kept_t, t_ns[0]))
+    rows = slice(first, first + len(t_ns))
+    return rows if kept_t[rows].tobytes() == np.asarray(t_ns, kept_t.dtype).tobytes() else None
+
+
 class Recent:
     """The last few results of a function of sample times, returned again for the same times.
 

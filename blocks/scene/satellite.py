@@ -17,6 +17,7 @@ from evsda.graph.graphfile import read_yaml
 from evsda.graph.params import DataFile, describe_validation_error
 
 from . import facets, radiometry, spectra
+from .geometry import consecutive_rows
 from .passes import PassReport, find_passes, require_pass
 from .pointing import check_sampling, fingerprint
 from .reflectors import FacetReflector, attitude_law
@@ -196,15 +197,17 @@ class Satellite(Block):
         ~1.3 ms, five windows' ~2.2 ms). The scene's other blocks find the pointing frames of these times kept
         (:class:`.geometry.Recent`). A facet model's attitude is sampled window by window as before."""
         kept = self._ahead
-        if kept is not None and kept[0] is view and len(t_ns) and (rows := _rows_of(kept[1].t_ns, t_ns)) is not None:
-            return _sliced(kept[1], rows)
+        if kept is not None and kept[0] is view and len(t_ns):
+            rows = consecutive_rows(kept[1].t_ns, t_ns)
+            if rows is not None:
+                return _sliced(kept[1], rows)
         if not isinstance(self.reflector, Reflector) or not len(t_ns):
             return view.sample(t_ns)
         stop = min(window.stop_ns + (WINDOWS_AHEAD - 1) * window.duration_ns, self.run_span_ns(window)[1])
         ahead = Window(window.index, window.start_ns, max(stop, window.stop_ns), window.epoch)
         samples = view.sample(ahead.sample_times_ns(self.cadence_ns))
         self._ahead = (view, samples)
-        return _sliced(samples, _rows_of(samples.t_ns, t_ns))
+        return _sliced(samples, consecutive_rows(samples.t_ns, t_ns))
 
     def step(self, window: Window, orbit: Orbit, observer: Observer, pointing: Pointing,
              focal_plane: FocalPlane) -> dict:
@@ -231,13 +234,6 @@ class Satellite(Block):
             x_px=x[:, None], y_px=y[:, None], photon_flux=s.photon_flux[:, None], magnitude=s.magnitude[:, None],
             range_m=s.range_m[:, None], zenith_angle_rad=s.zenith_angle_rad,
             boresight_azimuth_rad=s.boresight_azimuth_rad, field_rotation_rad=s.field_rotation_rad)}
-
-
-def _rows_of(kept_t: np.ndarray, t_ns: np.ndarray) -> slice | None:
-    """The rows of the sample times ``kept_t`` that are ``t_ns`` (a run of them), or None."""
-    first = int(np.searchsorted(kept_t, t_ns[0]))
-    rows = slice(first, first + len(t_ns))
-    return rows if kept_t[rows].tobytes() == np.asarray(t_ns, kept_t.dtype).tobytes() else None
 
 
 def _sliced(samples: ViewSamples, rows: slice) -> ViewSamples:

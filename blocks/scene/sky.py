@@ -12,6 +12,7 @@ from evsda.blocks.ports.scene import Observer, Pointing
 from evsda.graph import NS_PER_S, Block, BlockParams, Input, Output, ParameterError, SceneError, Window
 
 from . import radiometry, spectra
+from .geometry import consecutive_rows
 from .moon import MOON_MEAN_DISTANCE_M, MOON_RADIUS_M, MoonModel, MoonSamples, require_ephemeris
 from .moonlight import magnitude_of_nanolamberts, moonlight_nanolamberts
 from .passes import iso
@@ -19,6 +20,9 @@ from .pointing import PointingModel, fingerprint, shared_models
 from .twilight import MIN_SUN_DEPRESSION_DEG, twilight_surface_brightness
 
 ARCSEC_PER_RAD = 180.0 * 3600.0 / np.pi
+#: the sky's samples whose boresight the block takes in one call of the pointing model (10 s of the run at the
+#: default 0.1 s cadence; :meth:`SkyBackgroundBlock._boresight`)
+SAMPLES_AHEAD = 100
 
 
 def sky_photon_flux_per_pixel(surface_brightness_mag_arcsec2, focal_plane: FocalPlane,
@@ -99,6 +103,7 @@ class SkyBackgroundBlock(Block):
         super().__init__(*args, **kwargs)
         self._model_key, self._model, self._moon = None, None, None
         self._run_checked = False
+        self._ahead: tuple | None = None     # (model, sample times, boresight, zenith angle) taken ahead
 
     @property
     def _uses_moon(self) -> bool:
@@ -131,9 +136,8 @@ class SkyBackgroundBlock(Block):
                 self._check_run(window, observer, cadence)
                 self._run_checked = True
         if observer.is_ground and (p.follow_zenith_angle or p.moonlight or p.twilight):
-            model = self._pointing_model(window, observer, pointing)
-            b, _, _ = model.frame(evaluated)
-            zenith = np.minimum(model.zenith_angle(evaluated, b), np.radians(89.0))
+            b, zenith = self._boresight(self._pointing_model(window, observer, pointing), window, evaluated,
+                                        cadence)
             if p.follow_zenith_angle:
                 mu = sky_brightness_at_zenith_angle(p.surface_brightness_mag_arcsec2, zenith,
                                                     observer.extinction_mag_per_airmass)
@@ -141,6 +145,31 @@ class SkyBackgroundBlock(Block):
                 mu = self._add_moon_and_twilight(mu, self._moon.sample(evaluated), b, zenith, observer)
         return {"background": SkyBackground(t_ns=stamps,
                                             photon_flux_per_pixel=sky_photon_flux_per_pixel(mu, focal_plane))}
+
+    def _boresight(self, model: PointingModel, window: Window, evaluated: np.ndarray,
+                   cadence_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """The boresight and its zenith angle (at most 89 deg) at the grid samples ``evaluated`` (consecutive),
+        from one call of the pointing model for the next :data:`SAMPLES_AHEAD` samples, kept for the windows after.
+
+        The model works sample by sample (its results do not depend on which samples are asked together; the
+        satellite's longer calls rest on the same), so the rows are what a call of their own makes. A call costs
+        mostly its NumPy calls' overhead, and in a pipelined run the sky steps up to ~18 windows ahead of the
+        satellite, whose kept samples it would otherwise miss (a call of the frame and the horizon axes each
+        window); one step at a time, the two lookups of a window's times among the scene's kept results go."""
+        kept = self._ahead
+        if kept is not None and kept[0] is model:
+            rows = consecutive_rows(kept[1], evaluated)
+            if rows is not None:
+                return kept[2][rows], kept[3][rows]
+        stop = max(int(evaluated[-1]) + cadence_ns,
+                   min(int(evaluated[0]) + SAMPLES_AHEAD * cadence_ns, self.run_span_ns(window)[1]))
+        t_ns = np.arange(int(evaluated[0]), stop, cadence_ns, dtype=np.int64)
+        b, _, _ = model.frame(t_ns)
+        zenith = np.minimum(model.zenith_angle(t_ns, b), np.radians(89.0))
+        zenith.flags.writeable = False
+        self._ahead = (model, t_ns, b, zenith)
+        rows = slice(0, len(evaluated))
+        return b[rows], zenith[rows]
 
     def _add_moon_and_twilight(self, mu, moon: MoonSamples, boresight, zenith, observer: Observer) -> np.ndarray:
         """The night sky ``mu`` plus scattered moonlight and twilight [mag/arcsec^2]."""

@@ -37,3 +37,25 @@ def test_block_samples_hold_across_windows(graz, gen4, pass_start):
     assert inside.photon_flux_per_pixel[0] == aligned.photon_flux_per_pixel[0]   # the value held from t = 0.1 s
     zenith_flux = sky_photon_flux_per_pixel(21.0, gen4)
     assert inside.photon_flux_per_pixel[0] > zenith_flux                          # 60 deg from the zenith
+
+
+def test_samples_taken_ahead_are_each_windows_own(graz, gen4, iss, pass_start, monkeypatch):
+    """The boresight taken for the next SAMPLES_AHEAD samples in one call gives each window (aligned with the
+    grid or not, inside the run and at its end) the bytes of a call for its own samples."""
+    from evsda.blocks.scene import sky
+    from evsda.graph import RunInfo
+
+    def stepped(ahead: int) -> list:
+        monkeypatch.setattr(sky, "SAMPLES_AHEAD", ahead)
+        block = SkyBackgroundBlock(cadence_s=0.1, moonlight=True, name="sky")
+        pointing = Pointing(mode="track", target_line1=iss.line1, target_line2=iss.line2)
+        block.setup(RunInfo(epoch=pass_start, duration_ns=2_100_000_000, window_ns=150_000_000, seed=1))
+        return [block.step(w, observer=graz, pointing=pointing, focal_plane=gen4)["background"]
+                for w in block.run.windows()]
+
+    ahead, own = stepped(8), stepped(1)
+    assert len(ahead) == 14
+    for a, b in zip(ahead, own):
+        assert a.t_ns.tobytes() == b.t_ns.tobytes()
+        assert a.photon_flux_per_pixel.tobytes() == b.photon_flux_per_pixel.tobytes()
+    assert len({a.photon_flux_per_pixel[0] for a in ahead}) == 14         # the sky changes along the track
