@@ -35,6 +35,10 @@ of it in llvmlite's calls, which release the interpreter lock), at the first com
 on the run's critical path. Started with the run (``run_graph``), it runs beside the run's set-up and first steps,
 on the other core; the first load waits for it (Numba's compiler lock, which the set-up holds) or, where it failed,
 sets the runtime up itself and meets the error. ``EVSDA_RUNTIME_AHEAD=off`` leaves it to the first load.
+
+A load makes ~40 calls into LLVM's C API (the runtime's set-up ~270), each wrapped by Numba in two
+``numba:llvm_lock`` events that only time compiles: :func:`lazy_registries` takes them off as compiles do
+(:func:`.compile_ahead.quicker_llvm_calls`; ``EVSDA_QUICKER_LLVM_CALLS=off`` keeps them).
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ import inspect
 import sys
 import threading
 
-from .compile_ahead import attempted_edit, switched_off
+from .compile_ahead import attempted_edit, quicker_llvm_calls, switched_off
 from .numba_symbols import kept_symbols, names_beside, one_pass_symbols
 
 #: the Numba versions whose ``Cache.load_overload`` and ``refresh`` were checked
@@ -91,6 +95,7 @@ def lazy_registries() -> bool:
         attempted_edit(_edit_environments, "Numba's environments rebuilt as Numba does")
         one_pass_symbols()                          # and read each loaded module's symbols in one pass
         kept_symbols()                              # or keep them beside the cache, the bitcode parsed to link
+        quicker_llvm_calls()                        # and make each of its LLVM calls without Numba's two events
         if _lazy and not switched_off("EVSDA_RUNTIME_AHEAD"):
             _runtime_ahead()
     return bool(_lazy)

@@ -127,3 +127,25 @@ def test_the_runtime_is_set_up_ahead_of_the_first_load(fresh_numba, tmp_path):
     assert at_first_load["ahead"] == 0 and not at_first_load["set_up"]
     assert ahead["loaded"] == at_first_load["loaded"] == 2
     assert compiled["values"] == ahead["values"] == at_first_load["values"]
+
+
+LOCK_EVENTS_SCRIPT = textwrap.dedent("""
+    import json
+    import loads_kernels as k
+    from numba.core import event
+    from evsda.graph import numba_loads
+    numba_loads.lazy_registries()
+    heard = event.RecordingListener()
+    with event.install_listener("numba:llvm_lock", heard):     # the events of each LLVM call a load makes
+        values = [k.allocates(5).tolist()]
+    print(json.dumps({"events": len(heard.buffer), "values": values, "loaded": sum(k.allocates.stats.cache_hits.values())}))
+""")
+
+
+def test_loads_make_their_llvm_calls_without_numbas_lock_events(fresh_numba, tmp_path):
+    run = fresh_numba(LOCK_EVENTS_SCRIPT, "EVSDA_QUICKER_LLVM_CALLS")
+    (tmp_path / "loads_kernels.py").write_text(MODULE)
+    run()                                       # an empty cache: compiled here
+    quicker, numbas = run(), run(EVSDA_QUICKER_LLVM_CALLS="off")
+    assert quicker["loaded"] == numbas["loaded"] == 1 and quicker["values"] == numbas["values"]
+    assert quicker["events"] == 0 and numbas["events"] > 0
