@@ -86,6 +86,27 @@ def test_vector_blocks_and_their_tails_are_the_same_sums_in_order():
             np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
 
 
+
+def test_last_columns_by_an_overlapping_block_are_the_same_sums_in_order():
+    # the y pass makes the columns past its last whole block of four by the block of the last four: every count of
+    # such columns (0-3), spans of 4 columns and more, up to the array's last column (nothing read beyond it)
+    rng = np.random.default_rng(11)
+    height, width = 30, 24
+    coefficients = rng.standard_normal((height, width))
+    for columns in range(4, 13):
+        for at_edge in (False, True):
+            # cols - 3 spans taps from floor(first) - 1 to floor(last) + 2: columns = floor(last) - floor(first) + 4
+            first = width - columns + 1.0 if at_edge else 1.0 + rng.integers(0, width - columns)
+            cols = 3 + first + rng.uniform(0.01, 0.3) + np.linspace(0, columns - 4, 9)[None]
+            rows = 2 + 4 + rng.uniform(0, 2, (2, 1)) + 0.37 * np.arange(12)[None]
+            cols = np.repeat(cols, 2, axis=0)
+            weight = rng.uniform(0.5, 2.0, 2)
+            fast = rng.standard_normal((2, 9, 12))
+            slow = fast.transpose(0, 2, 1).copy()
+            assert sample_grids_transposed(coefficients, 2, 3, rows, cols, weight, 0, 2, fast, False)
+            reference_sample(coefficients, 2, 3, rows, cols, weight, slow)
+            np.testing.assert_array_equal(fast.transpose(0, 2, 1), slow)
+
 @numba.njit
 def sixths(a, out):
     for i in range(a.shape[0]):
