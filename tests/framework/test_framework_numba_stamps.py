@@ -171,3 +171,50 @@ def test_a_module_import_reads_its_folder_once(tmp_path):
     (folder / "constants.py").write_text("OFFSET = 1.5\n")
     assert numba_stamps._import_digest(str(folder), spec) == digest
     assert numba_stamps._import_digest(str(folder), reloaded) == numba_stamps.folder_digest(str(folder)) != digest
+
+
+CHECKED = textwrap.dedent("""
+    import numba
+
+    @numba.njit(cache=True)
+    def first(x):
+        return x + 1.0
+
+    @numba.njit(cache=True)
+    def second(x):
+        return x + 2.0
+
+    @numba.njit(cache=True)
+    def third(x):
+        return first(x) * second(x)
+""")
+
+
+def test_a_modules_cache_folder_is_checked_once(tmp_path, monkeypatch):
+    """Numba's check that the cache folder can be written runs for a file's first function only; every function is
+    located (folder and stamp) as Numba's own locator would, and still checks where it saves."""
+    from numba.core import caching
+
+    if not numba_stamps.stamped():
+        pytest.skip("Numba's own stamps (EVSDA_PACKAGE_STAMPS off, or another Numba)")
+    folder = tmp_path / "checked_pkg"
+    folder.mkdir()
+    (folder / "__init__.py").write_text("")
+    (folder / "kernels.py").write_text(CHECKED)
+    checks = []
+    numbas_check = caching._CacheLocator.ensure_cache_path
+    monkeypatch.setattr(caching._CacheLocator, "ensure_cache_path", lambda self: checks.append(self) or numbas_check(self))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    numba_stamps.stamp_packages("checked_pkg")
+    kernels = importlib.import_module("checked_pkg.kernels")
+    functions = (kernels.first, kernels.second, kernels.third)
+    assert len(checks) == 1
+    checks.clear()
+    for function in functions:
+        locator = function._cache._impl.locator
+        numbas = caching.InTreeCacheLocator.from_function(function.py_func, str(folder / "kernels.py"))
+        assert isinstance(locator, numba_stamps.PackageStamped)
+        assert locator.get_cache_path() == numbas.get_cache_path() == str(folder / "__pycache__")
+        assert locator.get_disambiguator() == numbas.get_disambiguator()
+    checks.clear()
+    assert kernels.third(1.0) == 6.0 and len(checks) == 3           # the saves (three functions) check again
