@@ -530,33 +530,38 @@ class PointSourceOptics(Block):
         if self._intervals is not None:
             every = np.ones(visible.shape, np.int64)
             every[visible] = self._intervals.multiples(cadence_ns, seen[visible], columns["zenith"][visible])
-        # the probes of every bin this window meets first, side by side on every core, before the choices take them
-        imager.chooser.probe_ahead(columns["zenith"], columns["range"], seen, visible)
-        # every frame's stamp placement and line of sight, all tracks in view at once (Imager.placement)
+        # every frame in view, track by track: the path choices' bins of all of them in one call (element by element,
+        # the same keys as a track's alone), split at the tracks' counts
         tracks = np.flatnonzero(visible.any(axis=0))
+        in_view = visible[:, tracks].T                                            # (tracks, render times)
+        track_of, frame_of = np.nonzero(in_view)
+        column_of = tracks[track_of]
+        zenith_in_view, range_in_view, seen_in_view = (values[frame_of, column_of]
+                                                       for values in (columns["zenith"], columns["range"], seen))
+        bins = imager.chooser.keys(zenith_in_view, range_in_view, seen_in_view)
+        ends = np.cumsum(in_view.sum(axis=1)).tolist()
+        starts = [0, *ends[:-1]] if ends else []
+        # the probes of every bin this window meets first, side by side on every core, before the choices take them
+        # (the bins of each track's first and last frames in view)
+        imager.chooser.probe_ahead(columns["zenith"], columns["range"], seen, visible,
+                                   [bins[i] for i in starts] + [bins[i - 1] for i in ends])
+        # every frame's stamp placement and line of sight, all tracks in view at once (Imager.placement)
         placed = imager.placement(*(columns[name][:, tracks] for name in ("x", "y", "zenith", "azimuth", "rotation")))
         # the same by track (tracks, render times, ...), with the zenith angles and ranges: a group's frames in one
         # gather each (render_together)
         by_track = tuple(np.ascontiguousarray(np.swapaxes(values, 0, 1)) for values in
                          (*placed, columns["zenith"][:, tracks], columns["range"][:, tracks]))
-        # every frame in view, track by track: the path choices' bins of all of them in one call (element by element,
-        # the same keys as a track's alone), split at the tracks' counts
-        in_view = visible[:, tracks].T                                            # (tracks, render times)
-        track_of, frame_of = np.nonzero(in_view)
-        column_of = tracks[track_of]
-        bins = imager.chooser.keys(columns["zenith"][frame_of, column_of], columns["range"][frame_of, column_of],
-                                   seen[frame_of, column_of])
-        ends = np.cumsum(in_view.sum(axis=1)).tolist()
+        every_in_view = None if every is None else every[frame_of, column_of]
         jobs = []
         for column, j in enumerate(tracks):                                       # tracks in order
             key, tr = ids[source_of[j]], {name: columns[name][:, j] for name in ("x", "y", "zenith", "range")}
             tr["placed"] = tuple(p[:, column] for p in placed)
-            first, stop = ends[column - 1] if column else 0, ends[column]
-            idx = frame_of[first:stop]
-            mine = seen[idx, j]
-            paths = imager.prepare(key, tr["zenith"][idx], tr["range"][idx], mine,     # path choices, in order
-                                   keys=bins[first:stop])
-            jobs.append((len(jobs), key, tr, idx, mine, paths, None if every is None else every[idx, j]))
+            part = slice(starts[column], ends[column])                            # its frames in view
+            mine = seen_in_view[part]
+            paths = imager.prepare(key, zenith_in_view[part], range_in_view[part], mine,     # path choices, in order
+                                   keys=bins[part])
+            jobs.append((len(jobs), key, tr, frame_of[part], mine, paths,
+                         None if every_in_view is None else every_in_view[part]))
         # a stamp slot for each source on the detector in this window only (a star field lists every star of the
         # run: 1586 in a 60 s tracked pass, ~20 at a time; zero stamps for the rest cost 31 MB a window)
         origin = np.zeros((len(t_ns), len(jobs), 2), dtype=np.int32)
@@ -603,8 +608,8 @@ class PointSourceOptics(Block):
                     imager.forget([key])
             # their placements, zenith angles and ranges at the frames rendered (sources, frames, ...): job s is track s
             sources = [s for (s, *_), _, _ in group]
-            origin_of, offset, sight, zenith, range_m = (values[sources, span] if fresh is None
-                                                         else values[np.ix_(sources, at)] for values in by_track)
+            rows = (sources, span) if fresh is None else np.ix_(sources, at)
+            origin_of, offset, sight, zenith, range_m = (values[rows] for values in by_track)
             placed = (origin_of, offset, sight)
             stamps = imager.render_many([key for (_, key, *_), _, _ in group], t_s[at], zenith, range_m, placed)
             done = []

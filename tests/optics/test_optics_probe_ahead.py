@@ -44,6 +44,20 @@ def test_probes_made_ahead_give_the_choices_made_one_at_a_time(monkeypatch, thre
     assert not imager.chooser._ahead
 
 
+def test_the_bins_given_by_the_caller_make_the_probes_it_would_find(monkeypatch):
+    """The block hands probe_ahead the bins of each track's first and last frames in view (from its keys of every
+    frame in view): the same probes as probe_ahead finding those frames and their bins itself, without its keys."""
+    zenith, range_m, seen, visible = WINDOW
+    found = make_imager()
+    found.chooser.probe_ahead(*WINDOW)
+    given = make_imager()
+    ends = [given.chooser.key(zenith[t, k], range_m[t, k], tuple(seen[t, k])) for t in (0, 1) for k in (0, 1)]
+    with monkeypatch.context() as m:
+        m.setattr(PathChooser, "keys", lambda *a, **k: pytest.fail("the bins were looked up again"))
+        given.chooser.probe_ahead(*WINDOW, ends)
+    assert repr(sorted(given.chooser._ahead.items(), key=repr)) == repr(sorted(found.chooser._ahead.items(), key=repr))
+
+
 def test_a_failing_probe_made_ahead_raises_its_error(monkeypatch):
     imager = make_imager()
 
