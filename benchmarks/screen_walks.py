@@ -3,8 +3,9 @@
 Runs a graph (default: the tracked 10 s pass of benchmarks/end_to_end.yaml) in a fresh process on one thread, one
 step at a time (``EVSDA_THREADS=1``, ``EVSDA_PIPELINE=0``, the probe cache off), with ``time.process_time`` around
 ``PupilPath.turbulent_phase`` (and ``_phases``, which walks several sources together) and, inside them, around the
-screens' compiled calls that release the lock (``screen_kernels``' ``walk_segments``, ``plan_layers`` and the
-footprint grids); the rest of the screens' time holds
+screens' compiled calls that release the lock (``screen_kernels``' ``walk_segments``, ``plan_layers``, the
+footprint grids, and ``pupil_path.walk_and_stamp``, the walk with its frames' stamps in one call where the renderer's
+frame path holds: then the item holds the pupil stamps too); the rest of the screens' time holds
 it (Python, NumPy, regenerations). Prints the medians over ``--repeats`` runs, with the calls, PSFs (frames) and
 layer reads counted. ``--against OTHER`` runs another checkout (its own ``.venv``) alternately, side by side.
 
@@ -51,7 +52,8 @@ timed(pupil_path.PupilPath, "turbulent_phase", True)
 if hasattr(pupil_path.PupilPath, "_phases"):            # sources walked together (Imager.render_many) call it alone
     timed(pupil_path.PupilPath, "_phases", True)
 for owner, name in ((layer_screen, "walk_segments"), (layer_screen, "plan_layers"), (pupil_path, "layer_grids"),
-                    (pupil_path, "footprint_grids")):
+                    (pupil_path, "footprint_grids"), (pupil_path, "layer_grids_drifting"),
+                    (pupil_path, "walk_and_stamp")):
     if hasattr(owner, name):
         timed(owner, name, False)
 accumulate = pupil_path.accumulate_layers
