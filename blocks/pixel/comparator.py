@@ -52,7 +52,8 @@ ROUNDING_MARGIN = 1e-9
 
 def draw_thresholds(rng: np.random.Generator, size, mean: float, sigma: float, floor: float):
     """Per-pixel thresholds from ``N(mean, sigma)``, floored at ``floor`` [log units]."""
-    return np.maximum(rng.normal(mean, sigma, size) if sigma > 0 else np.full(size, float(mean)), floor)
+    drawn = rng.normal(mean, sigma, size) if sigma > 0 else np.full(size, float(mean))
+    return np.maximum(drawn, floor, out=drawn)
 
 
 def events_possible(delta, theta_on, theta_off):

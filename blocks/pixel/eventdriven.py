@@ -31,7 +31,7 @@ from evsda.blocks.threads import worker_threads
 from evsda.graph.threads import parallel_map
 
 from .eventlog import EventLog
-from .initial import initial_pixels
+from .initial import initial_draws
 from .model import PixelModel
 from .deferred import SharedChanges, select_pixels, take_and_run
 from .dense_loop import run_dense_chunk
@@ -122,18 +122,20 @@ class EventDrivenPixels:
     def new_state(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator, n_start: int,
                   background: float) -> dict:
         """Fresh state looking at ``photon_flux`` (``background`` plus stamps); the first step is ``n_start``."""
-        init = initial_pixels(model, photon_flux, rng)
+        draws = initial_draws(model, photon_flux.shape[0], rng)
+        fluxes, drive, inverse = model.distinct_drive(photon_flux)
         n = photon_flux.shape[0]
         state = {"real": _aligned_empty((n, len(REAL)), float), "count": _aligned_empty((n, len(COUNT)), np.int64),
                  "next": np.empty(n, np.int64),                           # each pixel's next event step
                  "off_background": np.flatnonzero(photon_flux != background),   # pixels under stamps
                  "key": int(rng.integers(0, 2**63 - 1))}
         pixels = EventDrivenPixels(model, state)
-        real, count = state["real"], state["count"]
-        drive_rows(np.ascontiguousarray(photon_flux, dtype=float), pixels._drive, real)      # the input columns
+        rows = np.empty((fluxes.size, len(REAL)))
+        drive_rows(fluxes, pixels._drive, rows)                  # the input columns of the distinct fluxes
         leak_hz, dt, large, _, q, key, *_ = pixels._constants
-        start_pixels(real, count, state["next"], init.filtered, init.memorised, init.theta_on, init.theta_off,
-                     np.ascontiguousarray(init.credit), init.noise_scale, np.int64(n_start), leak_hz, dt, large, key, q)
+        start_pixels(state["real"], state["count"], state["next"], inverse, rows, drive.y, drive.parasitic_hz,
+                     draws.theta_on, draws.theta_off, draws.phase, draws.noise_scale, np.int64(n_start), leak_hz, dt,
+                     large, key, q)
         return state
 
     # -- one window ---------------------------------------------------------------------------

@@ -29,13 +29,32 @@ class InitialPixels(NamedTuple):
     noise_scale: np.ndarray  # [n] each pixel's factor on the junction-leak and shot-noise rates [1]
 
 
-def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> InitialPixels:
-    """Thresholds (paper Sec. 2.4) and settled photoreceptor and memory of every pixel."""
+class InitialDraws(NamedTuple):
+    """The random numbers of every pixel's start, drawn in this order."""
+
+    theta_on: np.ndarray     # [n] (in ln of current)
+    theta_off: np.ndarray    # [n]
+    phase: np.ndarray        # [n] the memory's head start as a fraction of theta_ON, uniform in [0, 1)
+    noise_scale: np.ndarray  # [n] (:func:`noise_scale`)
+
+
+def initial_draws(model: PixelModel, n: int, rng: np.random.Generator) -> InitialDraws:
+    """Thresholds (paper Sec. 2.4), the memory's head start and the noise rates' factors of ``n`` pixels."""
     p = model.params
-    n = photon_flux.shape[0]
     theta_on = draw_thresholds(rng, n, p.threshold_on, p.threshold_sigma, p.threshold_floor)
     theta_off = draw_thresholds(rng, n, p.threshold_off, p.threshold_sigma, p.threshold_floor)
     phase = rng.random(n)
+    return InitialDraws(theta_on, theta_off, phase, noise_scale(model, n, rng))
+
+
+def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Generator) -> InitialPixels:
+    """Thresholds (paper Sec. 2.4) and settled photoreceptor and memory of every pixel.
+
+    The event-driven implementation computes the same values pixel by pixel in its first pass over the state
+    (:func:`.pixel_loop.start_pixels`, from :func:`initial_draws`; tested)."""
+    p = model.params
+    n = photon_flux.shape[0]
+    theta_on, theta_off, phase, scale = initial_draws(model, n, rng)
     drive = model.drive(photon_flux)
     rate = p.leak_rate_hz + drive.parasitic_hz
     head = np.where(rate > 0, phase * theta_on, 0.0)
@@ -43,7 +62,7 @@ def initial_pixels(model: PixelModel, photon_flux: np.ndarray, rng: np.random.Ge
     credit = np.zeros((2, n))
     credit[0] = head * share
     credit[1] = head - credit[0]
-    return InitialPixels(theta_on, theta_off, drive.y.copy(), drive.y - head, credit, noise_scale(model, n, rng))
+    return InitialPixels(theta_on, theta_off, drive.y.copy(), drive.y - head, credit, scale)
 
 
 def noise_scale(model: PixelModel, n: int, rng: np.random.Generator) -> np.ndarray:

@@ -18,6 +18,11 @@ from .params import DvsPixelParams
 from .refractory import refractory_steps
 
 
+#: a sensor's fluxes are driven once per distinct value when there are more than ``_FEW_FROM`` and fewer than one
+#: distinct value per ``_FEW_SHARE`` pixels (:meth:`PixelModel.distinct_drive`)
+_FEW_FROM, _FEW_SHARE = 65536, 16
+
+
 class Drive(NamedTuple):
     """Per-pixel quantities set by a constant input flux."""
 
@@ -99,11 +104,22 @@ class PixelModel:
         evaluated once each (unless the caller knows them ``distinct``, as for video frames).
         """
         flux = np.asarray(photon_flux, dtype=float)
-        if not distinct and flux.ndim == 1 and flux.size > 65536:
-            values, inverse = distinct_values(flux)
-            if values.size < flux.size // 16:
-                return Drive(*(v[inverse] for v in self._drive(values)))
+        if not distinct and flux.ndim == 1:
+            values, drive, inverse = self.distinct_drive(flux)
+            return drive if values is flux else Drive(*(v[inverse] for v in drive))
         return self._drive(flux)
+
+    def distinct_drive(self, photon_flux: np.ndarray) -> tuple[np.ndarray, Drive, np.ndarray]:
+        """``(values, drive, inverse)``: :meth:`drive` of a 1-d ``photon_flux`` as the drive of the fluxes
+        ``values`` and each pixel's entry ``inverse`` in them (``drive(photon_flux).y`` is ``drive.y[inverse]``, the
+        same bits): the distinct fluxes where they are few, else ``photon_flux`` itself (as a contiguous array) and
+        every pixel its own entry."""
+        flux = np.ascontiguousarray(photon_flux, dtype=float)
+        if flux.size > _FEW_FROM:
+            values, inverse = distinct_values(flux)
+            if values.size < flux.size // _FEW_SHARE:
+                return values, self._drive(values), inverse
+        return flux, self._drive(flux), np.arange(flux.size)
 
     def _drive(self, flux: np.ndarray) -> Drive:
         p = self.params

@@ -134,10 +134,18 @@ def shot_gap(key, pixel, count, q):
 
 
 @jit
-def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, credit, noise_scale, n_start, leak_hz,
-                 dt, large, key, q):
-    """Fill every pixel's state row (its input columns already set) from its initial state, at step ``n_start - 1``,
-    and schedule its first shot-noise trial and comparator event: one pass over the tables.
+def start_pixels(real, count, next_step, inverse, rows, settled, parasitic_hz, th_on, th_off, phase, noise_scale, n_start,
+                 leak_hz, dt, large, key, q):
+    """Fill every pixel's state row from its start, at step ``n_start - 1``, and schedule its first shot-noise trial
+    and comparator event: one pass over the tables, which it writes first.
+
+    Pixel ``p``'s input columns are row ``inverse[p]`` of ``rows`` (:func:`.drive_kernel.drive_rows` of the distinct
+    fluxes) and its settled filter and parasitic rate entry ``inverse[p]`` of ``settled`` and ``parasitic_hz``
+    (:meth:`.model.PixelModel.distinct_drive`); ``th_on``, ``th_off``, ``phase`` and ``noise_scale`` are its draws
+    (:func:`.initial.initial_draws`). The filter starts settled and the memory a head start ``phase theta_ON`` below
+    it, charged to the leak and parasitic contributions in proportion to their rates: :func:`.initial.initial_pixels`'
+    arithmetic, pixel by pixel (the same bits, tested), without its arrays of the whole sensor (~120 MB on a 1280 x
+    720 sensor, each page first touched).
 
     The comparator's schedule is the one a turn's end keeps (:func:`kept_schedule`): where :func:`quiet_until`
     bounds the first crossing (almost every pixel: its first leak event seconds ahead), that bound, the search
@@ -145,17 +153,24 @@ def start_pixels(real, count, next_step, filtered, memorised, th_on, th_off, cre
     first, after which it is searched again anyway); the same events as the search here (it was ~150 ms of CPU
     on a 1280 x 720 sensor, the filter settled a rounding off its target)."""
     for pixel in range(count.shape[0]):
-        real[pixel, L_], real[pixel, M_] = filtered[pixel], memorised[pixel]
+        k = inverse[pixel]
+        for column in (FLUX, Y, LOG_A, PARA, ACCEPT):
+            real[pixel, column] = rows[k, column]
+        filtered, rate = settled[k], leak_hz + parasitic_hz[k]
+        head = phase[pixel] * th_on[pixel] if rate > 0.0 else 0.0
+        share = leak_hz / rate if rate > 0.0 else 0.0
+        c_leak = head * share
+        memorised = filtered - head
+        real[pixel, L_], real[pixel, M_] = filtered, memorised
         real[pixel, TH_ON], real[pixel, TH_OFF] = th_on[pixel], th_off[pixel]
-        real[pixel, C_LEAK], real[pixel, C_PARA], real[pixel, NOISE_SCALE] = credit[0, pixel], credit[1, pixel], \
-            noise_scale[pixel]
+        real[pixel, C_LEAK], real[pixel, C_PARA], real[pixel, NOISE_SCALE] = c_leak, head - c_leak, noise_scale[pixel]
         for column in range(count.shape[1]):
             count[pixel, column] = 0
         step, ready = n_start - 1, n_start
         count[pixel, STEP], count[pixel, READY] = step, ready
         shot_next = step + shot_gap(key, pixel, np.int64(0), q * noise_scale[pixel])
         count[pixel, SHOT_NEXT] = shot_next
-        cmp_next = kept_schedule(step, ready, real[pixel, Y], memorised[pixel], filtered[pixel], real[pixel, LOG_A],
+        cmp_next = kept_schedule(step, ready, real[pixel, Y], memorised, filtered, real[pixel, LOG_A],
                                  real[pixel, PARA], th_on[pixel], th_off[pixel], noise_scale[pixel], leak_hz * dt, dt,
                                  large)
         count[pixel, CMP_NEXT] = cmp_next
