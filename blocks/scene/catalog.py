@@ -142,6 +142,9 @@ def _numbers_or_zero(field: np.ndarray, texts: np.ndarray, blank: np.ndarray) ->
 
 #: the most digits :func:`_decimals` reads (10**15 < 2**53: the digits as an integer are an exact double)
 _MAX_DIGITS = 15
+#: ``10**k`` for ``k <= _MAX_DIGITS`` as doubles, each exact (integers below 2**53), made from Python's integers: a
+#: vectorised ``pow`` need not give exact powers on every machine
+_POWERS_OF_TEN = np.array([float(10**k) for k in range(_MAX_DIGITS + 1)])
 
 
 def _decimals(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,7 +182,7 @@ def _decimals(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n_digits += digit
         after += digit & point
     read = ~bad & (n_digits >= 1) & (n_digits <= _MAX_DIGITS)
-    values = mantissa.astype(np.float64) / 10.0 ** np.minimum(after, _MAX_DIGITS)
+    values = mantissa.astype(np.float64) / _POWERS_OF_TEN[np.minimum(after, _MAX_DIGITS)]
     np.negative(values, out=values, where=minus)
     return values, read
 
