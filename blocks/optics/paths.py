@@ -434,7 +434,7 @@ class PathChooser:
         return representative_conditions(key[:2])
 
     def probe_ahead(self, zenith_rad: np.ndarray, range_m: np.ndarray, seen: np.ndarray | None,
-                    visible: np.ndarray, ends: list[tuple] | None = None) -> None:
+                    visible: np.ndarray, end_bins: list[tuple] | None = None) -> None:
         """Make, side by side on the process's cores, every probe that the choices of a window's bins (:meth:`keys`)
         will need and that no earlier choice made: the reference frame pairs of every pupil-error bin and the
         analytic-path probes of every bin, in one schedule (:meth:`_measure`). The choices then take them as they
@@ -444,13 +444,13 @@ class PathChooser:
         ``zenith_rad``, ``range_m`` (frames, tracks), ``seen`` (frames, tracks, 3 or 4) as for :meth:`keys`, and
         ``visible`` (frames, tracks): the frames in view. Only each track's first and last frame in view are
         looked at (0.4 ms a window for all of them, at every window; a bin met only in between is probed when its
-        choice is made, as without this call); ``ends``: their bins (:meth:`keys`), every track's first frame's then
+        choice is made, as without this call); ``end_bins``: their bins (:meth:`keys`), every track's first frame's then
         every track's last frame's, where the caller has them already (the block's keys of every frame in view).
 
         A window's sources meet several bins at once (the first window of a run all of them): made one choice
         after another, each bin's probes ran alone, on both cores only where a bin had two frame pairs to
         measure at a time."""
-        if ends is None:
+        if end_bins is None:
             tracks = np.flatnonzero(visible.any(axis=0))
             if not tracks.size:
                 return
@@ -458,9 +458,9 @@ class PathChooser:
             last = len(visible) - 1 - visible[::-1, tracks].argmax(axis=0)
             at = (np.concatenate([first, last]), np.concatenate([tracks, tracks]))
             seen = None if seen is None else np.asarray(seen, dtype=float)[at]
-            ends = self.keys(np.asarray(zenith_rad, dtype=float)[at], np.asarray(range_m, dtype=float)[at], seen)
+            end_bins = self.keys(np.asarray(zenith_rad, dtype=float)[at], np.asarray(range_m, dtype=float)[at], seen)
         wanted: dict[tuple[float, float], None] = {}
-        for key in dict.fromkeys(ends):
+        for key in dict.fromkeys(end_bins):
             if key not in self._choices:
                 conditions = self._probed(key)
                 if conditions is not None and conditions not in self._estimates:
