@@ -46,6 +46,7 @@ _FIRST, _ONE = np.int64(0), np.int64(1)     # run_pixels' counts typed int64, no
  F_NEXT, F_NEW_Y, F_NEW_LOG_A, F_NEW_PARA, F_NEW_ACCEPT, N_FLOAT) = range(20)     # F_NEW_*: the drive of F_NOW
 (I_STEP, I_READY, I_DUE, I_CMP, I_ACTIVE, I_LEAVE, I_SPAN, I_OPEN, N_INT) = range(9)
 jit = numba.njit(cache=True, error_model="numpy")
+inline = numba.njit(cache=True, error_model="numpy", inline="always")
 
 
 @jit
@@ -175,28 +176,75 @@ def _solve(fs, js, n, t_next, last, leak_hz, dt, large):
             js[I_CMP * TILE + i] = NEVER if j >= NEVER else step + j
 
 
-@jit
-def _to_state(fs, js, i, r, c):
-    """The sweep's fields of tile pixel ``i`` back into its state rows (the others the sweep only reads)."""
-    for field, column in ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y),
-                          (F_LOG_A, LOG_A), (F_PARA, PARA), (F_ACCEPT, ACCEPT)):
-        r[column] = fs[field * TILE + i]
-    c[STEP], c[CMP_NEXT] = js[I_STEP * TILE + i], js[I_CMP * TILE + i]
+_STATE = ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y), (F_LOG_A, LOG_A),
+          (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON), (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE))
+_CHANGED = 9                 # the sweep writes the first _CHANGED of _STATE's fields (the others it only reads)
 
 
-@jit
-def _from_state(fs, js, i, r, c, t_next):
-    """Tile pixel ``i`` from its state rows, active, its comparator scheduled up to ``t_next`` (``NEVER``: open).
+@inline
+def _to_state(fs, js, i, real, count, pixel):
+    """The sweep's fields of tile pixel ``i`` back into the state rows of ``pixel``.
+
+    Inlined, the tables indexed in place: a compiled call, or a row's view, counts the arrays' references up and
+    down (atomically) at each pixel."""
+    for field, column in _STATE[:_CHANGED]:
+        real[pixel, column] = fs[field * TILE + i]
+    count[pixel, STEP], count[pixel, CMP_NEXT] = js[I_STEP * TILE + i], js[I_CMP * TILE + i]
+
+
+@inline
+def _from_state(fs, js, i, real, count, pixel, t_next):
+    """Tile pixel ``i`` from the state rows of ``pixel``, active, its comparator scheduled up to ``t_next``
+    (``NEVER``: open); inlined as :func:`_to_state`.
 
     Its filter's retention to its next sample (``F_RETAIN`` over ``I_SPAN`` steps) is the caller's to set.
     """
-    for field, column in ((F_FLUX, FLUX), (F_L, L_), (F_M, M_), (F_LEAK, C_LEAK), (F_PARA_C, C_PARA), (F_Y, Y),
-                          (F_LOG_A, LOG_A), (F_PARA, PARA), (F_ACCEPT, ACCEPT), (F_TH_ON, TH_ON),
-                          (F_TH_OFF, TH_OFF), (F_SCALE, NOISE_SCALE)):
-        fs[field * TILE + i] = r[column]
-    js[I_STEP * TILE + i], js[I_READY * TILE + i], js[I_CMP * TILE + i] = c[STEP], c[READY], c[CMP_NEXT]
-    js[I_DUE * TILE + i] = min(c[SHOT_NEXT], _settle_step(c[READY], c[OWED]))
+    for field, column in _STATE:
+        fs[field * TILE + i] = real[pixel, column]
+    ready = count[pixel, READY]
+    js[I_STEP * TILE + i], js[I_READY * TILE + i], js[I_CMP * TILE + i] = count[pixel, STEP], ready, \
+        count[pixel, CMP_NEXT]
+    js[I_DUE * TILE + i] = min(count[pixel, SHOT_NEXT], _settle_step(ready, count[pixel, OWED]))
     js[I_ACTIVE * TILE + i], js[I_LEAVE * TILE + i], js[I_OPEN * TILE + i] = 1, NEVER, 1 if t_next >= NEVER else 0
+
+
+@inline
+def _hand_over(fs, js, n, real, count, first_pixel, columns, t_now, t_next, last, hand, none, model, buffers,
+               n_events, lost):
+    """The sample at ``t_now`` of the tile's pixels marked ``_STEPPED`` (an event due before it), taken by
+    :func:`.pixel_loop.run_pixels`: their events, then the change, with the drive and the retention the sweep
+    computed; the pixels rejoin the sweep. Returns ``(events written, lost, done)``; not done: the buffers ran
+    out of room (the tile is put back by the caller).
+
+    One call for all of them, in the tile's order (the events' order, as one call a pixel would write them):
+    each call counts its 17 arrays' references up and down, atomically. Inlined into the chunk's loop, as
+    :func:`_to_state` and :func:`_from_state` are. ``hand``: room for the call's pixels, their changes' ranges,
+    steps and rows; ``none``: empty arrays (no schedule kept, no wake steps); ``model``: ``run_pixels``' arguments
+    from ``n_end`` to ``th_floor``, ``buffers`` its events' (a function inlined takes at most 30 arguments).
+    """
+    pixels, lo, hi, change_step, change_input = hand
+    unkept, no_wake, no_envelope = none
+    m = 0
+    for i in range(n):
+        if js[I_ACTIVE * TILE + i] == _STEPPED:
+            pixel = first_pixel + columns[i]
+            _to_state(fs, js, i, real, count, pixel)
+            pixels[m], lo[m], hi[m] = pixel, 2 * m, 2 * m + (1 if last else 2)     # this change and the next
+            change_step[2 * m], change_step[2 * m + 1] = t_now, t_next
+            row = 2 * m                                        # the sweep's drive of this sample
+            change_input[row, FLUX], change_input[row, Y] = fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i]
+            change_input[row, LOG_A], change_input[row, PARA] = fs[F_NEW_LOG_A * TILE + i], fs[F_NEW_PARA * TILE + i]
+            change_input[row, ACCEPT] = fs[F_NEW_ACCEPT * TILE + i]
+            m += 1
+    n_events, n_done, lost = run_pixels(real, count, unkept, no_wake, no_envelope, pixels[:m], lo[:m], hi[:m], _ONE,
+                                        change_step, change_input, *model, *buffers, n_events, lost, _EXACT, unkept,
+                                        no_envelope, no_envelope)
+    if n_done < m:
+        return n_events, lost, False
+    for i in range(n):
+        if js[I_ACTIVE * TILE + i] == _STEPPED:           # at step t_now - 1: the sweep's retention
+            _from_state(fs, js, i, real, count, first_pixel + columns[i], t_next)
+    return n_events, lost, True
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)     # chunks run in threads (see .eventdriven)
@@ -224,6 +272,11 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
     unkept, no_envelope = np.empty(0, np.int64), np.empty(0)     # run_pixels keeps no schedule here (see below)
     no_wake = np.empty(0, np.int32)
     #                                                            and is given no bound taken before
+    hand = (np.empty(TILE, np.int64), np.empty(TILE, np.int64), np.empty(TILE, np.int64), np.empty(2 * TILE, np.int64),
+            np.empty((2 * TILE, n_real)))                     # _hand_over's call: pixels, changes' ranges, steps, rows
+    none = (unkept, no_wake, no_envelope)
+    model = (n_end, leak_hz, dt, large, k_refr, q, key, redraw, th_mean_on, th_mean_off, th_sigma, th_floor)
+    buffers = (ev_step, ev_pixel, ev_pol, ev_cause)
     n_events = _FIRST                                         # int64, not Literal[int](0): see _FIRST
     lost = 0.0
     for t0 in range(0, columns.size, TILE):
@@ -231,11 +284,10 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
         tile_events, tile_lost = n_events, lost
         for i in range(n):                                    # the tile's state into the sweep's tables
             pixel = first_pixel + columns[t0 + i]
-            r, c = real[pixel], count[pixel]
-            start_r[i], start_c[i] = r, c
-            _from_state(fs, js, i, r, c, NEVER)               # scheduled without a horizon at the end of a window
-            js[I_SPAN * TILE + i] = steps[0] - 1 - c[STEP]
-            fs[F_RETAIN * TILE + i] = power(r[LOG_A], steps[0] - 1 - c[STEP])
+            start_r[i], start_c[i] = real[pixel], count[pixel]
+            _from_state(fs, js, i, real, count, pixel, NEVER)   # scheduled without a horizon at a window's end
+            js[I_SPAN * TILE + i] = steps[0] - 1 - count[pixel, STEP]
+            fs[F_RETAIN * TILE + i] = power(real[pixel, LOG_A], steps[0] - 1 - count[pixel, STEP])
         done = True
         c0 = columns[t0]                                      # the tile's columns, if they are c0, c0 + 1, ...
         contiguous = True
@@ -262,36 +314,18 @@ def run_dense_chunk(real, count, next_step, first_pixel, columns, stamps, backgr
             n_solve, n_stepped = _sweep(fs, js, n, steps[k], t_next, last, leak_hz, dt, large, drive_k)
             if n_solve:
                 _solve(fs, js, n, t_next, last, leak_hz, dt, large)
-            for i in range(n if n_stepped else 0):            # run_pixels takes this sample: its events, the change
-                if js[I_ACTIVE * TILE + i] == _STEPPED:
-                    pixel = first_pixel + columns[t0 + i]
-                    r, c = real[pixel], count[pixel]
-                    _to_state(fs, js, i, r, c)
-                    change_step[0], change_step[1] = steps[k], t_next
-                    row = change_input[0]                     # the sweep's drive of this sample
-                    row[FLUX], row[Y], row[LOG_A] = fs[F_NOW * TILE + i], fs[F_NEW_Y * TILE + i], \
-                        fs[F_NEW_LOG_A * TILE + i]
-                    row[PARA], row[ACCEPT] = fs[F_NEW_PARA * TILE + i], fs[F_NEW_ACCEPT * TILE + i]
-                    one_pixel[0], changes[0] = pixel, 1 if last else 2
-                    n_events, n_done, lost = run_pixels(real, count, unkept, no_wake, no_envelope, one_pixel, no_change,
-                                                        changes, _ONE, change_step, change_input, n_end, leak_hz, dt,
-                                                        large, k_refr, q, key, redraw, th_mean_on, th_mean_off,
-                                                        th_sigma, th_floor, ev_step, ev_pixel, ev_pol, ev_cause,
-                                                        n_events, lost, _EXACT, unkept, no_envelope,
-                                                        no_envelope)
-                    done = n_done == 1
-                    if not done:
-                        break
-                    _from_state(fs, js, i, r, c, t_next)        # at step steps[k] - 1: the sweep's retention
-            if not done:
-                break
+            if n_stepped:                                     # run_pixels takes this sample: events, the change
+                n_events, lost, done = _hand_over(fs, js, n, real, count, first_pixel, columns[t0:t0 + n], steps[k],
+                                                  t_next, last, hand, none, model, buffers, n_events, lost)
+                if not done:
+                    break
         for i in range(n if done else 0):                     # back to the state tables; the rest by run_pixels
             column = columns[t0 + i]
             pixel = first_pixel + column
-            r, c = real[pixel], count[pixel]
-            _to_state(fs, js, i, r, c)
+            _to_state(fs, js, i, real, count, pixel)
+            c = count[pixel]
             leave = js[I_LEAVE * TILE + i]
-            held = r[FLUX]
+            held = real[pixel, FLUX]
             n_changes = _FIRST                        # int64 from the start: one compile of run_pixels
             if leave < NEVER:                                 # its samples from the one it left the sweep at
                 for k in range(n_samples):
