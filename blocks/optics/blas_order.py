@@ -10,7 +10,7 @@ from +0 over ``k = q, q + 16, ..., q + 64`` in turn, then the 16 lanes added in 
 (8 sums, then 4, 2, 1: :data:`_PAIRWISE`), except, in ``B half``, the outputs whose row and column are both past the
 first four, whose lanes are added by halves (lane ``q`` and ``q + 8``, then 4, 2, 1: ``_mm512_reduce_add_ps``,
 :data:`_HALVED`). :func:`products` makes the same operations, 16 outputs side by side in vector registers
-(:func:`_dot16`, LLVM's IR): a stamp's products and scale 1.54 against 2.10 us, the stamp ~5 % quicker
+(:func:`_dot16`, LLVM's IR): a stamp's products and scale 1.4 against 1.6 us, the stamp 3-4 % quicker
 (docs/speed.md, twentieth session).
 
 That order is one BLAS build's on one kind of CPU: the renderer takes :func:`products` only where
