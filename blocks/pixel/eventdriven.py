@@ -25,6 +25,8 @@ identical events.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from evsda.blocks.threads import worker_threads
@@ -41,8 +43,11 @@ from .pixel_loop import COUNT, PARA, REAL, Y, resolve_schedules, start_pixels
 
 NAMES = {"flux": "flux", "filtered": "L", "memorised": "M", "theta_on": "th_on", "theta_off": "th_off",
          "step": "step", "ready": "ready"}                                     # public names of some fields
-_CHUNKS_PER_THREAD = 8                 # pixels are split in this many chunks per thread, for an even load
+_CHUNKS_PER_THREAD = 8                 # a thread's share of the items over this is the threads' last chunk (x 1/4)
 _FIRST_CAPACITY = 1024                 # room for events per chunk at the first try (at least 2 per pixel)
+#: a dense chunk's room for events over the last dense window's events per pixel (rows under a bright feature make
+#: more than the mean; room never written is never touched, so costs no memory) [1]
+_DENSE_ROOM = 2.0
 #: room the envelope of background changes leaves around those kept, in Y (plus their spread) [ln of current]
 #: and in the parasitic rate [relative]: wider envelopes are renewed less often but show fewer pixels quiet
 _ENVELOPE_Y, _ENVELOPE_PARA = 1e-3, 1e-2
@@ -90,6 +95,7 @@ class EventDrivenPixels:
         self._windows = 0
         self._slot = np.full(state["real"].shape[0], -1, np.int32)    # scratch of :func:`.own_changes.under_stamps`
         self._rows = np.empty((0, len(REAL)))                         # scratch of the window's input changes
+        self._dense_rate = 0.0                        # events per pixel of the last dense window (room for events)
         p = model.params
         q = 2.0 * model.shot_p_max                       # shot-trial probability per step
         self._drive = drive_constants(model)
@@ -130,8 +136,10 @@ class EventDrivenPixels:
                  "off_background": np.flatnonzero(photon_flux != background),   # pixels under stamps
                  "key": int(rng.integers(0, 2**63 - 1))}
         pixels = EventDrivenPixels(model, state)
-        rows = np.empty((fluxes.size, len(REAL)))
-        drive_rows(fluxes, pixels._drive, rows)                  # the input columns of the distinct fluxes
+        # the input columns of the distinct fluxes; where every pixel has its own (video), straight into the state
+        # table, which start_pixels reads each row of before it writes the row's other columns
+        rows = state["real"] if fluxes.size == n else np.empty((fluxes.size, len(REAL)))
+        drive_rows(fluxes, pixels._drive, rows)
         leak_hz, dt, large, _, q, key, *_ = pixels._constants
         start_pixels(state["real"], state["count"], state["next"], inverse, rows, drive.y, drive.parasitic_hz,
                      draws.theta_on, draws.theta_off, draws.phase, draws.noise_scale, np.int64(n_start), leak_hz, dt,
@@ -272,7 +280,8 @@ class EventDrivenPixels:
                 return run_dense_chunk(s["real"], s["count"], s["next"], np.int64(first), index, stamps, background,
                                        steps, self._drive, np.int64(n_end), *self._constants, *buffers, off)
 
-            self._run(off.size, kernel, log)
+            written = self._run(off.size, kernel, log, _DENSE_ROOM * self._dense_rate)
+            self._dense_rate = written / off.size
         s["off_background"] = np.flatnonzero(off_background)
         self._fresh = False                                   # the wake steps are those of the states before
 
@@ -298,26 +307,29 @@ class EventDrivenPixels:
 
         self._run(pixels.size, kernel, log)
 
-    def _run(self, n_items: int, kernel, log: EventLog) -> None:
-        """``kernel(index, buffers)`` over chunks of the items ``0 .. n_items - 1``, in threads.
+    def _run(self, n_items: int, kernel, log: EventLog, room: float = 0.0) -> int:
+        """``kernel(index, buffers)`` over chunks of the items ``0 .. n_items - 1``, in threads; returns the events
+        written.
 
         ``kernel`` is a compiled loop (:func:`.deferred.take_and_run`, :func:`.dense_loop.run_dense_chunk`)
         over the pixels of ``index``, writing events into the buffers (step, pixel, polarity,
         cause) and returning ``(events written, items done, events lost)``. Pixels are
-        independent, so chunks run concurrently (:func:`worker_threads` of them). A chunk that
-        runs out of room for events leaves its remaining items untouched; those run again with
-        twice the room.
+        independent, so chunks run concurrently (:func:`worker_threads` of them), the threads taking the next
+        chunk as they come free; the chunks shrink towards the end (:func:`chunk_bounds`), so the threads end
+        close together. A chunk has room for ``room`` events per item (at least 2, and ``_FIRST_CAPACITY``); one
+        that runs out of room leaves its remaining items untouched, and those run again with twice the room.
         """
-        capacity = _FIRST_CAPACITY
+        room = max(2.0, room)
+        first_capacity = _FIRST_CAPACITY
         threads = worker_threads()
         items = np.arange(n_items, dtype=np.int64)
+        written = 0
         while items.size:
-            n_chunks = min(_CHUNKS_PER_THREAD * threads, items.size)
-            bounds = np.linspace(0, items.size, n_chunks + 1).astype(np.int64)
-            capacity = max(capacity, 2 * int(bounds[1] - bounds[0]))
+            bounds = chunk_bounds(items.size, threads)
 
             def chunk(span):
                 a, b = span
+                capacity = max(first_capacity, math.ceil(room * (b - a)))
                 buffers = (np.empty(capacity, np.int64), np.empty(capacity, np.int64), np.empty(capacity, np.int8),
                            np.empty(capacity, np.uint8))
                 n_events, n_done, lost = kernel(items[a:b], buffers)
@@ -326,7 +338,26 @@ class EventDrivenPixels:
             done = parallel_map(chunk, zip(bounds[:-1], bounds[1:]), threads)
             for events, *_ in done:
                 log.add(*events)
+                written += events[0].size
             log.lose(sum(lost for *_, lost in done))
             left = [np.arange(a, b) for _, a, b, _ in done if a < b]
             items = items[np.concatenate(left)] if left else items[:0]
-            capacity *= 2
+            room, first_capacity = 2 * room, 2 * first_capacity
+        return written
+
+
+def chunk_bounds(n_items: int, threads: int) -> np.ndarray:
+    """Bounds of the chunks that ``threads`` threads take ``n_items`` items in, each taking the next as it comes free.
+
+    Guided self-scheduling (Polychronopoulos and Kuck, IEEE Trans. Comput. C-36, 1987), halved: each chunk is a
+    ``1 / (2 threads)`` share of the items left, down to a ``1 / (4 _CHUNKS_PER_THREAD)`` share of a thread's
+    items. Early chunks are long (few calls), and when the last chunk is taken the others are at most that short, so
+    the threads end within a short chunk of each other where items differ in cost (the dense path's rows under a
+    bright bar: several times the events of others). Equal chunks (``_CHUNKS_PER_THREAD`` per thread) left a thread
+    idle up to a whole chunk, ~6 % of a window."""
+    smallest = max(1, n_items // (4 * _CHUNKS_PER_THREAD * threads))
+    bounds = [0]
+    while bounds[-1] < n_items:
+        left = n_items - bounds[-1]
+        bounds.append(bounds[-1] + min(left, max(smallest, -(-left // (2 * threads)))))
+    return np.array(bounds, np.int64)

@@ -209,8 +209,13 @@ def dense_frames(irradiance: Irradiance, samples: np.ndarray) -> np.ndarray:
     """Full ``[K, height * width]`` photon-flux frames of ``samples`` [photon s^-1 per pixel]."""
     height, width = irradiance.focal_plane.shape
     frames = np.repeat(np.asarray(irradiance.background, dtype=float)[samples, None], height * width, axis=1)
+    video = video_frames(irradiance, samples)
+    if video is not None:       # one stamp on every pixel: the additions below, a frame at a time (~20x quicker)
+        live = np.unique(live_stamps(irradiance, samples)[0])
+        frames[live] += 0.0 + video[live]
+        return frames
     sparse = stamp_pixels(irradiance, samples)
-    np.add.at(frames, (sparse.sample, sparse.pixel), sparse.flux)
+    np.add.at(frames, (sparse.sample, sparse.pixel), sparse.flux)     # each flux summed from 0 (stamp_pixels)
     return frames
 
 

@@ -90,7 +90,54 @@ def test_dense_path_reruns_tiles_that_run_out_of_room(monkeypatch):
 
     sparse = events("sparse", 0.03)
     monkeypatch.setattr(eventdriven, "_FIRST_CAPACITY", 0)
+    monkeypatch.setattr(eventdriven, "_DENSE_ROOM", 0.0)         # not the last window's events per pixel either
     monkeypatch.setattr(eventdriven, "_CHUNKS_PER_THREAD", 500)
     dense = events("dense", 0.04, threads="2", monkeypatch=monkeypatch)
     for a, b in zip(sparse, dense):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_frames_of_a_video_are_the_sums_of_its_stamp_pixels():
+    # dense_frames adds a video's one stamp a frame at a time: the same additions as np.add.at of the summed stamp
+    # pixels (each summed from 0), bit for bit, also where a frame's stamp is all zero (no stamp pixels) and for
+    # float32 stamps.
+    from evsda.blocks.pixel.sampling import dense_frames, stamp_pixels, video_frames
+
+    window = Window.from_seconds(0, 0.01)
+    irradiance = video(window, spots=False)
+    flux = irradiance.stamp_flux.copy()
+    flux[3] = 0.0
+    for stamps in (flux, flux.astype(np.float32)):
+        given = Irradiance(FP, 550e-9, irradiance.t_ns, irradiance.background, irradiance.stamp_origin, stamps)
+        samples = np.arange(1, 9)
+        assert video_frames(given, samples) is not None
+        expected = np.repeat(given.background[samples, None], FP.width_px * FP.height_px, axis=1)
+        sparse = stamp_pixels(given, samples)
+        np.add.at(expected, (sparse.sample, sparse.pixel), sparse.flux)
+        np.testing.assert_array_equal(dense_frames(given, samples).view(np.int64), expected.view(np.int64))
+
+
+def test_chunks_shrink_and_the_room_for_events_follows_the_last_window(monkeypatch):
+    # The chunks shrink to the end (the threads end close together), and from the second window on the dense path's
+    # chunks have room for the events the last window made per pixel: each chunk runs once, none again.
+    from evsda.blocks.pixel import eventdriven
+
+    for n, threads in ((89_960, 2), (5_000, 4), (7, 2), (1, 1)):
+        sizes = np.diff(eventdriven.chunk_bounds(n, threads))
+        assert sizes.sum() == n and np.all(sizes > 0) and np.all(np.diff(sizes) <= 0)
+        assert sizes[-1] <= max(1, n // (4 * eventdriven._CHUNKS_PER_THREAD * threads))
+    calls = []
+    kernel = eventdriven.run_dense_chunk
+    monkeypatch.setattr(eventdriven, "run_dense_chunk", lambda *args: calls.append(args[4].size) or kernel(*args))
+    monkeypatch.setattr(eventdriven, "_FIRST_CAPACITY", 0)
+    monkeypatch.setattr(eventdriven, "worker_threads", lambda: 2)
+    block = DvsPixel(seed=5, **{**NOISY, "threshold_on": 0.01, "threshold_off": 0.01})   # ~5 events a pixel a window
+    block.input_path = "dense"
+    block.setup(RunInfo(duration_ns=120_000_000))
+    chunks = len(eventdriven.chunk_bounds(FP.width_px * FP.height_px, 2)) - 1
+    for i in range(3):
+        window = Window.from_seconds(i * 0.04, (i + 1) * 0.04, index=i)
+        calls.clear()
+        events = block.step(window, irradiance=video(window))["events"]
+        assert events.t_ns.size > 4 * FP.width_px * FP.height_px
+        assert len(calls) > chunks if i == 0 else len(calls) == chunks

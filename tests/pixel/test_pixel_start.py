@@ -76,3 +76,25 @@ def test_the_drive_of_the_distinct_fluxes_is_the_drive_of_every_pixel():
     assert values.size < 200
     for whole, few in zip(model.drive(flux), drive):
         np.testing.assert_array_equal(whole, few[inverse])
+
+
+def test_fluxes_are_called_many_only_where_they_are():
+    # The start leaves out the sort of every flux where a strided subset already holds one distinct value per
+    # _FEW_SHARE pixels (model._many_distinct): never where the whole holds fewer, and always on a noisy frame.
+    from evsda.blocks.pixel.model import _FEW_SHARE, _many_distinct
+
+    rng = np.random.default_rng(3)
+    n = 90_000
+    noisy = 2e5 * (1 + 0.02 * rng.standard_normal(n))
+    uniform = np.full(n, 4e3)
+    uniform[rng.choice(n, 300, replace=False)] = 5e5
+    for period in (_FEW_SHARE - 1, _FEW_SHARE, _FEW_SHARE + 1):         # about n / period distinct values, in runs
+        runs = np.repeat(rng.permutation(-(-n // period)).astype(float), period)[:n]
+        cycled = np.tile(np.arange(-(-n // period), dtype=float), period)[:n]     # the subset sees each a few times
+        for flux in (runs, cycled):
+            assert not _many_distinct(flux) or np.unique(flux).size >= n // _FEW_SHARE
+    assert _many_distinct(noisy) and not _many_distinct(uniform)
+    model = PixelModel(DvsPixel.Params(), (10e-6) ** 2, 550e-9)
+    values, _, inverse = model.distinct_drive(noisy)                     # every pixel driven on its own
+    np.testing.assert_array_equal(values, noisy)
+    np.testing.assert_array_equal(inverse, np.arange(n))
