@@ -29,9 +29,12 @@ junction leak of Eq. 18 is temperature-independent (paper Sec. 2.4).
 from __future__ import annotations
 
 import numpy as np
-from scipy import constants
 
-BOLTZMANN_EV_PER_K = constants.k / constants.e     # k [eV K^-1]
+# exact by definition of the SI since 2019 (BIPM, The International System of Units, 9th ed., Table 1): written out,
+# not read from scipy.constants, whose CODATA tables cost ~7 ms of every run's start (the same floats)
+BOLTZMANN_J_PER_K = 1.380649e-23                   # k [J K^-1]
+ELEMENTARY_CHARGE_C = 1.602176634e-19              # e [C]
+BOLTZMANN_EV_PER_K = BOLTZMANN_J_PER_K / ELEMENTARY_CHARGE_C     # k [eV K^-1]
 
 
 def dark_current_A(temperature_K, density_A_m2: float, pixel_area_m2: float,

@@ -31,11 +31,12 @@ dark current at all (paper Fig. 5a).
 from __future__ import annotations
 
 import numpy as np
-from scipy import constants
 
-ELEMENTARY_CHARGE_C = constants.e        # q [C]
-PLANCK_J_S = constants.h                 # h [J s]
-SPEED_OF_LIGHT_M_S = constants.c         # c [m s^-1]
+from .dark_current import ELEMENTARY_CHARGE_C      # q [C]
+
+# exact by definition of the SI since 2019 (BIPM, The International System of Units, 9th ed., Table 1)
+PLANCK_J_S = 6.62607015e-34              # h [J s]
+SPEED_OF_LIGHT_M_S = 299792458.0         # c [m s^-1]
 
 
 def photon_energy_J(wavelength_m: float) -> float:
