@@ -462,6 +462,7 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
         stop = ptr + stop_after
         t_change = change_step[ptr] if ptr < end else NEVER
         j_known, known, relaxed = NO_STEP, 0.0, 0.0          # what its schedule's bound took (none: from the state)
+        shown = NO_STEP                 # the j up to which _schedule_before's bound showed no crossing (LATER)
         if known_step.size:
             j_known, known, relaxed = known_step[i], known_retention[i], known_relaxed[i]
         quiet = SOON                    # quiet_until of the present state where the lazy schedule took it
@@ -533,7 +534,7 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
                 t_change = change_step[ptr] if ptr < end else NEVER
             last = min(t_change - 1, n_end - 1, shot_next, _settle_step(ready, owed))
             if lazy and t_change >= NEVER and last == n_end - 1:      # nothing else before the window's end
-                cmp_next, j_known = LATER, NO_STEP                    # kept_schedule at the turn's end, or now:
+                cmp_next, j_known, shown = LATER, NO_STEP, NO_STEP    # kept_schedule at the turn's end, or now:
                 quiet = quiet_until(filtered, y, memorised, th_on, th_off, noise_scale, para, step, -np.inf, np.inf,
                                     0.0, leak_dt, dt)
                 if not quiet >= n_end:
@@ -543,7 +544,7 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
                 cmp_next, j_known, known, relaxed = _schedule_before(step, ready, y, memorised, filtered, log_a,
                                                                      para, th_on, th_off, noise_scale, t_change,
                                                                      last, leak_dt, dt, large)
-                quiet = SOON
+                quiet, shown = SOON, j_known
             if ptr == stop:
                 break
         if cmp_next == LATER:           # the stored schedule is the search's or a bound of it (kept_schedule)
@@ -552,6 +553,9 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
             elif lazy and t_change >= NEVER:
                 cmp_next = kept_schedule(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
                                          leak_dt, dt, large)
+            elif shown == max(min(NEVER if t_change >= NEVER else t_change - 1 - step, J_LIMIT),
+                              max(ready - step, np.int64(1))):
+                cmp_next = NEVER        # the bound that held was the search's own (first_crossing_known): none
             else:
                 cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
                                                noise_scale, t_change, leak_dt, dt, large)[0]
