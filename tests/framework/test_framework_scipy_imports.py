@@ -70,3 +70,13 @@ def test_the_lean_import_waits_for_scipy_and_leaves_an_imported_scipy_alone():
     if not first:
         pytest.skip("not a SciPy / NumPy version the lean import was checked on")
     assert waiting and done and not again
+
+
+def test_installed_version_reads_what_importlib_metadata_reads():
+    from importlib.metadata import version
+
+    from evsda.graph.scipy_imports import installed_version
+
+    for name in ("scipy", "numpy", "numba", "pydantic", "evsda"):
+        assert installed_version(name) == version(name)
+    assert installed_version("no-such-distribution-here") is None
