@@ -40,9 +40,7 @@ their quartiles: on a loaded host the drift between rounds cancels within a pair
 of its steps in a compiled loop of its own over ``FRAMES`` frames, the frame's buffers in cache (the loops ask for
 the renderer's vector width, :func:`.column_fft.wide_vectors`): the tilted phase with its sine and cosine, the row
 FFTs with the field's product and their transposition, the column FFTs with ``|.|^2``, ``B PSF B^T`` with the scale,
-and ``_stamp_frames`` whole on the same frames (what is left is reading the phases and the calls); where the
-renderer makes the products in OpenBLAS's order (:mod:`.blas_order`), also the whole and the products through
-BLAS instead.
+and ``_stamp_frames`` whole on the same frames (what is left is reading the phases and the calls).
 
     OPENBLAS_NUM_THREADS=1 nice -n 10 python benchmarks/pupil_stamps.py [--repeats 7] [--profile] [--against DIR]
         [--threads] [--items] [--pairs N]
@@ -69,7 +67,7 @@ import numpy as np
 import scipy.fft as sfft
 from numba.core import config as numba_config
 
-from evsda.blocks.optics import blas_order, column_fft, render
+from evsda.blocks.optics import column_fft, render
 from evsda.blocks.optics.fft_screens import fft_phase_screens
 from evsda.blocks.optics.render import STAMP_CHUNK, PupilRenderer, StampSampler, _fft, aligned_empty
 from evsda.blocks.optics.telescope import Telescope
@@ -185,23 +183,16 @@ def _column_frames(grid, psf, scratch, twr, twi, frames):
 
 
 @numba.njit(nogil=True)
-def _product_frames(psf, b, b_t, half, image, out, factor, area, ordered):
-    """``B PSF B^T`` and the scale of one PSF into every frame of ``out``, as :func:`.render._stamp_frames` makes them
-    (``ordered``: :func:`.blas_order.products`, else BLAS's ``sgemm``; ``half`` and ``image`` flat)."""
+def _product_frames(psf, b, b_t, half, image, out, factor, area):
+    """``B PSF B^T`` and the scale of one PSF into every frame of ``out``, as :func:`.render._stamp_frames` makes them."""
     column_fft.wide_vectors()
-    size, m = psf.shape[0], out.shape[1]
-    row = blas_order.LANES if ordered else m
-    half_blas, image_blas = half[:size * m].reshape(size, m), image[:m * m].reshape(m, m)
-    flat_psf, flat_b = psf.reshape(-1), b.reshape(-1)
+    m = image.shape[0]
     for f in range(out.shape[0]):
-        if ordered:
-            blas_order.products(flat_psf, flat_b, half, image)
-        else:
-            np.dot(psf, b_t, half_blas)
-            np.dot(b, half_blas, image_blas)
+        np.dot(psf, b_t, half)
+        np.dot(b, half, image)
         for i in range(m):
             for j in range(m):
-                out[f, i, j] = np.float64(image[i * row + j]) * factor / area
+                out[f, i, j] = np.float64(image[i, j]) * factor / area
 
 
 def items(renderer: PupilRenderer, amplitude, phase_t, offsets, curvature, repeats: int) -> None:
@@ -215,27 +206,17 @@ def items(renderer: PupilRenderer, amplitude, phase_t, offsets, curvature, repea
     twr, twi = column_fft.TWIDDLES
     factor, area = (renderer.delta**2 / renderer.wavelength) ** 2, float(renderer.area)
     out = np.empty((frames, renderer.sampler.size, renderer.sampler.size))
-    ordered = renderer._blas_order
-
-    def whole(with_order):
-        return render._stamp_frames(phase_t, curvature, renderer.r2, ky, kx, renderer.x, amplitude_t, renderer.b,
-                                    renderer.b_t, factor, area, out, cosine, sine, grid, psf, half, image, scratch,
-                                    twr, twi, with_order)
-
     steps = {
-        "_stamp_frames whole": lambda: whole(ordered),
+        "_stamp_frames whole": lambda: render._stamp_frames(
+            phase_t, curvature, renderer.r2, ky, kx, renderer.x, amplitude_t, renderer.b, renderer.b_t, factor, area,
+            out, cosine, sine, grid, psf, half, image, scratch, twr, twi),
         "  tilted phase, its sine and cosine": lambda: _sincos_frames(phase_t, curvature, renderer.r2, ky, kx,
                                                                       renderer.x, cosine, sine),
         "  row FFTs (the field's product, transposition)": lambda: _row_frames(
             amplitude_t[0].reshape(-1), cosine, sine, grid, scratch, twr, twi, frames),
         "  column FFTs with |.|^2": lambda: _column_frames(grid, psf, scratch, twr, twi, frames),
         "  B PSF B^T and the scale": lambda: _product_frames(psf, renderer.b, renderer.b_t, half, image, out, factor,
-                                                             area, ordered)}
-    if ordered:
-        # the products through BLAS instead of in its order (blas_order), whole and alone: what the order saves
-        steps["_stamp_frames whole, products through BLAS"] = lambda: whole(False)
-        steps["  B PSF B^T through BLAS and the scale"] = lambda: _product_frames(
-            psf, renderer.b, renderer.b_t, half, image, out, factor, area, False)
+                                                             area)}
     for work in steps.values():
         work()                                                          # compiles the loops
     times = {name: [] for name in steps}
@@ -249,8 +230,8 @@ def items(renderer: PupilRenderer, amplitude, phase_t, offsets, curvature, repea
     medians = {name: statistics.median(values) for name, values in times.items()}
     for name, value in medians.items():
         print(f"  {name:50s} {value:6.2f} us per PSF")
-    parts = [medians[name] for name in list(steps)[1:5]]
-    print(f"  {'  the rest (the phases read, the calls)':50s} {medians['_stamp_frames whole'] - sum(parts):6.2f} us per PSF")
+    whole = medians["_stamp_frames whole"]
+    print(f"  {'  the rest (the phases read, the calls)':50s} {whole - sum(list(medians.values())[1:]):6.2f} us per PSF")
 
 
 def pairs(mine, theirs, count: int, label: str) -> None:

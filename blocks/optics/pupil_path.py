@@ -205,7 +205,7 @@ class PupilPath:
 def walk_and_stamp(layout, windows, origins, sides, before, edges, noise, states, draw, unscaled, ki, wi, fi, a, b,
                    stencil_rows, stencil_back, operator_at, frame_ops, rows, cols, weight, out_t, layer_out, assign,
                    low, amplitudes, frequencies, mode_at, stride, phasors, slots, curvature, r2, ky, kx, x, amplitude_t,
-                   b_psf, b_t, factor, area, stamps, cosine, sine, grid, psf, half, image, scratch, twr, twi, ordered):
+                   b_psf, b_t, factor, area, stamps, cosine, sine, grid, psf, half, image, scratch, twr, twi):
     """:func:`.screen_kernels.walk_segments` (its arguments first: the phases ``out_t`` (S, F, nx, ny), one output a
     source) and :func:`.render._stamp_frames` of every output's F frames (the rest:
     :meth:`.PupilRenderer.frame_arguments` of the S F frames, output by output, into ``stamps`` (S F, M, M)) in one
@@ -233,19 +233,19 @@ def walk_and_stamp(layout, windows, origins, sides, before, edges, noise, states
         s0 = s + 1
         stamped = stamped and _stamp_output(k, frames, out_t, curvature, r2, ky, kx, x, amplitude_t, b_psf, b_t,
                                             factor, area, stamps, cosine, sine, grid, psf, half, image, scratch, twr,
-                                            twi, ordered)
+                                            twi)
     for k in range(outputs):
         if last[k] < 0:
             stamped = stamped and _stamp_output(k, frames, out_t, curvature, r2, ky, kx, x, amplitude_t, b_psf, b_t,
                                                 factor, area, stamps, cosine, sine, grid, psf, half, image, scratch,
-                                                twr, twi, ordered)
+                                                twr, twi)
     return -1, stamped
 
 
 @numba.njit(error_model="numpy", nogil=True)
 def _stamp_output(k, frames, out_t, curvature, r2, ky, kx, x, amplitude_t, b_psf, b_t, factor, area, stamps, cosine,
-                  sine, grid, psf, half, image, scratch, twr, twi, ordered):
+                  sine, grid, psf, half, image, scratch, twr, twi):
     """:func:`.render._stamp_frames` of output ``k``'s ``frames`` frames (:func:`walk_and_stamp`'s arguments)."""
     f = slice(k * frames, (k + 1) * frames)
     return _stamp_frames(out_t[k], curvature[f], r2, ky[f], kx[f], x, amplitude_t, b_psf, b_t, factor, area,
-                         stamps[f], cosine, sine, grid, psf, half, image, scratch, twr, twi, ordered)
+                         stamps[f], cosine, sine, grid, psf, half, image, scratch, twr, twi)

@@ -32,7 +32,7 @@ import scipy.fft as sfft
 from llvmlite import ir
 from numba.extending import intrinsic
 
-from . import blas_order, column_fft
+from . import column_fft
 
 
 @dataclass(frozen=True)
@@ -122,10 +122,6 @@ class PupilRenderer:
         # (:func:`_sincos_agree`, :meth:`_frames_agree`)
         fits = size == column_fft.LENGTH and dtype == np.complex64
         self._frames = self._columns = self._rows = False
-        # its products in OpenBLAS's order in compiled vectors where that gives numpy's bits (:mod:`.blas_order`), else
-        # through BLAS
-        self._blas_order = (fits and 2 * n_pupil == size and sampler.size == blas_order.STAMP and _sincos_agree()
-                            and blas_order.same_as_numpy(self.b))
         self._frames = fits and 2 * n_pupil == size and _sincos_agree() and self._frames_agree()
         # elsewhere (and for fields given whole, :meth:`stamps_from_field`) chunk by chunk: the compiled transforms
         # along y where they reproduce pocketfft's bits, the pupil's rows within the first half (the same passes as
@@ -157,17 +153,15 @@ class PupilRenderer:
 
     def _frame_buffers(self) -> tuple[np.ndarray, ...]:
         """This thread's buffers for :func:`_stamp_frames`, one frame: the tilted phase's cosine and sine (n, n)
-        float32, the rows' spectra (6400,) float32, the PSF (L, L), ``PSF B^T`` and the stamp in the renderer's
-        precision, flat (room for (L, M) and (M, M), or for :func:`.blas_order.products`' layouts, zeros), and the
-        passes' scratch (4, L^2)."""
+        float32, the rows' spectra (6400,) float32, the PSF (L, L), ``PSF B^T`` (L, M), the stamp (M, M) in the
+        renderer's precision and the passes' scratch (4, L^2)."""
         buffers = getattr(self._local, "one_frame", None)
         if buffers is None:
             n, size, m, real = self.n, self.padded, self.sampler.size, self.b.dtype
-            buffers = self._local.one_frame = (
-                aligned_empty((n, n), np.float32), aligned_empty((n, n), np.float32),
-                aligned_empty(size * size, np.float32), aligned_empty((size, size), real),
-                aligned_zeros(max(size * m, blas_order.HALF_T_SIZE), real),
-                aligned_zeros(max(m * m, blas_order.IMAGE_SIZE), real), aligned_empty((4, size * size), np.float32))
+            buffers = self._local.one_frame = (aligned_empty((n, n), np.float32), aligned_empty((n, n), np.float32),
+                                               aligned_empty(size * size, np.float32),
+                                               aligned_empty((size, size), real), aligned_empty((size, m), real),
+                                               aligned_empty((m, m), real), aligned_empty((4, size * size), np.float32))
         return buffers
 
     def _frames_agree(self) -> bool:
@@ -175,8 +169,7 @@ class PupilRenderer:
         chunked path's steps through numpy and scipy: the tilted phase (numpy's broadcast sums, transposed) rounded
         to float32, numpy's ``sin`` and ``cos``, scipy's pocketfft transforms (padded
         rows, then columns), numpy's float32 ``|.|^2`` and ``matmul`` products and the float64 scale. Its products are
-        :func:`.blas_order.products` where ``_blas_order`` holds, else BLAS's ``sgemm`` as Numba calls it (scipy's
-        BLAS), which must give numpy's (its own BLAS) sums."""
+        BLAS's ``sgemm`` as Numba calls it (scipy's BLAS), which must give numpy's (its own BLAS) sums."""
         rng = np.random.default_rng(3)
         frames, n, size = 5, self.n, self.padded
         amplitude_t = rng.uniform(0.0, 1.0, (1, n, n)).astype(np.float32)
@@ -195,7 +188,9 @@ class PupilRenderer:
         self._scale(image, expected)
         out = np.empty_like(expected)
         try:
-            within = _stamp_frames(phase_t, *self._frame_arguments(amplitude_t, curvature, ky, kx, out))
+            within = _stamp_frames(phase_t, curvature, self.r2, ky, kx, self.x, amplitude_t, self.b, self.b_t,
+                                   (self.delta**2 / self.wavelength) ** 2, float(self.area), out,
+                                   *self._frame_buffers(), *column_fft.TWIDDLES)
         except Exception:                 # noqa: BLE001 -- no BLAS for Numba's np.dot: the chunked path then
             return False
         return within and bool(np.array_equal(expected.view(np.uint64), out.view(np.uint64)))
@@ -266,10 +261,10 @@ class PupilRenderer:
 
     def _frame_arguments(self, amplitude_t, curvature, ky, kx, out) -> tuple:
         """:func:`_stamp_frames`' arguments after the phase: the frames' inputs, the renderer's constants, ``out``
-        (F, M, M), this thread's buffers, the twiddles and whether the products are :mod:`.blas_order`'s."""
+        (F, M, M), this thread's buffers and the twiddles."""
         return (curvature, self.r2, ky, kx, self.x, amplitude_t, self.b, self.b_t,
                 (self.delta**2 / self.wavelength) ** 2, float(self.area), out, *self._frame_buffers(),
-                *column_fft.TWIDDLES, self._blas_order)
+                *column_fft.TWIDDLES)
 
     def frame_arguments(self, amplitude: np.ndarray, offset_px: np.ndarray, curvature_rad_m2: np.ndarray,
                         out: np.ndarray) -> tuple | None:
@@ -543,38 +538,30 @@ def _sincos_agree() -> bool:
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _stamp_frames(phase_t, curvature, r2, ky, kx, x, amplitude_t, b, b_t, factor, area, out, cosine, sine, grid, psf,
-                  half, image, scratch, twr, twi, ordered):
+                  half, image, scratch, twr, twi):
     """:meth:`PupilRenderer.stamps` frame by frame in one call: the tilted phase's float32 sine and cosine
     (:func:`tilted_sincos_transposed`'s), the field's padded FFTs and ``|.|^2`` (:func:`.column_fft.field_powers`),
-    ``B PSF B^T`` (two ``sgemm`` as numpy's ``matmul`` makes them per frame: with ``ordered``
-    :func:`.blas_order.products`, else through BLAS) and :meth:`PupilRenderer._scale`
+    ``B PSF B^T`` (two ``sgemm`` as numpy's ``matmul`` makes them per frame) and :meth:`PupilRenderer._scale`
     (``float64(image) factor / area``), each frame's steps on its own in this thread's buffers (the frame stays in
     cache). ``phase_t`` (F, n, n) float64, ``amplitude_t`` (1 or F, n, n) float32: transposed (x, y); ``curvature``,
     ``ky``, ``kx`` (F,) as :func:`tilted_phase`'s; ``out`` (F, M, M) float64; the rest this thread's buffers
-    (:meth:`PupilRenderer._frame_buffers`: ``half`` and ``image`` flat) and the twiddles. False (``out``
-    unspecified) at the first frame whose tilted phase exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes
-    numpy's sine and cosine."""
+    (:meth:`PupilRenderer._frame_buffers`) and the twiddles. False (``out`` unspecified) at the first frame whose
+    tilted phase exceeds ``SINCOS_LIMIT`` or is NaN: the caller then takes numpy's sine and cosine."""
     column_fft.wide_vectors()
     frames, n = phase_t.shape[0], phase_t.shape[1]
-    size, m = psf.shape[0], out.shape[1]
-    # the stamp's rows ``row`` floats apart: :func:`.blas_order.products`' 16, or BLAS's (M, M)
-    row = blas_order.LANES if ordered else m
-    half_blas, image_blas = half[:size * m].reshape(size, m), image[:m * m].reshape(m, m)
-    flat_psf, flat_b, flat_cosine, flat_sine = psf.reshape(-1), b.reshape(-1), cosine.reshape(-1), sine.reshape(-1)
+    m = image.shape[0]
+    flat_psf, flat_cosine, flat_sine = psf.reshape(-1), cosine.reshape(-1), sine.reshape(-1)
     for f in range(frames):
         if not _tilted_sincos_frame(phase_t[f], curvature[f], r2, ky[f], kx[f], x, cosine, sine):
             return False
         a = amplitude_t[f if amplitude_t.shape[0] > 1 else 0]
         column_fft.field_powers(a.reshape(n * n), flat_cosine, flat_sine, grid, flat_psf, scratch, twr, twi)
-        if ordered:
-            blas_order.products(flat_psf, flat_b, half, image)
-        else:
-            np.dot(psf, b_t, half_blas)
-            np.dot(b, half_blas, image_blas)
+        np.dot(psf, b_t, half)
+        np.dot(b, half, image)
         target = out[f]
         for i in range(m):
             for j in range(m):
-                target[i, j] = np.float64(image[i * row + j]) * factor / area
+                target[i, j] = np.float64(image[i, j]) * factor / area
     return True
 
 
