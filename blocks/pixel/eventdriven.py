@@ -263,11 +263,13 @@ class EventDrivenPixels:
         Rows are taken ``block_rows`` at a time (the whole sensor at once when the frames are a
         view); each pixel reads its own samples off them in the compiled loop (:mod:`.dense_loop`) and
         goes through the same per-pixel event loop as :meth:`run_window`, so the events are
-        exactly those :meth:`run_window` makes from the same input (tested).
+        exactly those :meth:`run_window` makes from the same input (tested). A chunk's pixels first have their
+        kept schedules made the searches' crossings (:func:`.pixel_loop.resolve_schedules`, which the loop reads them
+        as), on the chunk's thread; the items of a chunk run again (:meth:`_run`) were all in first chunks, which are
+        runs of items, and are put back as they were after it.
         """
         s = self.s
         self.take_pending()                                   # background changes left out before
-        resolve_schedules(s["real"], s["count"], s["next"], *self._constants[:3])    # the searches, as it reads them
         background = np.ascontiguousarray(background, dtype=float)
         steps = np.ascontiguousarray(steps, dtype=np.int64)
         off_background = np.zeros(height * width, np.uint8)
@@ -277,6 +279,9 @@ class EventDrivenPixels:
             first, off = row0 * width, off_background[row0 * width:row1 * width]
 
             def kernel(index, buffers):
+                a, b = first + index[0], first + index[-1] + 1
+                if b - a == index.size:       # a chunk's pixels first: their searches, as the kernel reads them
+                    resolve_schedules(s["real"][a:b], s["count"][a:b], s["next"][a:b], *self._constants[:3])
                 return run_dense_chunk(s["real"], s["count"], s["next"], np.int64(first), index, stamps, background,
                                        steps, self._drive, np.int64(n_end), *self._constants, *buffers, off)
 
