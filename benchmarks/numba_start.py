@@ -8,13 +8,6 @@ cached load, the pixels' ``drive_rows``). It prints the medians of the first cal
 from ``lazy_registries`` to the call's end, with the runtime set up ahead and at the first load, alternated, and the
 load average (the set-up ahead needs the other core free).
 
-``--ahead``: the loads replayed ahead (:mod:`evsda.graph.loads_ahead`) against none (``EVSDA_LOADS_AHEAD=always``
-and ``off``, whatever the machine's idle cores; fresh ``evsda run`` processes of the tracked pass, ``--duration``
-simulated seconds, pipelined, the probe cache off, alternated; the list kept by an unmeasured run first): the main
-thread's CPU and the wall time until the graph is loaded, the CPU of the loads the run's own threads make and of the
-replaying thread's, the wall time until the pixels' first step has ended (the end of window 0's critical path), the
-process's CPU, medians.
-
 ``--loads``: the CPU (each loading thread's clock) of every cached load (``Cache._load_overload``) in a run of the
 tracked pass (``--duration`` simulated seconds, one step at a time, the probe cache off), with Numba's events
 around each LLVM call taken off as :func:`evsda.graph.numba_loads.lazy_registries` does and kept
@@ -22,7 +15,6 @@ around each LLVM call taken off as :func:`evsda.graph.numba_loads.lazy_registrie
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/numba_start.py [--busy 50] [--repeats 9]
     OPENBLAS_NUM_THREADS=1 python benchmarks/numba_start.py --loads [--duration 0.5] [--repeats 7]
-    OPENBLAS_NUM_THREADS=1 python benchmarks/numba_start.py --ahead [--duration 0.5] [--repeats 9]
 """
 
 from __future__ import annotations
@@ -76,77 +68,6 @@ print(json.dumps(spent))
 """
 
 
-AHEAD_CHILD = r"""
-import json, threading, time
-start = time.perf_counter()
-from numba.core import caching
-from evsda.graph import cli, executor, loads_ahead
-seen = {{"own_loads_cpu_s": 0.0, "own_loads": 0, "ahead_cpu_s": 0.0}}
-numbas_load, numbas_load_graph, numbas_step, numbas_replay = (caching.Cache._load_overload, cli._load,
-                                                                executor.Executor._step_block, loads_ahead._replay)
-
-def timed_load(self, sig, target_context):
-    cpu = time.thread_time()
-    try:
-        return numbas_load(self, sig, target_context)
-    finally:
-        if threading.current_thread().name != "evsda-loads-ahead":
-            seen["own_loads_cpu_s"] += time.thread_time() - cpu
-            seen["own_loads"] += 1
-
-def timed_load_graph(*args):
-    try:
-        return numbas_load_graph(*args)
-    finally:
-        seen["graph_loaded_s"], seen["graph_load_cpu_s"] = time.perf_counter() - start, time.thread_time()
-
-def timed_step(self, name, window, inputs):
-    try:
-        return numbas_step(self, name, window, inputs)
-    finally:
-        if name == "sensor/pixel" and window.index == 0:
-            seen["pixels_first_step_end_s"] = time.perf_counter() - start
-
-def timed_replay(entries):
-    try:
-        return numbas_replay(entries)
-    finally:
-        seen["ahead_cpu_s"] = time.thread_time()
-
-caching.Cache._load_overload, cli._load, executor.Executor._step_block, loads_ahead._replay = (
-    timed_load, timed_load_graph, timed_step, timed_replay)
-cli.main(["run", {graph!r}, "--set", "run.duration_s={duration}", "-o", {out!r}, "--overwrite", "-q"])
-seen["process_cpu_s"] = time.process_time()
-print(json.dumps(seen))
-"""
-
-
-def loads_ahead(graph: Path, duration: float, repeats: int) -> None:
-    """Print the medians of a run's start with its loads replayed ahead and without (alternated)."""
-    variants = {"ahead": "always", "at first calls": "off"}
-    seen = {name: [] for name in variants}
-    loads_avg = [os.getloadavg()[0]]
-    with tempfile.TemporaryDirectory() as tmp:
-        child = AHEAD_CHILD.format(graph=str(graph), duration=duration, out=str(Path(tmp) / "run.zarr"))
-        base = dict(os.environ, OPENBLAS_NUM_THREADS="1", EVSDA_CACHE="off")
-        subprocess.run([sys.executable, "-c", child], env=dict(base, EVSDA_LOADS_AHEAD="always"),  # the list
-                       capture_output=True, check=True)
-        for _ in range(repeats):
-            for name, switch in variants.items():
-                out = subprocess.run([sys.executable, "-c", child], env=dict(base, EVSDA_LOADS_AHEAD=switch),
-                                     capture_output=True, text=True, check=True)
-                seen[name].append(json.loads(out.stdout.splitlines()[-1]))
-            loads_avg.append(os.getloadavg()[0])
-    print(f"A run's start with its loads replayed ahead or not, {graph.name} ({duration:g} s, pipelined), medians of "
-          f"{repeats} (alternated), load average {min(loads_avg):.1f}-{max(loads_avg):.1f}")
-    for name, runs in seen.items():
-        med = {key: statistics.median(run.get(key, float("nan")) for run in runs) for key in runs[0]}
-        print(f"  {name:15s} graph loaded {med['graph_loaded_s']:.3f} s (main CPU {med['graph_load_cpu_s']:.3f}), "
-              f"own loads {med['own_loads']:.0f} ({med['own_loads_cpu_s'] * 1e3:.1f} ms CPU), ahead "
-              f"{med['ahead_cpu_s'] * 1e3:.1f} ms CPU, pixels' first step ended {med['pixels_first_step_end_s']:.3f} s, "
-              f"process CPU {med['process_cpu_s']:.3f} s")
-
-
 def cached_loads(graph: Path, duration: float, repeats: int) -> None:
     """Print the medians of the cached loads' CPU in a run, Numba's LLVM lock events off and on (alternated)."""
     variants = {"events off": "on", "events on": "off"}
@@ -174,13 +95,9 @@ def main() -> None:
     parser.add_argument("--busy", type=float, default=50.0, help="interpreter-held Python before the call [ms]")
     parser.add_argument("--repeats", type=int, default=9, help="fresh processes of each variant, alternated")
     parser.add_argument("--loads", action="store_true", help="the cached loads' CPU in a run instead")
-    parser.add_argument("--ahead", action="store_true", help="a run's loads replayed ahead against none instead")
     parser.add_argument("--duration", type=float, default=0.5, help="simulated seconds of --loads' runs [s]")
     args = parser.parse_args()
     graph = Path(__file__).with_name("end_to_end.yaml").resolve()
-    if args.ahead:
-        loads_ahead(graph, args.duration, args.repeats)
-        return
     if args.loads:
         cached_loads(graph, args.duration, args.repeats)
         return

@@ -25,9 +25,8 @@ from .commands import Command, add_figure_options, contributed_commands
 from .errors import Interrupted, UserError
 from .executor import run_graph
 from .files import describe_os_error
-from .graphfile import BlocksBuilt, Graph, graph_from_dict, load_graph
+from .graphfile import Graph, graph_from_dict, load_graph
 from .limits import Limits
-from .loads_ahead import LoadsAhead
 from .report import describe_block, describe_store, list_blocks, run_summary, store_info
 from .result_cache import cache_root
 from .scipy_imports import lean_array_api
@@ -35,7 +34,7 @@ from .store import RunStore
 from .threads import limit_blas
 
 
-def _load(args, blocks_built: BlocksBuilt | None = None) -> Graph:
+def _load(args) -> Graph:
     lean_array_api()                # before the graph's blocks import SciPy
     limits = Limits.parse(getattr(args, "limit", ()))
     target = Path(args.graph)
@@ -43,13 +42,12 @@ def _load(args, blocks_built: BlocksBuilt | None = None) -> Graph:
         graph_dict = RunStore.open(target).attrs["graph"]
         if args.set:
             raise UserError("--set cannot be combined with a run store as the graph; export its graph first")
-        return graph_from_dict(graph_dict, file=str(target), limits=limits, blocks_built=blocks_built)
-    return load_graph(args.graph, args.set, limits=limits, blocks_built=blocks_built)
+        return graph_from_dict(graph_dict, file=str(target), limits=limits)
+    return load_graph(args.graph, args.set, limits=limits)
 
 
 def cmd_run(args) -> int:
-    ahead = LoadsAhead()            # the compiled loads of the last run of these blocks, replayed on a thread
-    graph = _load(args, ahead.start)
+    graph = _load(args)
     _collect_again()
     out = Path(args.output) if args.output else Path(f"{graph.name}.zarr")
     if not args.checkpoint_every >= 0 or args.checkpoint_every == float("inf"):
@@ -59,7 +57,6 @@ def cmd_run(args) -> int:
                            progress=None if args.progress is None else args.progress,
                            checkpoint_every_s=args.checkpoint_every, keep_checkpoint=args.keep_checkpoint,
                            pipeline=args.pipeline, workers=args.workers)
-    ahead.keep()
     if not args.quiet:
         print(run_summary(graph, result), file=sys.stderr)
     if args.json:

@@ -26,7 +26,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -45,9 +44,6 @@ from .wiring import Connection, Endpoint
 
 if TYPE_CHECKING:
     import networkx as nx
-
-#: what :func:`load_graph` calls once a graph's blocks are built: with their classes
-BlocksBuilt = Callable[[list[type[Block]]], None]
 
 __all__ = ["GRAPH_KEYS", "BlockNode", "Graph", "GraphFile", "RunSection", "check_override", "graph_from_dict",
            "load_graph", "parse_value", "read_yaml"]
@@ -95,13 +91,11 @@ class Graph:
 
 # -- loading -------------------------------------------------------------------------------------------
 def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = None,
-               limits: Limits | None = None, blocks_built: BlocksBuilt | None = None) -> Graph:
+               limits: Limits | None = None) -> Graph:
     """Load, flatten and check a graph file; raise GraphError listing every problem.
 
     ``overrides``: ``block.param`` (or ``run.field``) values, as a dict or as ``--set`` texts ``key=value``.
     ``limits`` (default :class:`Limits`) bounds the window count, sensor pixels and memory per window.
-    ``blocks_built`` is called with the blocks' classes once the blocks are built (their modules imported), before
-    the checks that follow (a run starts its compiled loads there: :mod:`evsda.graph.loads_ahead`).
     """
     path = library.resolve(str(path))
     file = str(path)
@@ -117,7 +111,7 @@ def load_graph(path: str | Path, overrides: list[str] | dict[str, Any] | None = 
         run_items = {k: override_items.pop(k) for k in list(override_items) if k.startswith("run.")}
         spec = _override_run(spec, run_items, file, problems)
     apply_overrides(flat.blocks, override_items, file, "--set", problems)
-    graph = check_graph(file, spec, flat, problems, limits, blocks_built)
+    graph = check_graph(file, spec, flat, problems, limits)
     if problems:
         raise GraphError(problems)
     return graph
@@ -151,28 +145,24 @@ def _override_run(spec: GraphFile, overrides: dict[str, Any], file: str, problem
     return spec.model_copy(update={"run": run})
 
 
-def graph_from_dict(data: dict[str, Any], file: str = "<graph>", limits: Limits | None = None,
-                    blocks_built: BlocksBuilt | None = None) -> Graph:
-    """Check a resolved graph given as a dict (e.g. one stored with a run); ``blocks_built`` as :func:`load_graph`'s."""
+def graph_from_dict(data: dict[str, Any], file: str = "<graph>", limits: Limits | None = None) -> Graph:
+    """Check a resolved graph given as a dict (e.g. one stored with a run)."""
     problems: list[Problem] = []
     try:
         spec = GraphFile.model_validate(data)
     except ValidationError as exc:
         raise GraphError([Problem(file, f"'{loc}'", m) for loc, m in describe_validation_error(exc)]) from None
-    graph = check_graph(file, spec, flatten_resolved(spec, file, problems), problems, limits, blocks_built)
+    graph = check_graph(file, spec, flatten_resolved(spec, file, problems), problems, limits)
     if problems:
         raise GraphError(problems)
     return graph
 
 
 def check_graph(file: str, spec: GraphFile, flat: FlatGraph, problems: list[Problem],
-                limits: Limits | None = None, blocks_built: BlocksBuilt | None = None) -> Graph:
+                limits: Limits | None = None) -> Graph:
     """Run every check of :mod:`~evsda.graph.checks` on ``flat`` in order, noting their problems in
-    ``problems``; the graph of what passed (blocks built, connections accepted). ``blocks_built``: as
-    :func:`load_graph`'s."""
+    ``problems``; the graph of what passed (blocks built, connections accepted)."""
     problems += checks.check_blocks(flat.blocks, spec.run.seed if spec.run else 0)
-    if blocks_built is not None:
-        blocks_built([node.cls for node in flat.blocks.values() if node.cls is not None])
     connections, found = checks.check_connections(flat.blocks, flat.connections)
     problems += found
     digraph = checks.dependency_graph(flat.blocks, connections)

@@ -82,16 +82,6 @@ _NUMBAS_REBUILD_ENV = '''def _rebuild_env(modname, consts, env_name):
 '''
 
 _lazy: bool | None = None           # None: not tried; True: loads refresh nothing; False: Numba's loads
-_loads: list | None = None          # each load from the cache, noted by load_overload (record_loads), or None
-
-
-def record_loads(on: bool = True) -> list | None:
-    """Note each function that a lazy load (:func:`lazy_registries`) finds in Numba's cache from now on, as
-    ``(its Python function, its argument types)`` in a list, in order, and return that list (``on``); or stop
-    (``on=False``: None). :mod:`.loads_ahead` keeps it for the next run."""
-    global _loads
-    _loads = [] if on else None
-    return _loads
 
 
 def lazy_registries() -> bool:
@@ -126,13 +116,8 @@ def _edit_load() -> bool:
         if type(target_context) is not CPUContext:
             return numbas(self, sig, target_context)
         _runtime(target_context)
-        loaded = None                               # where the guard swallows an error (Windows), as Numba's
         with self._guard_against_spurious_io_errors(), names_beside(self._cache_path):
-            loaded = self._load_overload(sig, target_context)
-        loads = _loads
-        if loaded is not None and loads is not None:
-            loads.append((self._py_func, sig))
-        return loaded
+            return self._load_overload(sig, target_context)
 
     load_overload.__doc__ = numbas.__doc__
     load_overload.__qualname__ = numbas.__qualname__
