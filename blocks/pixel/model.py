@@ -150,20 +150,31 @@ def _many_distinct(flux: np.ndarray) -> bool:
     of them; a uniform background with stamps has few values other than the first and is not sorted here."""
     subset = flux[::_FEW_SAMPLE]
     enough = flux.size // _FEW_SHARE
-    return np.count_nonzero(subset != subset[0]) >= enough and np.unique(subset).size >= enough
+    return np.count_nonzero(subset != subset[0]) >= enough and _distinct_count(subset) >= enough
+
+
+def _distinct_count(values: np.ndarray) -> int:
+    """``np.unique(values).size`` of a 1-d float array (NaNs one value, -0.0 and 0.0 one): its sort and a comparison
+    of neighbours, as ``np.unique`` makes it, without ``np.unique``'s first call importing ``numpy.ma`` (~10 ms of
+    the start, holding the interpreter lock)."""
+    ordered = np.sort(values)
+    numbers = ordered[~np.isnan(ordered)]                # NaNs sort last
+    return int(numbers.size > 0) + np.count_nonzero(numbers[1:] != numbers[:-1]) + int(numbers.size < ordered.size)
 
 
 def distinct_values(flux: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(flux, return_inverse=True)`` of a 1-d array, the same arrays; where all but a few values
     equal the first (a uniform background and the stamps' pixels) only those few are sorted (a sort of every
-    pixel of a 1280 x 720 sensor took ~40 ms at the pixels' start). Nonzero finite values are equal only when
-    their bits are, so the distinct values are the same; zeros and non-finite values take ``np.unique``."""
+    pixel of a 1280 x 720 sensor took ~40 ms at the pixels' start), by ``np.unique``'s own sort and neighbour mask.
+    Nonzero finite values are equal only when their bits are, so the distinct values are the same; zeros and
+    non-finite values take ``np.unique``."""
     first = flux[0]
     other = flux != first
     rest = flux[other]
     if rest.size < flux.size // 16 and first != 0.0 and np.isfinite(first) and np.all(np.isfinite(rest)) \
             and not np.any(rest == 0.0):
-        values = np.unique(np.append(rest, first))
+        ordered = np.sort(np.append(rest, first))        # np.unique's sort and mask, without its numpy.ma import
+        values = ordered[np.concatenate(([True], ordered[1:] != ordered[:-1]))]
         inverse = np.full(flux.size, np.searchsorted(values, first), np.intp)
         inverse[other] = np.searchsorted(values, rest)
         return values, inverse

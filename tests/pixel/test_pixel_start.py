@@ -98,3 +98,15 @@ def test_fluxes_are_called_many_only_where_they_are():
     values, _, inverse = model.distinct_drive(noisy)                     # every pixel driven on its own
     np.testing.assert_array_equal(values, noisy)
     np.testing.assert_array_equal(inverse, np.arange(n))
+
+
+def test_the_distinct_count_is_numpys():
+    # model._distinct_count (the start's count without np.unique, whose first call imports numpy.ma): NaNs one value,
+    # -0.0 and 0.0 one, infinities their own
+    from evsda.blocks.pixel.model import _distinct_count
+
+    rng = np.random.default_rng(4)
+    pool = np.array([0.0, -0.0, np.nan, 1.0, 2.5, -3.0, np.inf, -np.inf, 7.0])
+    for _ in range(300):
+        values = rng.choice(pool, int(rng.integers(1, 60)))
+        assert _distinct_count(values) == np.unique(values).size
