@@ -208,3 +208,91 @@ def test_a_physics_scene_records_the_same_bytes_pipelined(tmp_path):
                   pipeline=pipeline, workers=workers)
         digests.append(store_digest(out))
     assert digests[0] == digests[1] == digests[2]
+
+
+class ScriptedPolicy:
+    """A stand-in for the core gauge's policy (graph/core_share.py): one step at a time after the steps it says."""
+
+    def __init__(self, solo_after: list[bool]):
+        self.solo_after = solo_after
+        self.ended = 0
+
+    def update(self) -> bool:
+        self.ended += 1
+        return self.solo_after[(self.ended - 1) % len(self.solo_after)]
+
+
+@pytest.fixture
+def scripted(monkeypatch):
+    """Pipelined runs switch between the pipeline and one step at a time as ``script`` says, step end after step
+    end."""
+    from evsda.graph import executor_pipeline
+
+    def use(script: list[bool]) -> None:
+        monkeypatch.setattr(executor_pipeline, "SoloPolicy", lambda: ScriptedPolicy(script))
+    return use
+
+
+@pytest.mark.parametrize("script", [[True], [False, True, True], [True, False], [False] * 7 + [True] * 5])
+def test_one_step_at_a_time_inside_a_pipelined_run_keeps_the_bytes(tmp_path, scripted, script):
+    serial = run(tmp_path, "serial", diamond(), pipeline=False)
+    scripted(script)
+    assert run(tmp_path, "switching", diamond(), pipeline=True, adapt=True) == serial
+    assert run(tmp_path, "every-window", diamond(), pipeline=True, adapt=True, checkpoint_every_s=0) == serial
+
+
+def test_one_step_at_a_time_runs_on_the_recording_thread_alone(tmp_path, scripted):
+    scripted([False] * 12 + [True] * 10**4)          # solo from the thirteenth step's end on
+    LOG.clear()
+    threads = {}
+    original = _Toy._enter
+
+    def enter(self, window):
+        threads[(self.name, window.index)] = threading.get_ident()
+        original(self, window)
+
+    _Toy._enter = enter
+    try:
+        run(tmp_path, "solo", diamond(windows=30, jitter_s=0.002), pipeline=True, adapt=True)
+    finally:
+        _Toy._enter = original
+    spans = {}
+    for name, k, what, t in LOG:
+        spans.setdefault((name, k), {})[what] = t
+    mine = [span for key, span in spans.items() if threads[key] == threading.get_ident()]
+    pool = [span for key, span in spans.items() if threads[key] != threading.get_ident()]
+    assert len(mine) >= 20 and pool           # the pool's steps up to the switch (the source ran ahead), then solo
+    for span in mine:                         # none beside another step
+        assert all(other["end"] <= span["start"] or other["start"] >= span["end"]
+                   for other in spans.values() if other is not span)
+    assert max(span["end"] for span in pool) <= min(span["start"] for span in mine)
+
+
+def test_an_error_one_step_at_a_time_is_the_serial_one(tmp_path, scripted):
+    graph = diamond(jitter_s=0.0, sink={"fail_at_window": 5, "jitter_s": 0.05}, src={"fail_at_window": 6})
+    scripted([False, True])
+    for every_s, committed in ((1e3, 0), (0, 5)):
+        out = tmp_path / f"{every_s}.zarr"
+        with pytest.raises(SceneError, match="pipe_sink 'sink' fails in window 5"):
+            run_graph(graph_from_dict(graph), out, progress=False, pipeline=True, adapt=True,
+                      checkpoint_every_s=every_s)
+        store = RunStore.open(out)
+        assert (store.committed_windows, len(list(store.product_windows("a", "out")))) == (committed, committed)
+
+
+def test_a_run_held_to_one_core_goes_one_step_at_a_time_throughout(tmp_path, monkeypatch):
+    serial = run(tmp_path, "serial", diamond(), pipeline=False)
+    monkeypatch.setenv("EVSDA_THREADS", "1")
+    threads = set()
+    original = _Toy._enter
+
+    def enter(self, window):
+        threads.add(threading.get_ident())
+        original(self, window)
+
+    monkeypatch.setattr(_Toy, "_enter", enter)
+    assert run(tmp_path, "one-core", diamond(), pipeline=True, adapt=True) == serial
+    assert threads == {threading.get_ident()}
+    threads.clear()
+    run(tmp_path, "one-core-kept", diamond(), pipeline=True, adapt=False)
+    assert threading.get_ident() not in threads
