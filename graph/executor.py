@@ -33,7 +33,6 @@ from typing import Any
 from . import __version__
 from . import store as store_module
 from .block import Block, RunInfo, Window
-from .core_share import adapt_enabled
 from .errors import Interrupted, StoreError
 from .executor_pipeline import Pipeline, pipeline_enabled
 from .files import os_reason
@@ -135,10 +134,9 @@ class Executor:
                  overwrite: bool = False, reuse: list[str | Path] = (), progress: bool | None = None,
                  checkpoint_every_s: float = 30.0, keep_outputs: bool | None = None,
                  max_windows: int | None = None, keep_checkpoint: bool = False, pipeline: bool | None = None,
-                 workers: bool | str | None = None, adapt: bool | None = None):
+                 workers: bool | str | None = None):
         self.graph = graph
         self.pipeline = pipeline_enabled(pipeline)
-        self.adapt = self.pipeline and (adapt_enabled() if adapt is None else adapt)
         self.workers = workers_choice(workers)
         self.run = graph.run_info()
         self.requested = requested_outputs(graph)
@@ -432,9 +430,7 @@ class Executor:
             return self._commit_due(index, stop_window)
 
         if self.pipeline:
-            # a block stepping in a worker process spends CPU this process's clock does not see
-            adapt = self.adapt and not any(worker.in_worker for worker in self._workers())
-            pipeline = Pipeline(self.running, self._upstream(), self._inputs_for, self._step_block, adapt=adapt)
+            pipeline = Pipeline(self.running, self._upstream(), self._inputs_for, self._step_block)
             windows = pipeline.windows(self.run, start_window, stop_window, loaded, commit_due)
         else:
             windows = self._serial_windows(start_window, stop_window, loaded, commit_due)
@@ -605,8 +601,6 @@ def run_graph(graph: Graph, out: str | Path | None = None, **options) -> RunResu
     ``keep_checkpoint`` (keep the blocks' state at the end of a finished run; dropped by default).
     ``pipeline`` (step blocks of successive windows concurrently, recording the same bytes; default:
     ``EVSDA_PIPELINE``, on unless it is ``0``; see :mod:`evsda.graph.executor_pipeline`).
-    ``adapt`` (pipelined, step one block at a time while the host leaves the run about one core; default:
-    ``EVSDA_PIPELINE_ADAPT``, ``off`` (the default) or ``on``; see :mod:`evsda.graph.core_share`).
     ``workers`` (step the blocks worth it in worker processes of their own in a pipelined run: ``"auto"`` where
     that pays, True wherever, False never; default: ``EVSDA_WORKERS``, ``0`` (the default), ``auto`` or ``1``; see
     :mod:`evsda.graph.worker`).

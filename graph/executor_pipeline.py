@@ -28,9 +28,6 @@ Rules:
 * a commit is a barrier: before the first step of window ``k + 1`` starts, the pipeline asks whether the
   blocks' state after window ``k`` is to be committed; if so, nothing of ``k + 1`` starts until ``k`` is handed
   back and its commit made, so every block's state is then its state after ``k``, as in the serial loop;
-* one step at a time within a pipelined run (``EVSDA_PIPELINE_ADAPT=on``, while the host leaves the run about one
-  core, :mod:`.core_share`): no step starts on the pool; once the pool's steps are done, the thread that hands the
-  windows back runs the ready steps itself, in the serial order, with no wake-up between them;
 * an error: no step that comes after the failing one in the serial order (window, then topological order)
   starts; the steps before it finish and their windows are handed back; then the error the serial loop would
   have met first is raised, the same exception. An interrupt waits for the running steps (a fraction of a
@@ -49,9 +46,8 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 from .block import RunInfo, Window
-from .core_share import SoloPolicy, adapt_enabled
 from .errors import UserError
-from .threads import running_step, usable_cores
+from .threads import running_step
 
 #: windows a block runs ahead of the blocks it feeds (1: the optics of k + 1 beside the pixels of k)
 WINDOWS_AHEAD = 1
@@ -84,9 +80,8 @@ class Pipeline:
 
     def __init__(self, order: list[str], upstream: dict[str, set[str]],
                  gather: Callable[[str, Values], dict[str, Any]],
-                 step: Callable[[str, Window, dict[str, Any]], dict[str, Any]], adapt: bool | None = None):
+                 step: Callable[[str, Window, dict[str, Any]], dict[str, Any]]):
         self.order = list(order)
-        self.adapt = adapt_enabled() if adapt is None else adapt
         self.position = {name: i for i, name in enumerate(self.order)}
         self.upstream = {name: [u for u in upstream[name] if u in self.position] for name in self.order}
         self.downstream = {name: [d for d in self.order if name in self.upstream[d]] for name in self.order}
@@ -133,45 +128,25 @@ class _State:
         self.next_out = start                                       # the next window to hand back
         self.released = start                                       # windows before it are recorded
         self.stopped = False
-        #: one step at a time, on the calling thread (:meth:`next_window`), while the host leaves the run one core;
-        #: throughout where the run may use only one
-        self.solo = pipeline.adapt and usable_cores() < 2
-        self.policy = SoloPolicy() if pipeline.adapt and not self.solo else None
 
     def next_window(self) -> tuple[Window, list[tuple[str, dict]], bool]:
-        """The oldest window once complete, with its commit decision (its values are dropped); or the error. One
-        step at a time (:attr:`solo`), this thread runs the steps itself, in the serial order, once the pool's
-        are done."""
-        while True:
-            with self.lock:
-                task = None
-                while task is None and not self._oldest_complete():
-                    if self.crash is not None:
-                        raise self.crash
-                    if self.solo and not self.running:
-                        task = self._next_in_serial_order()
-                        if task is not None:
-                            break
-                    if not self.running:
-                        if self.failure is not None:
-                            raise self.failure[1]
-                        raise RuntimeError("pipeline stalled with nothing running (a bug in evsda)")
-                    self.lock.wait()
-                if task is None:
-                    k = self.next_out
-                    commit = self.commits.pop(k) if k in self.commits else self.commit_due(k)
-                    self.commits[k] = commit                   # the barrier holds until the window is released
-                    entries = self.produced.pop(k)
-                    del self.values[k]
-                    self.next_out += 1
-                    return self.run.window(k), [entries[i] for i in sorted(entries)], commit
-            name, k = task[0], task[1]
-            outputs, error = self._run(task)
-            del task                                   # its inputs go before the next step is taken
-            with self.lock:
-                self._harvest(name, k, outputs, error)
-                if not self._adapt():
-                    self.launch()                      # the host has a core free again: pipelined from here
+        """The oldest window once complete, with its commit decision (its values are dropped); or the error."""
+        with self.lock:
+            while not self._oldest_complete():
+                if self.crash is not None:
+                    raise self.crash
+                if not self.running:
+                    if self.failure is not None:
+                        raise self.failure[1]
+                    raise RuntimeError("pipeline stalled with nothing running (a bug in evsda)")
+                self.lock.wait()
+            k = self.next_out
+            commit = self.commits.pop(k) if k in self.commits else self.commit_due(k)
+            self.commits[k] = commit                   # the barrier holds until the window is released
+            entries = self.produced.pop(k)
+            del self.values[k]
+            self.next_out += 1
+        return self.run.window(k), [entries[i] for i in sorted(entries)], commit
 
     def _oldest_complete(self) -> bool:
         """Every block has finished the oldest window not yet handed back."""
@@ -196,8 +171,13 @@ class _State:
         ahead = 1 + WINDOWS_AHEAD + max(0, SETUP_WINDOWS_AHEAD - (self.released - self.start))
         return min(behind + ahead, self.released + ahead, self.stop - 1)
 
-    def _ready(self) -> list[tuple[str, int]]:
-        """The steps whose dependencies are met, ``(block, window)`` in topological order."""
+    def launch(self, keep: str | None = None) -> tuple[str, int, dict] | None:
+        """Start every step whose dependencies are met, on the pool; but if ``keep`` (the block whose step the
+        calling thread just finished) is given, return one to run on the calling thread: that block's next one if
+        ready (a chain of windows goes on where it is), else the one furthest upstream. Called with :attr:`lock`
+        held."""
+        if self.stopped or self.crash is not None:
+            return None
         ready = []
         for name in self.p.order:
             k = self.done[name] + 1
@@ -207,69 +187,37 @@ class _State:
                 continue
             if all(self.done[u] >= k for u in self.p.upstream[name]) and self._may_start(k):
                 ready.append((name, k))
-        return ready
-
-    def _take(self, name: str, k: int) -> tuple[str, int, dict]:
-        """Step ``name`` over window ``k``, counted as running: the task, with its inputs."""
-        while self.created < k:                                  # each window's loaded values, in order
-            self.created += 1
-            self.values[self.created] = dict(self.loaded(self.created))
-            self.produced[self.created] = {}
-        self.busy.add(name)
-        self.running += 1
-        return name, k, self.p.gather(name, self.values[k])
-
-    def _next_in_serial_order(self) -> tuple[str, int, dict] | None:
-        """The ready step the serial loop would run first (oldest window, then topological order), taken."""
-        if self.stopped:
-            return None
-        ready = self._ready()
-        if not ready:
-            return None
-        name, k = min(ready, key=lambda task: (task[1], self.p.position[task[0]]))
-        return self._take(name, k)
-
-    def launch(self, keep: str | None = None) -> tuple[str, int, dict] | None:
-        """Start every step whose dependencies are met, on the pool; but if ``keep`` (the block whose step the
-        calling thread just finished) is given, return one to run on the calling thread: that block's next one if
-        ready (a chain of windows goes on where it is), else the one furthest upstream. One step at a time
-        (:attr:`solo`) it starts none: the thread that hands windows back runs them. Called with :attr:`lock`
-        held."""
-        if self.stopped or self.crash is not None or self.solo:
-            return None
-        ready = self._ready()
         if keep is not None:
             ready.sort(key=lambda task: task[0] != keep)          # stable: then in topological order
         kept = None
         for name, k in ready:
-            task = self._take(name, k)
+            while self.created < k:                                  # each window's loaded values, in order
+                self.created += 1
+                self.values[self.created] = dict(self.loaded(self.created))
+                self.produced[self.created] = {}
+            task = (name, k, self.p.gather(name, self.values[k]))
+            self.busy.add(name)
+            self.running += 1
             if keep is not None and kept is None:
                 kept = task
             else:
                 self.pool.submit(self._work, task)
         return kept
 
-    def _run(self, task: tuple[str, int, dict]) -> tuple[dict | None, BaseException | None]:
-        """Run one step: its outputs, or the error it raised (an interrupt propagates)."""
-        name, k, inputs = task
-        try:
-            with running_step():
-                return self.p.step(name, self.run.window(k), inputs), None
-        except KeyboardInterrupt:
-            raise
-        except BaseException as exc:           # noqa: BLE001 -- raised by the calling thread, in order
-            return None, exc
-
     def _work(self, task: tuple[str, int, dict] | None) -> None:
         """Run ``task``, then whatever it makes ready that this thread keeps, until nothing is left to keep."""
         try:
             while task is not None:
-                name, k = task[0], task[1]
-                outputs, error = self._run(task)
-                task = None                            # its inputs go before the next step is taken
+                name, k, inputs = task
+                outputs, error = None, None
+                try:
+                    with running_step():
+                        outputs = self.p.step(name, self.run.window(k), inputs)
+                except BaseException as exc:           # noqa: BLE001 -- raised by the calling thread, in order
+                    error = exc
+                del inputs
                 with self.lock:
                     self._harvest(name, k, outputs, error)
-                    self._adapt()
                     task = self.launch(keep=name)
                     if not self.running or self._oldest_complete():
                         self.lock.notify_all()         # the calling thread waits for nothing else (next_window)
@@ -277,13 +225,6 @@ class _State:
             with self.lock:
                 self.crash = exc
                 self.lock.notify_all()
-
-    def _adapt(self) -> bool:
-        """Read the cores the run gets as a step ends (:mod:`.core_share`), once the first window is recorded (the
-        blocks' one-time set-ups, partly on one thread, are over): whether it goes one step at a time."""
-        if self.policy is not None and self.released > self.start:
-            self.solo = self.policy.update()
-        return self.solo
 
     def _harvest(self, name: str, k: int, outputs: dict | None, error: BaseException | None) -> None:
         """Take a finished step's outputs, or note its error if it comes first in the serial order."""
