@@ -196,13 +196,21 @@ def next_crossing(step, ready, y, memorised, filtered, log_a, para, th_on, th_of
     return t
 
 
+@inline
+def _search_span(step, ready, t_change):
+    """``(j0, horizon)`` of :func:`next_crossing_known`'s search from ``step`` [steps]: the first step a crossing
+    may be taken at (the refractory period's ``ready``, at least the next step) and the last before the next change
+    ``t_change`` (at most ``J_LIMIT``). Its bound covers ``max(horizon, j0)`` steps
+    (:func:`.crossing.first_crossing_known`)."""
+    return max(ready - step, np.int64(1)), min(NEVER if t_change >= NEVER else t_change - 1 - step, J_LIMIT)
+
+
 @jit
 def next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale, t_change, leak_dt,
                         dt, large):
     """:func:`next_crossing`, also returning ``(j, a^j, relaxation)`` from its bound (:func:`.crossing.first_crossing_known`)."""
     drift = (leak_dt * noise_scale + para * dt) * th_on
-    j0 = max(ready - step, np.int64(1))
-    horizon = NEVER if t_change >= NEVER else t_change - 1 - step
+    j0, horizon = _search_span(step, ready, t_change)
     j, _, j_known, known, relaxed = first_crossing_known(j0, y - memorised, filtered - y, log_a, drift,
                                                          th_on - TOLERANCE, th_off - TOLERANCE, horizon, large)
     return (NEVER if j >= NEVER else step + j), j_known, known, relaxed
@@ -222,14 +230,13 @@ def _schedule_before(step, ready, y, memorised, filtered, log_a, para, th_on, th
     Where the search's own bound would be this one (``last`` is the step before the next change, the usual
     case), the search starts from it (:func:`.crossing.search_crossing`) instead of taking it again.
     """
-    j0 = max(ready - step, np.int64(1))
+    j0, horizon = _search_span(step, ready, t_change)                   # next_crossing_known's
     j_max = max(last - step, j0)
     drift = (leak_dt * noise_scale + para * dt) * th_on
     c, d, on, off = y - memorised, filtered - y, th_on - TOLERANCE, th_off - TOLERANCE
     holds, retention, relaxed = band_bound(j_max, c, d, log_a, drift, on, off, large)
     if holds:
         return LATER, j_max, retention, relaxed
-    horizon = min(NEVER if t_change >= NEVER else t_change - 1 - step, J_LIMIT)      # next_crossing_known's
     if max(horizon, j0) != j_max:
         return next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
                                    t_change, leak_dt, dt, large)
@@ -553,8 +560,7 @@ def run_pixels(real, count, next_step, wake, envelope, pixels, change_lo, change
             elif lazy and t_change >= NEVER:
                 cmp_next = kept_schedule(step, ready, y, memorised, filtered, log_a, para, th_on, th_off, noise_scale,
                                          leak_dt, dt, large)
-            elif shown == max(min(NEVER if t_change >= NEVER else t_change - 1 - step, J_LIMIT),
-                              max(ready - step, np.int64(1))):
+            elif shown == max(_search_span(step, ready, t_change)):
                 cmp_next = NEVER        # the bound that held was the search's own (first_crossing_known): none
             else:
                 cmp_next = next_crossing_known(step, ready, y, memorised, filtered, log_a, para, th_on, th_off,
